@@ -1,0 +1,5 @@
+"""Hardware-in-the-loop runtime for feed drives of large, compliant machine tools."""
+from .config import Config, ConfigError, load, loads
+from .units import UnitError, parse
+
+__version__ = "0.1.0"

@@ -1,0 +1,447 @@
+"""Axis configuration: TOML files, validated against one schema, addressed by dotted names.
+
+Every parameter has a dotted name (``plant.c2``, ``control.kv``) used to read it, to override it
+from the command line (``--set plant.c2=33``) and to re-identify it (``parameter:plant.c2``).
+Values are stored in SI; files may write them with units (``"10 mm"``).
+
+The schema is data (:data:`SCHEMA`), so that validation, the documentation in
+``config/SCHEMA.md`` and the command line all read the same table. Backends and plant effects add
+their own sections through :func:`register_section`.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from .units import SI_UNIT, UnitError, parse
+
+__all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section",
+           "parse_assignment", "schema_markdown"]
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used; the message names the file, the key and what was expected."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One configuration key.
+
+    ``kind`` is a unit kind of :mod:`hil.units`, or ``"str"``, ``"int"``, ``"bool"``,
+    ``"floats"`` (a list of plain numbers). It may also be a callable ``kind(values) -> str``
+    when the kind depends on another key (torque for a rotary actuator, force for a linear one).
+    """
+    kind: Any
+    doc: str
+    default: Any = None
+    required: bool = False
+    choices: tuple = ()
+    positive: bool = False          # strictly > 0
+    nonnegative: bool = False       # >= 0
+
+    def kind_for(self, values: dict) -> str:
+        return self.kind(values) if callable(self.kind) else self.kind
+
+
+def _rotary(values: dict) -> bool:
+    return values.get("actuator.type", "rotary") == "rotary"
+
+
+def _torque_or_force(values):
+    return "torque" if _rotary(values) else "force"
+
+
+def _rot_or_lin_damping(values):
+    return "rot_damping" if _rotary(values) else "damping"
+
+
+def _output_kind(values):
+    return "torque" if _rotary(values) else "voltage"
+
+
+def _velocity_gain_kind(values):
+    return "rot_damping" if _rotary(values) else "volt_per_speed"
+
+
+# Keys of the chain that are numbered: plant.m1..mN, plant.k1..k(N-1), plant.c1..c(N-1).
+_NUMBERED = {"m": ("mass", "mass {i} of the chain (1: motor reflected to the load side)"),
+             "k": ("stiffness", "stiffness between mass {i} and mass {j}"),
+             "c": ("damping", "damping between mass {i} and mass {j}")}
+_NUMBERED_RE = re.compile(r"^plant\.([mkc])([1-9][0-9]*)$")
+
+SCHEMA: dict[str, Field] = {
+    # --- plant: the lumped chain ---------------------------------------------------------
+    "plant.pitch": Field("length", "screw pitch p (lead per motor revolution); required for a rotary actuator",
+                         positive=True),
+    "plant.m*": Field("mass", "plant.m1 .. plant.mN: masses of the chain, motor first (m1 = J_m (2 pi/p)^2)",
+                      positive=True),
+    "plant.k*": Field("stiffness", "plant.k1 .. plant.k(N-1): stiffness between mass i and i+1", positive=True),
+    "plant.c*": Field("damping", "plant.c1 .. plant.c(N-1): damping between mass i and i+1", nonnegative=True),
+    "plant.table_mass": Field("int", "which mass carries the linear encoder (x_table); 0 = mass 2, or mass 1 "
+                              "for a 1-dof chain", default=0, nonnegative=True),
+    "plant.tip_mass": Field("int", "which mass is the tool tip (x_tip); 0 = the last mass", default=0,
+                            nonnegative=True),
+    # --- friction on the motor (Eq. 11) ----------------------------------------------------
+    "friction.viscous": Field(_rot_or_lin_damping, "viscous friction on the motor, c_m (Eq. 11)", default=0.0,
+                              nonnegative=True),
+    "friction.coulomb": Field(_torque_or_force, "Coulomb (sliding) friction level on the motor, tau_fc",
+                              default=0.0, nonnegative=True),
+    "friction.static": Field(_torque_or_force, "break-away (stiction) level; default: the Coulomb level",
+                             default=None, nonnegative=True),
+    # --- actuator ----------------------------------------------------------------------------
+    "actuator.type": Field("str", "rotary: a motor turning a screw (the controller outputs torque); "
+                           "linear: a force actuator (the controller outputs a command, force = gain x command)",
+                           default="rotary", choices=("rotary", "linear")),
+    "actuator.gain": Field("force_per_volt", "linear actuator: force per unit of controller output (N/V)",
+                           default=None, positive=True),
+    "actuator.current_loop_time_constant": Field("time", "first-order lag of the current loop; 0 = ideal",
+                                                 default=0.0, nonnegative=True),
+    # --- control -----------------------------------------------------------------------------
+    "control.position_period": Field("time", "position-loop period Tp", required=True, positive=True),
+    "control.velocity_period": Field("time", "velocity-loop period Tv (Tp must be a whole multiple)",
+                                     required=True, positive=True),
+    "control.kv": Field("frequency", "position-loop P gain Kv (1/s)", required=True, nonnegative=True),
+    "control.ffv": Field("dimensionless", "velocity feed-forward, fraction of the interpolator velocity",
+                         default=1.0, nonnegative=True),
+    "control.position_feedback": Field("str", "position-loop feedback: the linear encoder (table) or the motor "
+                                       "encoder", default="table", choices=("table", "motor")),
+    "control.kp": Field(_velocity_gain_kind, "velocity-loop proportional gain Kp", required=True,
+                        nonnegative=True),
+    "control.ti": Field("time", "velocity-loop integral time Ti; \"inf\" = P only", default=math.inf,
+                        positive=True),
+    "control.velocity_feedback": Field("str", "velocity-loop feedback: the measured motor speed, or a backward "
+                                       "difference of the filtered motor position", default="motor_speed",
+                                       choices=("motor_speed", "position_difference")),
+    "control.velocity_filter": Field("floats", "FIR taps on the motor position before the difference "
+                                     "(position_difference only), newest first", default=[1.0]),
+    "control.output_delay": Field("int", "computation delay of the velocity-loop output, in velocity periods",
+                                  default=0, nonnegative=True),
+    "control.output_limit": Field(_output_kind, "saturation of the velocity-loop output (torque for a rotary "
+                                  "actuator, command for a linear one)", required=True, positive=True),
+    "control.acc_ff": Field("dimensionless", "acceleration (torque) feed-forward, fraction of the total "
+                            "reflected inertia times the commanded acceleration", default=0.0, nonnegative=True),
+    # --- axis limits (checked before motion, monitored during it) --------------------------
+    "limits.travel_min": Field("length", "lower software travel limit", required=True),
+    "limits.travel_max": Field("length", "upper software travel limit", required=True),
+    "limits.speed": Field("speed", "largest commanded speed", required=True, positive=True),
+    "limits.acceleration": Field("acceleration", "largest commanded acceleration", required=True, positive=True),
+    "limits.jerk": Field("jerk", "largest commanded jerk", required=True, positive=True),
+    "limits.torque": Field(_output_kind, "largest motor torque (rotary) or controller output (linear)",
+                           default=None, positive=True),
+    "limits.following_error_table": Field("length", "following-error window at the table", default=None,
+                                          positive=True),
+    "limits.following_error_tip": Field("length", "following-error window at the tool tip (where measured)",
+                                        default=None, positive=True),
+    # --- NC ------------------------------------------------------------------------------------
+    "nc.g0": Field("speed", "rapid (G00) speed, the reference for the acceleration time t_acc", default=None,
+                   positive=True),
+    # --- sensors (what the controller and the recorder see) ----------------------------------
+    "sensors.table_resolution": Field("length", "linear-encoder quantum; 0 = ideal", default=0.0,
+                                      nonnegative=True),
+    "sensors.motor_resolution": Field("length", "motor-encoder quantum in linear units; 0 = ideal", default=0.0,
+                                      nonnegative=True),
+    # --- backend -------------------------------------------------------------------------------
+    "backend.type": Field("str", "sim (embedded plant model), canopen, serial", default="sim"),
+    "meta.name": Field("str", "a name for the axis", default=""),
+    "meta.description": Field("str", "free text", default=""),
+}
+
+# Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
+_SECTIONS: dict[str, Callable[[str], Field | None]] = {}
+
+
+def register_section(prefix: str, lookup: Callable[[str], Field | None]) -> None:
+    """Let a backend or an effect catalogue own the keys below ``prefix`` (e.g. ``"canopen"``)."""
+    _SECTIONS[prefix] = lookup
+
+
+def _field_for(key: str) -> Field | None:
+    if key in SCHEMA:
+        return SCHEMA[key]
+    m = _NUMBERED_RE.match(key)
+    if m:
+        return SCHEMA[f"plant.{m.group(1)}*"]
+    head = key.split(".", 1)[0]
+    if head in _SECTIONS:
+        return _SECTIONS[head](key)
+    return None
+
+
+def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in table.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, name + "."))
+        else:
+            out[name] = v
+    return out
+
+
+def _known_in_section(section: str) -> str:
+    names = sorted(k for k in SCHEMA if k.startswith(section + "."))
+    return ", ".join(n.replace("*", "N") for n in names)
+
+
+def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
+    kind = f.kind_for(values)
+    what = f"{where}: {key}"
+    if kind == "str":
+        if not isinstance(raw, str):
+            raise ConfigError(f"{what}: expected a string, got {raw!r}")
+        if f.choices and raw not in f.choices:
+            raise ConfigError(f"{what}: expected one of {', '.join(f.choices)}, got {raw!r}")
+        return raw
+    if kind == "bool":
+        if not isinstance(raw, bool):
+            raise ConfigError(f"{what}: expected true or false, got {raw!r}")
+        return raw
+    if kind == "int":
+        if isinstance(raw, bool) or not isinstance(raw, int):
+            raise ConfigError(f"{what}: expected a whole number, got {raw!r}")
+        if f.nonnegative and raw < 0:
+            raise ConfigError(f"{what}: expected a whole number >= 0, got {raw!r}")
+        return raw
+    if kind == "floats":
+        if not isinstance(raw, list) or not raw or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in raw):
+            raise ConfigError(f"{what}: expected a non-empty list of numbers, got {raw!r}")
+        return [float(x) for x in raw]
+    try:
+        value = parse(raw, kind, what)
+    except UnitError as exc:
+        raise ConfigError(str(exc)) from None
+    unit = SI_UNIT[kind]
+    if f.positive and not value > 0:
+        raise ConfigError(f"{what}: expected a positive {kind} ({unit}), got {raw!r}")
+    if f.nonnegative and not value >= 0:
+        raise ConfigError(f"{what}: expected a {kind} >= 0 ({unit}), got {raw!r}")
+    return value
+
+
+class Config:
+    """A validated configuration: SI values by dotted name, and where they came from."""
+
+    def __init__(self, values: dict[str, Any], source: str = "<config>"):
+        self.values = values
+        self.source = source
+
+    # -- access ------------------------------------------------------------------------------
+    def __getitem__(self, key: str) -> Any:
+        if key not in self.values:
+            raise KeyError(f"{self.source}: no parameter {key!r}")
+        return self.values[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        v = self.values.get(key, default)
+        return default if v is None else v
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.values and self.values[key] is not None
+
+    def keys(self):
+        return self.values.keys()
+
+    def section(self, prefix: str) -> dict[str, Any]:
+        """The keys below ``prefix.``, without the prefix."""
+        n = len(prefix) + 1
+        return {k[n:]: v for k, v in self.values.items() if k.startswith(prefix + ".")}
+
+    @property
+    def n_masses(self) -> int:
+        return sum(1 for k in self.values if re.fullmatch(r"plant\.m[0-9]+", k))
+
+    @property
+    def rotary(self) -> bool:
+        return self.values.get("actuator.type", "rotary") == "rotary"
+
+    # -- change --------------------------------------------------------------------------------
+    def with_values(self, changes: dict[str, Any], source: str | None = None) -> "Config":
+        """A new config with ``changes`` (raw values, with or without units) applied and validated."""
+        raw = {k: v for k, v in self.values.items() if v is not None}
+        for k, v in changes.items():
+            if v is None:
+                raw.pop(k, None)
+            else:
+                raw[k] = v
+        return _validate(raw, source or self.source)
+
+    def without(self, prefix: str) -> "Config":
+        raw = {k: v for k, v in self.values.items() if not k.startswith(prefix) and v is not None}
+        return _validate(raw, self.source)
+
+    def to_toml(self) -> str:
+        """TOML text of this configuration, SI values with their unit written out."""
+        sections: dict[str, list[str]] = {}
+        for key, value in self.values.items():
+            if value is None:
+                continue
+            sect, _, name = key.rpartition(".")
+            f = _field_for(key)
+            sections.setdefault(sect, []).append(f"{name} = {_toml_value(value, f, self.values)}")
+        lines = []
+        for sect, rows in sections.items():
+            lines.append(f"[{sect}]")
+            lines.extend(rows)
+            lines.append("")
+        return "\n".join(lines)
+
+
+def _toml_value(value, f: Field | None, values: dict) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v, None, values) for v in value) + "]"
+    if isinstance(value, float):
+        kind = f.kind_for(values) if f else "dimensionless"
+        unit = SI_UNIT.get(kind, "1") if isinstance(kind, str) else "1"
+        if math.isinf(value):
+            return '"inf"'
+        text = repr(value)
+        return text if unit == "1" else f'"{text} {unit}"'
+    return repr(value)
+
+
+def _validate(raw: dict[str, Any], where: str) -> Config:
+    values: dict[str, Any] = {}
+    # actuator.type first: other kinds depend on it
+    if "actuator.type" in raw:
+        values["actuator.type"] = _convert("actuator.type", raw["actuator.type"], SCHEMA["actuator.type"], {}, where)
+    for key, value in raw.items():
+        f = _field_for(key)
+        if f is None:
+            section = key.split(".", 1)[0] if "." in key else ""
+            known = _known_in_section(section) if section else ""
+            hint = f" (known keys in [{section}]: {known})" if known else ""
+            raise ConfigError(f"{where}: unknown key {key!r}{hint}")
+        if key == "actuator.type":
+            continue
+        values[key] = _convert(key, value, f, values, where)
+    # defaults and required keys
+    for key, f in SCHEMA.items():
+        if "*" in key:
+            continue
+        if key not in values:
+            if f.required:
+                kind = f.kind_for(values)
+                unit = SI_UNIT.get(kind, kind)
+                raise ConfigError(f"{where}: missing required key {key!r} ({f.doc}; a {kind} in {unit})")
+            values[key] = copy.deepcopy(f.default)
+    _check_chain(values, where)
+    _check_consistency(values, where)
+    return Config(values, where)
+
+
+def _check_chain(values: dict, where: str) -> None:
+    idx = {c: sorted(int(m.group(2)) for k in values if (m := _NUMBERED_RE.match(k)) and m.group(1) == c)
+           for c in "mkc"}
+    n = len(idx["m"])
+    if n == 0:
+        raise ConfigError(f"{where}: missing required key 'plant.m1' (the chain needs at least one mass, in kg)")
+    for c, count in (("m", n), ("k", n - 1), ("c", n - 1)):
+        want = list(range(1, count + 1))
+        if idx[c] != want:
+            missing = [f"plant.{c}{i}" for i in want if i not in idx[c]]
+            extra = [f"plant.{c}{i}" for i in idx[c] if i not in want]
+            if missing:
+                raise ConfigError(f"{where}: missing required key {missing[0]!r} (a chain of {n} masses needs "
+                                  f"{c}1..{c}{count}; {_NUMBERED[c][0]})")
+            raise ConfigError(f"{where}: unknown key {extra[0]!r} (a chain of {n} masses has {c}1..{c}{count})")
+    for name, key in (("table", "plant.table_mass"), ("tip", "plant.tip_mass")):
+        if values[key] > n:
+            raise ConfigError(f"{where}: {key}: expected a mass number 1..{n} (or 0 for the default), "
+                              f"got {values[key]}")
+
+
+def _check_consistency(values: dict, where: str) -> None:
+    rotary = values["actuator.type"] == "rotary"
+    if rotary and values.get("plant.pitch") is None:
+        raise ConfigError(f"{where}: missing required key 'plant.pitch' (a rotary actuator needs the screw pitch, "
+                          f"a length in m, e.g. \"10 mm\")")
+    if not rotary and values.get("actuator.gain") is None:
+        raise ConfigError(f"{where}: missing required key 'actuator.gain' (a linear actuator needs its force "
+                          f"per unit of controller output, in N/V)")
+    tp, tv = values["control.position_period"], values["control.velocity_period"]
+    ratio = tp / tv
+    if abs(ratio - round(ratio)) > 1e-6 * ratio or round(ratio) < 1:
+        raise ConfigError(f"{where}: control.position_period: expected a whole multiple of "
+                          f"control.velocity_period ({tv:g} s), got {tp:g} s (ratio {ratio:.6g})")
+    if values["limits.travel_min"] >= values["limits.travel_max"]:
+        raise ConfigError(f"{where}: limits.travel_min: expected less than limits.travel_max "
+                          f"({values['limits.travel_max']:g} m), got {values['limits.travel_min']:g} m")
+    if values["friction.static"] is not None and values["friction.static"] < values["friction.coulomb"]:
+        raise ConfigError(f"{where}: friction.static: expected at least friction.coulomb "
+                          f"({values['friction.coulomb']:g}), got {values['friction.static']:g}")
+
+
+def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None = None) -> Config:
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+    raw = _flatten(table)
+    if overrides:
+        for k, v in overrides.items():
+            if _field_for(k) is None:
+                raise ConfigError(f"--set {k}: unknown key {k!r} (not a parameter of {source})")
+            raw[k] = v
+    return _validate(raw, source)
+
+
+def load(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
+    """Read and validate a TOML configuration file; ``overrides`` are ``--set`` values."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such configuration file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a UTF-8 text file") from None
+    return loads(text, str(path), overrides)
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """``"plant.c2=33"`` or ``"plant.c2=33 N*s/m"`` -> ("plant.c2", value)."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. plant.c2=33")
+    key, _, value = text.partition("=")
+    key, value = key.strip(), value.strip()
+    try:
+        parsed = tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value
+    return key, parsed
+
+
+def schema_markdown() -> str:
+    """The documentation table of every key (written to config/SCHEMA.md)."""
+    rows = ["| key | kind (SI unit) | default | meaning |", "|---|---|---|---|"]
+    for key, f in SCHEMA.items():
+        if callable(f.kind):
+            kind = f"{f.kind({'actuator.type': 'rotary'})} / {f.kind({'actuator.type': 'linear'})}"
+            unit = f"{SI_UNIT[f.kind({'actuator.type': 'rotary'})]} / {SI_UNIT[f.kind({'actuator.type': 'linear'})]}"
+        else:
+            kind, unit = f.kind, SI_UNIT.get(f.kind, "")
+        if f.required:
+            default = "required"
+        elif f.default is None:
+            default = "none"
+        elif isinstance(f.default, float) and math.isinf(f.default):
+            default = "inf"
+        else:
+            default = repr(f.default)
+        choices = f" One of: {', '.join(f.choices)}." if f.choices else ""
+        rows.append(f"| `{key.replace('*', 'N')}` | {kind} ({unit}) | {default} | {f.doc}.{choices} |"
+                    .replace(" () |", " |"))
+    return "\n".join(rows) + "\n"
