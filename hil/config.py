@@ -11,6 +11,7 @@ their own sections through :func:`register_section`.
 from __future__ import annotations
 
 import copy
+import importlib
 import math
 import re
 import tomllib
@@ -153,6 +154,8 @@ SCHEMA: dict[str, Field] = {
 
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {}
+# The module that registers each such section, imported the first time one of its keys is read.
+SECTION_PROVIDERS = {"effects": "sim_plant.effects"}
 
 
 def register_section(prefix: str, lookup: Callable[[str], Field | None]) -> None:
@@ -167,6 +170,8 @@ def _field_for(key: str) -> Field | None:
     if m:
         return SCHEMA[f"plant.{m.group(1)}*"]
     head = key.split(".", 1)[0]
+    if head not in _SECTIONS and head in SECTION_PROVIDERS:
+        importlib.import_module(SECTION_PROVIDERS[head])     # registers the section
     if head in _SECTIONS:
         return _SECTIONS[head](key)
     return None

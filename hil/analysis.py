@@ -1,0 +1,97 @@
+"""Figures of a point-to-point move: overshoot, following errors, settling, residual vibration.
+
+Overshoot is the largest excursion past the final target in the direction of motion over the
+whole move and the dwell after it, floored at 0 (at high jerk the table can pass the target
+before the command ends, so the whole record counts, not only the time after the command).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["overshoot", "settling_time", "residual_amplitude", "MoveFigures", "move_figures"]
+
+
+def overshoot(x, target: float, direction: float) -> float:
+    """Largest excursion of ``x`` past ``target`` in ``direction`` (+1 or -1), floored at 0."""
+    x = np.asarray(x, float)
+    if direction == 0 or x.size == 0:
+        return 0.0
+    return float(max(0.0, np.max((x - target) * np.sign(direction))))
+
+
+def settling_time(t, x, target: float, band: float, t_end_cmd: float) -> float | None:
+    """Time after the end of the command until ``x`` stays within ``target +- band``; None if it
+    never settles within the record."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    outside = np.abs(x - target) > band
+    after = t >= t_end_cmd - 1e-12
+    idx = np.flatnonzero(outside & after)
+    if idx.size == 0:
+        return 0.0
+    last = idx[-1]
+    if last >= len(t) - 1:
+        return None
+    return float(t[last + 1] - t_end_cmd)
+
+
+def residual_amplitude(t, x, target: float, t_end_cmd: float) -> float:
+    """Half the peak-to-peak motion of ``x`` about the target after the command has ended."""
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    sel = t >= t_end_cmd
+    if not np.any(sel):
+        return 0.0
+    d = x[sel] - target
+    return float(0.5 * (d.max() - d.min()))
+
+
+@dataclass
+class MoveFigures:
+    """What a drive engineer reads off one move (SI, except the *_um fields)."""
+    overshoot_table_um: float
+    overshoot_tip_um: float
+    peak_following_error_table_um: float
+    peak_following_error_tip_um: float
+    residual_tip_um: float
+    settling_time_table: float | None
+    settling_time_tip: float | None
+    peak_torque: float
+    j_max: float
+    a_max: float
+    peak_speed: float
+    t_acc: float | None
+    settle_band_um: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def move_figures(t, x_cmd, x_table, x_tip, u, move, t_start: float = 0.0, t_end: float | None = None,
+                 band: float = 1e-6) -> MoveFigures:
+    """Figures of ``move`` (a planned SineSquareMove starting at ``t_start``) from a record.
+
+    ``t_end``: end of the window examined (the next move's start, or the record's end)."""
+    t = np.asarray(t, float)
+    t_end = t[-1] if t_end is None else t_end
+    sel = (t >= t_start - 1e-12) & (t <= t_end + 1e-12)
+    tt = t[sel]
+    target = move.end
+    d = move.direction
+    t_cmd_end = t_start + move.duration
+    spec = move.spec
+    return MoveFigures(
+        overshoot_table_um=overshoot(np.asarray(x_table)[sel], target, d) * 1e6,
+        overshoot_tip_um=overshoot(np.asarray(x_tip)[sel], target, d) * 1e6,
+        peak_following_error_table_um=float(np.max(np.abs(np.asarray(x_cmd)[sel] - np.asarray(x_table)[sel]))) * 1e6,
+        peak_following_error_tip_um=float(np.max(np.abs(np.asarray(x_cmd)[sel] - np.asarray(x_tip)[sel]))) * 1e6,
+        residual_tip_um=residual_amplitude(tt, np.asarray(x_tip)[sel], target, t_cmd_end) * 1e6,
+        settling_time_table=settling_time(tt, np.asarray(x_table)[sel], target, band, t_cmd_end),
+        settling_time_tip=settling_time(tt, np.asarray(x_tip)[sel], target, band, t_cmd_end),
+        peak_torque=float(np.max(np.abs(np.asarray(u)[sel]))) if np.size(u) else 0.0,
+        j_max=move.j_max, a_max=move.a_max, peak_speed=move.peak_speed,
+        t_acc=(spec.t_acc if spec is not None and spec.t_acc is not None else
+               (spec.g0 * np.pi / (2 * move.a_max) if spec is not None and spec.g0 else None)),
+        settle_band_um=band * 1e6)

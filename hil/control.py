@@ -1,0 +1,165 @@
+"""The cascade control law, written once: the compiled simulator and the real-time loop both call
+these functions (numba-compiled, callable from Python too).
+
+Reference order (the project's; see the runtime issue):
+
+* Position loop every Tp, tick k at t_k = k Tp: read the table position x2;
+  v_ref = Kv (x_cmd[k] - x2) + FFV (x_cmd[k+1] - x_cmd[k]) / Tp; w_ref = v_ref 2 pi / p, held
+  until the next tick. The feed-forward is the interpolator's velocity for the coming period.
+* Velocity loop every Tv, aligned with the position ticks: e = w_ref - w_motor;
+  I = I + e Tv unless the previous output saturated (conditional-integration anti-windup);
+  u = Kp (e + I / Ti) (+ acceleration feed-forward); u limited to +-u_max and held over the step.
+
+The controller's settings and state are small float arrays (index constants below) so that the
+same functions run inside compiled loops without Python objects.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+from numba import njit
+
+__all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
+           "new_velocity_state", "measured_speed", "quantize", "P", "S"]
+
+
+class P(IntEnum):
+    """Indices into the settings array (IntEnum: numba reads them as constants)."""
+    TP = 0
+    TV = 1
+    KV = 2
+    FFV = 3
+    KP = 4
+    TI = 5
+    ULIM = 6
+    SPEED_SCALE = 7
+    ACC_FF = 8
+    N_TAPS = 9
+    TAPS = 10            # taps follow, newest sample first (at most MAX_TAPS)
+    MAX_TAPS = 8
+    SIZE = 18
+
+
+class S(IntEnum):
+    """Indices into the velocity-loop state array."""
+    INTEGRAL = 0
+    SATURATED = 1
+    QF_PREV = 2
+    HAVE_PREV = 3
+    HIST = 4             # motor position history, newest first (MAX_TAPS values)
+    SIZE = 12
+
+
+@dataclass(frozen=True)
+class ControllerSettings:
+    """Settings of the cascade (SI; speeds of the velocity loop in controller units: rad/s of the
+    motor for a rotary drive, m/s for a linear actuator)."""
+    position_period: float
+    velocity_period: float
+    kv: float
+    ffv: float
+    kp: float
+    ti: float
+    output_limit: float
+    speed_scale: float
+    acc_ff: float = 0.0                  # output per (m/s^2) of commanded acceleration
+    position_feedback: str = "table"     # table | motor
+    velocity_feedback: str = "motor_speed"   # motor_speed | position_difference
+    velocity_filter: tuple = (1.0,)
+    output_delay: int = 0                # velocity periods
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.position_period / self.velocity_period))
+
+    def as_array(self) -> np.ndarray:
+        if len(self.velocity_filter) > P.MAX_TAPS:
+            raise ValueError(f"control.velocity_filter: at most {P.MAX_TAPS} taps, got {len(self.velocity_filter)}")
+        a = np.zeros(P.SIZE)
+        a[P.TP], a[P.TV], a[P.KV], a[P.FFV] = self.position_period, self.velocity_period, self.kv, self.ffv
+        a[P.KP], a[P.TI], a[P.ULIM] = self.kp, self.ti, self.output_limit
+        a[P.SPEED_SCALE], a[P.ACC_FF] = self.speed_scale, self.acc_ff
+        taps = self.velocity_filter if self.velocity_feedback == "position_difference" else ()
+        a[P.N_TAPS] = len(taps)
+        a[P.TAPS:P.TAPS + len(taps)] = taps
+        return a
+
+
+def controller_from_config(cfg, plant) -> ControllerSettings:
+    """Controller settings of a config for a plant (the plant gives the speed and force scales)."""
+    # acceleration feed-forward: a fraction of the total reflected inertia, as controller output
+    acc_ff = cfg.get("control.acc_ff", 0.0) * plant.total_mass / plant.force_gain
+    return ControllerSettings(
+        position_period=cfg["control.position_period"], velocity_period=cfg["control.velocity_period"],
+        kv=cfg["control.kv"], ffv=cfg.get("control.ffv", 1.0), kp=cfg["control.kp"],
+        ti=cfg.get("control.ti", math.inf), output_limit=cfg["control.output_limit"],
+        speed_scale=plant.speed_scale, acc_ff=acc_ff,
+        position_feedback=cfg.get("control.position_feedback", "table"),
+        velocity_feedback=cfg.get("control.velocity_feedback", "motor_speed"),
+        velocity_filter=tuple(cfg.get("control.velocity_filter", [1.0])),
+        output_delay=int(cfg.get("control.output_delay", 0)))
+
+
+@njit(cache=True)
+def position_law(p, x_cmd_k, x_cmd_next, x_feedback):
+    """Speed reference of the velocity loop (controller units) at a position tick."""
+    v_ref = p[P.KV] * (x_cmd_k - x_feedback) + p[P.FFV] * (x_cmd_next - x_cmd_k) / p[P.TP]
+    return v_ref * p[P.SPEED_SCALE]
+
+
+@njit(cache=True)
+def new_velocity_state():
+    return np.zeros(12)  # S.SIZE
+
+
+@njit(cache=True)
+def measured_speed(p, s, v_motor, x_motor):
+    """The speed the velocity loop sees: the motor's speed, or the backward difference of the
+    FIR-filtered motor position (then the history in ``s`` advances)."""
+    n = int(p[P.N_TAPS])
+    if n == 0:
+        return v_motor * p[P.SPEED_SCALE]
+    for i in range(n - 1, 0, -1):
+        s[S.HIST + i] = s[S.HIST + i - 1]
+    s[S.HIST] = x_motor
+    if s[S.HAVE_PREV] == 0.0:       # first sample: fill the history, no speed yet
+        for i in range(1, n):
+            s[S.HIST + i] = x_motor
+    qf = 0.0
+    for i in range(n):
+        qf += p[P.TAPS + i] * s[S.HIST + i]
+    w = 0.0
+    if s[S.HAVE_PREV] != 0.0:
+        w = (qf - s[S.QF_PREV]) / p[P.TV] * p[P.SPEED_SCALE]
+    s[S.QF_PREV] = qf
+    s[S.HAVE_PREV] = 1.0
+    return w
+
+
+@njit(cache=True)
+def velocity_law(p, s, w_ref, w_meas, a_cmd):
+    """One velocity-loop step: the (limited) controller output, torque or command."""
+    e = w_ref - w_meas
+    if s[S.SATURATED] == 0.0:
+        s[S.INTEGRAL] += e * p[P.TV]
+    u = p[P.KP] * (e + s[S.INTEGRAL] / p[P.TI]) + p[P.ACC_FF] * a_cmd
+    lim = p[P.ULIM]
+    if u > lim:
+        u = lim
+        s[S.SATURATED] = 1.0
+    elif u < -lim:
+        u = -lim
+        s[S.SATURATED] = 1.0
+    else:
+        s[S.SATURATED] = 0.0
+    return u
+
+
+@njit(cache=True)
+def quantize(x, q):
+    if q > 0.0:
+        return q * math.floor(x / q + 0.5)
+    return x

@@ -1,0 +1,233 @@
+"""The project's measurement file format: CSV with units in the header.
+
+::
+
+    # sample_period = 0.004 s
+    # config = config/paper_bench.toml
+    t [s],x_cmd [mm],x_motor [mm],x_table [mm],x_tip [mm],torque [N*m]
+    0,0,0,0,0,0
+    ...
+
+Optional ``#`` comment lines first (``key = value`` metadata), then one header row whose names
+carry their unit in brackets. Channels: ``t`` and ``x_cmd`` are required; ``v_cmd``,
+``x_motor``, ``x_table``, ``x_tip``, ``torque``, ``force``, ``command``, ``e_table``, ``e_tip`` are
+known; unknown channels are kept and ignored. Everything is converted to SI on reading.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Measurement", "MeasurementError", "read", "write", "CHANNELS", "UNITS", "header_name"]
+
+
+class MeasurementError(ValueError):
+    """A measurement file that cannot be used; the message names the file, the line or column."""
+
+
+# unit text -> (quantity kind, factor to SI)
+UNITS = {
+    "s": ("time", 1.0), "ms": ("time", 1e-3),
+    "m": ("length", 1.0), "mm": ("length", 1e-3), "um": ("length", 1e-6), "µm": ("length", 1e-6),
+    "m/s": ("speed", 1.0), "mm/s": ("speed", 1e-3), "mm/min": ("speed", 1e-3 / 60), "m/min": ("speed", 1 / 60),
+    "N*m": ("torque", 1.0), "N m": ("torque", 1.0), "Nm": ("torque", 1.0),
+    "N": ("force", 1.0), "V": ("voltage", 1.0), "1": ("dimensionless", 1.0),
+    "rad": ("angle", 1.0), "rad/s": ("angular_speed", 1.0),
+}
+
+# known channels -> expected kind
+CHANNELS = {
+    "t": "time", "x_cmd": "length", "v_cmd": "speed", "x_motor": "length", "x_table": "length",
+    "x_tip": "length", "torque": "torque", "force": "force", "command": "voltage",
+    "e_table": "length", "e_tip": "length",
+}
+REQUIRED = ("t", "x_cmd")
+
+# the unit the writer uses per kind
+WRITE_UNIT = {"time": "s", "length": "mm", "speed": "mm/s", "torque": "N*m", "force": "N", "voltage": "V",
+              "dimensionless": "1", "angle": "rad", "angular_speed": "rad/s"}
+
+_HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[([^\]]*)\])?\s*$")
+
+
+@dataclass
+class Measurement:
+    """Channels in SI by name, the metadata of the comment lines, and where it came from."""
+    channels: dict[str, np.ndarray]
+    meta: dict[str, str] = field(default_factory=dict)
+    source: str = "<measurement>"
+    units: dict[str, str] = field(default_factory=dict)   # as written in the file
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.channels[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.channels
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.channels["t"]
+
+    @property
+    def sample_period(self) -> float:
+        return float(np.median(np.diff(self.t)))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def header_name(name: str, kind: str | None = None) -> str:
+    kind = kind or CHANNELS.get(name, "dimensionless")
+    return f"{name} [{WRITE_UNIT[kind]}]"
+
+
+def _kind_of(name: str, unit: str | None, where: str) -> tuple[str, float]:
+    if unit is None or unit.strip() == "":
+        if name in CHANNELS and CHANNELS[name] != "dimensionless":
+            raise MeasurementError(f"{where}: column {name!r} has no unit in brackets (e.g. "
+                                   f"'{header_name(name)}')")
+        return "dimensionless", 1.0
+    u = unit.strip()
+    if u not in UNITS:
+        raise MeasurementError(f"{where}: column {name!r}: unknown unit [{u}] (known: {', '.join(UNITS)})")
+    kind, factor = UNITS[u]
+    want = CHANNELS.get(name)
+    if want is not None and kind != want:
+        raise MeasurementError(f"{where}: column {name!r}: unit [{u}] is a {kind}, expected a {want} "
+                               f"(e.g. [{WRITE_UNIT[want]}])")
+    return kind, factor
+
+
+def read(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement:
+    """Read a measurement file (SI on return). ``mapping`` renames columns (``{"pos": "x_table"}``)
+    and may give a unit for columns that have none (``{"pos": "x_table [mm]"}``)."""
+    path = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise MeasurementError(f"{path}: no such file") from None
+    except UnicodeDecodeError:
+        raise MeasurementError(f"{path}: not a UTF-8 text file") from None
+    return parse_text(text, path, mapping)
+
+
+def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None = None) -> Measurement:
+    lines = text.splitlines()
+    meta: dict[str, str] = {}
+    i = 0
+    while i < len(lines) and (lines[i].startswith("#") or not lines[i].strip()):
+        body = lines[i][1:].strip() if lines[i].startswith("#") else ""
+        if "=" in body:
+            k, _, v = body.partition("=")
+            meta[k.strip()] = v.strip()
+        i += 1
+    if i >= len(lines):
+        raise MeasurementError(f"{source}: no header line (expected e.g. 't [s],x_cmd [mm],x_table [mm]')")
+    header_line = i + 1
+    header = next(csv.reader([lines[i]]))
+    names, factors, units = [], [], {}
+    mapping = mapping or {}
+    for col, cell in enumerate(header):
+        m = _HEADER.match(cell)
+        if not m:
+            raise MeasurementError(f"{source}, line {header_line}: column {col + 1} header {cell!r} is not "
+                                   f"'name [unit]'")
+        name, unit = m.group(1), m.group(2)
+        if name in mapping:
+            target = mapping[name]
+            mm = _HEADER.match(target)
+            if not mm:
+                raise MeasurementError(f"--map {name}={target}: expected 'channel' or 'channel [unit]'")
+            name = mm.group(1)
+            unit = mm.group(2) if mm.group(2) is not None else unit
+        where = f"{source}, line {header_line}"
+        kind, factor = _kind_of(name, unit, where)
+        if name in names:
+            raise MeasurementError(f"{where}: column {name!r} appears twice")
+        names.append(name)
+        factors.append(factor)
+        units[name] = unit or ""
+    for req in REQUIRED:
+        if req not in names:
+            raise MeasurementError(f"{source}, line {header_line}: missing required column {req!r} "
+                                   f"(header has: {', '.join(names)})")
+    rows = []
+    data_lines = lines[i + 1:]
+    for j, line in enumerate(data_lines):
+        lineno = i + 2 + j
+        if not line.strip() or line.startswith("#"):
+            continue
+        cells = line.split(",")
+        if len(cells) != len(names):
+            if j == len(data_lines) - 1:
+                break        # a last line cut short (a run killed mid-write): drop it
+            raise MeasurementError(f"{source}, line {lineno}: {len(cells)} values, expected {len(names)}")
+        try:
+            row = [float(c) for c in cells]
+        except ValueError:
+            bad = next(c for c in cells if not _is_float(c))
+            col = cells.index(bad)
+            raise MeasurementError(f"{source}, line {lineno}, column {names[col]!r}: {bad.strip()!r} is not a "
+                                   f"number") from None
+        for c, v in enumerate(row):
+            if math.isnan(v) or math.isinf(v):
+                raise MeasurementError(f"{source}, line {lineno}, column {names[c]!r}: {cells[c].strip()} "
+                                       f"(NaN or infinite values are not allowed; remove or fill the gap)")
+        rows.append(row)
+    if len(rows) < 2:
+        raise MeasurementError(f"{source}: fewer than 2 data rows")
+    arr = np.array(rows) * np.array(factors)
+    channels = {n: arr[:, c].copy() for c, n in enumerate(names)}
+    _check_time(channels["t"], source, i + 2)
+    return Measurement(channels, meta, source, units)
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+        return True
+    except ValueError:
+        return False
+
+
+def _check_time(t: np.ndarray, source: str, first_line: int) -> None:
+    dt = np.diff(t)
+    bad = np.flatnonzero(dt <= 0)
+    if bad.size:
+        k = int(bad[0]) + 1
+        raise MeasurementError(f"{source}, line {first_line + k}, column 't': time {t[k]:g} s is not after "
+                               f"the previous {t[k - 1]:g} s (time must increase strictly)")
+    med = float(np.median(dt))
+    gaps = np.flatnonzero(dt > 1.5 * med)
+    if gaps.size:
+        k = int(gaps[0]) + 1
+        raise MeasurementError(f"{source}, line {first_line + k}, column 't': a gap of {dt[k - 1]:g} s after "
+                               f"{t[k - 1]:g} s (the sample period is {med:g} s); fill or cut the record")
+
+
+def format_rows(columns: list[np.ndarray], factors: list[float]) -> str:
+    """CSV rows of the given SI columns, each divided by its factor (to the written unit)."""
+    buf = io.StringIO()
+    data = np.column_stack([c / f for c, f in zip(columns, factors)])
+    np.savetxt(buf, data, delimiter=",", fmt="%.10g")
+    return buf.getvalue()
+
+
+def write(path: str | Path, channels: dict[str, np.ndarray], meta: dict[str, object] | None = None) -> Path:
+    """Write channels (SI) in the measurement format."""
+    path = Path(path)
+    names = list(channels)
+    kinds = [CHANNELS.get(n, "dimensionless") for n in names]
+    with open(path, "w", encoding="utf-8", newline="") as fh:
+        for k, v in (meta or {}).items():
+            fh.write(f"# {k} = {v}\n")
+        fh.write(",".join(header_name(n, k) for n, k in zip(names, kinds)) + "\n")
+        fh.write(format_rows([np.asarray(channels[n], float) for n in names],
+                             [UNITS[WRITE_UNIT[k]][1] for k in kinds]))
+    return path

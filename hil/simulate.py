@@ -1,0 +1,206 @@
+"""The closed loop on the simulated plant, compiled: position loop every Tp, velocity loop every
+Tv, the plant advanced by its exact zero-order-hold discretization over each Tv.
+
+The control law is hil.control's (the same functions the real-time loop calls); plant forces
+(dry friction, effects) are sim_plant.kernel's. :func:`simulate` returns a
+:class:`SimulationResult`, a plain data object (plotting lives in hil.plots).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from sim_plant.kernel import effect_forces, empty_effects, friction_force
+from sim_plant.plant import Plant, plant_from_config
+
+from .control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state,
+                      position_law, quantize, velocity_law)
+
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel"]
+
+
+@dataclass
+class SimulationResult:
+    """Channels on the record clock (every position tick unless asked otherwise), SI units.
+
+    ``x``, ``v``: positions and velocities of every mass (true); ``x_motor``, ``x_table``: what the
+    encoders read (quantized where the config says so); ``x_tip``: the tool tip (true, or the
+    table for a chain without a tip); ``u``: controller output (torque N m, or command V);
+    ``x_cmd``, ``v_cmd``: the command at each recorded instant."""
+    t: np.ndarray
+    x_cmd: np.ndarray
+    v_cmd: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+    x_motor: np.ndarray
+    x_table: np.ndarray
+    x_tip: np.ndarray
+    rotary: bool = True
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def e_table(self) -> np.ndarray:
+        return self.x_cmd - self.x_table
+
+    @property
+    def e_tip(self) -> np.ndarray:
+        return self.x_cmd - self.x_tip
+
+    def channels(self) -> dict[str, np.ndarray]:
+        """The measurement-format channels (SI): t, x_cmd, v_cmd, x_motor, x_table, x_tip,
+        torque or force, e_table, e_tip."""
+        out = {"t": self.t, "x_cmd": self.x_cmd, "v_cmd": self.v_cmd, "x_motor": self.x_motor,
+               "x_table": self.x_table, "x_tip": self.x_tip}
+        out["torque" if self.rotary else "command"] = self.u
+        if not self.rotary and "force_gain" in self.meta:
+            out["force"] = self.u * self.meta["force_gain"]
+        out["e_table"] = self.e_table
+        out["e_tip"] = self.e_tip
+        return out
+
+
+@njit(cache=True)
+def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
+                       codes, eparams, delay, lag_alpha, record_every,
+                       X, V, U, XM, XT, XCMD):
+    """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
+    output arrays (positions, velocities, output, measured motor and table, command)."""
+    nn = Ad.shape[0]
+    n = nn // 2
+    x = x0.copy()
+    x_new = np.zeros(nn)
+    f = np.zeros(n)
+    s = new_velocity_state()
+    ubuf = np.zeros(delay + 1)
+    u_act = 0.0
+    has_effects = codes.shape[0] > 0
+    dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
+    b11 = Bd[n, 0]
+    K = x_cmd.shape[0] - 1
+    tp = p[1]
+    rec = 0
+    step = 0
+    w_ref = 0.0
+    a_cmd = 0.0
+    for k in range(K):
+        # --- position loop, tick k ---
+        xm = quantize(x[0], res_motor)
+        xt = quantize(x[table], res_table)
+        xfb = xm if fb_motor else xt
+        w_ref = position_law(p, x_cmd[k], x_cmd[k + 1], xfb)
+        if k > 0:
+            a_cmd = (x_cmd[k + 1] - 2.0 * x_cmd[k] + x_cmd[k - 1]) / (tp * tp)
+        else:
+            a_cmd = (x_cmd[k + 1] - x_cmd[k]) / (tp * tp)
+        for j in range(n_sub):
+            # --- velocity loop ---
+            xm = quantize(x[0], res_motor)
+            w_meas = measured_speed(p, s, x[n], xm)
+            u = velocity_law(p, s, w_ref, w_meas, a_cmd)
+            # computation delay, then the current loop (ideal, or a first-order lag)
+            if delay > 0:
+                for i in range(delay, 0, -1):
+                    ubuf[i] = ubuf[i - 1]
+                ubuf[0] = u
+                u = ubuf[delay]
+            u_act += lag_alpha * (u - u_act)
+            if step % record_every == 0:
+                X[rec, :] = x[:n]
+                V[rec, :] = x[n:]
+                U[rec] = u_act
+                XM[rec] = xm
+                XT[rec] = quantize(x[table], res_table)
+                XCMD[rec] = x_cmd[k]
+                rec += 1
+            # --- plant over one Tv: x+ = Ad x + Bd f ---
+            for i in range(n):
+                f[i] = 0.0
+            f[0] = u_act * fgain
+            if has_effects:
+                effect_forces(codes, eparams, x[:n], x[n:], f)
+            for r in range(nn):
+                acc = 0.0
+                for c in range(nn):
+                    acc += Ad[r, c] * x[c]
+                for c in range(n):
+                    acc += Bd[r, c] * f[c]
+                x_new[r] = acc
+            if dry:
+                ff, stuck = friction_force(fric, x[n], x_new[n], b11)
+                for r in range(nn):
+                    x_new[r] += Bd[r, 0] * ff
+                if stuck:
+                    x_new[n] = 0.0       # exactly at rest, not a round-off away from it
+            for r in range(nn):
+                x[r] = x_new[r]
+            step += 1
+    return rec
+
+
+def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int | None = None,
+             x0: float | None = None, v_cmd=None) -> SimulationResult:
+    """Closed-loop response to the command ``x_cmd`` sampled on the position clock.
+
+    ``x_cmd[k]`` is the command at tick k; the loop runs ``len(x_cmd)`` ticks (the command is
+    held after the last sample, which the feed-forward of the last tick needs). The plant starts
+    at rest at ``x0`` (default ``x_cmd[0]``). ``record_every``: velocity steps per recorded
+    sample (default: one per position tick)."""
+    x_cmd = np.ascontiguousarray(x_cmd, dtype=float)
+    if x_cmd.ndim != 1 or x_cmd.size < 2:
+        raise ValueError("x_cmd: expected a 1-D array of at least 2 samples")
+    n_sub = ctrl.substeps
+    record_every = n_sub if record_every is None else int(record_every)
+    if record_every < 1 or n_sub % record_every and record_every % n_sub:
+        raise ValueError(f"record_every must divide or be a multiple of {n_sub} velocity steps per tick")
+    cmd = np.append(x_cmd, x_cmd[-1])
+    K = x_cmd.size
+    steps = K * n_sub
+    n_rec = (steps + record_every - 1) // record_every
+    n = plant.n
+    disc = plant.chain.discretize(ctrl.velocity_period, inputs="all")
+    state0 = np.zeros(2 * n)
+    state0[:n] = x_cmd[0] if x0 is None else x0
+    X, V = np.zeros((n_rec, n)), np.zeros((n_rec, n))
+    U, XM, XT, XC = (np.zeros(n_rec) for _ in range(4))
+    codes, eparams = _effect_table(plant)
+    lag = _lag_alpha(plant, ctrl)
+    closed_loop_kernel(disc.A, disc.B, state0, ctrl.as_array(), plant.force_gain, cmd, n_sub,
+                       plant.table, plant.tip, ctrl.position_feedback == "motor",
+                       plant.friction.as_array(), plant.table_resolution, plant.motor_resolution,
+                       codes, eparams, int(ctrl.output_delay), lag, record_every, X, V, U, XM, XT, XC)
+    t = np.arange(n_rec) * record_every * ctrl.velocity_period
+    if v_cmd is None:
+        # the interpolator's velocity for the coming period, held like the command
+        vk = np.diff(cmd) / ctrl.position_period
+        v_rec = vk[np.minimum((np.arange(n_rec) * record_every) // n_sub, K - 1)]
+    else:
+        v_rec = np.asarray(v_cmd, float)[np.minimum((np.arange(n_rec) * record_every) // n_sub, K - 1)]
+    return SimulationResult(t=t, x_cmd=XC, v_cmd=v_rec, x=X, v=V, u=U, x_motor=XM, x_table=XT,
+                            x_tip=X[:, plant.tip].copy() if plant.tip != plant.table else XT.copy(),
+                            rotary=plant.pitch is not None,
+                            meta={"force_gain": plant.force_gain, "record_period": record_every * ctrl.velocity_period})
+
+
+def _effect_table(plant: Plant):
+    if not plant.effects:
+        return empty_effects()
+    codes = np.array([c for c, _ in plant.effects], np.int64)
+    from sim_plant.kernel import N_EFFECT_PARAMS
+    params = np.zeros((len(plant.effects), N_EFFECT_PARAMS))
+    for i, (_, q) in enumerate(plant.effects):
+        params[i, :len(q)] = q
+    return codes, params
+
+
+def _lag_alpha(plant: Plant, ctrl: ControllerSettings) -> float:
+    tc = plant.current_loop_time_constant
+    return 1.0 if tc <= 0 else float(1.0 - np.exp(-ctrl.velocity_period / tc))
+
+
+def simulate_config(cfg, x_cmd, **kw) -> SimulationResult:
+    """:func:`simulate` for a validated configuration."""
+    plant = plant_from_config(cfg)
+    return simulate(plant, controller_from_config(cfg, plant), x_cmd, **kw)
