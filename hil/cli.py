@@ -8,15 +8,30 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import sys
 
 from .config import ConfigError
 from .units import UnitError
 
-# command name -> module (kept in the order `hil --help` lists them)
+# command name -> module (kept in the order `hil --help` lists them). A module not yet present in
+# this checkout is left out of the listing.
 COMMANDS = {
     "model": "hil.cmd_model",
     "move": "hil.cmd_move",
+    "sweep": "hil.cmd_sweep",
+    "compare": "hil.cmd_compare",
+    "diagnose": "hil.cmd_diagnose",
+    "fit": "hil.cmd_fit",
+    "synth": "hil.cmd_synth",
+    "emps": "hil.cmd_emps",
+    "frf": "hil.cmd_frf",
+    "drive-sim": "hil.cmd_drive_sim",
+    "home": "hil.cmd_home",
+    "jog": "hil.cmd_jog",
+    "status": "hil.cmd_status",
+    "reset": "hil.cmd_reset",
+    "serial-sim": "hil.cmd_serial_sim",
 }
 
 
@@ -31,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "Runs on the embedded simulated plant unless a backend is chosen.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, modname in COMMANDS.items():
+        if importlib.util.find_spec(modname) is None:
+            continue
         mod = importlib.import_module(modname)
         p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
