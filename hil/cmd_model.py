@@ -65,12 +65,14 @@ def model_report(cfg) -> dict:
 
 
 def write_plots(cfg, report: dict, out_dir: Path) -> str:
+    from sim_plant.chain import Chain
     from sim_plant.plant import plant_from_config
     from sim_plant.transfer import chain_tfs
     from .plots_model import bode_figure
 
-    chain = plant_from_config(cfg).chain
-    tfs = chain_tfs(chain)[:3]
+    # the mechanical chain, as in Table 1 and Fig. 9: the motor's friction is a disturbance there
+    ch = plant_from_config(cfg).chain
+    tfs = chain_tfs(Chain(ch.m, ch.k, ch.c))[:3]
     fmax = 10 * max(report["modes_hz"] or [100.0])
     f = np.logspace(np.log10(max(fmax / 1e4, 0.1)), np.log10(fmax), 2000)
     fig = bode_figure(tfs, f, title=f"{report['name'] or cfg.source}: transfer functions (Table 1, Eq. 6)",
