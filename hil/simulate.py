@@ -7,6 +7,7 @@ The control law is hil.control's (the same functions the real-time loop calls); 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,7 +19,7 @@ from sim_plant.plant import Plant, plant_from_config
 from .control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state,
                       position_law, quantize, velocity_law)
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel"]
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step"]
 
 
 @dataclass
@@ -62,23 +63,55 @@ class SimulationResult:
         return out
 
 
+@njit(cache=True, inline="always")
+def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
+    """Advance the plant state ``x`` in place over one step: x+ = Ad x + Bd f, where f holds the
+    drive force on mass 1, the effects' forces and, last, the dry friction on the motor (which
+    needs the free motion of the step to decide between sticking and sliding)."""
+    nn = Ad.shape[0]
+    n = nn // 2
+    for i in range(n):
+        f[i] = 0.0
+    f[0] = f_drive
+    if codes.shape[0] > 0:
+        effect_forces(codes, eparams, x[:n], x[n:], f)
+    for r in range(nn):
+        acc = 0.0
+        for c in range(nn):
+            acc += Ad[r, c] * x[c]
+        for c in range(n):
+            acc += Bd[r, c] * f[c]
+        x_new[r] = acc
+    if dry:
+        ff, stuck = friction_force(fric, x[n], x_new[n], Bd[n, 0])
+        for r in range(nn):
+            x_new[r] += Bd[r, 0] * ff
+        if stuck:
+            x_new[n] = 0.0       # exactly at rest, not a round-off away from it
+    for r in range(nn):
+        x[r] = x_new[r]
+
+
 @njit(cache=True)
 def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
                        codes, eparams, delay, lag_alpha, record_every,
                        X, V, U, XM, XT, XCMD):
     """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
-    output arrays (positions, velocities, output, measured motor and table, command)."""
+    output arrays (positions, velocities, output, measured motor and table, command).
+
+    ``delay``: computation delay of the output in velocity periods (float: a transport delay
+    of the plant adds a fraction, interpolated linearly between the held outputs)."""
     nn = Ad.shape[0]
     n = nn // 2
     x = x0.copy()
     x_new = np.zeros(nn)
     f = np.zeros(n)
     s = new_velocity_state()
-    ubuf = np.zeros(delay + 1)
+    d_int = int(math.floor(delay))
+    d_frac = delay - d_int
+    ubuf = np.zeros(d_int + 2)
     u_act = 0.0
-    has_effects = codes.shape[0] > 0
     dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
-    b11 = Bd[n, 0]
     K = x_cmd.shape[0] - 1
     tp = p[1]
     rec = 0
@@ -101,11 +134,11 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
             w_meas = measured_speed(p, s, x[n], xm)
             u = velocity_law(p, s, w_ref, w_meas, a_cmd)
             # computation delay, then the current loop (ideal, or a first-order lag)
-            if delay > 0:
-                for i in range(delay, 0, -1):
+            if delay > 0.0:
+                for i in range(d_int + 1, 0, -1):
                     ubuf[i] = ubuf[i - 1]
                 ubuf[0] = u
-                u = ubuf[delay]
+                u = (1.0 - d_frac) * ubuf[d_int] + d_frac * ubuf[d_int + 1]
             u_act += lag_alpha * (u - u_act)
             if step % record_every == 0:
                 X[rec, :] = x[:n]
@@ -115,27 +148,8 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                 XT[rec] = quantize(x[table], res_table)
                 XCMD[rec] = x_cmd[k]
                 rec += 1
-            # --- plant over one Tv: x+ = Ad x + Bd f ---
-            for i in range(n):
-                f[i] = 0.0
-            f[0] = u_act * fgain
-            if has_effects:
-                effect_forces(codes, eparams, x[:n], x[n:], f)
-            for r in range(nn):
-                acc = 0.0
-                for c in range(nn):
-                    acc += Ad[r, c] * x[c]
-                for c in range(n):
-                    acc += Bd[r, c] * f[c]
-                x_new[r] = acc
-            if dry:
-                ff, stuck = friction_force(fric, x[n], x_new[n], b11)
-                for r in range(nn):
-                    x_new[r] += Bd[r, 0] * ff
-                if stuck:
-                    x_new[n] = 0.0       # exactly at rest, not a round-off away from it
-            for r in range(nn):
-                x[r] = x_new[r]
+            # --- plant over one Tv ---
+            plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
             step += 1
     return rec
 
@@ -166,11 +180,14 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     X, V = np.zeros((n_rec, n)), np.zeros((n_rec, n))
     U, XM, XT, XC = (np.zeros(n_rec) for _ in range(4))
     codes, eparams = _effect_table(plant)
+    # transport delays of the plant (sim_plant.kernel.TIME_DELAY rows) join the output delay
+    from sim_plant.kernel import TIME_DELAY
+    delay = float(ctrl.output_delay) + float(sum(q[0] for c, q in plant.effects if c == TIME_DELAY)) / ctrl.velocity_period
     lag = _lag_alpha(plant, ctrl)
     closed_loop_kernel(disc.A, disc.B, state0, ctrl.as_array(), plant.force_gain, cmd, n_sub,
                        plant.table, plant.tip, ctrl.position_feedback == "motor",
                        plant.friction.as_array(), plant.table_resolution, plant.motor_resolution,
-                       codes, eparams, int(ctrl.output_delay), lag, record_every, X, V, U, XM, XT, XC)
+                       codes, eparams, delay, lag, record_every, X, V, U, XM, XT, XC)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command

@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from dataclasses import dataclass
 
 from . import kernel
+from .chain import Chain
 from .plant import Friction, Plant
 
-__all__ = ["Param", "Effect", "CATALOGUE", "register", "apply_effects", "effect"]
+__all__ = ["Param", "Effect", "CATALOGUE", "register", "apply_effects", "effect", "candidate",
+           "ParameterEffect", "default_parameters"]
 
 
 @dataclass(frozen=True)
@@ -43,6 +46,26 @@ class Effect:
 
     def apply(self, plant: Plant, values: dict[str, float]) -> Plant:  # pragma: no cover - interface
         raise NotImplementedError
+
+    nests: tuple = ()          # simpler catalogue effects this one contains (ranking prefers those)
+    periodic: bool = False     # parameters include a period along the travel
+
+    def applicable(self, plant: Plant) -> bool:
+        """Whether the effect can act on this plant (e.g. backlash needs a transmission link)."""
+        return True
+
+    def guess(self, plant: Plant, scale: dict) -> dict[str, float]:
+        """Starting values for a fit; ``scale`` gives typical magnitudes of the record (force N,
+        speed m/s, period s)."""
+        return {p.name: p.guess for p in self.params}
+
+    def configure(self, cfg, values: dict[str, float]):
+        """A new config with this effect switched on with ``values`` (the section [effects.<name>])."""
+        return cfg.with_values({f"effects.{self.name}.{k}": float(v) for k, v in values.items()})
+
+    def _need_link(self, plant: Plant) -> None:
+        if plant.n < 2:
+            raise ValueError(f"{self.name}: needs a chain of at least 2 masses (a transmission link)")
 
     def param(self, name: str) -> Param:
         for p in self.params:
@@ -81,30 +104,88 @@ def _to_linear(plant: Plant) -> float:
     return plant.speed_scale
 
 
+def _level_guess(plant: Plant, fallback: float) -> float:
+    f = max(plant.friction.coulomb_pos, plant.friction.coulomb_neg)
+    return f / _to_linear(plant) if f > 0 else fallback
+
+
 @register
 class CoulombFriction(Effect):
     name = "coulomb_friction"
     description = "Coulomb (dry) friction on the motor, with stiction: tau_fc sign(v) (Eq. 11)"
     params = (Param("level", _motor_force_kind, 0.0, 1e4, 1.0, "sliding friction level on the motor"),)
+    nests = ()
 
     def apply(self, plant, values):
         f = values["level"] * _to_linear(plant)
-        return dataclasses.replace(plant, friction=Friction(f, f, max(f, plant.friction.static_pos),
-                                                            max(f, plant.friction.static_neg),
-                                                            plant.friction.stribeck_velocity))
+        return dataclasses.replace(plant, friction=Friction(f, f, f, f, 0.0))
+
+    def guess(self, plant, scale):
+        return {"level": scale.get("force", 1.0) / _to_linear(plant)}
 
 
 @register
 class ViscousFriction(Effect):
     name = "viscous_friction"
     description = "viscous friction on the motor, c_m omega (Eq. 11), added to what the config has"
-    params = (Param("coefficient", _motor_damping_kind, 0.0, 1e6, 1e-3, "viscous coefficient on the motor"),)
+    params = (Param("coefficient", _motor_damping_kind, -1e6, 1e6, 1e-3, "extra viscous coefficient on the motor"),)
 
     def apply(self, plant, values):
         c = values["coefficient"] * _to_linear(plant) ** 2
         chain = plant.chain
         cg = (chain.c_ground[0] + c,) + tuple(chain.c_ground[1:])
         return dataclasses.replace(plant, chain=dataclasses.replace(chain, c_ground=cg))
+
+    def guess(self, plant, scale):
+        return {"coefficient": scale.get("force", 1.0) / max(scale.get("speed", 1.0), 1e-9) / _to_linear(plant) ** 2}
+
+
+@register
+class StribeckFriction(Effect):
+    name = "stribeck_friction"
+    description = ("dry friction with a Stribeck curve: break-away level at rest falling to the sliding "
+                   "level as exp(-(v/v_s)^2)")
+    params = (Param("level", _motor_force_kind, 0.0, 1e4, 1.0, "sliding (Coulomb) level on the motor"),
+              Param("static", _motor_force_kind, 0.0, 1e4, 1.5, "break-away level at rest"),
+              Param("velocity", "speed", 1e-5, 1.0, 2e-3, "Stribeck velocity (load side)"))
+    nests = ("coulomb_friction",)
+
+    def apply(self, plant, values):
+        r = _to_linear(plant)
+        fc, fs = values["level"] * r, max(values["static"], values["level"]) * r
+        return dataclasses.replace(plant, friction=Friction(fc, fc, fs, fs, values["velocity"]))
+
+    def guess(self, plant, scale):
+        f = scale.get("force", 1.0) / _to_linear(plant)
+        return {"level": f, "static": 1.5 * f, "velocity": max(0.05 * scale.get("speed", 0.04), 1e-4)}
+
+
+@register
+class AsymmetricFriction(Effect):
+    name = "asymmetric_friction"
+    description = ("friction with different levels per direction: Coulomb and viscous for v > 0 and v < 0 "
+                   "(replaces the config's motor friction)")
+    params = (Param("level_pos", _motor_force_kind, 0.0, 1e4, 1.0, "Coulomb level moving in +x"),
+              Param("level_neg", _motor_force_kind, 0.0, 1e4, 1.0, "Coulomb level moving in -x"),
+              Param("viscous_pos", _motor_damping_kind, 0.0, 1e7, 0.0, "viscous coefficient moving in +x"),
+              Param("viscous_neg", _motor_damping_kind, 0.0, 1e7, 0.0, "viscous coefficient moving in -x"))
+    nests = ("coulomb_friction", "viscous_friction", "constant_force")
+
+    def apply(self, plant, values):
+        r = _to_linear(plant)
+        fp, fn = values["level_pos"] * r, values["level_neg"] * r
+        chain = plant.chain
+        cg = (0.0,) + tuple(chain.c_ground[1:])
+        return dataclasses.replace(
+            plant, chain=dataclasses.replace(chain, c_ground=cg), friction=Friction(fp, fn, fp, fn, 0.0),
+            effects=plant.effects + ((kernel.VISCOUS_ASYMMETRIC, (0.0, values["viscous_pos"] * r * r,
+                                                                   values["viscous_neg"] * r * r)),))
+
+    def guess(self, plant, scale):
+        r = _to_linear(plant)
+        f = _level_guess(plant, scale.get("force", 1.0) / r)
+        c = plant.chain.c_ground[0] / (r * r)
+        return {"level_pos": f, "level_neg": f, "viscous_pos": c, "viscous_neg": c}
 
 
 @register
@@ -115,6 +196,171 @@ class ConstantForce(Effect):
 
     def apply(self, plant, values):
         return dataclasses.replace(plant, effects=plant.effects + ((kernel.CONSTANT_FORCE, (0.0, values["force"])),))
+
+    def guess(self, plant, scale):
+        return {"force": 0.1 * scale.get("force", 1.0)}
+
+
+@register
+class Backlash(Effect):
+    name = "backlash"
+    description = "backlash: a dead zone of +-gap/2 in the transmission between motor and table (link 1)"
+    params = (Param("gap", "length", 0.0, 2e-3, 5e-6, "total play of the transmission"),)
+
+    def applicable(self, plant):
+        return plant.n >= 2
+
+    def apply(self, plant, values):
+        self._need_link(plant)
+        return dataclasses.replace(plant, effects=plant.effects + (
+            (kernel.BACKLASH, (0.0, 0.5 * values["gap"], plant.chain.k[0], plant.chain.c[0])),))
+
+
+@register
+class TimeDelay(Effect):
+    name = "time_delay"
+    description = ("a transport delay in the loop (feedback or drive), modelled as a delay of the force "
+                   "command reaching the plant")
+    params = (Param("delay", "time", 0.0, 0.05, 5e-4, "transport delay"),)
+
+    def apply(self, plant, values):
+        return dataclasses.replace(plant, effects=plant.effects + ((kernel.TIME_DELAY, (values["delay"],)),))
+
+    def guess(self, plant, scale):
+        return {"delay": 0.25 * scale.get("period", 2e-3)}
+
+
+@register
+class PitchError(Effect):
+    name = "pitch_error"
+    description = ("periodic lead error of the screw: the nut sits at x1 + a sin(2 pi x1 / period + phase), "
+                   "seen as x_motor - x_table periodic in position")
+    params = (Param("amplitude", "length", 0.0, 1e-3, 1e-6, "amplitude of the lead error"),
+              Param("period", "length", 1e-4, 1.0, 0.01, "period of the error along the travel (often the pitch)"),
+              Param("phase", "dimensionless", -4 * math.pi, 4 * math.pi, 0.0, "phase at x1 = 0 (rad)"))
+    periodic = True
+
+    def applicable(self, plant):
+        return plant.n >= 2
+
+    def apply(self, plant, values):
+        self._need_link(plant)
+        return dataclasses.replace(plant, effects=plant.effects + (
+            (kernel.PITCH_ERROR, (0.0, values["amplitude"], values["period"], values["phase"], plant.chain.k[0])),))
+
+    def guess(self, plant, scale):
+        return {"amplitude": 1e-6, "period": plant.pitch or 0.01, "phase": 0.0}
+
+
+@register
+class TorqueRipple(Effect):
+    name = "torque_ripple"
+    description = "cogging / torque ripple: a motor torque periodic in the motor angle"
+    params = (Param("amplitude", _motor_force_kind, 0.0, 1e4, 0.1, "ripple amplitude on the motor"),
+              Param("period", "length", 1e-5, 1.0, 1e-3, "period along the travel (pitch / ripples per turn)"),
+              Param("phase", "dimensionless", -4 * math.pi, 4 * math.pi, 0.0, "phase at x1 = 0 (rad)"))
+    periodic = True
+
+    def apply(self, plant, values):
+        return dataclasses.replace(plant, effects=plant.effects + (
+            (kernel.TORQUE_RIPPLE, (values["amplitude"] * _to_linear(plant), values["period"], values["phase"])),))
+
+    def guess(self, plant, scale):
+        return {"amplitude": 0.05 * scale.get("force", 1.0) / _to_linear(plant),
+                "period": (plant.pitch or 0.01) / 6, "phase": 0.0}
+
+
+@register
+class CompliantMode(Effect):
+    name = "compliant_mode"
+    description = ("an extra mass-spring-damper at the tool tip (a structural mode the model lacks); the "
+                   "new mass becomes the tool tip")
+    params = (Param("mass", "mass", 1e-3, 1e4, 5.0, "modal mass of the extra mode"),
+              Param("frequency", "frequency", 0.5, 1e3, 20.0, "natural frequency of the extra mode (Hz)"),
+              Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"))
+
+    def apply(self, plant, values):
+        m, f, z = values["mass"], values["frequency"], values["damping_ratio"]
+        w = 2 * math.pi * f
+        k, c = m * w * w, 2 * z * m * w
+        ch = plant.chain
+        chain = Chain(ch.m + (m,), ch.k + (k,), ch.c + (c,), ch.c_ground + (0.0,))
+        return dataclasses.replace(plant, chain=chain, tip=ch.n)
+
+
+@register
+class MassChange(Effect):
+    name = "mass_change"
+    description = "a change of the moving mass (payload, workpiece) on the table"
+    params = (Param("mass", "mass", -1e4, 1e5, 0.0, "mass added to the table (negative: removed)"),)
+
+    def apply(self, plant, values):
+        ch = plant.chain
+        m = list(ch.m)
+        m[plant.table] += values["mass"]
+        if m[plant.table] <= 0:
+            raise ValueError(f"mass_change: the table mass would be {m[plant.table]:g} kg")
+        return dataclasses.replace(plant, chain=dataclasses.replace(ch, m=tuple(m)))
+
+    def guess(self, plant, scale):
+        return {"mass": 0.05 * plant.chain.m[plant.table]}
+
+
+class ParameterEffect(Effect):
+    """``parameter:<dotted name>``: re-identify a parameter the config already has (a mass, a
+    stiffness, a damping, a friction value). It changes the config, not the plant."""
+    rescale = True
+
+    def __init__(self, key: str, cfg=None):
+        from hil.config import _field_for
+        f = _field_for(key)
+        if f is None or key.startswith("effects."):
+            raise KeyError(f"parameter:{key}: not a parameter of the config schema")
+        self.key = key
+        self.name = f"parameter:{key}"
+        self.description = f"re-identify {key} ({f.doc})"
+        value = cfg.get(key) if cfg is not None else None
+        kind = f.kind
+        if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
+            value = None
+        g = float(value) if value else 1.0
+        lo = 0.0 if (f.positive or f.nonnegative) else -1e12
+        self.params = (Param("value", kind, lo, 1e12, g, f"new value of {key}"),)
+
+    def applicable(self, plant):
+        return True
+
+    def apply(self, plant, values):      # pragma: no cover - parameters act on the config
+        raise TypeError("parameter effects act on the config: use configure()")
+
+    def configure(self, cfg, values):
+        return cfg.with_values({self.key: float(values["value"])})
+
+
+def candidate(name: str, cfg=None) -> Effect:
+    """The effect of a catalogue name or ``parameter:<dotted name>``."""
+    if name.startswith("parameter:"):
+        key = name.split(":", 1)[1]
+        if cfg is not None and key not in cfg and "." not in key:
+            # short form parameter:c2 -> plant.c2
+            for sect in ("plant", "friction", "actuator", "control"):
+                if f"{sect}.{key}" in cfg:
+                    key = f"{sect}.{key}"
+                    break
+        try:
+            return ParameterEffect(key, cfg)
+        except KeyError as exc:
+            raise KeyError(str(exc).strip("'\"")) from None
+    return effect(name)
+
+
+def default_parameters(cfg) -> list[str]:
+    """The config parameters ``diagnose`` tries to re-identify by default: the chain's masses,
+    stiffnesses and dampings, and the actuator gain of a linear actuator."""
+    out = [k for k in cfg.keys() if re.fullmatch(r"plant\.[mkc][0-9]+", k) and cfg.get(k)]
+    if not cfg.rotary and cfg.get("actuator.gain"):
+        out.append("actuator.gain")
+    return [f"parameter:{k}" for k in out]
 
 
 def _section_lookup(key: str):

@@ -16,17 +16,18 @@ N_EFFECT_PARAMS = 8
 
 # effect term codes
 CONSTANT_FORCE = 1       # [mass, force N]
-BACKLASH = 2             # [link i (between mass i and i+1), half gap m, stiffness N/m]: dead zone in link i
+BACKLASH = 2             # [link i (between mass i and i+1), half gap m, stiffness N/m, damping N s/m]: dead zone in link i
 PITCH_ERROR = 3          # [link, amplitude m, period m, phase rad, stiffness N/m]: lead error x1 -> nut
 TORQUE_RIPPLE = 4        # [amplitude N, period m (of x1), phase rad]: cogging on mass 1
 VISCOUS_ASYMMETRIC = 5   # [mass, extra damping for v>0 N s/m, extra for v<0 N s/m]
+TIME_DELAY = 6           # [delay s]: read by the loop (hil.simulate), no force here
 
 
 def empty_effects():
     return np.zeros(0, np.int64), np.zeros((0, N_EFFECT_PARAMS))
 
 
-@njit(cache=True)
+@njit(cache=True)     # not inlined: a large body that most runs never enter
 def effect_forces(codes, params, x, v, f):
     """Add the forces of the effect terms at state (x, v) to ``f`` (one entry per mass)."""
     for r in range(codes.shape[0]):
@@ -47,6 +48,9 @@ def effect_forces(codes, params, x, v, f):
             else:
                 dz = 0.0
             corr = k * (dz - d)
+            if dz == 0.0:
+                # inside the gap the link's damper carries no force either
+                corr -= q[3] * (v[i] - v[i + 1])
             f[i] -= corr
             f[i + 1] += corr
         elif c == PITCH_ERROR:
@@ -65,7 +69,7 @@ def effect_forces(codes, params, x, v, f):
                 f[i] -= q[2] * v[i]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def friction_force(fric, v_start, v_free, b):
     """Dry friction force on mass 1 over one step, and whether the motor sticks (time-stepping treatment of Coulomb friction).
 
