@@ -1,1 +1,32 @@
-"""Backends behind one small contract (see drivers.base): the simulated plant, CANopen CiA 402, serial."""
+"""Backends behind one small contract (drivers.base.Backend): the embedded simulated plant (the
+default), CANopen CiA 402 drives, serial drives. Which one runs is chosen in configuration
+(``backend.type``) or with ``--backend``, never in code."""
+from __future__ import annotations
+
+import importlib
+
+from .base import LOOPS, Backend, BackendFault, Feedback, Setpoint
+
+# backend type -> "module:class"; each class is built as cls(cfg, **options)
+BACKENDS = {
+    "sim": "drivers.sim:SimulatedPlant",
+    "canopen": "drivers.canopen:CanopenBackend",
+    "serial": "drivers.serial:SerialBackend",
+}
+
+
+class BackendError(ValueError):
+    """An unknown or unavailable backend."""
+
+
+def open_backend(cfg, name: str | None = None, **options) -> Backend:
+    """The backend named by ``name`` or by the config's ``backend.type`` (not yet opened)."""
+    name = name or cfg.get("backend.type", "sim")
+    if name not in BACKENDS:
+        raise BackendError(f"unknown backend {name!r} (known: {', '.join(BACKENDS)})")
+    modname, _, clsname = BACKENDS[name].partition(":")
+    try:
+        mod = importlib.import_module(modname)
+    except ModuleNotFoundError as exc:
+        raise BackendError(f"backend {name!r} is not available in this installation ({exc})") from None
+    return getattr(mod, clsname)(cfg, **options)

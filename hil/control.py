@@ -103,19 +103,19 @@ def controller_from_config(cfg, plant) -> ControllerSettings:
         output_delay=int(cfg.get("control.output_delay", 0)))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def position_law(p, x_cmd_k, x_cmd_next, x_feedback):
     """Speed reference of the velocity loop (controller units) at a position tick."""
     v_ref = p[P.KV] * (x_cmd_k - x_feedback) + p[P.FFV] * (x_cmd_next - x_cmd_k) / p[P.TP]
     return v_ref * p[P.SPEED_SCALE]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def new_velocity_state():
     return np.zeros(12)  # S.SIZE
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def measured_speed(p, s, v_motor, x_motor):
     """The speed the velocity loop sees: the motor's speed, or the backward difference of the
     FIR-filtered motor position (then the history in ``s`` advances)."""
@@ -139,7 +139,7 @@ def measured_speed(p, s, v_motor, x_motor):
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def velocity_law(p, s, w_ref, w_meas, a_cmd):
     """One velocity-loop step: the (limited) controller output, torque or command."""
     e = w_ref - w_meas
@@ -158,7 +158,7 @@ def velocity_law(p, s, w_ref, w_meas, a_cmd):
     return u
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def quantize(x, q):
     if q > 0.0:
         return q * math.floor(x / q + 0.5)

@@ -41,7 +41,7 @@ def zoh(ss: StateSpace, dt: float) -> StateSpace:
     block[:n, :n] = ss.A
     block[:n, n:] = ss.B
     e = scipy.linalg.expm(block * dt)
-    return StateSpace(e[:n, :n], e[:n, n:], ss.C.copy(), ss.D.copy(), dt)
+    return StateSpace(np.ascontiguousarray(e[:n, :n]), np.ascontiguousarray(e[:n, n:]), ss.C.copy(), ss.D.copy(), dt)
 
 
 @dataclass(frozen=True)

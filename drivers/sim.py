@@ -1,0 +1,121 @@
+"""The embedded simulated plant as a backend (the default): the sim_plant model advanced by its
+exact zero-order-hold discretization, one cycle per :meth:`sync`.
+
+It can stand in for a drive in any of the three loop arrangements: ``closes = "none"`` (the host
+sends torque every velocity period, as a drive in torque mode), ``"velocity"`` (the host sends a
+speed every position period and this backend runs the velocity loop, as a drive in velocity
+mode) or ``"both"`` (the host sends positions, as cyclic synchronous position mode). The loops it
+closes are hil.control's functions: the same law everywhere.
+
+For dry runs, :meth:`SimulatedPlant.run` runs a whole command through the compiled loop at once.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from hil.control import (controller_from_config, measured_speed, new_velocity_state, position_law, quantize,
+                         velocity_law)
+from hil.simulate import _effect_table, _lag_alpha, plant_step, simulate
+from sim_plant.plant import plant_from_config
+
+from .base import LOOPS, Backend, Feedback, Setpoint
+
+__all__ = ["SimulatedPlant"]
+
+
+class SimulatedPlant(Backend):
+    name = "sim"
+    simulated = True
+
+    def __init__(self, cfg, closes: str = "none"):
+        if closes not in LOOPS:
+            raise ValueError(f"closes must be one of {LOOPS}, got {closes!r}")
+        self.cfg = cfg
+        self.plant = plant_from_config(cfg)
+        self.ctrl = controller_from_config(cfg, self.plant)
+        self.closes = closes
+        self.cycle_time = self.ctrl.velocity_period if closes == "none" else self.ctrl.position_period
+        self._p = self.ctrl.as_array()
+        disc = self.plant.chain.discretize(self.ctrl.velocity_period, inputs="all")
+        self._Ad, self._Bd = disc.A, disc.B
+        self._codes, self._eparams = _effect_table(self.plant)
+        self._fric = self.plant.friction.as_array()
+        self._dry = self.plant.friction.active
+        n = self.plant.n
+        self.x = np.zeros(2 * n)
+        self._xn = np.zeros(2 * n)
+        self._f = np.zeros(n)
+        self._s = new_velocity_state()
+        self._set = Setpoint()
+        self._prev_position = None
+        self.enabled = False
+        self.time = 0.0
+        self._u_act = 0.0
+        self._lag = _lag_alpha(self.plant, self.ctrl)
+
+    # -- contract -------------------------------------------------------------------------------
+    def open(self) -> None:
+        self.time = 0.0
+
+    def home_at(self, position: float) -> None:
+        """Put the plant at rest at ``position`` (the simulated axis starts where it is told)."""
+        n = self.plant.n
+        self.x[:] = 0.0
+        self.x[:n] = position
+        self._s = new_velocity_state()
+        self._prev_position = position
+
+    def enable(self) -> None:
+        self.enabled = True
+
+    def read_feedback(self) -> Feedback:
+        n, pl = self.plant.n, self.plant
+        return Feedback(x_motor=float(quantize(self.x[0], pl.motor_resolution)),
+                        x_table=float(quantize(self.x[pl.table], pl.table_resolution)),
+                        v_motor=float(self.x[n]), output=float(self._u_act),
+                        x_tip=float(self.x[pl.tip]) if pl.tip != pl.table else float("nan"))
+
+    def write_setpoint(self, setpoint: Setpoint) -> None:
+        self._set = setpoint
+
+    def sync(self) -> None:
+        """Advance one cycle."""
+        n, pl = self.plant.n, self.plant
+        if not self.enabled:
+            u_steps = [0.0] * (1 if self.closes == "none" else self.ctrl.substeps)
+            for u in u_steps:
+                self._step(u)
+            return
+        if self.closes == "none":
+            self._step(self._set.output)
+        else:
+            if self.closes == "both":
+                prev = self._prev_position if self._prev_position is not None else self._set.position
+                xfb = quantize(self.x[0], pl.motor_resolution) if self.ctrl.position_feedback == "motor" \
+                    else quantize(self.x[pl.table], pl.table_resolution)
+                # the drive's interpolation: the setpoint is where to be at the next tick
+                w_ref = position_law(self._p, prev, self._set.position, xfb)
+                self._prev_position = self._set.position
+            else:
+                w_ref = self._set.speed
+            for _ in range(self.ctrl.substeps):
+                w = measured_speed(self._p, self._s, self.x[n], quantize(self.x[0], pl.motor_resolution))
+                self._set.output = velocity_law(self._p, self._s, w_ref, w, 0.0)
+                self._step(self._set.output)
+
+    def _step(self, u: float) -> None:
+        self._u_act += self._lag * (u - self._u_act)      # current loop: ideal, or a first-order lag
+        plant_step(self._Ad, self._Bd, self.x, self._u_act * self.plant.force_gain, self._fric, self._dry,
+                   self._codes, self._eparams, self._f, self._xn)
+        self.time += self.ctrl.velocity_period
+
+    def disable(self) -> None:
+        self.enabled = False
+
+    def close(self) -> None:
+        self.enabled = False
+
+    # -- dry runs --------------------------------------------------------------------------------
+    def run(self, x_cmd, record_every: int | None = None):
+        """The whole command through the compiled closed loop (as fast as the computer can)."""
+        return simulate(self.plant, self.ctrl, x_cmd, record_every=record_every)

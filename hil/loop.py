@@ -1,0 +1,200 @@
+"""The fixed-rate loop: one cycle per backend exchange, on a real-time or a simulated clock.
+
+Each cycle: read the feedback, run the loops the backend does not close (hil.control's law),
+write the setpoint, record (every position tick), let the supervisor check, end the cycle
+(``backend.sync()``), wait for the next deadline.
+
+* :class:`RealTimeClock`: absolute deadlines t0 + k T (no drift), sleep until shortly before the
+  deadline and spin the rest (sleep alone is too coarse on a general-purpose OS); it records
+  every cycle's lateness and counts overruns (a cycle that starts a whole period late).
+* :class:`SimulatedClock`: no waiting; time is the cycle count times the period.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.base import Backend, BackendFault, Feedback, Setpoint
+
+from .control import measured_speed, new_velocity_state, position_law, velocity_law
+
+__all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult"]
+
+
+class SimulatedClock:
+    """Runs as fast as the computer can."""
+    real_time = False
+
+    def __init__(self, period: float):
+        self.period = period
+        self.k = 0
+        self.lateness: list[float] = []
+        self.overruns = 0
+
+    def start(self) -> None:
+        self.k = 0
+
+    def wait(self) -> float:
+        self.k += 1
+        return 0.0
+
+    @property
+    def now(self) -> float:
+        return self.k * self.period
+
+
+class RealTimeClock:
+    """Absolute deadlines with hybrid sleep-then-spin waiting."""
+    real_time = True
+
+    def __init__(self, period: float, spin: float = 200e-6):
+        self.period = period
+        self.spin = spin
+        self.k = 0
+        self.t0 = 0.0
+        self.lateness: list[float] = []
+        self.overruns = 0
+
+    def start(self) -> None:
+        self.t0 = time.perf_counter()
+        self.k = 0
+
+    def wait(self) -> float:
+        """Wait for the next deadline; returns how late this wake-up is (s)."""
+        self.k += 1
+        deadline = self.t0 + self.k * self.period
+        remaining = deadline - time.perf_counter()
+        if remaining > self.spin:
+            time.sleep(remaining - self.spin)
+        while time.perf_counter() < deadline:
+            pass
+        late = time.perf_counter() - deadline
+        self.lateness.append(late)
+        if late > self.period:
+            self.overruns += 1
+            # skip the missed deadlines rather than running a burst of cycles to catch up
+            self.k += int(late // self.period)
+        return late
+
+    @property
+    def now(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def stats(self) -> dict:
+        lat = np.array(self.lateness) if self.lateness else np.zeros(1)
+        return {"cycles": len(self.lateness), "lateness_p50_us": float(np.percentile(lat, 50) * 1e6),
+                "lateness_p99_us": float(np.percentile(lat, 99) * 1e6), "lateness_max_us": float(lat.max() * 1e6),
+                "overruns": self.overruns}
+
+
+@dataclass
+class LoopResult:
+    ticks: int
+    status: str                    # complete | tripped | fault | aborted
+    reason: str = ""
+    clock: dict = field(default_factory=dict)
+
+
+class ControlLoop:
+    """Runs a command (positions on the position clock) on a backend.
+
+    ``supervisor``: an object with ``check(t, feedback, x_cmd) -> str | None`` (a trip reason);
+    a trip or a backend fault ends the run with a controlled stop (``backend.quick_stop()``)
+    commanded in the same cycle."""
+
+    def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True):
+        self.backend = backend
+        self.ctrl = ctrl
+        self.p = ctrl.as_array()
+        period = backend.cycle_time
+        self.clock = clock or (SimulatedClock(period) if backend.simulated else RealTimeClock(period))
+        self.recorder = recorder
+        self.supervisor = supervisor
+        self.rotary = rotary
+        if backend.closes == "none":
+            self.per_tick = ctrl.substeps          # cycles per position tick
+        else:
+            self.per_tick = 1
+        self._delay = [0.0] * (int(ctrl.output_delay) + 1)
+
+    def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
+        if self.recorder is None:
+            return
+        tip = fb.x_tip if not math.isnan(fb.x_tip) else fb.x_table
+        row = {"t": k * self.ctrl.position_period, "x_cmd": x_cmd, "v_cmd": v_cmd, "x_motor": fb.x_motor,
+               "x_table": fb.x_table, "x_tip": tip, "e_table": x_cmd - fb.x_table, "e_tip": x_cmd - tip}
+        row["torque" if self.rotary else "command"] = output
+        self.recorder.append(**{n: row[n] for n in self.recorder.names})
+
+    def run(self, x_cmd) -> LoopResult:
+        x_cmd = np.asarray(x_cmd, float)
+        cmd = np.append(x_cmd, x_cmd[-1])
+        K = x_cmd.size
+        b, p = self.backend, self.p
+        s = new_velocity_state()
+        self.clock.start()
+        k = 0
+        status, reason = "complete", ""
+        try:
+            for k in range(K):
+                v_cmd = (cmd[k + 1] - cmd[k]) / self.ctrl.position_period
+                for j in range(self.per_tick):
+                    fb = b.read_feedback()
+                    if fb.fault:
+                        raise BackendFault(fb.fault)
+                    if b.closes == "both":
+                        b.write_setpoint(Setpoint(position=cmd[k + 1]))
+                        out = fb.output
+                    else:
+                        if j == 0:
+                            xfb = fb.x_motor if self.ctrl.position_feedback == "motor" else fb.x_table
+                            w_ref = position_law(p, cmd[k], cmd[k + 1], xfb)
+                        if b.closes == "velocity":
+                            b.write_setpoint(Setpoint(speed=w_ref))
+                            out = fb.output
+                        else:
+                            w = measured_speed(p, s, fb.v_motor, fb.x_motor)
+                            u = velocity_law(p, s, w_ref, w, 0.0)
+                            self._delay.insert(0, u)
+                            u = self._delay.pop()
+                            b.write_setpoint(Setpoint(output=u))
+                            out = u
+                    if j == 0:
+                        self._record(k, cmd[k], v_cmd, fb, out)
+                        if self.supervisor is not None:
+                            trip = self.supervisor.check(k * self.ctrl.position_period, fb, cmd[k])
+                            if trip:
+                                b.quick_stop()
+                                status, reason = "tripped", trip
+                                return self._end(k, status, reason)
+                    b.sync()
+                    self.clock.wait()
+        except BackendFault as exc:
+            _safe_stop(b)
+            status, reason = "fault", exc.reason
+        except KeyboardInterrupt:
+            _safe_stop(b)
+            status, reason = "aborted", "interrupted (Ctrl-C)"
+            raise
+        except Exception as exc:
+            _safe_stop(b)
+            status, reason = "aborted", f"{type(exc).__name__}: {exc}"
+            raise
+        finally:
+            if self.recorder is not None and status != "complete":
+                self.recorder.close(status, reason)
+        return self._end(K, status, reason)
+
+    def _end(self, ticks: int, status: str, reason: str) -> LoopResult:
+        clock = self.clock.stats() if hasattr(self.clock, "stats") else {}
+        return LoopResult(ticks, status, reason, clock)
+
+
+def _safe_stop(backend: Backend) -> None:
+    try:
+        backend.quick_stop()
+    except Exception:      # the link may be gone; the drive-side guards stop the axis then
+        pass
