@@ -294,29 +294,31 @@ def _chunk(cfg, tasks):
     return [_task(cfg, key, spec) for key, spec in tasks]
 
 
-def run_on_backend(cfg, spec: RunSpec, backend, out_dir=None) -> dict:
-    """One run on a real (or other) backend through ``hil.runtime.run_trajectory``: the move, a
-    dwell, the return move and a dwell (the axis ends where it started)."""
-    try:
-        from .runtime import run_trajectory
-    except ImportError as exc:
-        from .cli import UserError
-        raise UserError(f"--backend {backend}: the runtime (hil.runtime) is not available in this "
-                        f"version ({exc})") from None
-    traj = Trajectory()
+def backend_trajectory(spec: RunSpec, start: float = 0.0) -> tuple[Trajectory, object]:
+    """The sequence run on an axis for one run: the move, a dwell, the return move, a dwell."""
+    traj = Trajectory(start=start)
     move = traj.move(spec.move_spec())
     traj.dwell(spec.dwell)
     back = spec.move_spec()
     traj.move(replace(back, stroke=-back.stroke))
     traj.dwell(spec.dwell)
-    rec = run_trajectory(cfg, traj, backend=backend, out_dir=out_dir, settle=spec.dwell)
-    ch = rec.channels() if hasattr(rec, "channels") else rec
-    ch = getattr(ch, "channels", ch) if not isinstance(ch, dict) else ch
+    return traj, move
+
+
+def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None) -> dict:
+    """One run on a runtime backend (``hil.runtime.run_trajectory``): the move, a dwell, the
+    return move and a dwell, so the axis ends where it started. Limits are checked first."""
+    from drivers import open_backend
+    from .runtime import run_trajectory
+    traj, move = backend_trajectory(spec)
+    rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend), out_file=None, settle=0.0)
+    if getattr(rec, "status", "complete") != "complete":
+        raise RuntimeError(f"run at j_max {move.j_max:.4g} m/s^3 stopped: {rec.status} {rec.reason}")
+    ch = rec.channels
     t = np.asarray(ch["t"], float)
     u = ch.get("torque", ch.get("command", np.zeros(0)))
     tip = ch.get("x_tip", ch["x_table"])
-    return _figures(t, ch["x_cmd"], ch["x_table"], tip, u, move, spec,
-                    t_end=move.duration + spec.dwell)
+    return _figures(t, ch["x_cmd"], ch["x_table"], tip, u, move, spec, t_end=move.duration + spec.dwell)
 
 
 # --- where runs go: a process pool, a Dask cluster, or this process ---------------------------------
@@ -552,6 +554,7 @@ class SweepSettings:
     analysis: str = "mechatronic"       # mechatronic | transmission | both
     tolerance: float | None = None      # m, on the tip overshoot
     budget: float | None = None         # s, longest acceptable move time for the proposal
+    budget_pct: float | None = 5.0      # or: percent over the fastest move of the range
     refine_rel: float = 0.002
 
     def analyses(self) -> list[str]:
@@ -678,8 +681,13 @@ def _propose(runner: _Runner, rows, s: SweepSettings, dwell: float, predicted) -
         spec = RunSpec(an, s.stroke, s.feed, s.g0, None, float(jm), dwell, s.record_every, True)
         return runner.one(spec)
 
+    fastest = min(r["duration"] for r in rows)
+    budget = s.budget
+    if budget is None and s.budget_pct is not None:
+        budget = fastest * (1.0 + s.budget_pct / 100.0)
+
     def fits(f):
-        return s.budget is None or f["duration"] <= s.budget * (1 + 1e-12)
+        return budget is None or f["duration"] <= budget * (1 + 1e-12)
 
     cands = [r for r in rows if fits(r)]
     for p in predicted:
@@ -687,8 +695,7 @@ def _propose(runner: _Runner, rows, s: SweepSettings, dwell: float, predicted) -
         if fits(f):
             cands.append(f)
     if not cands:
-        fastest = min(r["duration"] for r in rows)
-        return {"j_max": None, "note": f"no move of the range fits the time budget of {s.budget:.4g} s "
+        return {"j_max": None, "note": f"no move of the range fits the time budget of {budget:.4g} s "
                                        f"(the fastest takes {fastest:.4g} s): raise --budget or the jerk range"}
     grid = sorted(rows, key=lambda r: r["j_max"])
     best = min(cands, key=lambda r: (r["overshoot_tip_um"], -r["j_max"]))
@@ -721,7 +728,8 @@ def _propose(runner: _Runner, rows, s: SweepSettings, dwell: float, predicted) -
                     best = r
     out = {k: best.get(k) for k in ("j_max", "t_acc", "a_max", "duration", "overshoot_tip_um",
                                     "overshoot_table_um", "residual_tip_um")}
-    out["budget_s"] = s.budget
+    out["budget_s"] = budget
+    out["fastest_s"] = fastest
     out["analysis"] = an
     return out
 
@@ -742,6 +750,10 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
     dwell = s.dwell if s.dwell is not None else default_dwell(cfg)
     store = ResultStore(None if out_dir is None else Path(out_dir) / "runs.jsonl", resume=resume)
     if backend:
+        from .profiles import AxisLimits, check_limits
+        lim = AxisLimits.from_config(cfg)
+        for spec in _specs(s, "mechatronic", dwell):      # refuse before any motion
+            check_limits(backend_trajectory(spec)[0], lim)
         ex = _Backend(backend, out_dir)
     elif scheduler is not None:
         ex = _Dask(scheduler)
