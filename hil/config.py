@@ -155,7 +155,7 @@ SCHEMA: dict[str, Field] = {
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {}
 # The module that registers each such section, imported the first time one of its keys is read.
-SECTION_PROVIDERS = {"effects": "sim_plant.effects"}
+SECTION_PROVIDERS = {"effects": "sim_plant.effects", "serial": "drivers.serial"}
 
 
 def register_section(prefix: str, lookup: Callable[[str], Field | None]) -> None:
