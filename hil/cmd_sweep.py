@@ -80,7 +80,14 @@ def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
     from .cli import UserError
     from .sweep import jerk_grid
     from .units import parse, parse_list
+    from .units import SI_UNIT
     m = _RANGE.match(text)
+    bare = r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?"
+    if m and re.fullmatch(bare, m.group(2)):          # bare numbers are SI
+        text = f"{m.group(1)}..{m.group(2)} {SI_UNIT[kind]}"
+        m = _RANGE.match(text)
+    elif not m and re.fullmatch(bare, text.split(",")[-1].strip()):
+        text = text.rstrip() + " " + SI_UNIT[kind]
     if m:
         lo_t, hi_t = m.group(1), m.group(2)
         unit = re.sub(r"^[\s+\-0-9.eE]*", "", hi_t)

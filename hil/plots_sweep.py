@@ -52,11 +52,9 @@ def sweep_figure(report: dict, title: str = ""):
         for lo, hi in report.get("admissible") or []:
             tip.axvspan(lo, hi, color="C2", alpha=0.08)
         if report.get("estimate_error_pct") is not None:
-            tip.text(0.02, 0.97, f"2-dof estimate error {report['estimate_error_pct']:.1f} %",
-                     transform=tip.transAxes, va="top", fontsize=9)
-        ymax = max([max(_xy(r, "overshoot_tip_um")[1] or [0]) for r, *_ in series if r] + [tol])
-        tip.set_yscale("symlog", linthresh=max(tol, 1e-3))
-        tip.set_ylim(0, ymax * 1.5)
+            tip.text(0.98, 0.03, f"2-dof estimate error {report['estimate_error_pct']:.1f} %",
+                     transform=tip.transAxes, va="bottom", ha="right", fontsize=9)
+        tip.set_yscale("symlog", linthresh=max(tol / 8, 1e-3))
     for m in report.get("local_minima") or []:
         axes[1].plot([m["j_max"]], [m["overshoot_tip_um"]], "o", mfc="none", mec="C1", ms=9)
     p = report.get("proposal") or {}
@@ -64,8 +62,10 @@ def sweep_figure(report: dict, title: str = ""):
         axes[1].plot([p["j_max"]], [p["overshoot_tip_um"]], "*", color="C1", ms=12,
                      label=f"proposed {p['j_max']:.3g} m/s^3 (<= {p['budget_s']:.3g} s)" if p.get("budget_s")
                      else f"proposed {p['j_max']:.3g} m/s^3")
+    axes[0].set_yscale("symlog", linthresh=1.0)
     for ax in axes:
-        ax.legend(fontsize=7.5, loc="upper left" if ax is axes[0] else "lower right")
+        ax.set_ylim(bottom=0)
+        ax.legend(fontsize=7, loc="upper left")
     mv = report.get("move", {})
     fig.suptitle(title or (f"overshoot vs. jerk: stroke {mv.get('stroke_m', 0) * 1e3:g} mm, feed "
                            f"{mv.get('feed_m_per_s', 0) * 60:g} m/min, dwell {mv.get('dwell_s', 0):g} s"))

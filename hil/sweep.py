@@ -377,11 +377,12 @@ class _Dask:
         from distributed import as_completed as das_completed
         if not tasks:
             return
-        cfg_f = self.client.scatter(cfg, broadcast=True)
-        futs = [self.client.submit(_task, cfg_f, key, spec, key=f"sweep-{hashlib.sha1(key.encode()).hexdigest()}",
+        futs = [self.client.submit(_task, cfg, key, spec, key=f"sweep-{hashlib.sha1(key.encode()).hexdigest()}",
                                    pure=False) for key, spec in tasks]
         try:
-            for fut in das_completed(futs):
+            with self.client.as_current():
+                done = das_completed(futs)
+            for fut in done:
                 yield fut.result()
         finally:
             for f in futs:
@@ -427,6 +428,12 @@ class ResultStore:
             if not resume and self.path.exists():
                 self.path.unlink()
             if self.path.exists():
+                with open(self.path, "rb+") as fh:     # end a line cut by an interruption
+                    fh.seek(0, os.SEEK_END)
+                    if fh.tell() > 0:
+                        fh.seek(-1, os.SEEK_END)
+                        if fh.read(1) != b"\n":
+                            fh.write(b"\n")
                 with open(self.path) as fh:
                     for line in fh:
                         try:
