@@ -1,0 +1,124 @@
+"""CiA 402 (IEC 61800-7-201) device control written as data: the states and how the statusword
+shows them, the controlword commands and how a drive recognises them, the transitions of the
+power state machine, and the host's way up to Operation Enabled.
+
+Both sides read these tables: the host backend (drivers.canopen) to drive a real or simulated
+drive up and down, the simulated drive (drivers.drive_sim) to answer. They agree with
+``canopen.profiles.p402.State402`` (checked in tests/test_canopen.py).
+"""
+from __future__ import annotations
+
+__all__ = ["STATES", "STATUSWORD", "COMMANDS", "COMMAND_RECOGNITION", "TRANSITIONS", "NEXT_TO_ENABLE",
+           "MODES", "MODE_CLOSES", "state_from_statusword", "command_from_controlword", "next_state",
+           "statusword_for", "SW_BITS", "CW_BITS"]
+
+# --- states and the statusword (mask, value) -----------------------------------------------------
+STATUSWORD = {
+    "NOT READY TO SWITCH ON": (0x4F, 0x00),
+    "SWITCH ON DISABLED": (0x4F, 0x40),
+    "READY TO SWITCH ON": (0x6F, 0x21),
+    "SWITCHED ON": (0x6F, 0x23),
+    "OPERATION ENABLED": (0x6F, 0x27),
+    "QUICK STOP ACTIVE": (0x6F, 0x07),
+    "FAULT REACTION ACTIVE": (0x4F, 0x0F),
+    "FAULT": (0x4F, 0x08),
+}
+STATES = tuple(STATUSWORD)
+
+SW_BITS = {"ready_to_switch_on": 0, "switched_on": 1, "operation_enabled": 2, "fault": 3, "voltage_enabled": 4,
+           "quick_stop": 5, "switch_on_disabled": 6, "warning": 7, "remote": 9, "target_reached": 10,
+           "internal_limit": 11, "setpoint_acknowledge": 12, "following_error": 13}
+CW_BITS = {"switch_on": 0, "enable_voltage": 1, "quick_stop": 2, "enable_operation": 3, "fault_reset": 7,
+           "halt": 8}
+
+# --- controlword commands: the value the host sends, and (mask, value) the drive recognises ------
+COMMANDS = {
+    "SHUTDOWN": 0x06,
+    "SWITCH ON": 0x07,
+    "DISABLE VOLTAGE": 0x00,
+    "QUICK STOP": 0x02,
+    "DISABLE OPERATION": 0x07,
+    "ENABLE OPERATION": 0x0F,
+    "FAULT RESET": 0x80,
+}
+# checked in this order (the first match wins); FAULT RESET acts on the rising edge of bit 7
+COMMAND_RECOGNITION = (
+    ("FAULT RESET", 0x80, 0x80),
+    ("DISABLE VOLTAGE", 0x82, 0x00),
+    ("QUICK STOP", 0x86, 0x02),
+    ("SHUTDOWN", 0x87, 0x06),
+    ("SWITCH ON", 0x8F, 0x07),          # DISABLE OPERATION from OPERATION ENABLED
+    ("ENABLE OPERATION", 0x8F, 0x0F),
+)
+
+# --- transitions: (state, command) -> next state (numbers as in CiA 402 Figure "state machine") ---
+TRANSITIONS = {
+    ("SWITCH ON DISABLED", "SHUTDOWN"): "READY TO SWITCH ON",                 # 2
+    ("READY TO SWITCH ON", "SWITCH ON"): "SWITCHED ON",                       # 3
+    ("SWITCHED ON", "ENABLE OPERATION"): "OPERATION ENABLED",                 # 4
+    ("OPERATION ENABLED", "SWITCH ON"): "SWITCHED ON",                        # 5 (disable operation)
+    ("SWITCHED ON", "SHUTDOWN"): "READY TO SWITCH ON",                        # 6
+    ("READY TO SWITCH ON", "DISABLE VOLTAGE"): "SWITCH ON DISABLED",          # 7
+    ("READY TO SWITCH ON", "QUICK STOP"): "SWITCH ON DISABLED",               # 7
+    ("OPERATION ENABLED", "SHUTDOWN"): "READY TO SWITCH ON",                  # 8
+    ("OPERATION ENABLED", "DISABLE VOLTAGE"): "SWITCH ON DISABLED",           # 9
+    ("SWITCHED ON", "DISABLE VOLTAGE"): "SWITCH ON DISABLED",                 # 10
+    ("SWITCHED ON", "QUICK STOP"): "SWITCH ON DISABLED",                      # 10
+    ("OPERATION ENABLED", "QUICK STOP"): "QUICK STOP ACTIVE",                 # 11
+    ("QUICK STOP ACTIVE", "DISABLE VOLTAGE"): "SWITCH ON DISABLED",           # 12
+    ("QUICK STOP ACTIVE", "ENABLE OPERATION"): "OPERATION ENABLED",           # 16
+    ("FAULT", "FAULT RESET"): "SWITCH ON DISABLED",                           # 15
+}
+
+# the host's next command on the way to OPERATION ENABLED, from each state
+NEXT_TO_ENABLE = {
+    "NOT READY TO SWITCH ON": None,            # wait: the drive leaves it by itself (transition 1)
+    "SWITCH ON DISABLED": "SHUTDOWN",
+    "READY TO SWITCH ON": "SWITCH ON",
+    "SWITCHED ON": "ENABLE OPERATION",
+    "OPERATION ENABLED": None,
+    "QUICK STOP ACTIVE": "DISABLE VOLTAGE",    # through SWITCH ON DISABLED: a fresh enable
+    "FAULT REACTION ACTIVE": None,             # wait for FAULT
+    "FAULT": "FAULT RESET",
+}
+
+# --- modes of operation (0x6060) and the loops the drive closes in each ----------------------------
+MODES = {"csp": 8, "csv": 9, "cst": 10}
+MODE_CLOSES = {"csp": "both", "csv": "velocity", "cst": "none"}
+
+
+def state_from_statusword(sw: int) -> str:
+    for state, (mask, value) in STATUSWORD.items():
+        if sw & mask == value:
+            return state
+    return "NOT READY TO SWITCH ON"
+
+
+def statusword_for(state: str, extra: int = 0) -> int:
+    """The statusword a drive shows in ``state`` (voltage enabled and remote set where they apply)."""
+    value = STATUSWORD[state][1]
+    if state in ("READY TO SWITCH ON", "SWITCHED ON", "OPERATION ENABLED", "QUICK STOP ACTIVE"):
+        value |= 1 << SW_BITS["voltage_enabled"]
+    return value | (1 << SW_BITS["remote"]) | extra
+
+
+def command_from_controlword(cw: int, previous_cw: int = 0) -> str | None:
+    """The command a controlword carries (FAULT RESET only on the rising edge of bit 7)."""
+    for name, mask, value in COMMAND_RECOGNITION:
+        if cw & mask == value:
+            if name == "FAULT RESET":
+                if previous_cw & 0x80:
+                    continue
+            return name
+    return None
+
+
+def next_state(state: str, cw: int, previous_cw: int = 0) -> str:
+    """The drive side: the state after receiving ``cw`` in ``state`` (unchanged where no transition)."""
+    cmd = command_from_controlword(cw, previous_cw)
+    if cmd is None:
+        return state
+    if cmd == "FAULT RESET" and state != "FAULT":
+        # bit 7 set outside FAULT: the other bits still command
+        cmd = command_from_controlword(cw & ~0x80, 0)
+    return TRANSITIONS.get((state, cmd), state)
