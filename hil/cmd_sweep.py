@@ -44,7 +44,8 @@ CSV_FIELDS = ("model", "analysis", "grid", "j_max", "a_max", "t_acc", "peak_spee
 def add_arguments(p) -> None:
     p.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config parameter, e.g. --set plant.c2=33 (repeatable; also applied to --compare)")
+                   help="override a config parameter, e.g. --set plant.c2=33 (repeatable; applied to --compare "
+                        "where that model has the parameter)")
     p.add_argument("--stroke", required=True, help="stroke of each move, e.g. 590mm")
     p.add_argument("--feed", required=True, help="feed (peak speed), e.g. 15m/min")
     p.add_argument("--g0", help="rapid speed G0 for t_acc (default: the config's nc.g0)")
@@ -240,7 +241,11 @@ def run(args) -> int:
 
     overrides = dict(parse_assignment(s) for s in args.set)
     cfg = load(args.config, overrides)
-    cmp_cfg = load(args.compare, overrides) if args.compare else None
+    cmp_cfg = None
+    if args.compare:
+        cmp_cfg = load(args.compare)
+        shared = {k: v for k, v in overrides.items() if k in cmp_cfg.keys()}   # e.g. control gains
+        cmp_cfg = load(args.compare, shared) if shared else cmp_cfg
     s = settings_from_args(args, cfg)
     if s.analysis != "mechatronic" and cfg.n_masses < 2:
         raise UserError(f"--analysis {s.analysis}: the transmission analysis needs a chain of at least 2 masses")
