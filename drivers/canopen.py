@@ -409,9 +409,9 @@ class CanopenBackend(Backend):
 
     def wait_stopped(self, max_cycles: int = 2000) -> str:
         """Keep the SYNC going until the drive has finished its quick stop (state leaves QUICK STOP ACTIVE)."""
-        for _ in range(max_cycles):
+        for i in range(max_cycles):
             st = cia402.state_from_statusword(self._rx.get(0x6041, 0))
-            if st != "QUICK STOP ACTIVE":
+            if st != "QUICK STOP ACTIVE" and i > 0:
                 return st
             self.network.send_message(0x80, b"")
             self.syncs += 1

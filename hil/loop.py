@@ -143,7 +143,9 @@ class ControlLoop:
                 v_cmd = (cmd[k + 1] - cmd[k]) / self.ctrl.position_period
                 for j in range(self.per_tick):
                     fb = b.read_feedback()
-                    if fb.fault:
+                    if fb.fault and (self.supervisor is None or j != 0):
+                        if self.supervisor is not None and hasattr(self.supervisor, "trip"):
+                            self.supervisor.trip(k * self.ctrl.position_period, fb.fault, fb)
                         raise BackendFault(fb.fault)
                     if b.closes == "both":
                         b.write_setpoint(Setpoint(position=cmd[k + 1]))

@@ -1,0 +1,121 @@
+"""Each injected fault against the simulated CiA 402 drive on python-can's virtual bus (lockstep,
+simulated time): the supervisor's reaction time in cycles, the stop, the recorded reason, the
+intact recording."""
+import itertools
+import math
+
+import can
+import pytest
+
+from drivers.canopen import CanopenBackend
+from drivers.drive_sim import DriveSim
+from hil import config
+from hil.measurement import read as read_measurement
+from hil.profiles import MoveSpec, Trajectory
+from hil.runtime import run_trajectory
+from hil.supervisor import Supervisor, SupervisorTripped
+
+_ids = itertools.count()
+
+
+def _rig(mode="csp", **ov):
+    over = {"canopen.lockstep": True, "canopen.pdo_timeout": "100 ms"}
+    if mode == "cst":
+        over["control.velocity_period"] = "1 ms"
+    over.update(ov)
+    cfg = config.load("config/paper_bench_canopen.toml", over)
+    ch = f"sup{next(_ids)}"
+    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), mode=mode, lockstep=True)
+    return cfg, sim, be
+
+
+class Injector(Supervisor):
+    def __init__(self, cfg, sim, at, fault, value=None, **kw):
+        super().__init__(cfg, **kw)
+        self.sim, self.at, self.fault, self.value = sim, at, fault, value
+
+    def check(self, t, fb, x_cmd):
+        if self.k == self.at:
+            self.sim.inject(self.fault, self.value)
+        return super().check(t, fb, x_cmd)
+
+
+def _traj():
+    tr = Trajectory(start=0.0)
+    tr.move(MoveSpec(stroke=0.05, feed=0.1, a_max=2.0))
+    tr.dwell(0.1)
+    return tr
+
+
+AT = 20
+
+
+@pytest.mark.parametrize("fault,value,word,max_cycles", [
+    ("emcy", 0x2310, "EMCY 0x2310", 1),
+    ("missing_pdo", 5, "lost communication", 2),
+    ("late_pdo", 0.5, "lost communication", 2),
+    ("following_error", 0.03, "following error at the table", 1),
+    ("frozen_encoder", None, "frozen", 10),
+    ("heartbeat_loss", None, "heartbeat lost", 100),
+])
+def test_fault_trips_and_stops(tmp_path, fault, value, word, max_cycles):
+    cfg, sim, be = _rig()
+    sup = Injector(cfg, sim, AT, fault, value)
+    out = tmp_path / "run.csv"
+    try:
+        rec = run_trajectory(cfg, _traj(), backend=be, out_file=out, settle=0.0, supervisor=sup)
+    finally:
+        sim.close()
+    assert rec.status in ("tripped", "fault"), rec.reason
+    assert word in rec.reason and word in sup.reason
+    reaction = sup.trip_cycle - AT
+    assert 0 <= reaction <= max_cycles, reaction
+    # controlled stop commanded in the cycle of the detection
+    assert be.quick_stop_sync is not None and be.quick_stop_sync - (sup.trip_cycle) <= 1
+    if fault not in ("emcy",):
+        assert sim.quick_stop_at is not None
+        assert abs(sim.plant.x[sim.plant.plant.n]) < 1e-3       # the axis is at rest
+    assert sup.record["last_cycles"] and sup.record["reason"] == sup.reason
+    # the recording is intact up to the trip and says why it ended
+    m = read_measurement(out)
+    assert len(m.channels["t"]) == sup.trip_cycle + 1
+    assert all(math.isfinite(v) for v in m.channels["x_table"])
+    with pytest.raises(SupervisorTripped):
+        sup.arm()
+    sup.reset()
+    sup.arm()
+
+
+def test_drive_side_guard_stops_axis_when_host_dies():
+    """The link dies mid-move: the drive's heartbeat consumer (0x1016) quick-stops it (0x6007 = 3)."""
+    cfg, sim, be = _rig()
+    try:
+        be.open()
+        be.enable()
+        for _ in range(10):
+            be.read_feedback()
+            be.write_setpoint(be.read_feedback().__class__(0, 0, 0) and __import__("drivers.base").base.Setpoint(position=0.0))
+            be.sync()
+        sim.plant.x[sim.plant.plant.n:] = 0.05         # moving at 50 mm/s
+        sim.advance(200)                               # no SYNC, no host heartbeat for 0.8 s
+        assert sim.quick_stop_at is not None
+        assert sim.state == "SWITCH ON DISABLED"
+        assert abs(sim.plant.x[sim.plant.plant.n]) < 1e-3
+    finally:
+        be.close()
+        sim.close()
+
+
+def test_limits_refused_and_latch(tmp_path):
+    cfg, sim, be = _rig()
+    sim.close()
+    sup = Supervisor(cfg, latch_file=str(tmp_path / "latch.json"))
+    from drivers.base import Feedback
+    assert sup.check(0.0, Feedback(0, 0, 0), 0.0) is None
+    r = sup.check(0.004, Feedback(0, 0, 0), 1.5)
+    assert r and "travel limit" in r
+    assert Supervisor(cfg, latch_file=str(tmp_path / "latch.json")).tripped     # survives the process
+    s2 = Supervisor(cfg, latch_file=str(tmp_path / "latch.json"))
+    s2.reset()
+    Supervisor(cfg, latch_file=str(tmp_path / "latch.json")).arm()
