@@ -1,0 +1,234 @@
+"""The command set of an ASCII serial drive, described in configuration, and its reply parser.
+
+A command set is data (the ``[serial]`` section of the axis configuration, see
+``config/serial_ascii_example.toml`` and ``docs/serial.md``):
+
+* ``serial.commands.<op>``: the template of each operation, a Python format string whose fields
+  are whole numbers in drive units: ``{position}`` (counts), ``{speed}`` (counts/s),
+  ``{output}`` (torque units), ``{ms}`` (watchdog time in milliseconds);
+* ``serial.replies.<op>``: a regular expression the whole reply line must match (``fullmatch``);
+  named groups carry values: ``echo`` (must equal the value sent, so that a setpoint counts only
+  once the drive has confirmed it), ``x_motor``, ``x_table``, ``v_motor``, ``output``, ``fault``
+  (0 = no fault), ``name``; ``serial.replies.error`` matches the drive's refusal (``code``);
+* ``serial.line_ending``, ``serial.checksum`` (``none`` | ``sum8`` | ``xor8``: two upper-case
+  hex digits of the 8-bit sum / xor of the line's bytes, after ``serial.checksum_separator``),
+  ``serial.max_reply`` (bytes).
+
+Operations: ``identify``, ``watchdog``, ``clear_fault`` (optional), ``enable``, ``disable``,
+``quick_stop``, ``set_position`` (position mode) or ``set_speed`` (velocity mode), ``read``.
+
+:func:`CommandSet.parse` never raises anything but :class:`ReplyError` (and its subclasses), whatever
+the bytes; it bounds the line length before any regular expression sees it.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+__all__ = ["CommandSet", "ReplyError", "ChecksumError", "GarbledReply", "UnexpectedReply", "DriveRefused",
+           "OPERATIONS", "checksum", "FEEDBACK_GROUPS"]
+
+OPERATIONS = ("identify", "watchdog", "clear_fault", "enable", "disable", "quick_stop", "set_position",
+              "set_speed", "set_output", "read")
+FEEDBACK_GROUPS = ("x_motor", "x_table", "v_motor", "output", "fault")
+CHECKSUMS = ("none", "sum8", "xor8")
+_INT = re.compile(r"[+-]?[0-9]{1,12}\Z")
+_FIELD = re.compile(r"\{([a-z_]+)\}")
+
+
+class ReplyError(Exception):
+    """A reply that cannot be accepted (retry, then fault)."""
+
+
+class GarbledReply(ReplyError):
+    """Not a line of printable ASCII (noise, a partial line, bytes of another baud rate)."""
+
+
+class ChecksumError(ReplyError):
+    """The line's checksum is missing or wrong."""
+
+
+class UnexpectedReply(ReplyError):
+    """A well-formed line that is not the reply to this command (or echoes another value)."""
+
+
+class DriveRefused(ReplyError):
+    """The drive answered with its error reply (``serial.replies.error``)."""
+
+    def __init__(self, msg: str, code: str = ""):
+        super().__init__(msg)
+        self.code = code
+
+
+def checksum(kind: str, body: bytes) -> str:
+    if kind == "sum8":
+        return f"{sum(body) & 0xFF:02X}"
+    if kind == "xor8":
+        x = 0
+        for b in body:
+            x ^= b
+        return f"{x:02X}"
+    return ""
+
+
+def _decode_eol(text: str) -> bytes:
+    """``line_ending`` as written in TOML ("\\r") or spelled out ("CR", "LF", "CRLF")."""
+    named = {"CR": "\r", "LF": "\n", "CRLF": "\r\n"}
+    text = named.get(text.upper(), text) if text else "\r"
+    return text.encode("ascii")
+
+
+@dataclass
+class CommandSet:
+    commands: dict[str, str]
+    replies: dict[str, str]
+    line_ending: bytes = b"\r"
+    checksum: str = "none"
+    checksum_separator: str = "*"
+    max_reply: int = 128
+    _re: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self):
+        if self.checksum not in CHECKSUMS:
+            raise ValueError(f"serial.checksum: expected one of {', '.join(CHECKSUMS)}, got {self.checksum!r}")
+        if not self.line_ending:
+            raise ValueError("serial.line_ending: empty")
+        for op, tpl in self.commands.items():
+            for name in _FIELD.findall(tpl):
+                if name not in ("position", "speed", "output", "ms"):
+                    raise ValueError(f"serial.commands.{op}: unknown field {{{name}}} "
+                                     "(known: position, speed, output, ms)")
+        for op, pat in self.replies.items():
+            try:
+                self._re[op] = re.compile(pat)
+            except re.error as exc:
+                raise ValueError(f"serial.replies.{op}: not a regular expression ({exc})") from None
+        for op in self.commands:
+            if op != "error" and op not in self.replies:
+                raise ValueError(f"serial.commands.{op} has no serial.replies.{op}: every command must be confirmed")
+
+    # -- building ------------------------------------------------------------------------------
+    @classmethod
+    def from_config(cls, cfg) -> "CommandSet":
+        commands = cfg.section("serial.commands") if hasattr(cfg, "section") else cfg.get("commands", {})
+        replies = cfg.section("serial.replies") if hasattr(cfg, "section") else cfg.get("replies", {})
+        commands = {k: v for k, v in commands.items() if v is not None}
+        replies = {k: v for k, v in replies.items() if v is not None}
+        return cls(commands, replies, _decode_eol(cfg.get("serial.line_ending", "\r")),
+                   cfg.get("serial.checksum", "none"), cfg.get("serial.checksum_separator", "*"),
+                   int(cfg.get("serial.max_reply", 128)))
+
+    def has(self, op: str) -> bool:
+        return op in self.commands
+
+    def body(self, op: str, **values) -> str:
+        return self.commands[op].format(**{k: int(v) for k, v in values.items()})
+
+    def frame(self, text: str) -> bytes:
+        """A line (command or reply) with its checksum and line ending."""
+        raw = text.encode("ascii")
+        if self.checksum != "none":
+            raw += (self.checksum_separator + checksum(self.checksum, raw)).encode("ascii")
+        return raw + self.line_ending
+
+    def encode(self, op: str, **values) -> bytes:
+        return self.frame(self.body(op, **values))
+
+    # -- parsing -------------------------------------------------------------------------------
+    def unframe(self, line: bytes) -> str:
+        """The text of one received line (line ending stripped or absent), checksum verified."""
+        if line.endswith(self.line_ending):
+            line = line[:-len(self.line_ending)]
+        if len(line) > self.max_reply:
+            raise GarbledReply(f"reply longer than {self.max_reply} bytes")
+        if any(b < 0x20 or b > 0x7E for b in line):
+            raise GarbledReply(f"non-printable bytes in reply {line[:40]!r}")
+        text = line.decode("ascii")
+        if self.checksum != "none":
+            body, sep, cs = text.rpartition(self.checksum_separator)
+            if not sep:
+                raise ChecksumError(f"reply without checksum: {text[:40]!r}")
+            want = checksum(self.checksum, body.encode("ascii"))
+            if cs.upper() != want:
+                raise ChecksumError(f"checksum {cs[:8]!r} != {want} in {text[:40]!r}")
+            text = body
+        return text
+
+    def parse(self, op: str, line: bytes, sent: dict | None = None) -> dict[str, str]:
+        """The named groups of the reply to ``op``; ``sent`` holds the values the command carried,
+        checked against the reply's ``echo`` group. Raises only :class:`ReplyError`."""
+        try:
+            text = self.unframe(bytes(line))
+        except ReplyError:
+            raise
+        except Exception as exc:       # never anything else, whatever the bytes
+            raise GarbledReply(f"unreadable reply ({type(exc).__name__})") from None
+        err = self._re.get("error")
+        if err is not None and err.fullmatch(text):
+            m = err.fullmatch(text)
+            raise DriveRefused(f"drive refused {op}: {text!r}", m.groupdict().get("code") or "")
+        pat = self._re.get(op)
+        if pat is None:
+            raise UnexpectedReply(f"no reply pattern for {op}")
+        m = pat.fullmatch(text)
+        if m is None:
+            raise UnexpectedReply(f"unexpected reply to {op}: {text[:60]!r}")
+        groups = {k: v for k, v in m.groupdict().items() if v is not None}
+        for k in FEEDBACK_GROUPS + ("echo",):
+            if k in groups and not _INT.match(groups[k]):
+                raise UnexpectedReply(f"{k} = {groups[k][:20]!r} in the reply to {op} is not a whole number")
+        if "echo" in groups and sent:
+            value = next(iter(sent.values()))
+            if int(groups["echo"]) != int(value):
+                raise UnexpectedReply(f"{op}: drive confirmed {groups['echo']} but {int(value)} was sent")
+        return groups
+
+
+# -- a simulated drive's side: commands as patterns, replies rendered from their patterns -------------
+def command_pattern(template: str) -> re.Pattern:
+    """A command template as a regular expression (the simulated drive recognises commands so)."""
+    out, pos = [], 0
+    for m in _FIELD.finditer(template):
+        out.append(re.escape(template[pos:m.start()]))
+        out.append(f"(?P<{m.group(1)}>[+-]?[0-9]{{1,12}})")
+        pos = m.end()
+    out.append(re.escape(template[pos:]))
+    return re.compile("".join(out))
+
+
+_GROUP_START = re.compile(r"\(\?P<([A-Za-z_][A-Za-z0-9_]*)>")
+_ESCAPED = re.compile(r"\\(.)")
+
+
+def render_reply(pattern: str, values: dict) -> str:
+    """Fill a *simple* reply pattern (literal text and named groups) with ``values``: what a drive
+    that speaks the command set sends. Raises ValueError for patterns that are not simple."""
+    out, pos = [], 0
+    for m in _GROUP_START.finditer(pattern):
+        if m.start() < pos:
+            continue
+        out.append(_literal(pattern[pos:m.start()]))
+        depth, i = 1, m.end()
+        while i < len(pattern) and depth:
+            c = pattern[i]
+            if c == "\\":
+                i += 2
+                continue
+            depth += c == "("
+            depth -= c == ")"
+            i += 1
+        name = m.group(1)
+        if name not in values:
+            raise ValueError(f"no value for group {name!r} of {pattern!r}")
+        out.append(str(values[name]))
+        pos = i
+    out.append(_literal(pattern[pos:]))
+    return "".join(out)
+
+
+def _literal(part: str) -> str:
+    plain = _ESCAPED.sub("", part)
+    if any(c in plain for c in "()[]{}*+?|^$."):
+        raise ValueError(f"reply pattern part {part!r} is not literal text (the simulated drive renders only "
+                         "literal text and named groups)")
+    return _ESCAPED.sub(lambda m: m.group(1), part)
