@@ -19,7 +19,7 @@ _ids = itertools.count()
 
 
 def _rig(mode="csp", **ov):
-    over = {"canopen.lockstep": True, "canopen.pdo_timeout": "100 ms"}
+    over = {"canopen.lockstep": True, "canopen.pdo_timeout": "400 ms"}
     if mode == "cst":
         over["control.velocity_period"] = "1 ms"
     over.update(ov)
