@@ -44,6 +44,7 @@ class Field:
     choices: tuple = ()
     positive: bool = False          # strictly > 0
     nonnegative: bool = False       # >= 0
+    allow_inf: bool = False         # "inf" accepted (an integral time that switches the integral off)
 
     def kind_for(self, values: dict) -> str:
         return self.kind(values) if callable(self.kind) else self.kind
@@ -114,7 +115,7 @@ SCHEMA: dict[str, Field] = {
     "control.kp": Field(_velocity_gain_kind, "velocity-loop proportional gain Kp", required=True,
                         nonnegative=True),
     "control.ti": Field("time", "velocity-loop integral time Ti; \"inf\" = P only", default=math.inf,
-                        positive=True),
+                        positive=True, allow_inf=True),
     "control.velocity_feedback": Field("str", "velocity-loop feedback: the measured motor speed, or a backward "
                                        "difference of the filtered motor position", default="motor_speed",
                                        choices=("motor_speed", "position_difference")),
@@ -155,7 +156,8 @@ SCHEMA: dict[str, Field] = {
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {}
 # The module that registers each such section, imported the first time one of its keys is read.
-SECTION_PROVIDERS = {"effects": "sim_plant.effects", "serial": "drivers.serial"}
+SECTION_PROVIDERS = {"effects": "sim_plant.effects", "serial": "drivers.serial", "canopen": "drivers.canopen",
+                     "supervisor": "hil.supervisor"}
 
 
 def register_section(prefix: str, lookup: Callable[[str], Field | None]) -> None:
@@ -186,6 +188,10 @@ def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
         else:
             out[name] = v
     return out
+
+
+def _known_sections() -> list[str]:
+    return sorted({k.split(".", 1)[0] for k in SCHEMA} | set(SECTION_PROVIDERS))
 
 
 def _known_in_section(section: str) -> str:
@@ -222,6 +228,8 @@ def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
     except UnitError as exc:
         raise ConfigError(str(exc)) from None
     unit = SI_UNIT[kind]
+    if math.isinf(value) and not f.allow_inf:
+        raise ConfigError(f"{what}: expected a finite {kind} ({unit}), got {raw!r}")
     if f.positive and not value > 0:
         raise ConfigError(f"{what}: expected a positive {kind} ({unit}), got {raw!r}")
     if f.nonnegative and not value >= 0:
@@ -326,7 +334,8 @@ def _validate(raw: dict[str, Any], where: str) -> Config:
         if f is None:
             section = key.split(".", 1)[0] if "." in key else ""
             known = _known_in_section(section) if section else ""
-            hint = f" (known keys in [{section}]: {known})" if known else ""
+            hint = f" (known keys in [{section}]: {known})" if known else \
+                f" (known sections: {', '.join(_known_sections())})"
             raise ConfigError(f"{where}: unknown key {key!r}{hint}")
         if key == "actuator.type":
             continue

@@ -118,7 +118,7 @@ class ControlLoop:
             self.per_tick = ctrl.substeps          # cycles per position tick
         else:
             self.per_tick = 1
-        self._delay = [0.0] * (int(ctrl.output_delay) + 1)
+        self._delay = [0.0] * int(ctrl.output_delay)     # outputs still in the computation delay
 
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
         if self.recorder is None:

@@ -66,30 +66,44 @@ class SimulationResult:
 @njit(cache=True, inline="always")
 def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
     """Advance the plant state ``x`` in place over one step: x+ = Ad x + Bd f, where f holds the
-    drive force on mass 1, the effects' forces and, last, the dry friction on the motor (which
-    needs the free motion of the step to decide between sticking and sliding)."""
+    drive force on mass 1, the effects' forces and the dry friction on the motor (which needs the
+    free motion of the step to decide between sticking and sliding).
+
+    Written for speed (this is the simulator's inner loop): one pass over Ad, the friction decided
+    from mass 1's free velocity alone, the other force columns only when effects exist."""
     nn = Ad.shape[0]
     n = nn // 2
-    for i in range(n):
-        f[i] = 0.0
-    f[0] = f_drive
-    if codes.shape[0] > 0:
+    f0 = f_drive
+    effects = codes.shape[0] > 0
+    if effects:
+        for i in range(n):
+            f[i] = 0.0
         effect_forces(codes, eparams, x[:n], x[n:], f)
+        f[0] += f_drive
+        f0 = f[0]
+    stuck = False
+    if dry:
+        v_free = Bd[n, 0] * f0
+        for c in range(nn):
+            v_free += Ad[n, c] * x[c]
+        if effects:
+            for c in range(1, n):
+                v_free += Bd[n, c] * f[c]
+        ff, stuck = friction_force(fric, x[n], v_free, Bd[n, 0])
+        f0 += ff
     for r in range(nn):
-        acc = 0.0
+        acc = Bd[r, 0] * f0
         for c in range(nn):
             acc += Ad[r, c] * x[c]
-        for c in range(n):
-            acc += Bd[r, c] * f[c]
         x_new[r] = acc
-    if dry:
-        ff, stuck = friction_force(fric, x[n], x_new[n], Bd[n, 0])
+    if effects:
         for r in range(nn):
-            x_new[r] += Bd[r, 0] * ff
-        if stuck:
-            x_new[n] = 0.0       # exactly at rest, not a round-off away from it
+            for c in range(1, n):
+                x_new[r] += Bd[r, c] * f[c]
     for r in range(nn):
         x[r] = x_new[r]
+    if stuck:
+        x[n] = 0.0       # exactly at rest, not a round-off away from it
 
 
 @njit(cache=True)
@@ -113,7 +127,7 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     u_act = 0.0
     dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
     K = x_cmd.shape[0] - 1
-    tp = p[1]
+    tp = p[0]          # P.TP
     rec = 0
     step = 0
     w_ref = 0.0
@@ -146,7 +160,8 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                 U[rec] = u_act
                 XM[rec] = xm
                 XT[rec] = quantize(x[table], res_table)
-                XCMD[rec] = x_cmd[k]
+                # between ticks the command is interpolated, as the NC's fine interpolation would
+                XCMD[rec] = x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub
                 rec += 1
             # --- plant over one Tv ---
             plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)

@@ -55,6 +55,12 @@ SI_UNIT = {
 }
 
 
+def _finite_or_nan(value: float, what: str, kind: str) -> float:
+    if math.isnan(value):
+        raise UnitError(f"{what}: NaN is not a {kind}")
+    return value
+
+
 @lru_cache(maxsize=1)
 def _registry():
     import pint
@@ -91,6 +97,10 @@ def parse(value, kind: str, what: str = "value") -> float:
             raise UnitError(f"{what}: empty string, expected a {kind} ({SI_UNIT[kind]})")
         if text.lower() in ("inf", "+inf", "infinity"):
             return math.inf
+        try:
+            return _finite_or_nan(float(text), what, kind)      # a bare number: SI already
+        except ValueError:
+            pass
         ureg = _registry()
         try:
             q = ureg.Quantity(text)

@@ -6,6 +6,7 @@ on it. The 2-dof and 3-dof models of the paper are the chains of 2 and 3 masses;
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 import scipy.linalg
@@ -42,6 +43,14 @@ def zoh(ss: StateSpace, dt: float) -> StateSpace:
     block[:n, n:] = ss.B
     e = scipy.linalg.expm(block * dt)
     return StateSpace(np.ascontiguousarray(e[:n, :n]), np.ascontiguousarray(e[:n, n:]), ss.C.copy(), ss.D.copy(), dt)
+
+
+@lru_cache(maxsize=64)
+def _discretize_cached(chain: "Chain", dt: float, inputs: str) -> StateSpace:
+    d = zoh(chain.state_space(inputs), dt)
+    for a in (d.A, d.B, d.C, d.D):
+        a.setflags(write=False)
+    return d
 
 
 @dataclass(frozen=True)
@@ -110,7 +119,9 @@ class Chain:
         return StateSpace(A, B, C, np.zeros((n, B.shape[1])))
 
     def discretize(self, dt: float, inputs: str = "all") -> StateSpace:
-        return zoh(self.state_space(inputs), dt)
+        """Exact ZOH discretization (cached: sweeps and fits discretize the same chain many times;
+        treat the returned matrices as read-only)."""
+        return _discretize_cached(self, float(dt), inputs)
 
     def modes(self):
         """Undamped modes by the generalized eigenproblem K phi = w^2 M phi.
