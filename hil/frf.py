@@ -214,6 +214,7 @@ class FrfSettings:
     noise_speed: float = 0.0
     noise_position: float = 0.0
     seed: int = 1
+    auto_settle: bool = True
 
 
 @dataclass
@@ -251,7 +252,7 @@ def _command(ctrl, st: FrfSettings, n_steps_exc: int, x0: float = 0.0):
 def _settle_time(plant, st: FrfSettings) -> float:
     """Seconds of excitation before averaging: at least ``st.settle``, and six time constants of
     the slowest mode of the (model) plant (a lightly damped mode rings long), at most 15 s."""
-    if plant is None:
+    if plant is None or not st.auto_settle:
         return st.settle
     try:
         wd, zd = plant.chain.damped_modes(include_ground=True)
@@ -724,14 +725,18 @@ def margins(f, L) -> dict:
     mag = np.abs(L)
     ph = np.unwrap(np.angle(L))
     out = {"crossover_hz": None, "phase_margin_deg": None, "phase_crossover_hz": None, "gain_margin_db": None}
-    idx = np.nonzero((mag[:-1] >= 1) & (mag[1:] < 1))[0]
-    if idx.size:
-        i = idx[0]
+    # every crossing of |L| = 1: the crossover is the last one down, the phase margin the least
+    idx = np.nonzero((mag[:-1] >= 1) != (mag[1:] >= 1))[0]
+    pms = []
+    for i in idx:
         t = (np.log(mag[i])) / (np.log(mag[i]) - np.log(mag[i + 1]))
-        fc = f[i] + t * (f[i + 1] - f[i])
         phc = ph[i] + t * (ph[i + 1] - ph[i])
-        out["crossover_hz"] = float(fc)
-        out["phase_margin_deg"] = float(((np.degrees(phc) + 180) + 180) % 360 - 180)
+        # the angular distance of L from -180 deg where |L| = 1
+        pms.append(float(180 - abs((np.degrees(phc) + 180) % 360 - 180)))
+        if mag[i] >= 1:
+            out["crossover_hz"] = float(f[i] + t * (f[i + 1] - f[i]))
+    if pms:
+        out["phase_margin_deg"] = min(pms)
     cross = np.nonzero(np.diff(np.floor((ph + np.pi) / (2 * np.pi))) != 0)[0]
     if cross.size:
         gms = []
@@ -749,14 +754,16 @@ def bandwidth(f, T) -> float | None:
     return float(f[idx[0]]) if idx.size else None
 
 
-def largest_gain(f, L, pm_min: float, gm_min_db: float) -> tuple[float, dict]:
+def largest_gain(f, L, pm_min: float, gm_min_db: float, f_trust: float = math.inf) -> tuple[float, dict]:
     """Largest factor a on the loop gain (a L) keeping the phase margin >= pm_min and the gain
-    margin >= gm_min_db, within the measured band. Returns (a, margins at a)."""
+    margin >= gm_min_db, with the crossover below ``f_trust`` (the measured band's top: above it
+    only the model speaks). Returns (a, margins at a)."""
     best = (None, None)
     for a in np.logspace(-1.5, 1.5, 241):
         m = margins(f, a * L)
         ok = (m["phase_margin_deg"] is None or m["phase_margin_deg"] >= pm_min) and \
-             (m["gain_margin_db"] is None or m["gain_margin_db"] >= gm_min_db) and m["crossover_hz"] is not None
+             (m["gain_margin_db"] is None or m["gain_margin_db"] >= gm_min_db) and m["crossover_hz"] is not None \
+             and m["crossover_hz"] <= f_trust
         if ok:
             best = (float(a), m)
     return best
@@ -788,16 +795,18 @@ def tuning(responses: dict, ctrl, modes: list[dict], pm_min: float = 45.0, gm_mi
     lp = _extended(responses.get("Lp"), model_wide, "Lp", 0.5 / ctrl.position_period)
     if lv is not None:
         out["velocity_loop"] = dict(margins(lv.f, lv.h), bandwidth_hz=bandwidth(lv.f, lv.h / (1 + lv.h)))
-        a, m = largest_gain(lv.f, lv.h, pm_min, gm_min_db)
+        f_trust = responses["Lv"].f[-1]
+        a, m = largest_gain(lv.f, lv.h, pm_min, gm_min_db, f_trust)
         if a is not None:
             out["velocity_loop"]["kp_max"] = ctrl.kp * a
             out["velocity_loop"]["at_kp_max"] = m
             diff.append(f'control.kp = "{ctrl.kp * a:.4g} N*m*s/rad"   # was {ctrl.kp:.4g}: largest Kp keeping '
-                        f'PM >= {pm_min:g} deg, GM >= {gm_min_db:g} dB (crossover {m["crossover_hz"]:.1f} Hz)')
+                        f'PM >= {pm_min:g} deg, GM >= {gm_min_db:g} dB with the crossover ({m["crossover_hz"]:.1f} Hz) '
+                        f'inside the measured band')
     if lp is not None:
         out["position_loop"] = dict(margins(lp.f, lp.h))
-        T = responses["Tp"].h if "Tp" in responses else lp.h / (1 + lp.h)
-        out["position_loop"]["bandwidth_hz"] = bandwidth(lp.f, T)
+        # the feedback's bandwidth (the feed-forward makes x/x_cmd flat far beyond it)
+        out["position_loop"]["bandwidth_hz"] = bandwidth(lp.f, lp.h / (1 + lp.h))
         a, m = largest_gain(lp.f, lp.h, pm_min, gm_min_db)
         if a is not None:
             out["position_loop"]["kv_max"] = ctrl.kv * a
@@ -813,9 +822,19 @@ def tuning(responses: dict, ctrl, modes: list[dict], pm_min: float = 45.0, gm_mi
             near = np.abs(lv.f - fm) < max(3 * zm * fm, 2 * (lv.f[1] - lv.f[0]))
             if not near.any():
                 continue
-            peak = float(np.max(np.abs(lv.h[near])))
-            peak_db = 20 * np.log10(peak)
-            if fm > fc and peak_db > -gm_min_db:
+            ipk = np.argmax(np.abs(lv.h) * near)
+            peak_db = float(20 * np.log10(np.abs(lv.h[ipk])))
+            ph_pk = float(np.degrees(np.angle(lv.h[ipk])))
+            # phase distance from -180 deg at the peak: a collocated mode (phase near 0) is
+            # phase-stabilised, a mode near -180 deg must be gain-stabilised
+            dist = 180 - abs(ph_pk)
+            if fm > fc and peak_db > -gm_min_db and dist > 90:
+                filters.append({"mode_hz": fm, "loop_gain_db": peak_db, "phase_deg": ph_pk,
+                                "note": "phase-stabilised (loop phase far from -180 deg at the mode): no filter "
+                                        "needed at the present gains; a notch would cost phase margin"})
+                diff.append(f"# velocity loop: |Lv| = {peak_db:+.1f} dB at the {fm:.1f} Hz mode, phase {ph_pk:.0f} deg: "
+                            f"phase-stabilised, no filter needed now (a notch at {fm:.1f} Hz if delays grow)")
+            elif fm > fc and peak_db > -gm_min_db:
                 depth = peak_db + gm_min_db + 6
                 width = max(2 * zm * fm * 2, 0.1 * fm)
                 filters.append({"mode_hz": fm, "loop_gain_db": peak_db, "notch_hz": fm, "notch_width_hz": width,
@@ -895,7 +914,8 @@ class FrfResult:
         }
 
 
-def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progress=None) -> FrfResult:
+def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progress=None, pm_min: float = 45.0,
+            gm_min_db: float = 6.0) -> FrfResult:
     """Excite, estimate, set against the model, fit the modes, suggest. ``plant_true`` is what the
     simulated run uses (None with a backend); ``plant_model`` the config's model."""
     if backend is None:
@@ -915,7 +935,7 @@ def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progre
     fw = np.geomspace(f_hi * 1.001, 0.45 / ctrl.velocity_period, 400)
     wide = model_responses(plant_model, ctrl, fw, False)
     wide["f"] = fw
-    tun = tuning(resp, ctrl, modes, plant=plant_model, model_wide=wide)
+    tun = tuning(resp, ctrl, modes, pm_min, gm_min_db, plant=plant_model, model_wide=wide)
     warnings = []
     if rec.saturated:
         warnings.append(f"the output saturated in {rec.saturated} velocity periods: lower --amplitude")
