@@ -126,7 +126,7 @@ def run(args) -> int:
             print("hil model: --closed-loop: the closed-loop analysis (hil.closed_loop) is not available "
                   "in this version; skipped", file=sys.stderr)
         else:
-            report["closed_loop"] = closed_loop_report(cfg)
+            report["closed_loop"] = closed_loop_report(cfg, Path(args.out))
     if args.json:
         print(json.dumps(report, indent=2, default=_jsonable))
     else:

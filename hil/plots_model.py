@@ -40,3 +40,31 @@ def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
         fig.suptitle(title)
     fig.tight_layout()
     return fig
+
+
+def closed_loop_figure(r, out_dir) -> Path:
+    """The right panels of Fig. 9: closed position loop to the table, with and without the
+    feed-forward, alone and followed by TF3."""
+    import matplotlib.pyplot as plt
+    from pathlib import Path as _P
+    fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    for h, label, style in ((r.table, "table, with FFV", "-"), (r.table_no_ff, "table, no FFV", "--"),
+                            (r.table_tf3, "table x TF3, with FFV", "-"),
+                            (r.table_no_ff_tf3, "table x TF3, no FFV", "--")):
+        am.semilogx(r.f_hz, 20 * np.log10(np.abs(h)), style, label=label)
+        ap.semilogx(r.f_hz, np.degrees(np.unwrap(np.angle(h))), style, label=label)
+    am.axhline(-3, color="grey", lw=0.8, ls=":")
+    am.set_ylabel("magnitude [dB]")
+    ap.set_ylabel("phase [deg]")
+    ap.set_xlabel("frequency [Hz]")
+    am.set_title("closed position loop: command to table (and to tool tip through TF3)")
+    am.legend(fontsize=8)
+    for a in (am, ap):
+        a.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    out = _P(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "bode_closed_loop.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
