@@ -246,7 +246,7 @@ class SerialBackend(Backend):
                 ser.reset_input_buffer()        # a late reply to an earlier attempt is not this one's
                 ser.write(frame)
                 self.stats.bytes_out += len(frame)
-                line = self._readline(min(now + attempt_timeout, end) if attempt else now + attempt_timeout)
+                line = self._readline(min(now + attempt_timeout, end))
                 self.stats.bytes_in += len(line)
                 return self.cs.parse(op, line, values)
             except ReplyError as exc:

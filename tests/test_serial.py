@@ -219,3 +219,20 @@ def test_no_port_is_a_clear_fault(cfg):
         SerialBackend(cfg).open()
     with pytest.raises(BackendFault, match="cannot open"):
         SerialBackend(cfg, port="/dev/does-not-exist").open()
+
+
+def test_velocity_mode_host_closes_position_loop(cfg):
+    """serial.mode = velocity: the host runs the position loop and sends speeds (set_speed)."""
+    from drivers.serial import SerialBackend
+    from drivers.serial_sim import SimulatedSerialDrive
+    from hil.profiles import MoveSpec, Trajectory
+    from hil.runtime import run_trajectory
+    vcfg = cfg.with_values({"serial.mode": "velocity"})
+    traj = Trajectory(start=0.0)
+    traj.move(MoveSpec(stroke=0.005, feed=0.1, a_max=2.0))
+    with SimulatedSerialDrive(vcfg) as drive:
+        b = SerialBackend(vcfg, port=drive.port, **FAST)
+        assert b.closes == "velocity"
+        rec = run_trajectory(vcfg, traj, backend=b, settle=0.3)
+    assert rec.status == "complete", rec.reason
+    assert abs(rec["x_table"][-1] - 0.005) < 50e-6
