@@ -105,7 +105,7 @@ def _check_travel(cfg, st, duration: float, x0: float) -> None:
     from .cli import UserError
     lo, hi = cfg.get("limits.travel_min", -math.inf), cfg.get("limits.travel_max", math.inf)
     end = x0 + st.speed * duration
-    if not lo <= min(x0, end) and max(x0, end) <= hi:
+    if not (lo <= min(x0, end) and max(x0, end) <= hi):
         raise UserError(f"the working-point move ends at {end * 1e3:.1f} mm, outside the travel "
                         f"{lo * 1e3:g}..{hi * 1e3:g} mm: lower --speed, --periods or --period")
     vmax = cfg.get("limits.speed", math.inf)

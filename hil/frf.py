@@ -10,8 +10,9 @@ Estimates use the excitation as instrumental variable: H_yu = S_ry / S_ru, cross
 injected signal r averaged over whole periods (Welch with a boxcar window of one period, no
 overlap: no leakage for a periodic excitation in steady state). In closed loop this removes the
 bias of the plain H1 = S_uy / S_uu. Coherence gamma^2 of r with each channel, and the standard
-deviation of |H| from it: sigma ~ |H| sqrt((1 - g^2) / (2 n g^2)), with (1 - g^2)/g^2 summed over
-the two channels of the ratio.
+deviation of |H|: from the scatter of the periods (the coherence formula
+sigma ~ |H| sqrt((1 - g^2) / (2 n g^2)) generalised to noise correlated between the channels of the
+ratio, as it is in closed loop); with fewer than 3 periods, the coherence formula.
 
 Responses (names used everywhere, JSON included):
 
@@ -157,13 +158,13 @@ def _frf_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, 
     sat = 0
     w_pos = 0.0
     for k in range(K):
-        xm = quantize(x[0], res_motor) + noise_x[step]
-        xt = quantize(x[table], res_table) + noise_x[step]
+        xm = quantize(x[0], res_motor) + noise_x[step, 0]
+        xt = quantize(x[table], res_table) + noise_x[step, 1]
         xfb = xm if fb_motor else xt
         w_pos = position_law(p, x_cmd[k], x_cmd[k + 1], xfb)
         for j in range(n_sub):
             r = exc[step]
-            xm = quantize(x[0], res_motor) + noise_x[step]
+            xm = quantize(x[0], res_motor) + noise_x[step, 0]
             w_meas = measured_speed(p, s, x[n] + noise_w[step], xm)
             w_ref = w_pos + (r if mode == 1 else 0.0)
             uc = velocity_law(p, s, w_ref, w_meas, 0.0)
@@ -182,8 +183,8 @@ def _frf_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, 
             out[step, 5] = w_pos
             out[step, 6] = w_ref
             out[step, 7] = xm
-            out[step, 8] = quantize(x[table], res_table) + noise_x[step]
-            out[step, 9] = x[tip] + noise_x[step]
+            out[step, 8] = quantize(x[table], res_table) + noise_x[step, 1]
+            out[step, 9] = x[tip] + noise_x[step, 2]
             if delay > 0.0:
                 for i in range(d_int + 1, 0, -1):
                     ubuf[i] = ubuf[i - 1]
@@ -279,7 +280,7 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
     r[lead:lead + n_periods * exc.n] = np.tile(exc.signal, n_periods)
     rng = np.random.default_rng(st.seed)
     nw = rng.standard_normal(steps) * st.noise_speed
-    nx = rng.standard_normal(steps) * st.noise_position
+    nx = rng.standard_normal((steps, 3)) * st.noise_position
     disc = plant.chain.discretize(tv, inputs="all")
     x0v = np.zeros(2 * plant.n)
     x0v[:plant.n] = x0
@@ -416,8 +417,18 @@ def _iv(F, y: str, u: str, pre=None):
     g_y, g_u = np.clip(g_y, 1e-12, 1.0), np.clip(g_u, 1e-12, 1.0)
     h = Sry / Sru
     q = (1 - g_y) / g_y + (1 - g_u) / g_u
-    sigma = np.abs(h) * np.sqrt(q / (2 * max(n, 1)))
     coh = 1.0 / (1.0 + q)
+    if n > 2:
+        # noise of the ratio from the scatter over periods (the coherence formula generalised to
+        # noise correlated between the two channels, as a closed loop makes it): per period the
+        # residual of Y = H U, its variance over the periods; std of |H| = that / sqrt 2
+        # (half the complex variance lies along H)
+        Ym, Um = Y.mean(0), U.mean(0)
+        D = (Y - Ym) - h * (U - Um)
+        var = np.sum(np.abs(D) ** 2, 0) / ((n - 1) * n * np.abs(Um) ** 2)
+        sigma = np.sqrt(var / 2)
+    else:
+        sigma = np.abs(h) * np.sqrt(q / (2 * max(n, 1)))      # Bendat & Piersol, from the coherence
     return h, coh, sigma
 
 
@@ -448,7 +459,9 @@ def estimate(rec: FrfRecord, ctrl) -> dict[str, Response]:
         # table position per speed reference: x_table/u x C / (1 + Lv)
         hx, cx, sx = _iv(F, "x_table", "u")
         P = hx * hc / (1 + lv)
-        sP = np.abs(P) * sx / np.maximum(np.abs(hx), 1e-300)
+        rel_lv = out["Lv"].sigma / np.maximum(np.abs(lv), 1e-300)
+        sP = np.abs(P) * np.sqrt((sx / np.maximum(np.abs(hx), 1e-300)) ** 2 + (sc / np.maximum(np.abs(hc), 1e-300)) ** 2
+                                 + (np.abs(lv) / np.maximum(np.abs(1 + lv), 1e-300) * rel_lv) ** 2)
         cP = cx
     else:
         h, c, s = _iv(F, "w", "w_ref")
@@ -739,12 +752,16 @@ def margins(f, L) -> dict:
         out["phase_margin_deg"] = min(pms)
     cross = np.nonzero(np.diff(np.floor((ph + np.pi) / (2 * np.pi))) != 0)[0]
     if cross.size:
+        # the margin for a gain increase: phase crossings where |L| < 1 (a crossing at high
+        # loop gain, e.g. an integrating plant under a PI at low frequency, is not one)
         gms = []
         for i in cross:
             m = 0.5 * (mag[i] + mag[i + 1])
-            gms.append((-20 * np.log10(m), f[i]))
-        gm, fg = min(gms)
-        out["gain_margin_db"], out["phase_crossover_hz"] = float(gm), float(fg)
+            if m < 1:
+                gms.append((-20 * np.log10(m), f[i]))
+        if gms:
+            gm, fg = min(gms)
+            out["gain_margin_db"], out["phase_crossover_hz"] = float(gm), float(fg)
     return out
 
 
