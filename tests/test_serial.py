@@ -236,3 +236,15 @@ def test_velocity_mode_host_closes_position_loop(cfg):
         rec = run_trajectory(vcfg, traj, backend=b, settle=0.3)
     assert rec.status == "complete", rec.reason
     assert abs(rec["x_table"][-1] - 0.005) < 50e-6
+
+
+def test_fuzz_simulated_drive_commands(cfg):
+    """The simulated drive answers random command bytes with its error reply, never crashes."""
+    from drivers.serial_sim import _Drive
+    d = _Drive(cfg)
+    rng = np.random.default_rng(7)
+    for _ in range(1000):
+        line = rng.integers(0, 256, size=int(rng.integers(0, 60)), dtype=np.uint8).tobytes() + b"\r"
+        reply = d.handle(line)
+        assert reply is None or reply.endswith(b"\r")
+    assert d.plant.x[0] == 0.0         # nothing random moved the shaft
