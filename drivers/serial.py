@@ -168,6 +168,10 @@ class SerialBackend(Backend):
         for op in ("enable", "disable", "read", self._set_op):
             if not self.cs.has(op):
                 raise ValueError(f"the serial command set has no {op!r} command (serial.commands.{op})")
+        if not self.port:
+            from . import BackendError     # hil move reports it as one line, before anything moves
+            raise BackendError("serial backend: no port; set serial.port in the config or "
+                               "--set serial.port=/dev/ttyUSB0 (hil serial-sim prints the port of the simulated drive)")
         _warm_up_host_loop(cfg)
 
 

@@ -215,8 +215,9 @@ def test_watchdog_stops_drive_when_host_falls_silent(cfg, drive):
 
 def test_no_port_is_a_clear_fault(cfg):
     from drivers.serial import SerialBackend
-    with pytest.raises(BackendFault, match="serial.port"):
-        SerialBackend(cfg).open()
+    from drivers import BackendError
+    with pytest.raises(BackendError, match="serial.port"):
+        SerialBackend(cfg)
     with pytest.raises(BackendFault, match="cannot open"):
         SerialBackend(cfg, port="/dev/does-not-exist").open()
 
