@@ -147,7 +147,12 @@ class SerialBackend(Backend):
         self.stopbits = int(opt("stopbits", 1))
         mode = opt("mode", "position")
         self.closes = "both" if mode == "position" else "velocity"
-        self.cycle_time = float(opt("cycle_time", None) or cfg.get("control.position_period", 0.004))
+        tp = cfg.get("control.position_period", 0.004)
+        self.cycle_time = float(opt("cycle_time", None) or tp)
+        if abs(self.cycle_time - tp) > 1e-9:
+            from . import BackendError     # the loop times its record and commands on control.position_period
+            raise BackendError(f"serial.cycle_time ({self.cycle_time:g} s) must equal control.position_period "
+                               f"({tp:g} s): set the position period instead")
         self.timeout = float(opt("timeout", None) or self.cycle_time / 4)
         self.retries = int(opt("retries", 2))
         self.budget = float(opt("budget", None) or self.cycle_time / 2)
