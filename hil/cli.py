@@ -11,7 +11,12 @@ import importlib
 import importlib.util
 import sys
 
+from drivers import BackendError
+from drivers.base import BackendFault
+
 from .config import ConfigError
+from .measurement import MeasurementError
+from .profiles import LimitError
 from .units import UnitError
 
 # command name -> module (kept in the order `hil --help` lists them). A module not yet present in
@@ -64,9 +69,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
-    except (ConfigError, UnitError, UserError) as exc:
+    except (ConfigError, UnitError, UserError, MeasurementError, BackendError, LimitError) as exc:
         print(f"hil {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except BackendFault as exc:
+        print(f"hil {args.command}: drive fault: {exc.reason}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"hil {args.command}: interrupted", file=sys.stderr)
         return 130

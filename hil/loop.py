@@ -119,6 +119,7 @@ class ControlLoop:
         else:
             self.per_tick = 1
         self._delay = [0.0] * int(ctrl.output_delay)     # outputs still in the computation delay
+        _warm_up(self.p)
 
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
         if self.recorder is None:
@@ -193,6 +194,15 @@ class ControlLoop:
     def _end(self, ticks: int, status: str, reason: str) -> LoopResult:
         clock = self.clock.stats() if hasattr(self.clock, "stats") else {}
         return LoopResult(ticks, status, reason, clock)
+
+
+def _warm_up(p) -> None:
+    """Load the compiled control law before the first cycle (it takes a fraction of a second the
+    first time, which would otherwise land inside the first cycle and trip a drive's watchdog)."""
+    s = new_velocity_state()
+    position_law(p, 0.0, 0.0, 0.0)
+    measured_speed(p, s, 0.0, 0.0)
+    velocity_law(p, new_velocity_state(), 0.0, 0.0, 0.0)
 
 
 def _safe_stop(backend: Backend) -> None:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers import open_backend
+from drivers.base import BackendFault
 from drivers.sim import SimulatedPlant
 
 from .control import controller_from_config
@@ -71,18 +72,27 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     if isinstance(backend, SimulatedPlant):
         backend.home_at(x_cmd[0])
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary)
-    backend.open()
     try:
+        backend.open()
         backend.enable()
         result: LoopResult = loop.run(x_cmd)
+    except BackendFault as exc:          # open or enable failed: nothing moved
+        result = LoopResult(0, "fault", exc.reason)
     finally:
-        try:
-            backend.disable()
-        finally:
-            backend.close()
+        _shutdown(backend)
     rec.close(result.status, result.reason, {"loop": result.clock})
     chans = rec.channels() if isinstance(rec, _MemoryRecorder) else read_measurement(out_file).channels
     return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock)
+
+
+def _shutdown(backend) -> None:
+    """Disable and close, whatever state the link is in: a failing disable must not hide the
+    run's own outcome (the drive-side guards stop the axis when the link is gone)."""
+    for step in (backend.disable, backend.close):
+        try:
+            step()
+        except Exception:
+            pass
 
 
 def _plant_scales(cfg):
