@@ -18,6 +18,7 @@ asymmetric_friction) when it achieves :data:`NESTED_SHARE` of the richer one's g
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -286,17 +287,22 @@ def _rank(cands: list[Candidate]) -> list[Candidate]:
 
 
 def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_nfev: int = 30,
-             jobs: int = 1) -> dict:
+             jobs: int | None = None, screen_nfev: int = 6, refine: int = 3) -> dict:
     """Try every candidate; returns {"candidates": [...ranked Candidate], "verdict": name | "none",
-    "noise_floor": {...}, "error_before": {...}}."""
+    "noise_floor": {...}, "error_before": {...}}.
+
+    Every candidate is first fitted briefly (``screen_nfev`` evaluations), then the ``refine``
+    best are fitted fully (``max_nfev``); ``jobs`` processes share the work (default: the CPUs)."""
     cfg = replay.cfg
     res0 = replay.residuals(cfg)
     names = names or candidate_names(cfg, replay.plant)
-    out = []
-    results = _map(lambda n: _safe_eval(replay, n, res0, max_nfev), names, jobs, progress)
-    for c in results:
-        if c is not None:
-            out.append(c)
+    jobs = jobs or os.cpu_count() or 1
+    out = [c for c in _map(replay, names, res0, screen_nfev, jobs, progress) if c is not None]
+    ranked = sorted(out, key=lambda c: -c.score)
+    top = [c.effect for c in ranked[:refine]]
+    if top and max_nfev > screen_nfev:
+        better = {c.effect: c for c in _map(replay, top, res0, max_nfev, jobs, progress) if c is not None}
+        out = [better.get(c.effect, c) if better.get(c.effect, c).score >= c.score else c for c in out]
     ranked = _rank(out)
     verdict = ranked[0].effect if ranked and ranked[0].significant else "none"
     return {"candidates": ranked, "verdict": verdict, "noise_floor": dict(replay.noise),
@@ -310,12 +316,41 @@ def _safe_eval(replay, name, res0, max_nfev):
         return None
 
 
-def _map(fn, items, jobs, progress):
+_WORK = {}
+
+
+def _work(args):
+    name, nfev = args
+    c = _safe_eval(_WORK["replay"], name, _WORK["res0"], nfev)
+    if c is not None:
+        c.cfg = None            # configs stay in the parent (rebuilt there)
+    return c
+
+
+def _map(replay, names, res0, nfev, jobs, progress):
+    if jobs > 1 and len(names) > 1:
+        import multiprocessing as mp
+        try:
+            ctx = mp.get_context("fork")
+        except ValueError:
+            ctx = None
+        if ctx is not None:
+            _WORK.update(replay=replay, res0=res0)
+            out = []
+            with ctx.Pool(min(jobs, len(names))) as pool:
+                for c in pool.imap(_work, [(n, nfev) for n in names]):
+                    if progress:
+                        progress(c.effect if c else "?")
+                    if c is not None:
+                        c.cfg = candidate(c.effect, replay.cfg).configure(replay.cfg, c.params)
+                    out.append(c)
+            _WORK.clear()
+            return out
     out = []
-    for it in items:
+    for n in names:
         if progress:
-            progress(it)
-        out.append(fn(it))
+            progress(n)
+        out.append(_safe_eval(replay, n, res0, nfev))
     return out
 
 

@@ -1,0 +1,62 @@
+"""``hil diagnose``: which physical effect is the model missing?"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from .cmd_compare import add_common, load_inputs, make_replay
+
+HELP = "rank the catalogue's effects by how much of the model error each explains"
+DESCRIPTION = """\
+For each candidate (every catalogue effect that fits the plant, and parameter:<key> for the chain's
+masses, stiffnesses and dampings) adds it to the model, fits its parameters (scipy least squares on
+every measured channel) and scores it by the fall of the BIC. A candidate is significant only if it
+also removes >= 3 % of the weighted residual and the error stands above the noise floor; otherwise
+the verdict is "none" (no significant missing effect).
+
+  hil diagnose data.csv --config config/paper_bench.toml --json
+  hil diagnose data.csv --config config/paper_bench.toml --candidates coulomb_friction,parameter:plant.c2
+"""
+
+
+def add_arguments(parser) -> None:
+    add_common(parser)
+    parser.add_argument("--candidates", default=None, help="comma-separated candidates (default: the whole catalogue)")
+    parser.add_argument("--jobs", type=int, default=None, help="processes (default: the CPUs)")
+
+
+def candidates_json(d):
+    return {"candidates": [c.as_json() for c in d["candidates"]], "verdict": d["verdict"],
+            "noise_floor": d["noise_floor"], "error_before": d["error_before"]}
+
+
+def run(args) -> int:
+    from .cli import UserError
+    from .identify import diagnose
+    from sim_plant.effects import candidate
+    cfg, meas = load_inputs(args)
+    rp = make_replay(args, cfg, meas)
+    names = args.candidates.split(",") if args.candidates else None
+    for n in names or []:
+        try:
+            candidate(n, cfg)
+        except KeyError as exc:
+            raise UserError(str(exc).strip("'\"")) from None
+    try:
+        from tqdm import tqdm
+        bar = tqdm(desc="diagnose", unit="fit", file=sys.stderr, disable=None)
+        prog = lambda n: (bar.update(1), bar.set_postfix_str(n))  # noqa: E731
+    except ImportError:
+        bar, prog = None, lambda n: print(f"  fitting {n}", file=sys.stderr)
+    d = diagnose(rp, names, progress=prog, jobs=args.jobs)
+    if bar is not None:
+        bar.close()
+    if args.json:
+        print(json.dumps(candidates_json(d), indent=1))
+        return 0
+    print(f"verdict: {d['verdict'] if d['verdict'] != 'none' else 'none (no significant missing effect)'}")
+    for i, c in enumerate(d["candidates"]):
+        mark = "*" if c.significant else " "
+        print(f"{i + 1:2d}{mark} {c.effect:26s} score {c.score:10.1f}  {c.evidence}")
+    return 0
