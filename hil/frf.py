@@ -752,12 +752,13 @@ def margins(f, L) -> dict:
         out["phase_margin_deg"] = min(pms)
     cross = np.nonzero(np.diff(np.floor((ph + np.pi) / (2 * np.pi))) != 0)[0]
     if cross.size:
-        # the margin for a gain increase: phase crossings where |L| < 1 (a crossing at high
-        # loop gain, e.g. an integrating plant under a PI at low frequency, is not one)
+        # the margin for a gain increase: where the phase falls through -180 deg as the
+        # frequency rises (a rise through it, e.g. an integrating plant under a PI at low
+        # frequency, bounds a gain decrease instead); |L| >= 1 there gives a negative margin
         gms = []
         for i in cross:
             m = 0.5 * (mag[i] + mag[i + 1])
-            if m < 1:
+            if ph[i + 1] < ph[i]:
                 gms.append((-20 * np.log10(m), f[i]))
         if gms:
             gm, fg = min(gms)
@@ -824,7 +825,7 @@ def tuning(responses: dict, ctrl, modes: list[dict], pm_min: float = 45.0, gm_mi
         out["position_loop"] = dict(margins(lp.f, lp.h))
         # the feedback's bandwidth (the feed-forward makes x/x_cmd flat far beyond it)
         out["position_loop"]["bandwidth_hz"] = bandwidth(lp.f, lp.h / (1 + lp.h))
-        a, m = largest_gain(lp.f, lp.h, pm_min, gm_min_db)
+        a, m = largest_gain(lp.f, lp.h, pm_min, gm_min_db, responses["Lp"].f[-1])
         if a is not None:
             out["position_loop"]["kv_max"] = ctrl.kv * a
             out["position_loop"]["at_kv_max"] = m
