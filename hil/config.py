@@ -459,3 +459,9 @@ def schema_markdown() -> str:
         rows.append(f"| `{key.replace('*', 'N')}` | {kind} ({unit}) | {default} | {f.doc}.{choices} |"
                     .replace(" () |", " |"))
     return "\n".join(rows) + "\n"
+
+
+if __name__ == "__main__":      # python -m hil.config > config/SCHEMA.md
+    import sys
+    text = Path(__file__).resolve().parents[1].joinpath("config", "SCHEMA.md").read_text(encoding="utf-8")
+    sys.stdout.write(text.split("| key |")[0] + schema_markdown())
