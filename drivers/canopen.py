@@ -88,6 +88,8 @@ SECTION = {
     "canopen.lockstep": Field("bool", "drive time advances with SYNC only (a simulated drive in this process)",
                               default=False),
     "canopen.sdo_timeout": Field("time", "SDO response timeout", default=0.5, positive=True),
+    "canopen.stop_timeout": Field("time", "how long the host keeps the SYNC going while the drive finishes a "
+                                  "quick stop", default=2.0, positive=True),
 }
 
 
@@ -101,8 +103,10 @@ RPDO_TARGET = {"csp": (0x607A, 0, 32), "csv": (0x60FF, 0, 32), "cst": (0x6071, 0
 TPDO_MAPS = [
     [(0x6041, 0, 16), (0x6064, 0, 32), (0x6077, 0, 16)],
     [(0x606C, 0, 32), (0x60E4, 1, 32)],
-    [(0x60E4, 2, 32), (0x603F, 0, 16)],
+    [(0x60E4, 2, 32), (0x603F, 0, 16), (0x2001, 0, 8)],
 ]
+SYNC_ECHO = 0x2001          # the drive's copy of the SYNC counter, in the last TPDO of each answer
+SYNC_OVERFLOW = 240         # 0x1019: the SYNC carries a counter 1..240
 _SIGNED = {0x6064: "i", 0x606C: "i", 0x60E4: "i", 0x6077: "h", 0x6071: "h", 0x607A: "i", 0x60FF: "i"}
 
 
@@ -159,11 +163,21 @@ class CanopenBackend(Backend):
         self.sync_to_rpdo: list[float] = []
         self._last = Feedback(0.0, 0.0, 0.0)
         self.enabled = False
+        self.echo = True
+        self._echo_cob = None
+        self._pending: dict = {}
+        self._sync_counter = 0
+        self._sync_sent = 0.0
+        self.late_total = 0
+        self.missed_total = 0
+        self.host_heartbeat_dead = False
+        self.stopped_state = ""
 
     # -- start-up --------------------------------------------------------------------------------
     def open(self) -> None:
         cfg = self.cfg
         self.network = canopen.Network(self._bus)
+        self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
         if self._bus is None:
             kw = dict(interface=self.interface, channel=self.channel)
             if self.interface == "socketcand":
@@ -235,7 +249,15 @@ class CanopenBackend(Backend):
         rmap = [(0x6040, 0, 16), RPDO_TARGET[self.mode]]
         self._rpdo_fmt = "<H" + _SIGNED[rmap[1][0]]
         self._map(0x1400, 0x1600, 0x200, 0, rmap)
-        tmaps = TPDO_MAPS if self.tip else TPDO_MAPS[:2]
+        self.echo = SYNC_ECHO in self.node.object_dictionary
+        tmaps = [list(m) for m in TPDO_MAPS]
+        if not self.tip:
+            tmaps[2] = [e for e in tmaps[2] if e[0] != 0x60E4]
+        if not self.echo:
+            tmaps[2] = [e for e in tmaps[2] if e[0] != SYNC_ECHO]
+        else:
+            sdo[0x1019].raw = SYNC_OVERFLOW
+        tmaps = [m for m in tmaps if m]
         self._tpdo = {}
         for n in range(4):
             entries = tmaps[n] if n < len(tmaps) else []
@@ -243,6 +265,7 @@ class CanopenBackend(Backend):
             if entries:
                 self._tpdo[0x180 + 0x100 * n + self.node_id] = entries
         self._want = set(self._tpdo)
+        self._echo_cob = max(self._tpdo) if self.echo else None      # the last TPDO carries the echo
 
     def _map(self, comm_base, map_base, cob_base, n, entries):
         sdo = self.node.sdo
@@ -300,17 +323,41 @@ class CanopenBackend(Backend):
         return self._time if self.lockstep else time.perf_counter()
 
     def _on_tpdo(self, can_id, data, timestamp):
+        """TPDOs are taken as the answer to the last SYNC only when they are: with the SYNC counter
+        echo, the TPDO that carries it must show the counter of the last SYNC (the others of the
+        same answer come before it and are held until then); without it, a TPDO counts only if it
+        arrived after the SYNC. A late answer is logged and dropped."""
         entries = self._tpdo.get(can_id)
         if not entries:
             return
-        off = 0
+        off, values = 0, {}
+        for index, sub, bits in entries:
+            f = _SIGNED.get(index, {8: "B", 16: "H"}.get(bits, "I"))
+            v = struct.unpack_from("<" + f, data, off)[0]
+            off += bits // 8
+            values[index if index != 0x60E4 else (index, sub)] = v
         with self._lock:
-            for index, sub, bits in entries:
-                f = _SIGNED.get(index, "H" if bits == 16 else "I")
-                v = struct.unpack_from("<" + f, data, off)[0]
-                off += bits // 8
-                self._rx[index if index != 0x60E4 else (index, sub)] = v
-            self._fresh.add(can_id)
+            if self.echo:
+                self._pending[can_id] = values
+                if can_id != self._echo_cob:
+                    return
+                echo = values.get(SYNC_ECHO)
+                if echo != self._sync_counter:
+                    self.late_total += 1
+                    self.events.append(f"cycle {self.syncs}: late TPDO (answers SYNC {echo}, "
+                                       f"expected {self._sync_counter})")
+                    self._pending = {}
+                    return
+                for cob, vals in self._pending.items():
+                    self._rx.update(vals)
+                    self._fresh.add(cob)
+                self._pending = {}
+            else:
+                if time.perf_counter() < self._sync_sent:
+                    self.late_total += 1
+                    return
+                self._rx.update(values)
+                self._fresh.add(can_id)
             if self._fresh >= self._want:
                 self._event.set()
 
@@ -336,8 +383,6 @@ class CanopenBackend(Backend):
             self._event.wait(self.cfg.get("canopen.pdo_timeout", 0.25))
         with self._lock:
             fresh = self._fresh >= self._want
-            self._fresh = set()
-            self._event.clear()
             rx = dict(self._rx)
         fault = ""
         if fresh:
@@ -388,53 +433,80 @@ class CanopenBackend(Backend):
         """RPDO (controlword + target), then SYNC: the drive applies the target and answers."""
         t0 = time.perf_counter()
         self._send_rpdo()
-        self.network.send_message(0x80, b"")
         self.sync_to_rpdo.append(time.perf_counter() - t0)
+        self._send_sync()
+
+    def _send_sync(self) -> None:
+        """The SYNC (with its counter); from here on only the answer to this SYNC is fresh."""
+        with self._lock:
+            self._sync_counter = self._sync_counter % SYNC_OVERFLOW + 1
+            self._fresh = set()
+            self._pending = {}
+            self._event.clear()
+            self._sync_sent = time.perf_counter()
+        self.network.send_message(0x80, bytes([self._sync_counter]) if self.echo else b"")
         self.syncs += 1
         if self.lockstep:
             self._time += self.cycle_time
-            if self._time + 1e-12 >= self._host_hb_next and not getattr(self, "host_heartbeat_dead", False):
+            if self._time + 1e-12 >= self._host_hb_next and not self.host_heartbeat_dead:
                 self._send_host_heartbeat()
 
     def quick_stop(self) -> None:
-        """CiA 402 quick stop (controlword 0x0002) now, by RPDO (the drive acts on receipt); SDO too."""
-        self._cw = cia402.COMMANDS["QUICK STOP"]
+        """The controlled stop ``supervisor.stop`` asks for, now, by RPDO (the drive acts on receipt):
+        CiA 402 quick stop (controlword 0x0002; the drive brakes on its quick-stop ramp, 0x605A) or
+        disable (DISABLE VOLTAGE: the power stage off, the axis coasts). :meth:`disable` then keeps
+        the SYNC going until the drive is at rest, and repeats the command over SDO where the
+        drive did not take it."""
+        how = self.cfg.get("supervisor.stop", "quick_stop")
+        self._cw = cia402.COMMANDS["QUICK STOP" if how == "quick_stop" else "DISABLE VOLTAGE"]
         self.quick_stop_sync = self.syncs
-        self.events.append(f"cycle {self.syncs}: quick stop commanded")
+        self.events.append(f"cycle {self.syncs}: {how.replace('_', ' ')} commanded")
         try:
             self._send_rpdo()
         except Exception:
             pass
         self.enabled = False
 
-    def wait_stopped(self, max_cycles: int = 2000) -> str:
-        """Keep the SYNC going until the drive has finished its quick stop (state leaves QUICK STOP ACTIVE)."""
-        for i in range(max_cycles):
-            st = cia402.state_from_statusword(self._rx.get(0x6041, 0))
-            if st != "QUICK STOP ACTIVE" and i > 0:
-                return st
-            self.network.send_message(0x80, b"")
-            self.syncs += 1
-            if self.lockstep:
-                self._time += self.cycle_time
-                self._event.wait(self.cfg.get("canopen.pdo_timeout", 0.25))
-                self._event.clear()
-                self._fresh = set()
-            else:
+    def wait_stopped(self, max_cycles: int | None = None) -> str:
+        """Keep the SYNC going (the drive's clock in lockstep) until the drive has finished its quick
+        stop or fault reaction; its state is read over SDO (TPDOs may be what failed). A drive still
+        in OPERATION ENABLED did not get the RPDO: the stop is commanded again over SDO."""
+        limit = max_cycles or int(math.ceil(self.cfg.get("canopen.stop_timeout", 2.0) / self.cycle_time))
+        sdo, st, errors = self.node.sdo, "unknown", 0
+        for _ in range(limit):
+            self._send_sync()
+            if not self.lockstep:
                 time.sleep(self.cycle_time)
-        return cia402.state_from_statusword(self._rx.get(0x6041, 0))
+            try:
+                st = cia402.state_from_statusword(sdo[0x6041].raw)
+                if st == "OPERATION ENABLED":
+                    self.events.append(f"cycle {self.syncs}: stop repeated over SDO")
+                    sdo[0x6040].raw = self._cw
+                    continue
+            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+                errors += 1
+                self.events.append(f"cycle {self.syncs}: no SDO answer while stopping ({exc})")
+                if errors >= 3:
+                    self.events.append("drive unreachable: the drive-side guards (0x1016/0x6007) stop it")
+                    return "unreachable"
+                continue
+            if st not in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE"):
+                return st
+        return st
 
     def disable(self) -> None:
-        """Let a quick stop finish, then SHUTDOWN (READY TO SWITCH ON: no torque)."""
-        if self.node is None:
+        """Let a quick stop (or fault reaction) finish, then SHUTDOWN (READY TO SWITCH ON: no torque)."""
+        if self.node is None or self.network is None:
             return
         try:
-            if cia402.state_from_statusword(self._rx.get(0x6041, 0)) == "QUICK STOP ACTIVE" or \
-                    self._cw == cia402.COMMANDS["QUICK STOP"]:
-                self.wait_stopped()
-            st = self.state()
-            if st in ("OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"):
-                self.node.sdo[0x6040].raw = cia402.COMMANDS["SHUTDOWN"]
+            if self.quick_stop_sync is not None and self._cw != cia402.COMMANDS["ENABLE OPERATION"] or \
+                    cia402.state_from_statusword(self._rx.get(0x6041, 0)) in ("QUICK STOP ACTIVE",
+                                                                             "FAULT REACTION ACTIVE"):
+                self.stopped_state = self.wait_stopped()
+            if self.stopped_state != "unreachable":
+                st = self.state()
+                if st in ("OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"):
+                    self.node.sdo[0x6040].raw = cia402.COMMANDS["SHUTDOWN"]
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
             self.events.append(f"disable: {exc}")
         self.enabled = False

@@ -9,7 +9,7 @@ drive up and down, the simulated drive (drivers.drive_sim) to answer. They agree
 from __future__ import annotations
 
 __all__ = ["STATES", "STATUSWORD", "COMMANDS", "COMMAND_RECOGNITION", "TRANSITIONS", "NEXT_TO_ENABLE",
-           "MODES", "MODE_CLOSES", "state_from_statusword", "command_from_controlword", "next_state",
+           "MODES", "MODE_CLOSES", "HOMING_MODE", "state_from_statusword", "command_from_controlword", "next_state",
            "statusword_for", "SW_BITS", "CW_BITS"]
 
 # --- states and the statusword (mask, value) -----------------------------------------------------
@@ -84,6 +84,7 @@ NEXT_TO_ENABLE = {
 
 # --- modes of operation (0x6060) and the loops the drive closes in each ----------------------------
 MODES = {"csp": 8, "csv": 9, "cst": 10}
+HOMING_MODE = 6                       # homing mode (methods 35/37: the present position is home)
 MODE_CLOSES = {"csp": "both", "csv": "velocity", "cst": "none"}
 
 

@@ -69,6 +69,7 @@ class DriveSim:
         self.lock = threading.RLock()
         self._own_bus = bus is None
         self.network = canopen.Network(bus)
+        self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
         if bus is None:
             self.network.connect(interface=interface or cfg.get("canopen.interface", "virtual"),
                                  channel=channel or cfg.get("canopen.channel", "hil"), bitrate=bitrate)
@@ -103,10 +104,14 @@ class DriveSim:
         self.emcy_sent: list[tuple[float, int]] = []
         self.log: list[tuple[int, str]] = []          # (sync count, event)
         self.quick_stop_at: int | None = None         # sync count when the quick stop was received
+        self.fault_at: int | None = None              # sync count when the drive faulted
         self.fault_code = 0
         self._qs_state = new_velocity_state()
         self._fe_count = 0
         self._home_offset = 0.0
+        self.sw_extra = 0
+        self.sync_counter = 0
+        self._held: list[tuple[int, list]] = []     # late TPDOs: (release at sync count, frames)
         # injected faults
         self.inject_state: dict[str, float] = {}
         self._frozen: tuple | None = None
@@ -156,15 +161,24 @@ class DriveSim:
                 self._controlword(struct.unpack("<H", data)[0])
             elif index == 0x6060:
                 code = struct.unpack("<b", data)[0]
+                if code == cia402.HOMING_MODE:
+                    if self.mode != "csp":
+                        self._make_plant("csp")           # homing holds the shaft in position
+                    self.mode = "hm"
+                    self.target_position = self.node.sdo[0x6064].raw
+                    self.rx.pop((0x607A, 0), None)
                 for name, c in cia402.MODES.items():
                     if c == code and name != self.mode:
                         self._make_plant(name)
+                self.node.sdo[0x6061].raw = code
             elif index == 0x1016 and subindex == 1:
                 self.last_host_heartbeat = self.time
 
     def _controlword(self, cw: int) -> None:
         prev, self.cw = self.cw, cw
         old = self.state
+        if self.mode == "hm" and old == "OPERATION ENABLED" and cw & 0x10 and not prev & 0x10:
+            self._home()
         new = cia402.next_state(old, cw, prev)
         if new == old:
             return
@@ -186,7 +200,25 @@ class DriveSim:
         self.log.append((self.syncs, f"{self.state} -> {new}"))
         self.state = new
         self.plant.enabled = new == "OPERATION ENABLED"
-        self.node.sdo[0x6041].raw = cia402.statusword_for(new)
+        if new != "OPERATION ENABLED":
+            self.sw_extra = 0
+        self.node.sdo[0x6041].raw = cia402.statusword_for(new, self.sw_extra)
+
+    def _home(self) -> None:
+        """Homing method 35/37 (CiA 402: the present position is the home position): the position
+        reading becomes the home offset 0x607C; statusword bits 12 (homing attained) and 10."""
+        method = self.node.sdo[0x6098].raw
+        if method not in (35, 37):
+            self.sw_extra = 1 << cia402.SW_BITS["following_error"]        # bit 13: homing error
+        else:
+            cpm, _ = self._scales()
+            x_motor = self.plant.read_feedback().x_motor
+            self._home_offset = self.node.sdo[0x607C].raw / cpm - x_motor
+            self.target_position = int(round((x_motor + self._home_offset) * cpm))
+            self.node.sdo[0x6064].raw = self.target_position
+            self.sw_extra = (1 << cia402.SW_BITS["setpoint_acknowledge"]) | (1 << cia402.SW_BITS["target_reached"])
+        self.log.append((self.syncs, f"homing method {method}: offset {self._home_offset:.6f} m"))
+        self.node.sdo[0x6041].raw = cia402.statusword_for(self.state, self.sw_extra)
 
     def _on_rpdo(self, can_id, data, timestamp):
         n = ((can_id - self.node_id) - 0x200) // 0x100
@@ -213,6 +245,8 @@ class DriveSim:
     def _on_sync(self, can_id, data, timestamp):
         with self.lock:
             self._last_sync_wall = time.perf_counter()
+            self.sync_counter = data[0] if data else 0       # CiA 301 SYNC counter (0x1019 > 0)
+            self.node.sdo[0x2001].raw = self.sync_counter
             self._cycle(from_sync=True)
 
     def _idle_loop(self):
@@ -258,7 +292,7 @@ class DriveSim:
             self.target_torque = self.rx[(0x6071, 0)]
         tmax = self.node.sdo[0x6072].raw * 1e-3 * rated
         if self.state == "OPERATION ENABLED":
-            if self.mode == "csp":
+            if self.mode in ("csp", "hm"):
                 pl.write_setpoint(_sp(position=self.target_position / cpm - self._home_offset))
             elif self.mode == "csv":
                 pl.write_setpoint(_sp(speed=self.target_velocity / cpm * pl.ctrl.speed_scale))
@@ -266,10 +300,11 @@ class DriveSim:
                 u = self.target_torque * 1e-3 * rated
                 pl.write_setpoint(_sp(output=max(-tmax, min(tmax, u))))
             pl.sync()
-        elif self.state == "QUICK STOP ACTIVE":
+        elif self.state in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE"):
             self._quick_stop_step(tmax)
             if abs(pl.x[pl.plant.n]) < 1e-4:
-                self._set_state("SWITCH ON DISABLED")      # quick stop option 2: stop, then disable
+                # quick stop option 2 / fault reaction 0x605E = 2: stop on the quick-stop ramp, then disable
+                self._set_state("SWITCH ON DISABLED" if self.state == "QUICK STOP ACTIVE" else "FAULT")
         else:
             pl.enabled = False
             pl.sync()
@@ -281,7 +316,7 @@ class DriveSim:
             if not (lo <= actual["pos"] <= hi):
                 self.fault(0x8612)
             win = self.node.sdo[0x6065].raw
-            if self.mode == "csp" and win != 0xFFFFFFFF and abs(self.target_position - actual["pos"]) > win:
+            if self.mode in ("csp", "hm") and win != 0xFFFFFFFF and abs(self.target_position - actual["pos"]) > win:
                 self._fe_count += 1
                 if self._fe_count * self.period * 1e3 > self.node.sdo[0x6066].raw:
                     self.fault(0x8611)
@@ -350,18 +385,27 @@ class DriveSim:
                 value = self.node.get_data(index, sub)
                 data += value[: bits // 8]
             frames.append((cob & 0x7FF, data))
+        due = [f for f in self._held if f[0] <= self.syncs]
+        self._held = [f for f in self._held if f[0] > self.syncs]
+        for _, old in due:                                   # late answers to earlier SYNCs go out first
+            for cob, data in old:
+                self.network.send_message(cob, data)
         if self._late > 0:
             delay = self._late
-            self._late = 0.0
             self.log.append((self.syncs, f"TPDO late by {delay * 1e3:g} ms"))
-            threading.Timer(delay, lambda: [self.network.send_message(c, d) for c, d in frames]).start()
+            if self.lockstep:
+                # drive time is the SYNC count: the answer goes out with a later SYNC's
+                self._held.append((self.syncs + max(1, int(math.ceil(delay / self.period - 1e-9))), frames))
+            else:
+                threading.Timer(delay, lambda: [self.network.send_message(c, d) for c, d in frames]).start()
             return
         for cob, data in frames:
             self.network.send_message(cob, data)
 
     # -- faults ------------------------------------------------------------------------------------
     def fault(self, code: int = 0x2310, data: bytes = b"") -> None:
-        """The drive faults: EMCY, error register, 0x603F, FAULT state (the shaft coasts, disabled)."""
+        """The drive faults: EMCY, error register, 0x603F; FAULT REACTION ACTIVE (the shaft brakes on
+        the quick-stop ramp, fault reaction option 2), then FAULT (disabled)."""
         with self.lock:
             if self.state in ("FAULT", "FAULT REACTION ACTIVE"):
                 return
@@ -370,8 +414,12 @@ class DriveSim:
             self.node.sdo[0x1001].raw = 0x01 | (0x10 if code & 0xFF00 == 0x8100 else 0)
             self.node.emcy.send(code, self.node.sdo[0x1001].raw, data)
             self.emcy_sent.append((self.time, code))
+            self.fault_at = self.syncs
+            self._qs_state = new_velocity_state()
+            was_enabled = self.state in ("OPERATION ENABLED", "QUICK STOP ACTIVE")
             self._set_state("FAULT REACTION ACTIVE")
-            self._set_state("FAULT")
+            if not was_enabled:
+                self._set_state("FAULT")
 
     def _abort_connection(self) -> None:
         option = self.node.sdo[0x6007].raw
@@ -389,7 +437,11 @@ class DriveSim:
 
     def inject(self, fault: str, value: float | int | None = None) -> None:
         """Inject a fault: emcy [code], heartbeat_loss, frozen_encoder, late_pdo [seconds],
-        missing_pdo [count], following_error [metres of offset on the position reading]."""
+        missing_pdo [count], following_error [metres of offset on the position reading].
+
+        ``late_pdo``: from now on every TPDO answers its SYNC ``value`` seconds late (default two
+        cycles; in lockstep, with the SYNC ``ceil(value / period)`` cycles later), until
+        :meth:`clear_injections`: a drive or bus that no longer keeps up."""
         with self.lock:
             self.log.append((self.syncs, f"inject {fault} {value if value is not None else ''}".strip()))
             if fault == "emcy":
@@ -402,7 +454,7 @@ class DriveSim:
                 a = self._actual(cpm, rated)
                 self._frozen = (*a["x"], a["v"])
             elif fault == "late_pdo":
-                self._late = float(value or 0.05)
+                self._late = float(value if value is not None else 2 * self.period)
             elif fault == "missing_pdo":
                 self._missing = int(value or 1)
             elif fault == "following_error":
@@ -413,6 +465,7 @@ class DriveSim:
     def clear_injections(self) -> None:
         with self.lock:
             self._frozen, self._missing, self._late, self._fe_offset = None, 0, 0.0, 0.0
+            self._held = []
             self._hb_dead = False
 
     def close(self) -> None:
