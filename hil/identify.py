@@ -372,12 +372,13 @@ def joint_refit(replay: Replay, cfg, keys: list[str], max_nfev: int = 60):
     """Refit several config keys together (after greedy additions), from their current values."""
     obj = replay.objective
     x0 = np.array([float(cfg[k]) for k in keys])
-    scale = np.where(x0 != 0, np.abs(x0), 1.0)
+    # steps large enough to see through the stick-slip's non-smoothness
+    scale = np.maximum(np.abs(x0), 0.05 * np.max(np.abs(x0)) + 1e-12)
 
     def fun(z):
         try:
             return obj.vector(obj.residuals(cfg.with_values(dict(zip(keys, (z * scale).tolist())))))
         except ValueError:
             return np.full(obj.n, 1e3)
-    sol = least_squares(fun, x0 / scale, diff_step=1e-3, max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
+    sol = least_squares(fun, x0 / scale, diff_step=1e-2, max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
     return cfg.with_values(dict(zip(keys, (sol.x * scale).tolist())))
