@@ -74,7 +74,7 @@ def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
     nn = Ad.shape[0]
     n = nn // 2
     f0 = f_drive
-    effects = codes.shape[0] > 0
+    effects = codes is not None        # None (no effects): numba compiles the branch away
     if effects:
         for i in range(n):
             f[i] = 0.0
@@ -108,7 +108,7 @@ def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
 
 @njit(cache=True)
 def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
-                       codes, eparams, delay, lag_alpha, record_every,
+                       codes, eparams, delay, ubuf, lag_alpha, record_every,
                        X, V, U, XM, XT, XCMD):
     """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
     output arrays (positions, velocities, output, measured motor and table, command).
@@ -123,7 +123,6 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     s = new_velocity_state()
     d_int = int(math.floor(delay))
     d_frac = delay - d_int
-    ubuf = np.zeros(d_int + 2)
     u_act = 0.0
     dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
     K = x_cmd.shape[0] - 1
@@ -148,7 +147,7 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
             w_meas = measured_speed(p, s, x[n], xm)
             u = velocity_law(p, s, w_ref, w_meas, a_cmd)
             # computation delay, then the current loop (ideal, or a first-order lag)
-            if delay > 0.0:
+            if ubuf is not None:       # None (no delay): compiled away
                 for i in range(d_int + 1, 0, -1):
                     ubuf[i] = ubuf[i - 1]
                 ubuf[0] = u
@@ -199,10 +198,11 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     from sim_plant.kernel import TIME_DELAY
     delay = float(ctrl.output_delay) + float(sum(q[0] for c, q in plant.effects if c == TIME_DELAY)) / ctrl.velocity_period
     lag = _lag_alpha(plant, ctrl)
+    ubuf = np.zeros(int(math.floor(delay)) + 2) if delay > 0.0 else None
     closed_loop_kernel(disc.A, disc.B, state0, ctrl.as_array(), plant.force_gain, cmd, n_sub,
                        plant.table, plant.tip, ctrl.position_feedback == "motor",
                        plant.friction.as_array(), plant.table_resolution, plant.motor_resolution,
-                       codes, eparams, delay, lag, record_every, X, V, U, XM, XT, XC)
+                       codes, eparams, delay, ubuf, lag, record_every, X, V, U, XM, XT, XC)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command
@@ -217,8 +217,10 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
 
 
 def _effect_table(plant: Plant):
+    """The effects' kernel terms: (codes, params), or (None, params) when there are none, so that
+    the compiled loop is specialised without the effect branch (it is the simulator's hot path)."""
     if not plant.effects:
-        return empty_effects()
+        return None, empty_effects()[1]
     codes = np.array([c for c, _ in plant.effects], np.int64)
     from sim_plant.kernel import N_EFFECT_PARAMS
     params = np.zeros((len(plant.effects), N_EFFECT_PARAMS))
