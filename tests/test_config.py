@@ -39,7 +39,7 @@ def test_overrides_and_dotted_names():
     assert cfg["plant.c2"] == 33.0 and cfg["control.kv"] == 40.0
     assert config.parse_assignment("plant.c2=33") == ("plant.c2", 33)
     assert config.parse_assignment("plant.c2=33 N*s/m") == ("plant.c2", "33 N*s/m")
-    with pytest.raises(config.ConfigError, match="unknown key 'plant.c9' \(a chain of 3 masses has c1..c2\)"):
+    with pytest.raises(config.ConfigError, match=r"unknown key 'plant.c9' \(a chain of 3 masses has c1..c2\)"):
         config.load(CONFIG / "paper_bench.toml", {"plant.c9": 1})
 
 
