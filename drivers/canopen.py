@@ -81,8 +81,8 @@ SECTION = {
                                             positive=True),
     "canopen.following_error_timeout": Field("time", "drive-side following-error time out (0x6066)",
                                              default=0.01, nonnegative=True),
-    "canopen.pdo_timeout": Field("time", "lockstep: how long to wait for the TPDOs after a SYNC", default=0.25,
-                                 positive=True),
+    "canopen.pdo_timeout": Field("time", "lockstep: how long the SDO barrier after a SYNC may take before the "
+                                 "drive counts as gone (a loaded machine: generous)", default=5.0, positive=True),
     "canopen.pdo_miss_limit": Field("int", "consecutive cycles without TPDO before 'lost communication'",
                                     default=2, positive=True),
     "canopen.lockstep": Field("bool", "drive time advances with SYNC only (a simulated drive in this process)",
@@ -380,7 +380,7 @@ class CanopenBackend(Backend):
     # -- cycle ---------------------------------------------------------------------------------------
     def read_feedback(self) -> Feedback:
         if self.lockstep and not self._fresh >= self._want:
-            self._event.wait(self.cfg.get("canopen.pdo_timeout", 0.25))
+            self._barrier()
         with self._lock:
             fresh = self._fresh >= self._want
             rx = dict(self._rx)
@@ -421,6 +421,22 @@ class CanopenBackend(Backend):
             self._target = int(round(sp.speed / self.speed_scale * cpm))
         else:
             self._target = max(-32768, min(32767, int(round(sp.output / self.rated * 1e3))))
+
+    def _barrier(self) -> None:
+        """Lockstep: an SDO upload of 0x1001 after the SYNC. The drive handles the frames in order
+        and sends its TPDOs while it handles the SYNC, before it answers the SDO; the host handles
+        the answers in order too: when the SDO answer is in, every TPDO the drive sent for this
+        SYNC has been taken. A missing or late TPDO is then the drive's doing, never the
+        scheduler's, however loaded the machine."""
+        sdo = self.node.sdo
+        old = sdo.RESPONSE_TIMEOUT
+        sdo.RESPONSE_TIMEOUT = max(old, float(self.cfg.get("canopen.pdo_timeout", 5.0)))
+        try:
+            sdo.upload(0x1001, 0)
+        except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+            self.events.append(f"cycle {self.syncs}: no SDO answer to the barrier ({exc})")
+        finally:
+            sdo.RESPONSE_TIMEOUT = old
 
     def _send_rpdo(self) -> None:
         self.network.send_message(0x200 + self.node_id, struct.pack(self._rpdo_fmt, self._cw, self._target))

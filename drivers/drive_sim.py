@@ -123,6 +123,7 @@ class DriveSim:
         self._stop = threading.Event()
         self._idle_thread = None
         self.node.sdo[0x6041].raw = cia402.statusword_for(self.state)
+        self._warm_up()
         self.node.nmt.state = "PRE-OPERATIONAL"
         self.network.send_message(0x700 + self.node_id, [0])        # boot-up
         if not lockstep:
@@ -141,6 +142,19 @@ class DriveSim:
         self.plant = new
         self.mode = mode
         self.period = new.cycle_time
+
+    def _warm_up(self) -> None:
+        """Run the compiled plant and loop functions once on a throw-away copy, so that the first
+        SYNC is not held up by loading them (a late first answer)."""
+        x = self.plant.x.copy()
+        self.plant.enabled = True
+        self.plant.sync()
+        self._quick_stop_step(1.0)
+        self.plant.enabled = False
+        self.plant.x[:] = x
+        self.plant._u_act = 0.0
+        self.plant._s = new_velocity_state()
+        self.plant._prev_position = None
 
     def home_at(self, position: float) -> None:
         with self.lock:

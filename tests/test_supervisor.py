@@ -21,7 +21,7 @@ _ids = itertools.count()
 
 
 def _rig(mode="csp", **ov):
-    over = {"canopen.lockstep": True, "canopen.pdo_timeout": "400 ms"}
+    over = {"canopen.lockstep": True}
     if mode == "cst":
         over["control.velocity_period"] = "1 ms"
     over.update(ov)
