@@ -172,16 +172,36 @@ class CanopenBackend(Backend):
         self.missed_total = 0
         self.host_heartbeat_dead = False
         self.stopped_state = ""
+        self.answer_latency: list[float] = []      # SYNC sent -> the whole TPDO answer taken (s)
+        self.setpoint_latency: list[float] = []    # SYNC k sent -> RPDO k+1 (from feedback k) sent (s)
 
     # -- start-up --------------------------------------------------------------------------------
     def open(self) -> None:
+        """Full start-up: connect, NMT pre-operational, SDO configuration and PDO mapping, NMT
+        operational, the host's heartbeat."""
+        cfg = self.cfg
+        self.connect()
+        self.node.nmt.state = "PRE-OPERATIONAL"
+        self._sdo_retry(lambda: self.node.sdo[0x1000].raw)        # the drive answers
+        self.configure()
+        self.node.nmt.state = "OPERATIONAL"
+        if not self.lockstep:
+            self._host_hb_task = self.network.send_periodic(0x700 + self.host_id, [0x05],
+                                                            cfg.get("canopen.host_heartbeat", 0.1))
+        else:
+            self._send_host_heartbeat()
+        self._hb_last = self._now()
+
+    def connect(self) -> None:
+        """Only the bus and the drive's node (status, fault reset): no NMT command, no configuration."""
         cfg = self.cfg
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
         if self._bus is None:
             kw = dict(interface=self.interface, channel=self.channel)
             if self.interface == "socketcand":
-                kw.update(host=cfg.get("canopen.host", "127.0.0.1"), port=cfg.get("canopen.port", 29536))
+                kw.update(host=cfg.get("canopen.host", "127.0.0.1"), port=cfg.get("canopen.port", 29536),
+                          tcp_tune=True)          # TCP_NODELAY: no Nagle delay between RPDO and SYNC
             elif self.interface != "virtual":
                 kw["bitrate"] = cfg.get("canopen.bitrate", 1000000)
             self.network.connect(**kw)
@@ -194,16 +214,6 @@ class CanopenBackend(Backend):
         self.network.subscribe(0x700 + self.node_id, self._on_heartbeat)
         for n in range(len(TPDO_MAPS)):
             self.network.subscribe(0x180 + 0x100 * n + self.node_id, self._on_tpdo)
-        self.node.nmt.state = "PRE-OPERATIONAL"
-        self._sdo_retry(lambda: self.node.sdo[0x1000].raw)        # the drive answers
-        self.configure()
-        self.node.nmt.state = "OPERATIONAL"
-        if not self.lockstep:
-            self._host_hb_task = self.network.send_periodic(0x700 + self.host_id, [0x05],
-                                                            cfg.get("canopen.host_heartbeat", 0.1))
-        else:
-            self._send_host_heartbeat()
-        self._hb_last = self._now()
 
     def _sdo_retry(self, fn, tries: int = 5):
         for i in range(tries):
@@ -311,6 +321,37 @@ class CanopenBackend(Backend):
         self._rx.update({0x6041: sdo[0x6041].raw, 0x6064: pos, 0x6077: 0, 0x606C: sdo[0x606C].raw,
                          (0x60E4, 1): sdo[0x60E4][1].raw, (0x60E4, 2): sdo[0x60E4][2].raw, 0x603F: 0})
 
+    def home(self, offset: float = 0.0, method: int = 37, timeout: float = 5.0) -> dict:
+        """Homing mode (6), method 37 (or 35): the present position becomes ``offset`` (m, 0x607C).
+        Enables the drive, starts homing (controlword bit 4), waits for homing attained (statusword
+        bit 12), shuts down and returns to the configured mode."""
+        sdo = self.node.sdo
+        sdo[0x6098].raw = int(method)
+        sdo[0x607C].raw = int(round(offset * self.counts_per_m))
+        sdo[0x6060].raw = cia402.HOMING_MODE
+        ok, err = False, False
+        try:
+            self.enable()
+            sdo[0x6040].raw = cia402.COMMANDS["ENABLE OPERATION"] | 0x10
+            t_end = time.perf_counter() + timeout
+            while time.perf_counter() < t_end:
+                sw = sdo[0x6041].raw
+                err = bool(sw & (1 << cia402.SW_BITS["following_error"]))
+                ok = bool(sw & (1 << cia402.SW_BITS["setpoint_acknowledge"]) and sw & (1 << cia402.SW_BITS["target_reached"]))
+                if ok or err:
+                    break
+                self._send_sync()
+                if not self.lockstep:
+                    time.sleep(self.cycle_time)
+            sdo[0x6040].raw = cia402.COMMANDS["ENABLE OPERATION"]
+        finally:
+            self.disable()
+            sdo[0x6060].raw = cia402.MODES[self.mode]
+        pos = sdo[0x6064].raw / self.counts_per_m
+        if err or not ok:
+            raise BackendFault(f"homing method {method} {'failed (statusword bit 13)' if err else 'timed out'}")
+        return {"homed": True, "method": method, "position_m": pos}
+
     def fault_reset(self) -> str:
         sdo = self.node.sdo
         sdo[0x6040].raw = 0x00
@@ -359,6 +400,8 @@ class CanopenBackend(Backend):
                 self._rx.update(values)
                 self._fresh.add(can_id)
             if self._fresh >= self._want:
+                if not self._event.is_set():
+                    self.answer_latency.append(time.perf_counter() - self._sync_sent)
                 self._event.set()
 
     def _on_heartbeat(self, can_id, data, timestamp):
@@ -439,6 +482,8 @@ class CanopenBackend(Backend):
             sdo.RESPONSE_TIMEOUT = old
 
     def _send_rpdo(self) -> None:
+        if self._sync_sent:
+            self.setpoint_latency.append(time.perf_counter() - self._sync_sent)
         self.network.send_message(0x200 + self.node_id, struct.pack(self._rpdo_fmt, self._cw, self._target))
 
     def _send_host_heartbeat(self) -> None:

@@ -1,0 +1,207 @@
+"""The CANopen CiA 402 backend against the simulated drive on python-can's virtual bus, in lockstep
+(the drive's clock is the SYNC count: no wall-clock timing in any assertion): the CiA 402 tables
+against canopen's own BaseNode402 tables, the full start-up, a move in each mode, homing,
+status, EMCY decoding, fault reset, shutdown; and the separate-process transport (socketcand
+protocol on 127.0.0.1)."""
+import itertools
+import math
+import socket
+
+import can
+import pytest
+from canopen.profiles.p402 import OperationMode, State402
+
+from drivers import cia402
+from drivers.base import BackendFault
+from drivers.canopen import CanopenBackend
+from drivers.drive_sim import DriveSim
+from hil import config
+from hil.profiles import MoveSpec, Trajectory
+from hil.runtime import run_trajectory
+
+_ids = itertools.count()
+
+
+def _rig(mode="csp", **ov):
+    over = {"canopen.lockstep": True}
+    if mode == "cst":
+        over["control.velocity_period"] = "1 ms"
+    over.update(ov)
+    cfg = config.load("config/paper_bench_canopen.toml", over)
+    ch = f"co{next(_ids)}"
+    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), mode=mode, lockstep=True)
+    return cfg, sim, be
+
+
+# -- the CiA 402 tables against canopen's ------------------------------------------------------------
+def test_statusword_table_is_canopens():
+    assert cia402.STATUSWORD == State402.SW_MASK
+    for state in cia402.STATES:
+        assert cia402.state_from_statusword(cia402.statusword_for(state)) == state
+
+
+def test_transitions_agree_with_canopens_table():
+    for (src, dst), cw in State402.TRANSITIONTABLE.items():
+        if src in ("START", "NOT READY TO SWITCH ON", "FAULT REACTION ACTIVE"):
+            continue                  # the drive leaves these by itself
+        assert cia402.next_state(src, cw, 0) == dst, (src, dst, hex(cw))
+    # what canopen's controlword codes mean here
+    for cw, name in State402.CW_CODE_COMMANDS.items():
+        assert cia402.COMMANDS[{"SWITCH ON DISABLED": "FAULT RESET", "READY TO SWITCH ON": "SHUTDOWN",
+                                "SWITCHED ON": "SWITCH ON", "OPERATION ENABLED": "ENABLE OPERATION",
+                                "QUICK STOP ACTIVE": "QUICK STOP"}.get(name, name)] == cw
+
+
+def test_way_up_agrees_with_canopens():
+    for state, cmd in cia402.NEXT_TO_ENABLE.items():
+        if cmd is None:
+            continue
+        nxt = cia402.TRANSITIONS[(state, cmd)]
+        assert nxt == State402.next_state_indirect(state), state
+
+
+def test_fault_reset_only_on_rising_edge():
+    assert cia402.next_state("FAULT", 0x80, 0x00) == "SWITCH ON DISABLED"
+    assert cia402.next_state("FAULT", 0x80, 0x80) == "FAULT"
+
+
+def test_mode_codes_are_canopens():
+    names = {"csp": "CYCLIC SYNCHRONOUS POSITION", "csv": "CYCLIC SYNCHRONOUS VELOCITY",
+             "cst": "CYCLIC SYNCHRONOUS TORQUE"}
+    for m, code in cia402.MODES.items():
+        assert OperationMode.NAME2CODE[names[m]] == code
+    assert OperationMode.NAME2CODE["HOMING"] == cia402.HOMING_MODE
+
+
+# -- start-up, modes, shutdown ----------------------------------------------------------------------
+def test_full_start_up_configures_the_drive():
+    cfg, sim, be = _rig()
+    try:
+        be.open()
+        d = sim.node.sdo
+        be.node.sdo[0x1001].raw            # an SDO answer: the drive has handled the NMT command before it
+        assert sim.node.nmt.state == "OPERATIONAL"
+        assert d[0x6060].raw == 8
+        assert d[0x1016][1].raw == (127 << 16) | 350          # heartbeat consumer of the host
+        assert d[0x6007].raw == 3 and d[0x1017].raw == 100 and d[0x1019].raw == 240
+        assert d[0x6065].raw == round(0.030 * be.counts_per_m)  # 1.5 x the table window
+        assert d[0x607D][1].raw < 0 < d[0x607D][2].raw
+        assert d[0x1A02][0].raw == 3 and d[0x1A02][3].raw >> 16 == 0x2001     # the SYNC counter echo
+        assert d[0x1600][2].raw >> 16 == 0x607A
+        be.enable()
+        assert sim.state == "OPERATION ENABLED"
+        be.disable()
+        assert sim.state == "READY TO SWITCH ON"
+    finally:
+        be.close()
+        sim.close()
+    assert sim.node.nmt.state == "PRE-OPERATIONAL"
+
+
+def _move():
+    tr = Trajectory(start=0.0)
+    tr.move(MoveSpec(stroke=0.02, feed=0.1, a_max=2.0))
+    tr.dwell(0.15)
+    return tr
+
+
+@pytest.mark.parametrize("mode,closes", [("csp", "both"), ("csv", "velocity"), ("cst", "none")])
+def test_move_in_each_mode(mode, closes, tmp_path):
+    cfg, sim, be = _rig(mode)
+    assert be.closes == closes
+    try:
+        rec = run_trajectory(cfg, _move(), backend=be, out_file=tmp_path / "m.csv", settle=0.0)
+    finally:
+        sim.close()
+    assert rec.status == "complete", rec.reason
+    assert sim.node.sdo[0x6060].raw == cia402.MODES[mode]
+    assert abs(rec["x_table"][-1] - 0.02) < 0.5e-3
+    assert max(abs(rec["e_table"])) < 5e-3
+    assert be.missed_total == 0 and be.late_total == 0
+    assert sim.state == "READY TO SWITCH ON"
+
+
+def test_cst_refuses_a_slow_velocity_loop():
+    cfg = config.load("config/paper_bench_canopen.toml", {"control.velocity_period": "2 ms"})
+    with pytest.raises(BackendFault, match="1 ms or faster"):
+        CanopenBackend(cfg, mode="cst")
+
+
+def test_emcy_fault_in_torque_mode_and_reset():
+    cfg, sim, be = _rig("cst")
+    try:
+        be.open()
+        be.enable()
+        for _ in range(5):
+            be.read_feedback()
+            be.sync()
+        sim.inject("emcy", 0x4310)
+        be.sync()
+        fb = be.read_feedback()
+        assert fb.fault == "drive fault: EMCY 0x4310 drive overtemperature"
+        assert be.emcy_log[-1]["code"] == "0x4310" and be.emcy_log[-1]["text"] == "drive overtemperature"
+        be.disable()
+        assert sim.state == "FAULT"
+        assert be.status()["error_code"] == "0x4310"
+        assert be.fault_reset() == "SWITCH ON DISABLED"
+        be.enable()
+        assert sim.state == "OPERATION ENABLED"
+        be.disable()
+    finally:
+        be.close()
+        sim.close()
+
+
+def test_homing_sets_the_position():
+    cfg, sim, be = _rig()
+    try:
+        be.open()
+        sim.home_at(0.1234)
+        out = be.home(offset=0.05)
+        assert out["homed"] and abs(out["position_m"] - 0.05) < 1e-6
+        assert sim.node.sdo[0x6060].raw == 8 and sim.state == "READY TO SWITCH ON"
+        st = be.status()
+        assert abs(st["position_m"] - 0.05) < 1e-6 and st["state"] == "READY TO SWITCH ON"
+    finally:
+        be.close()
+        sim.close()
+
+
+# -- the separate-process transport: socketcand protocol on 127.0.0.1 ---------------------------------
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_socketcand_server_refuses_other_addresses():
+    from drivers.drive_sim import SocketcandServerBus
+    with pytest.raises(ValueError, match="127.0.0.1"):
+        SocketcandServerBus(host="0.0.0.0", port=_free_port())
+
+
+def test_drive_over_socketcand_on_loopback():
+    """The python-can socketcand client (the host) against the drive's own socketcand server."""
+    from drivers.drive_sim import SocketcandServerBus
+    port = _free_port()
+    cfg = config.load("config/paper_bench_canopen.toml", {"canopen.interface": "socketcand",
+                                                            "canopen.channel": "can0", "canopen.port": port})
+    server = SocketcandServerBus(host="127.0.0.1", port=port, channel="can0")
+    sim = DriveSim(cfg, bus=server, lockstep=False)
+    be = CanopenBackend(cfg)
+    try:
+        be.open()
+        be.enable()
+        assert sim.state == "OPERATION ENABLED"
+        for _ in range(20):
+            be.read_feedback()
+            be.sync()
+            be._event.wait(1.0)
+        assert be.answer_latency and be.late_total == 0
+        be.disable()
+        assert be.status()["state"] == "READY TO SWITCH ON"
+    finally:
+        be.close()
+        sim.close()
+    assert math.isfinite(sim.plant.x[0])
