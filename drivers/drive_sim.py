@@ -24,6 +24,7 @@ import threading
 import time
 from pathlib import Path
 
+import can
 import canopen
 import numpy as np
 
@@ -32,7 +33,7 @@ from hil.control import new_velocity_state, velocity_law
 from . import cia402
 from .sim import SimulatedPlant
 
-__all__ = ["DriveSim", "DEFAULT_EDS", "EMCY_CODES", "FAULTS"]
+__all__ = ["DriveSim", "DEFAULT_EDS", "EMCY_CODES", "FAULTS", "SocketcandServerBus"]
 
 DEFAULT_EDS = str(Path(__file__).resolve().parent.parent / "config" / "cia402_generic.eds")
 
@@ -143,6 +144,10 @@ class DriveSim:
         self.mode = mode
         self.period = new.cycle_time
 
+    def _hb_now(self) -> float:
+        """The heartbeat consumer's clock: the SYNC clock in lockstep, else the wall clock."""
+        return self.time if self.lockstep else time.perf_counter()
+
     def _warm_up(self) -> None:
         """Run the compiled plant and loop functions once on a throw-away copy, so that the first
         SYNC is not held up by loading them (a late first answer)."""
@@ -186,7 +191,7 @@ class DriveSim:
                         self._make_plant(name)
                 self.node.sdo[0x6061].raw = code
             elif index == 0x1016 and subindex == 1:
-                self.last_host_heartbeat = self.time
+                self.last_host_heartbeat = self._hb_now()
 
     def _controlword(self, cw: int) -> None:
         prev, self.cw = self.cw, cw
@@ -202,7 +207,7 @@ class DriveSim:
         if new == "OPERATION ENABLED":
             self.plant._prev_position = None
             self.plant._s = new_velocity_state()
-            self.last_host_heartbeat = self.time
+            self.last_host_heartbeat = self._hb_now()
             self._fe_count = 0
         if old == "FAULT":
             self.fault_code = 0
@@ -253,7 +258,7 @@ class DriveSim:
 
     def _on_host_heartbeat(self, can_id, data, timestamp):
         with self.lock:
-            self.last_host_heartbeat = self.time if self.lockstep else time.perf_counter()
+            self.last_host_heartbeat = self._hb_now()
             self.host_heartbeat_seen = True
 
     def _on_sync(self, can_id, data, timestamp):
@@ -293,7 +298,7 @@ class DriveSim:
         # heartbeat consumer (0x1016) and the abort-connection option (0x6007)
         hb = self.node.sdo[0x1016][1].raw
         timeout = (hb & 0xFFFF) * 1e-3
-        now_hb = self.time if self.lockstep else time.perf_counter()
+        now_hb = self._hb_now()
         if timeout > 0 and self.state == "OPERATION ENABLED" and now_hb - self.last_host_heartbeat > timeout:
             self._abort_connection()
         # targets latched at SYNC, clamped to the software limits
@@ -496,3 +501,118 @@ class DriveSim:
 def _sp(position=0.0, speed=0.0, output=0.0):
     from .base import Setpoint
     return Setpoint(position=position, speed=speed, output=output)
+
+
+# -- the separate-process transport: a socketcand-protocol server on the loopback address ------------
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+class SocketcandServerBus(can.BusABC):
+    """A python-can bus that *is* a small socketcand server (raw mode) on 127.0.0.1: the simulated
+    drive uses it as its bus, and every other process reaches the drive with python-can's own
+    socketcand interface (``interface="socketcand", host="127.0.0.1", port=..., channel=...``).
+    Frames a client sends go to the drive and to the other clients, as on one CAN bus. Only the
+    loopback address is served: nothing leaves the machine."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 29536, channel: str = "can0", **kwargs):
+        if host not in LOOPBACK:
+            raise ValueError(f"the simulated drive serves 127.0.0.1 only, not {host!r}")
+        import queue
+        import socket
+        self._queue: "queue.Queue[can.Message]" = queue.Queue()
+        self._clients: list = []
+        self._clients_lock = threading.Lock()
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._sock.bind(("127.0.0.1", int(port)))
+        self._sock.listen(4)
+        self.port = self._sock.getsockname()[1]
+        self.channel = channel
+        self.channel_info = f"socketcand server {channel}@127.0.0.1:{self.port}"
+        self._t0 = time.time()
+        self._closed = False
+        threading.Thread(target=self._accept, daemon=True).start()
+        super().__init__(channel=channel, **kwargs)
+
+    def _accept(self):
+        import socket
+        while not self._closed:
+            try:
+                conn, _ = self._sock.accept()
+            except OSError:
+                return
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
+
+    def _serve(self, conn):
+        buf, ready = "", False
+        try:
+            conn.sendall(b"< hi >")
+            while not self._closed:
+                data = conn.recv(4096)
+                if not data:
+                    break
+                buf += data.decode("ascii", "replace")
+                while ">" in buf:
+                    end = buf.index(">")
+                    start = buf.find("<")
+                    cmd, buf = buf[start + 1:end].split(), buf[end + 1:]
+                    if not cmd:
+                        continue
+                    if cmd[0] == "open":
+                        conn.sendall(b"< ok >")
+                    elif cmd[0] == "rawmode":
+                        conn.sendall(b"< ok >")
+                        ready = True
+                        with self._clients_lock:
+                            self._clients.append(conn)
+                    elif cmd[0] == "send" and ready and len(cmd) >= 3:
+                        can_id, n = int(cmd[1], 16), int(cmd[2], 16)
+                        payload = bytes(int(b, 16) for b in cmd[3:3 + n])
+                        msg = can.Message(arbitration_id=can_id, data=payload, is_extended_id=len(cmd[1]) > 3,
+                                          timestamp=time.time(), is_rx=True, channel=self.channel)
+                        self._queue.put(msg)
+                        self._broadcast(msg, skip=conn)
+        except OSError:
+            pass
+        finally:
+            with self._clients_lock:
+                if conn in self._clients:
+                    self._clients.remove(conn)
+            conn.close()
+
+    def _broadcast(self, msg, skip=None):
+        cid = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
+        line = f"< frame {cid} {time.time() - self._t0:.6f} {bytes(msg.data).hex().upper()} >".encode()
+        with self._clients_lock:
+            clients = [c for c in self._clients if c is not skip]
+        for c in clients:
+            try:
+                c.sendall(line)
+            except OSError:
+                pass
+
+    def send(self, msg, timeout=None):
+        self._broadcast(msg)
+
+    def _recv_internal(self, timeout):
+        import queue
+        try:
+            return self._queue.get(timeout=timeout), False
+        except queue.Empty:
+            return None, False
+
+    def shutdown(self):
+        self._closed = True
+        try:
+            self._sock.close()
+        except OSError:
+            pass
+        with self._clients_lock:
+            for c in self._clients:
+                try:
+                    c.close()
+                except OSError:
+                    pass
+            self._clients = []
+        super().shutdown()
