@@ -197,6 +197,14 @@ class CanopenBackend(Backend):
         cfg = self.cfg
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
+        if self._bus is None and self.interface == "socketcand":
+            import socket
+            host, port = cfg.get("canopen.host", "127.0.0.1"), int(cfg.get("canopen.port", 29536))
+            try:                      # python-can would retry for 10 s; say at once that nobody listens
+                socket.create_connection((host, port), timeout=1.0).close()
+            except OSError as exc:
+                raise BackendFault(f"no socketcand server at {host}:{port} ({exc}); start 'hil drive-sim' "
+                                   "or point canopen.host/port at one") from None
         if self._bus is None:
             kw = dict(interface=self.interface, channel=self.channel)
             if self.interface == "socketcand":
@@ -589,6 +597,11 @@ class CanopenBackend(Backend):
 
     def status(self) -> dict:
         sdo = self.node.sdo
+        if self.node.nmt.state == "INITIALISING":         # no heartbeat seen yet: wait for one
+            try:
+                self.node.nmt.wait_for_heartbeat(2 * max(sdo[0x1017].raw, 100) * 1e-3)
+            except Exception:
+                pass
         sw = sdo[0x6041].raw
         return {"node": self.node_id, "nmt": self.node.nmt.state, "state": cia402.state_from_statusword(sw),
                 "statusword": f"0x{sw:04X}", "mode": self.mode, "position_m": sdo[0x6064].raw / self.counts_per_m,
