@@ -957,6 +957,10 @@ def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progre
     warnings = []
     if rec.saturated:
         warnings.append(f"the output saturated in {rec.saturated} velocity periods: lower --amplitude")
+    w = rec.channel("w")[rec.start:]
+    if st.speed != 0 and np.any(np.sign(w) == -np.sign(st.speed)):
+        warnings.append("the motor speed reverses during the excitation: friction changes sign and the "
+                        "responses are not those of the working point; raise --speed or lower --amplitude")
     low = np.mean(resp["TF1p"].coherence < 0.8)
     if low > 0.2:
         warnings.append(f"coherence below 0.8 on {low:.0%} of the lines of TF1': raise --amplitude or --periods")
