@@ -139,24 +139,40 @@ def run(args) -> int:
         from drivers import BackendError, open_backend
         if args.sim_set:
             raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
+        from drivers.base import BackendFault
+        from .supervisor import Supervisor, SupervisorTripped
+        options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
         try:
-            backend = open_backend(cfg, name)
-        except (BackendError, TypeError) as exc:
+            backend = open_backend(cfg, name, **options)
+        except (BackendError, BackendFault, TypeError, ValueError) as exc:
             raise UserError(str(exc)) from None
         if backend.closes != "none":
             raise UserError(f"backend {name}: frf closes both loops on the host and needs the drive in torque mode")
-        backend.open()
-        backend.enable()
+        supervisor = Supervisor(cfg)
+        try:
+            supervisor.arm()
+        except SupervisorTripped as exc:
+            raise UserError(str(exc)) from None
+        try:
+            backend.open()
+            backend.enable()
+        except BackendFault as exc:
+            raise UserError(f"backend {name}: {exc.reason}") from None
+    else:
+        supervisor = None
     progress = frf.stderr_progress
     try:
         result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
-                             pm_min=args.pm, gm_min_db=args.gm)
-    except ValueError as exc:
+                             pm_min=args.pm, gm_min_db=args.gm, supervisor=supervisor)
+    except (ValueError, RuntimeError) as exc:
         raise UserError(str(exc)) from None
     finally:
         if backend is not None:
-            backend.disable()
-            backend.close()
+            for step in (backend.disable, backend.close):
+                try:
+                    step()
+                except Exception:
+                    pass
     out = Path(args.out)
     report = result.as_dict()
     try:

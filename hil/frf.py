@@ -299,12 +299,15 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
                      st.input, "sim")
 
 
-def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, plant=None) -> FrfRecord:
+def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, plant=None, clock=None) -> FrfRecord:
     """The same experiment cycle by cycle through the backend contract (drivers.base): the host
     closes both loops, so the backend must take torque (``closes == "none"``). Works on any such
     backend (the simulated plant, a CiA 402 drive in cyclic torque mode); slower than
-    :func:`run_sim` on the simulated plant."""
+    :func:`run_sim` on the simulated plant. Paced by ``clock`` (default: hil.loop's simulated
+    clock for a simulated backend, the real-time clock otherwise); ``supervisor.check`` every
+    position tick, a trip ends the run with a quick stop."""
     from drivers.base import BackendFault, Setpoint
+    from .loop import RealTimeClock, SimulatedClock
     if backend.closes != "none":
         raise ValueError(f"backend {backend.name}: frf needs a backend in torque mode (closes='none'), "
                          f"this one closes {backend.closes!r}")
@@ -327,6 +330,10 @@ def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, 
     tip_measured = True
     step = 0
     mode = 0 if st.input == "torque" else 1
+    if clock is None:
+        period = backend.cycle_time or tv
+        clock = SimulatedClock(period) if getattr(backend, "simulated", False) else RealTimeClock(period)
+    clock.start()
     try:
         for k in range(x_cmd.size - 1):
             for j in range(n_sub):
@@ -353,6 +360,7 @@ def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, 
                 out[step] = (rr, u, uc, w_ref - w, w, w_pos, w_ref, fb.x_motor, fb.x_table, tip)
                 backend.write_setpoint(Setpoint(output=u))
                 backend.sync()
+                clock.wait()
                 step += 1
             if progress and k % 1000 == 0:
                 progress(f"  {step / steps:5.1%}")
@@ -933,13 +941,13 @@ class FrfResult:
 
 
 def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progress=None, pm_min: float = 45.0,
-            gm_min_db: float = 6.0) -> FrfResult:
+            gm_min_db: float = 6.0, supervisor=None) -> FrfResult:
     """Excite, estimate, set against the model, fit the modes, suggest. ``plant_true`` is what the
     simulated run uses (None with a backend); ``plant_model`` the config's model."""
     if backend is None:
         rec = run_sim(plant_true, ctrl, st, progress)
     else:
-        rec = run_backend(backend, ctrl, st, progress, plant=plant_model)
+        rec = run_backend(backend, ctrl, st, progress, supervisor=supervisor, plant=plant_model)
     if progress:
         progress("estimating the responses")
     resp = estimate(rec, ctrl)
