@@ -200,6 +200,8 @@ class CanopenBackend(Backend):
         if self._bus is None and self.interface == "socketcand":
             import socket
             host, port = cfg.get("canopen.host", "127.0.0.1"), int(cfg.get("canopen.port", 29536))
+            import logging            # python-can warns of every TCP segment that splits a frame: harmless
+            logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.ERROR)
             try:                      # python-can would retry for 10 s; say at once that nobody listens
                 socket.create_connection((host, port), timeout=1.0).close()
             except OSError as exc:
