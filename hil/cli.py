@@ -17,6 +17,7 @@ from drivers.base import BackendFault
 from .config import ConfigError
 from .measurement import MeasurementError
 from .profiles import LimitError
+from .supervisor import SupervisorTripped
 from .units import UnitError
 
 # command name -> module (kept in the order `hil --help` lists them). A module not yet present in
@@ -69,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
-    except (ConfigError, UnitError, UserError, MeasurementError, BackendError, LimitError) as exc:
+    except (ConfigError, UnitError, UserError, MeasurementError, BackendError, LimitError, SupervisorTripped) as exc:
         print(f"hil {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BackendFault as exc:
@@ -81,4 +82,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # run the imported module's main, so that the commands and this code share one UserError class
+    from hil.cli import main as _main
+    sys.exit(_main())

@@ -148,31 +148,31 @@ class ControlLoop:
                         if self.supervisor is not None and hasattr(self.supervisor, "trip"):
                             self.supervisor.trip(k * self.ctrl.position_period, fb.fault, fb)
                         raise BackendFault(fb.fault)
+                    # the setpoint of this cycle (from the loops the backend does not close)
                     if b.closes == "both":
-                        b.write_setpoint(Setpoint(position=cmd[k + 1]))
-                        out = fb.output
+                        sp, out = Setpoint(position=cmd[k + 1]), fb.output
                     else:
                         if j == 0:
                             xfb = fb.x_motor if self.ctrl.position_feedback == "motor" else fb.x_table
                             w_ref = position_law(p, cmd[k], cmd[k + 1], xfb)
                         if b.closes == "velocity":
-                            b.write_setpoint(Setpoint(speed=w_ref))
-                            out = fb.output
+                            sp, out = Setpoint(speed=w_ref), fb.output
                         else:
                             w = measured_speed(p, s, fb.v_motor, fb.x_motor)
                             u = velocity_law(p, s, w_ref, w, 0.0)
                             self._delay.insert(0, u)
                             u = self._delay.pop()
-                            b.write_setpoint(Setpoint(output=u))
-                            out = u
+                            sp, out = Setpoint(output=u), u
                     if j == 0:
                         self._record(k, cmd[k], v_cmd, fb, out)
+                        # checked before the setpoint goes out: a trip stops the axis in this cycle
                         if self.supervisor is not None:
                             trip = self.supervisor.check(k * self.ctrl.position_period, fb, cmd[k])
                             if trip:
-                                b.quick_stop()
+                                self._stop(b)
                                 status, reason = "tripped", trip
                                 return self._end(k, status, reason)
+                    b.write_setpoint(sp)
                     b.sync()
                     self.clock.wait()
         except BackendFault as exc:
@@ -190,6 +190,13 @@ class ControlLoop:
             if self.recorder is not None and status != "complete":
                 self.recorder.close(status, reason)
         return self._end(K, status, reason)
+
+    def _stop(self, backend: Backend) -> None:
+        """The controlled stop the configuration asks for (supervisor.stop: quick_stop or disable)."""
+        if getattr(self.supervisor, "stop", "quick_stop") == "disable":
+            backend.disable()
+        else:
+            backend.quick_stop()
 
     def _end(self, ticks: int, status: str, reason: str) -> LoopResult:
         clock = self.clock.stats() if hasattr(self.clock, "stats") else {}

@@ -71,6 +71,10 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     rec = Recorder(out_file, names, info) if out_file is not None else _MemoryRecorder(names)
     if isinstance(backend, SimulatedPlant):
         backend.home_at(x_cmd[0])
+    if supervisor is None:
+        from .supervisor import Supervisor
+        supervisor = Supervisor(cfg, real_time=not backend.simulated)
+        supervisor.arm()           # refuses motion while an earlier trip is not reset
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary)
     try:
         backend.open()
@@ -80,7 +84,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         result = LoopResult(0, "fault", exc.reason)
     finally:
         _shutdown(backend)
-    rec.close(result.status, result.reason, {"loop": result.clock})
+    rec.close(result.status, result.reason, {"loop": result.clock, "supervisor": getattr(supervisor, "record", {})})
     chans = rec.channels() if isinstance(rec, _MemoryRecorder) else read_measurement(out_file).channels
     return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock)
 
