@@ -13,9 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hil.control import (controller_from_config, measured_speed, new_velocity_state, position_law, quantize,
-                         velocity_law)
-from hil.simulate import _effect_table, _lag_alpha, plant_step, simulate
+from hil.control import controller_from_config, new_velocity_state, position_law, quantize
+from hil.simulate import _effect_table, _lag_alpha, drive_steps, plant_step, simulate
 from sim_plant.plant import plant_from_config
 
 from .base import LOOPS, Backend, Feedback, Setpoint
@@ -98,10 +97,10 @@ class SimulatedPlant(Backend):
                 self._prev_position = self._set.position
             else:
                 w_ref = self._set.speed
-            for _ in range(self.ctrl.substeps):
-                w = measured_speed(self._p, self._s, self.x[n], quantize(self.x[0], pl.motor_resolution))
-                self._set.output = velocity_law(self._p, self._s, w_ref, w, 0.0)
-                self._step(self._set.output)
+            _, self._u_act = drive_steps(self._Ad, self._Bd, self.x, self._s, self._p, w_ref, self.ctrl.substeps,
+                                         pl.motor_resolution, self._lag, self._u_act, pl.force_gain, self._fric,
+                                         self._dry, self._codes, self._eparams, self._f, self._xn)
+            self.time += self.ctrl.position_period
 
     def _step(self, u: float) -> None:
         self._u_act += self._lag * (u - self._u_act)      # current loop: ideal, or a first-order lag

@@ -19,7 +19,7 @@ from sim_plant.plant import Plant, plant_from_config
 from .control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state,
                       position_law, quantize, velocity_law)
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step"]
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step", "drive_steps"]
 
 
 @dataclass
@@ -104,6 +104,22 @@ def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
         x[r] = x_new[r]
     if stuck:
         x[n] = 0.0       # exactly at rest, not a round-off away from it
+
+
+@njit(cache=True)
+def drive_steps(Ad, Bd, x, s, p, w_ref, steps, res_motor, lag_alpha, u_act, fgain, fric, dry, codes, eparams,
+                f, x_new):
+    """``steps`` velocity-loop steps of a drive that closes the velocity loop itself (the simulated
+    plant standing in for a drive in velocity or position mode): returns the last output and the
+    current loop's state. The same law and plant step as the closed-loop kernel."""
+    n = Ad.shape[0] // 2
+    u = 0.0
+    for _ in range(steps):
+        w = measured_speed(p, s, x[n], quantize(x[0], res_motor))
+        u = velocity_law(p, s, w_ref, w, 0.0)
+        u_act += lag_alpha * (u - u_act)
+        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+    return u, u_act
 
 
 @njit(cache=True)
