@@ -13,7 +13,7 @@ difference, error per motion phase, residual spectrum peaks, whiteness (99 % ban
 with the command and with v, a, x. Writes overlay/residual/spectrum/scatter PNGs and report.html.
 
   hil compare data.csv --config config/paper_bench.toml
-  hil compare DATA_EMPS.mat --config config/emps.toml --map t=t,x_cmd=qg,x_motor=qm,force=vir*gtau
+  hil compare DATA_EMPS.mat --config config/emps.toml --map t=t,qg=x_cmd,qm=x_motor,vir*gtau=force
   hil compare data.csv --config old.toml --after new.toml     (before and after side by side)
 """
 
@@ -22,8 +22,9 @@ def add_common(parser) -> None:
     parser.add_argument("data", help="measurement: CSV in the project's format, or a MATLAB .mat record")
     parser.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a parameter")
-    parser.add_argument("--map", action="append", default=[], metavar="NAME=SOURCE",
-                        help="column/variable mapping, e.g. x_table=pos or force=vir*gtau (repeatable, or comma-separated)")
+    parser.add_argument("--map", action="append", default=[], metavar="SOURCE=CHANNEL[unit]",
+                        help="column or variable -> channel, the same for CSV and .mat: pos=x_table[mm], "
+                             "vir*gtau=force (repeatable, or comma-separated)")
     parser.add_argument("--channels", default=None, help="comma-separated channels to use (default: all measured)")
     parser.add_argument("--align", action="store_true", help="align each channel in time by cross-correlation")
     parser.add_argument("--json", action="store_true", help="print one JSON object")

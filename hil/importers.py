@@ -1,11 +1,13 @@
 """Readers of foreign measurement records into :class:`hil.measurement.Measurement`.
 
-MATLAB ``.mat`` files are read with :func:`scipy.io.loadmat`. A *variable mapping* says which
-channel each variable (or product of variables and numbers) becomes, e.g. for the EMPS benchmark::
+One mapping convention for every format, ``--map SOURCE=CHANNEL[unit]``: the source (a CSV
+column, or a MATLAB variable or a product of variables and numbers) on the left, the project's
+channel and optionally the unit the source is in on the right, e.g. for the EMPS benchmark::
 
-    t=t, x_cmd=qg, x_motor=qm, command=vir, force=vir*gtau
+    t=t, qg=x_cmd, qm=x_motor, vir=command, vir*gtau=force
 
-Values are taken as SI (the mapping may multiply by a number to convert: ``x_motor=qm*1e-3``).
+``pos=x_table[mm]`` reads the column or variable ``pos`` as x_table in millimetres. Without a
+unit, MATLAB values are taken as SI and CSV columns keep the unit of their header.
 :func:`read_any` chooses the reader by the file suffix, so every command reads both formats.
 """
 from __future__ import annotations
@@ -20,13 +22,27 @@ from .measurement import read as read_csv
 
 __all__ = ["read_mat", "read_any", "parse_mapping", "EMPS_MAPPING"]
 
-EMPS_MAPPING = {"t": "t", "x_cmd": "qg", "x_motor": "qm", "command": "vir", "force": "vir*gtau"}
+EMPS_MAPPING = {"t": "t", "qg": "x_cmd", "qm": "x_motor", "vir": "command", "vir*gtau": "force"}
 
 _TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+_TARGET = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[([^\]]*)\])?$")
+
+
+def _target(source: str, target: str, where: str):
+    """(channel, factor to SI) of a mapping's right-hand side."""
+    from .measurement import _kind_of
+    m = _TARGET.match(target.strip())
+    if not m:
+        raise MeasurementError(f"--map {source}={target}: expected CHANNEL or CHANNEL[unit]")
+    name, unit = m.group(1), m.group(2)
+    if unit is None or not unit.strip():
+        return name, 1.0
+    _, factor = _kind_of(name, unit.strip(), where)
+    return name, factor
 
 
 def parse_mapping(items) -> dict[str, str]:
-    """``["x_cmd=qg", "force=vir*gtau"]`` or ``"x_cmd=qg,force=vir*gtau"`` -> dict."""
+    """``["qg=x_cmd", "vir*gtau=force"]`` or ``"qg=x_cmd,pos=x_table[mm]"`` -> {source: target}."""
     if items is None:
         return {}
     if isinstance(items, str):
@@ -38,9 +54,12 @@ def parse_mapping(items) -> dict[str, str]:
             if not part:
                 continue
             if "=" not in part:
-                raise MeasurementError(f"--map {part!r}: expected NAME=SOURCE, e.g. x_cmd=qg")
+                raise MeasurementError(f"--map {part!r}: expected SOURCE=CHANNEL[unit], e.g. qg=x_cmd or pos=x_table[mm]")
             a, _, b = part.partition("=")
-            out[a.strip()] = b.strip()
+            a, b = a.strip(), b.strip()
+            if not _TARGET.match(b):
+                raise MeasurementError(f"--map {part!r}: {b!r} is not CHANNEL or CHANNEL[unit]")
+            out[a] = b
     return out
 
 
@@ -64,8 +83,9 @@ def _evaluate(expr: str, data: dict, source: str) -> np.ndarray:
 
 
 def read_mat(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement:
-    """Read a MATLAB record. ``mapping``: channel -> variable or product (default: identity for
-    the variables named like channels, plus the EMPS names when present)."""
+    """Read a MATLAB record. ``mapping``: source (variable or product) -> ``channel`` or
+    ``channel[unit]`` (default: the variables named like channels, plus the EMPS names when
+    present)."""
     import scipy.io
     source = str(path)
     try:
@@ -77,13 +97,19 @@ def read_mat(path: str | Path, mapping: dict[str, str] | None = None) -> Measure
     if not mapping:
         mapping = {k: k for k in data if k in CHANNELS}
         if "qm" in data and "qg" in data:
-            mapping = dict(EMPS_MAPPING) | {k: v for k, v in mapping.items()}
+            mapping = dict(EMPS_MAPPING) | mapping
     channels: dict[str, np.ndarray] = {}
-    for name, expr in mapping.items():
-        channels[name] = _evaluate(expr, data, source)
+    exprs: dict[str, str] = {}
+    for expr, target in mapping.items():
+        name, factor = _target(expr, target, source)
+        if name in channels:
+            raise MeasurementError(f"{source}: --map gives channel {name!r} twice ({exprs[name]} and {expr})")
+        channels[name] = _evaluate(expr, data, source) * factor
+        exprs[name] = expr
+    mapping = exprs
     for req in ("t", "x_cmd"):
         if req not in channels:
-            raise MeasurementError(f"{source}: the mapping gives no {req!r} channel (use --map {req}=VARIABLE)")
+            raise MeasurementError(f"{source}: the mapping gives no {req!r} channel (use --map VARIABLE={req})")
     n = channels["t"].size
     for name, v in channels.items():
         if v.size != n:
@@ -94,7 +120,7 @@ def read_mat(path: str | Path, mapping: dict[str, str] | None = None) -> Measure
             raise MeasurementError(f"{source}: channel {name!r} ({mapping[name]}), sample {bad[0] + 1}: NaN or "
                                    f"infinite value")
     _check_time(channels["t"], source, 1)
-    meta = {"format": "mat", "mapping": ",".join(f"{k}={v}" for k, v in mapping.items())}
+    meta = {"format": "mat", "mapping": ",".join(f"{v}={k}" for k, v in mapping.items())}
     return Measurement(channels, meta, source, {k: "" for k in channels})
 
 
