@@ -21,7 +21,7 @@ filtered position) and of the force gtau*vir.
 
 PUBLISHED = {"M": 95.1089, "Fv": 203.5034, "Fc": 20.3935, "offset": -3.1648,
              "errors": {"position": 0.0138, "velocity": 0.229, "force": 5.85}}
-MAPPING = {"t": "t", "x_cmd": "qg", "x_motor": "qm", "force": "vir*gtau"}
+MAPPING = {"t": "t", "qg": "x_cmd", "qm": "x_motor", "vir*gtau": "force"}     # source = channel
 
 
 def add_arguments(parser) -> None:
@@ -29,6 +29,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--config", default=str(Path(__file__).resolve().parent.parent / "config" / "emps.toml"))
     parser.add_argument("--out", default="out/emps", metavar="DIR")
     parser.add_argument("--quick", action="store_true", help="fewer iterations (tests)")
+    parser.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis rankings (faster)")
+    parser.add_argument("--docs", metavar="DIR", default=None,
+                        help="also copy the figures as emps_*.png into DIR (e.g. docs)")
     parser.add_argument("--json", action="store_true")
 
 
@@ -57,50 +60,103 @@ def params_of(cfg) -> dict:
     return {k: float(v) for k, v in out.items()}
 
 
-def run_emps(data, config, quick=False, progress=None):
+DIAGNOSE_CANDIDATES = ["coulomb_friction", "stribeck_friction", "asymmetric_friction", "constant_force",
+                       "viscous_friction", "time_delay", "mass_change", "parameter:actuator.gain"]
+
+
+def _with_rigid(cfg, p):
+    return cfg.with_values({"plant.m1": p["M"], "friction.viscous": p["Fv"],
+                            "effects.coulomb_friction.level": p["Fc"],
+                            "effects.constant_force.force": -p["offset"]})
+
+
+def _ranking(d, n=4):
+    return [{"effect": c.effect, "score": round(c.score, 1), "significant": c.significant,
+             "evidence": c.evidence} for c in d["candidates"][:n]]
+
+
+def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
+    """The EMPS chain. Returns (replay, rows, configs, diagnoses)."""
     from .compare import Replay
     from .config import load
-    from .identify import fit_effects, joint_refit
+    from .identify import diagnose, evaluate, fit_effects, idim_ls, joint_refit
     from .importers import read_mat
     meas = read_mat(data, MAPPING)
     cfg0 = load(config)
     rp = Replay(meas, cfg0)
     nfev = 15 if quick else 40
-    rows = []
-    pub = cfg0.with_values({"plant.m1": PUBLISHED["M"], "friction.viscous": PUBLISHED["Fv"],
-                            "effects.coulomb_friction.level": PUBLISHED["Fc"],
-                            "effects.constant_force.force": -PUBLISHED["offset"]})
+    rows, diags = [], []
+    pub = _with_rigid(cfg0, PUBLISHED)
     rows.append({"step": "published reference (our loop)", "params": params_of(pub), **errors(rp, pub)})
     rows.append({"step": "start model (M, Fv)", "params": params_of(cfg0), **errors(rp, cfg0)})
+    jobs = 1 if quick else None
+    cands = DIAGNOSE_CANDIDATES[:4] if quick else DIAGNOSE_CANDIDATES
+    if diagnose_steps:
+        diags.append({"on": "start model", **_summary(diagnose(rp, cands, jobs=jobs, max_nfev=nfev))})
+    # the greedy chain the diagnosis points along: each effect fitted on top of the previous ones
     cfg1, _ = fit_effects(rp, ["coulomb_friction"], max_nfev=nfev, progress=progress)
     rows.append({"step": "+ coulomb_friction", "params": params_of(cfg1), **errors(rp, cfg1)})
-    cfg2, _ = fit_effects(rp.with_config(cfg1), ["constant_force"], max_nfev=nfev, progress=progress)
+    rp1 = rp.with_config(cfg1)
+    if diagnose_steps:
+        rest = [c for c in cands if c not in ("coulomb_friction", "stribeck_friction")]
+        diags.append({"on": "+ coulomb_friction", **_summary(diagnose(rp1, rest, jobs=jobs, max_nfev=nfev))})
+    cfg2, _ = fit_effects(rp1, ["constant_force"], max_nfev=nfev, progress=progress)
     rows.append({"step": "+ constant_force", "params": params_of(cfg2), **errors(rp, cfg2)})
+    # the published method on the force channel (inverse model), then output error from there
+    inv = idim_ls(meas.t, meas["x_motor"], meas["force"])
+    cfg_inv = _with_rigid(cfg0, inv["params"])
+    rows.append({"step": "IDIM-LS on the force (inverse model)", "params": params_of(cfg_inv),
+                 "inverse_force": inv["relative_error"], **errors(rp, cfg_inv)})
     keys = ["plant.m1", "friction.viscous", "effects.coulomb_friction.level", "effects.constant_force.force"]
-    # the force channel carries the friction and the offset (the position hardly sees 3 N): refit on it
-    rpf = Replay(meas, cfg2, ["force"])
-    cfg3 = joint_refit(rpf, cfg2, keys, max_nfev=nfev)
-    rows.append({"step": "joint refit M, Fv, Fc, offset", "params": params_of(cfg3), **errors(rp, cfg3)})
-    cfg4, _ = fit_effects(rp.with_config(cfg3), ["asymmetric_friction"], max_nfev=nfev, progress=progress)
-    rows.append({"step": "+ asymmetric_friction", "params": params_of(cfg4), **errors(rp, cfg4)})
-    return rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}
+    cfg3 = joint_refit(rp.with_config(cfg_inv), cfg_inv, keys, max_nfev=nfev)
+    rows.append({"step": "output-error refit of M, Fv, Fc, offset", "params": params_of(cfg3), **errors(rp, cfg3)})
+    # asymmetric friction: its inverse model as the start, then output error on top of the fit
+    inv2 = idim_ls(meas.t, meas["x_motor"], meas["force"], asymmetric=True)
+    q = inv2["params"]
+    off = -cfg3["effects.constant_force.force"]     # the fit keeps its offset: take it out of the levels
+    start = {"level_pos": max(q["Fc+"] + off, 0.0), "level_neg": max(q["Fc-"] - off, 0.0),
+             "viscous_pos": q["Fv+"], "viscous_neg": q["Fv-"]}
+    c4 = evaluate(rp.with_config(cfg3), "asymmetric_friction", max_nfev=nfev, start=start)
+    cfg4 = c4.cfg
+    rows.append({"step": "+ asymmetric_friction", "params": params_of(cfg4), "inverse_force": inv2["relative_error"],
+                 "inverse_params": q, **errors(rp, cfg4)})
+    return rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}, diags
+
+
+def _summary(d):
+    return {"verdict": d["verdict"], "ranking": _ranking(d)}
 
 
 def table_markdown(rows) -> str:
-    lines = ["| step | M kg | Fv N s/m | Fc N | offset N | position % | velocity % | force % |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = ["| step | M kg | Fv N s/m | Fc N | offset N | position % | velocity % | force % | inverse-model force % |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         p = r["params"]
-        extra = ""
+        inv = f"{r['inverse_force']:.2f}" if "inverse_force" in r else ""
         if "level_pos" in p:
-            extra = (f" (Fc+ {p['level_pos']:.2f}, Fc- {p['level_neg']:.2f}, Fv+ {p['viscous_pos']:.1f}, "
-                     f"Fv- {p['viscous_neg']:.1f})")
-        lines.append(f"| {r['step']}{extra} | {p['M']:.3f} | {p['Fv']:.2f} | {p['Fc']:.3f} | {p['offset']:.3f} | "
-                     f"{r['position']:.4f} | {r['velocity']:.3f} | {r['force']:.2f} |")
+            lines.append(f"| {r['step']}: Fc+ {p['level_pos']:.2f} N, Fc- {p['level_neg']:.2f} N, Fv+ "
+                         f"{p['viscous_pos']:.1f}, Fv- {p['viscous_neg']:.1f} N s/m | {p['M']:.3f} | | | "
+                         f"{p['offset']:.3f} | {r['position']:.4f} | {r['velocity']:.3f} | {r['force']:.2f} | {inv} |")
+            continue
+        lines.append(f"| {r['step']} | {p['M']:.3f} | {p['Fv']:.2f} | {p['Fc']:.3f} | {p['offset']:.3f} | "
+                     f"{r['position']:.4f} | {r['velocity']:.3f} | {r['force']:.2f} | {inv} |")
     e = PUBLISHED["errors"]
-    lines.append(f"| published (Janot et al. 2019) | {PUBLISHED['M']} | {PUBLISHED['Fv']} | {PUBLISHED['Fc']} | "
-                 f"{PUBLISHED['offset']} | {e['position']} | {e['velocity']} | {e['force']} |")
+    lines.append(f"| **published** (Janot et al. 2019, IDIM-LS) | {PUBLISHED['M']} | {PUBLISHED['Fv']} | "
+                 f"{PUBLISHED['Fc']} | {PUBLISHED['offset']} | {e['position']} | {e['velocity']} | {e['force']} | 4.08 |")
+    lines.append("| **published**, asymmetric: Fc+ 20.144, Fc- 20.628, Fv+ 166.71, Fv- 240.42 | 95.154 | | | | | | | 3.11 |")
     return "\n".join(lines)
+
+
+def check_published(rows) -> dict:
+    """Where the output-error fit lands against the published values (relative % for M, Fv, Fc;
+    N for the offset) and whether its errors match or beat the published simulation errors."""
+    fit = next(r for r in rows if r["step"].startswith("output-error"))
+    p = fit["params"]
+    dev = {k: 100.0 * (p[k] / PUBLISHED[k] - 1.0) for k in ("M", "Fv", "Fc")}
+    dev["offset_N"] = p["offset"] - PUBLISHED["offset"]
+    ok = all(abs(dev[k]) <= 5.0 for k in ("M", "Fv", "Fc")) and abs(dev["offset_N"]) <= 0.5
+    beat = all(fit[k] <= PUBLISHED["errors"][k] for k in ("position", "velocity", "force"))
+    return {"deviation": dev, "within_5_percent_and_0.5_N": ok, "errors_match_or_beat_published": beat}
 
 
 def run(args) -> int:
@@ -112,8 +168,9 @@ def run(args) -> int:
     if not Path(args.data).exists():
         raise UserError(f"{args.data}: no such file (the EMPS record, see ../shared/data/emps/PROVENANCE.md)")
     try:
-        rp, rows, cfgs = run_emps(args.data, args.config, args.quick,
-                                  progress=lambda n: print(f"  fitting {n}", file=sys.stderr))
+        rp, rows, cfgs, diags = run_emps(args.data, args.config, args.quick,
+                                         progress=lambda n: print(f"  fitting {n}", file=sys.stderr),
+                                         diagnose_steps=not args.no_diagnose)
     except MeasurementError as exc:
         raise UserError(str(exc)) from None
     out = Path(args.out)
@@ -124,12 +181,29 @@ def run(args) -> int:
     figs = comparison_figures(a, out, after=b)
     figs.append(error_fall_figure(rows[1:], out / "error_fall.png"))
     md = table_markdown(rows)
-    (out / "table.md").write_text(md + "\n", encoding="utf-8")
+    chk = check_published(rows)
+    diag_md = "\n".join(
+        f"diagnosis on the {d['on']}: verdict {d['verdict']}; " + "; ".join(
+            f"{c['effect']} {c['score']:.1f}{' *' if c['significant'] else ''}" for c in d["ranking"])
+        for d in diags)
+    (out / "table.md").write_text(md + "\n\n" + diag_md + "\n", encoding="utf-8")
     write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
-                 notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."])
+                 notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."] + diag_md.splitlines())
+    if args.docs:
+        import shutil
+        d = Path(args.docs)
+        d.mkdir(parents=True, exist_ok=True)
+        for f in figs:
+            shutil.copy(f, d / f"emps_{Path(f).name}")
     if args.json:
-        print(json.dumps({"rows": rows, "published": PUBLISHED, "out": str(out)}, indent=1))
+        print(json.dumps({"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out)},
+                         indent=1, default=float))
     else:
         print(md)
+        print(diag_md)
+        dev = chk["deviation"]
+        print(f"output-error fit against published: M {dev['M']:+.2f} %, Fv {dev['Fv']:+.2f} %, Fc {dev['Fc']:+.2f} %, "
+              f"offset {dev['offset_N']:+.3f} N; within 5 % / 0.5 N: {chk['within_5_percent_and_0.5_N']}; "
+              f"errors match or beat the published: {chk['errors_match_or_beat_published']}")
         print(f"report: {out / 'report.html'}")
     return 0

@@ -22,3 +22,53 @@ def test_published_model_reproduces_errors():
     assert e["force"] < 1.25 * PUBLISHED["errors"]["force"]
     e0 = errors(Replay(m, cfg), cfg)
     assert e0["force"] > 4 * e["force"]      # the start model lacks the Coulomb friction
+
+
+def _record():
+    from hil.cmd_emps import MAPPING
+    from hil.importers import read_mat
+    return read_mat(DATA, MAPPING)
+
+
+def test_vir_is_the_law_of_the_same_sample():
+    # vir(k) = kp kv (qg(k) - qm(k)) - kv dq(k): recorded before any delay (docs/emps.md)
+    import numpy as np
+    import scipy.io
+    d = scipy.io.loadmat(DATA)
+    qm, qg, vir = (d[k].ravel() for k in ("qm", "qg", "vir"))
+    qf = np.r_[qm[0], 0.5 * qm[1:] + 0.5 * qm[:-1]]
+    law = 160.18 * 243.45 * (qg - qm) - 243.45 * np.r_[0.0, np.diff(qf)] / 1e-3
+    rms = {s: float(np.sqrt(np.mean((law[5:-5] - np.roll(vir, -s)[5:-5]) ** 2))) for s in (-1, 0, 1)}
+    assert rms[0] < 0.1 * min(rms[-1], rms[1])
+
+
+def test_idim_ls_reproduces_the_published_inverse_model():
+    from hil.cmd_emps import PUBLISHED
+    from hil.identify import idim_ls
+    m = _record()
+    p = idim_ls(m.t, m["x_motor"], m["force"])["params"]
+    for k in ("M", "Fv", "Fc"):
+        assert p[k] == pytest.approx(PUBLISHED[k], rel=0.02)
+    assert p["offset"] == pytest.approx(PUBLISHED["offset"], abs=0.1)
+    a = idim_ls(m.t, m["x_motor"], m["force"], asymmetric=True)
+    assert a["params"]["Fv-"] > 1.3 * a["params"]["Fv+"]           # published: 240.4 against 166.7
+    assert a["relative_error"] < idim_ls(m.t, m["x_motor"], m["force"])["relative_error"] - 0.5
+
+
+def test_output_error_fit_lands_on_the_published_values():
+    from hil.cmd_emps import PUBLISHED, _with_rigid, errors, params_of
+    from hil.compare import Replay
+    from hil.config import load
+    from hil.identify import idim_ls, joint_refit
+    m = _record()
+    cfg = _with_rigid(load("config/emps.toml"), idim_ls(m.t, m["x_motor"], m["force"])["params"])
+    rp = Replay(m, cfg)
+    keys = ["plant.m1", "friction.viscous", "effects.coulomb_friction.level", "effects.constant_force.force"]
+    fit = joint_refit(rp, cfg, keys, max_nfev=15)
+    p = params_of(fit)
+    for k in ("M", "Fv", "Fc"):
+        assert p[k] == pytest.approx(PUBLISHED[k], rel=0.05)
+    assert p["offset"] == pytest.approx(PUBLISHED["offset"], abs=0.5)
+    e = errors(rp, fit)
+    for k in ("position", "velocity", "force"):
+        assert e[k] <= PUBLISHED["errors"][k]
