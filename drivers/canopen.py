@@ -8,6 +8,13 @@ SYNC (:meth:`sync`); the drive answers with TPDO1 (statusword, position actual, 
 and TPDO2 (velocity actual, linear encoder 0x60E4.1), TPDO3 (tool-tip 0x60E4.2) where the
 config says the drive has a tip sensor.
 
+A tool-tip sensor on its own node (``canopen.tip_node_id``; object dictionary
+config/tip_encoder_cia406.eds, a CiA 406-like linear encoder): configured at start-up over SDO
+(profile 406 checked, measuring step 0x6005.1 read, TPDO1 mapped to position value 0x6004 and
+sent on every SYNC), set OPERATIONAL with the drive, and its TPDO is part of each cycle's answer
+(a missing one counts as a missing answer). It has no SYNC counter echo: its TPDO counts when it
+arrives after the SYNC. ``hil home`` presets it (0x6003) to the homed position.
+
 =====  ==============  ======================  =====================
 mode   0x6060          the drive closes        the host sends
 =====  ==============  ======================  =====================
@@ -44,6 +51,9 @@ from .base import Backend, BackendFault, Feedback, Setpoint
 __all__ = ["CanopenBackend", "SECTION", "DEFAULT_EDS"]
 
 DEFAULT_EDS = str(Path(__file__).resolve().parent.parent / "config" / "cia402_generic.eds")
+TIP_EDS = str(Path(__file__).resolve().parent.parent / "config" / "tip_encoder_cia406.eds")
+TIP_PROFILE = 406            # 0x1000 bits 0..15 of the tip sensor node
+TIP_KEY = "tip"              # the tip sensor's position value in the received values
 
 SECTION = {
     "canopen.interface": Field("str", "python-can interface (socketcan, pcan, kvaser, slcan, socketcand, virtual...)",
@@ -66,8 +76,13 @@ SECTION = {
     "canopen.gear_shaft_revs": Field("int", "gear ratio: screw revolutions (0x6091.2)", default=1, positive=True),
     "canopen.rated_torque": Field("torque", "motor rated torque (0x6076); torques go in per mille of it",
                                   default=10.0, positive=True),
-    "canopen.tip_sensor": Field("bool", "the drive (or a sensor node) sends a tool-tip position 0x60E4.2",
+    "canopen.tip_sensor": Field("bool", "the drive sends a tool-tip position 0x60E4.2 (a second encoder input)",
                                 default=True),
+    "canopen.tip_node_id": Field("int", "node id of a separate tool-tip sensor (CiA 406-like encoder, position "
+                                 "0x6004 in TPDO1 on every SYNC); 0: none (the tip is the drive's 0x60E4.2 "
+                                 "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True),
+    "canopen.tip_eds": Field("str", "object dictionary of the tip sensor node; default "
+                             "config/tip_encoder_cia406.eds", default=""),
     "canopen.heartbeat": Field("time", "drive's heartbeat producer time (0x1017)", default=0.1, positive=True),
     "canopen.heartbeat_timeout": Field("time", "host: the drive's heartbeat is lost after this", default=0.35,
                                        positive=True),
@@ -140,7 +155,13 @@ class CanopenBackend(Backend):
         from sim_plant.plant import plant_from_config
         from hil.control import controller_from_config
         self.speed_scale = controller_from_config(cfg, plant_from_config(cfg)).speed_scale
-        self.tip = bool(cfg.get("canopen.tip_sensor", True))
+        self.tip_id = int(cfg.get("canopen.tip_node_id", 0) or 0)
+        if self.tip_id and self.tip_id == self.node_id:
+            raise BackendFault(f"canopen.tip_node_id {self.tip_id} is the drive's node id")
+        self.tip = bool(cfg.get("canopen.tip_sensor", True)) and not self.tip_id     # the drive's 0x60E4.2
+        self.tip_node = None
+        self._tip_cob = None
+        self._tip_step = 1e-9
         self.network = None
         self.node = None
         self.emcy_log: list[dict] = []
@@ -183,7 +204,12 @@ class CanopenBackend(Backend):
         self.connect()
         self.node.nmt.state = "PRE-OPERATIONAL"
         self._sdo_retry(lambda: self.node.sdo[0x1000].raw)        # the drive answers
+        if self.tip_node is not None:
+            self.tip_node.nmt.state = "PRE-OPERATIONAL"
+            self.configure_tip()
         self.configure()
+        if self.tip_node is not None:
+            self.tip_node.nmt.state = "OPERATIONAL"
         self.node.nmt.state = "OPERATIONAL"
         if not self.lockstep:
             self._host_hb_task = self.network.send_periodic(0x700 + self.host_id, [0x05],
@@ -224,6 +250,33 @@ class CanopenBackend(Backend):
         self.network.subscribe(0x700 + self.node_id, self._on_heartbeat)
         for n in range(len(TPDO_MAPS)):
             self.network.subscribe(0x180 + 0x100 * n + self.node_id, self._on_tpdo)
+        if self.tip_id:
+            self.tip_node = self.network.add_node(self.tip_id, cfg.get("canopen.tip_eds") or TIP_EDS)
+            self.tip_node.sdo.RESPONSE_TIMEOUT = self.node.sdo.RESPONSE_TIMEOUT
+            self._tip_cob = 0x180 + self.tip_id
+            self.network.subscribe(self._tip_cob, self._on_tip)
+
+    def configure_tip(self) -> None:
+        """The tool-tip sensor node: its profile (CiA 406), its measuring step, TPDO1 = position
+        value 0x6004 on every SYNC."""
+        sdo = self.tip_node.sdo
+        try:
+            devtype = self._sdo_retry(lambda: sdo[0x1000].raw)
+        except BackendFault:
+            raise BackendFault(f"tip sensor node {self.tip_id} does not answer SDO on "
+                               f"{self.interface}:{self.channel} (canopen.tip_node_id)") from None
+        if devtype & 0xFFFF != TIP_PROFILE:
+            raise BackendFault(f"node {self.tip_id} is not an encoder (device type 0x{devtype:08X}, "
+                               f"profile {devtype & 0xFFFF}, expected {TIP_PROFILE})")
+        self._tip_step = sdo[0x6005][1].raw * 1e-9
+        if not self._tip_step > 0:
+            raise BackendFault(f"tip sensor node {self.tip_id}: measuring step 0x6005.1 is 0")
+        sdo[0x1800][1].raw = self._tip_cob | 0x80000000
+        sdo[0x1A00][0].raw = 0
+        sdo[0x1A00][1].raw = (0x6004 << 16) | 32
+        sdo[0x1A00][0].raw = 1
+        sdo[0x1800][2].raw = 1
+        sdo[0x1800][1].raw = self._tip_cob
 
     def _sdo_retry(self, fn, tries: int = 5):
         for i in range(tries):
@@ -284,7 +337,7 @@ class CanopenBackend(Backend):
             self._map(0x1800, 0x1A00, 0x180, n, entries)
             if entries:
                 self._tpdo[0x180 + 0x100 * n + self.node_id] = entries
-        self._want = set(self._tpdo)
+        self._want = set(self._tpdo) | ({self._tip_cob} if self._tip_cob else set())
         self._echo_cob = max(self._tpdo) if self.echo else None      # the last TPDO carries the echo
 
     def _map(self, comm_base, map_base, cob_base, n, entries):
@@ -330,6 +383,8 @@ class CanopenBackend(Backend):
         self._fresh = set(self._want)       # the first cycle reads the state as configured
         self._rx.update({0x6041: sdo[0x6041].raw, 0x6064: pos, 0x6077: 0, 0x606C: sdo[0x606C].raw,
                          (0x60E4, 1): sdo[0x60E4][1].raw, (0x60E4, 2): sdo[0x60E4][2].raw, 0x603F: 0})
+        if self.tip_node is not None:
+            self._rx[TIP_KEY] = self.tip_node.sdo[0x6004].raw
 
     def home(self, offset: float = 0.0, method: int = 37, timeout: float = 5.0) -> dict:
         """Homing mode (6), method 37 (or 35): the present position becomes ``offset`` (m, 0x607C).
@@ -360,7 +415,11 @@ class CanopenBackend(Backend):
         pos = sdo[0x6064].raw / self.counts_per_m
         if err or not ok:
             raise BackendFault(f"homing method {method} {'failed (statusword bit 13)' if err else 'timed out'}")
-        return {"homed": True, "method": method, "position_m": pos}
+        out = {"homed": True, "method": method, "position_m": pos}
+        if self.tip_node is not None:         # the axis at rest: the tip sensor shows the homed position too
+            self.tip_node.sdo[0x6003].raw = int(round(pos / self._tip_step))
+            out["tip_m"] = self.tip_node.sdo[0x6004].raw * self._tip_step
+        return out
 
     def fault_reset(self) -> str:
         sdo = self.node.sdo
@@ -414,6 +473,20 @@ class CanopenBackend(Backend):
                     self.answer_latency.append(time.perf_counter() - self._sync_sent)
                 self._event.set()
 
+    def _on_tip(self, can_id, data, timestamp):
+        """The tip sensor's TPDO1 (position value 0x6004): no SYNC counter, taken when it arrives
+        after the SYNC (in lockstep the barrier orders it)."""
+        if len(data) < 4:
+            return
+        v = struct.unpack_from("<i", data, 0)[0]
+        with self._lock:
+            self._rx[TIP_KEY] = v
+            self._fresh.add(can_id)
+            if self._fresh >= self._want:
+                if not self._event.is_set():
+                    self.answer_latency.append(time.perf_counter() - self._sync_sent)
+                self._event.set()
+
     def _on_heartbeat(self, can_id, data, timestamp):
         self._hb_last = self._now()
 
@@ -443,13 +516,19 @@ class CanopenBackend(Backend):
         else:
             self._misses += 1
             self.missed_total += 1
-            self.events.append(f"cycle {self.syncs}: no TPDO after SYNC")
+            with self._lock:
+                lacking = self._want - self._fresh
+            who = "tip sensor node %d" % self.tip_id if lacking == {self._tip_cob} else "drive"
+            self.events.append(f"cycle {self.syncs}: no TPDO after SYNC from the {who}")
             if self._misses >= int(self.cfg.get("canopen.pdo_miss_limit", 2)):
-                fault = f"lost communication: no TPDO for {self._misses} cycles"
+                fault = f"lost communication: no TPDO from the {who} for {self._misses} cycles"
         cpm = self.counts_per_m
         x_motor = rx.get(0x6064, 0) / cpm
         x_table = rx.get((0x60E4, 1), 0) * 1e-9
-        x_tip = rx.get((0x60E4, 2), 0) * 1e-9 if self.tip else math.nan
+        if self.tip_id:
+            x_tip = rx.get(TIP_KEY, 0) * self._tip_step
+        else:
+            x_tip = rx.get((0x60E4, 2), 0) * 1e-9 if self.tip else math.nan
         v = rx.get(0x606C, 0) / cpm
         out = rx.get(0x6077, 0) * 1e-3 * self.rated
         sw = rx.get(0x6041, 0)
@@ -589,6 +668,8 @@ class CanopenBackend(Backend):
             if self._host_hb_task is not None:
                 self._host_hb_task.stop()
             self.node.nmt.state = "PRE-OPERATIONAL"
+            if self.tip_node is not None:
+                self.tip_node.nmt.state = "PRE-OPERATIONAL"
         except Exception:
             pass
         try:
@@ -605,10 +686,18 @@ class CanopenBackend(Backend):
             except Exception:
                 pass
         sw = sdo[0x6041].raw
-        return {"node": self.node_id, "nmt": self.node.nmt.state, "state": cia402.state_from_statusword(sw),
+        out = {"node": self.node_id, "nmt": self.node.nmt.state, "state": cia402.state_from_statusword(sw),
                 "statusword": f"0x{sw:04X}", "mode": self.mode, "position_m": sdo[0x6064].raw / self.counts_per_m,
                 "table_m": sdo[0x60E4][1].raw * 1e-9, "error_code": f"0x{sdo[0x603F].raw:04X}",
                 "emcy": self.emcy_log[-5:]}
+        if self.tip_node is not None:
+            try:
+                step = self.tip_node.sdo[0x6005][1].raw * 1e-9
+                out["tip_node"] = self.tip_id
+                out["tip_m"] = self.tip_node.sdo[0x6004].raw * step
+            except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+                out["tip_node"], out["tip_m"] = self.tip_id, f"no answer ({exc})"
+        return out
 
 
 def _emcy_text(code: int) -> str:

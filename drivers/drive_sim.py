@@ -14,7 +14,12 @@ abort-connection option 0x6007, following-error window 0x6065/0x6066, software p
 0x607D, max torque 0x6072.
 
 Fault injection (:meth:`DriveSim.inject`): ``emcy`` (a drive fault: EMCY + FAULT state),
-``heartbeat_loss``, ``frozen_encoder``, ``late_pdo``, ``missing_pdo``, ``following_error``.
+``heartbeat_loss``, ``frozen_encoder``, ``late_pdo``, ``missing_pdo``, ``following_error``,
+``tip_missing_pdo`` (the tip sensor's TPDO withheld).
+
+A tool-tip sensor on its own node (``tip_node_id``, config ``canopen.tip_node_id``):
+:class:`TipSensorSim`, a CiA 406-like absolute linear encoder (config/tip_encoder_cia406.eds) on
+the same bus, whose position value 0x6004 is the plant's tip mass, sent in its TPDO1 on every SYNC.
 """
 from __future__ import annotations
 
@@ -33,9 +38,10 @@ from hil.control import new_velocity_state, velocity_law
 from . import cia402
 from .sim import SimulatedPlant
 
-__all__ = ["DriveSim", "DEFAULT_EDS", "EMCY_CODES", "FAULTS", "SocketcandServerBus"]
+__all__ = ["DriveSim", "TipSensorSim", "DEFAULT_EDS", "TIP_EDS", "EMCY_CODES", "FAULTS", "SocketcandServerBus"]
 
 DEFAULT_EDS = str(Path(__file__).resolve().parent.parent / "config" / "cia402_generic.eds")
+TIP_EDS = str(Path(__file__).resolve().parent.parent / "config" / "tip_encoder_cia406.eds")
 
 # EMCY codes the simulated drive sends (CiA 301 / CiA 402)
 EMCY_CODES = {
@@ -48,7 +54,8 @@ EMCY_CODES = {
     0x8612: "reference limit (software position limit 0x607D)",
     0x8100: "communication error",
 }
-FAULTS = ("emcy", "heartbeat_loss", "frozen_encoder", "late_pdo", "missing_pdo", "following_error")
+FAULTS = ("emcy", "heartbeat_loss", "frozen_encoder", "late_pdo", "missing_pdo", "following_error",
+          "tip_missing_pdo")
 
 _FMT = {1: "b", 2: "h", 4: "i"}          # signed by default; unsigned objects fixed below
 _UNSIGNED = {0x6040, 0x6041, 0x603F, 0x1001}
@@ -63,7 +70,8 @@ class DriveSim:
     """``DriveSim(cfg, bus=bus)`` on an existing python-can bus, or ``interface=``/``channel=``."""
 
     def __init__(self, cfg, bus=None, interface: str | None = None, channel: str | None = None,
-                 node_id: int | None = None, eds: str | None = None, lockstep: bool = True, bitrate: int = 1000000):
+                 node_id: int | None = None, eds: str | None = None, lockstep: bool = True, bitrate: int = 1000000,
+                 tip_node_id: int | None = None):
         self.cfg = cfg
         self.node_id = node_id or int(cfg.get("canopen.node_id", 1))
         self.lockstep = lockstep
@@ -124,6 +132,8 @@ class DriveSim:
         self._stop = threading.Event()
         self._idle_thread = None
         self.node.sdo[0x6041].raw = cia402.statusword_for(self.state)
+        tip_id = int(cfg.get("canopen.tip_node_id", 0) or 0) if tip_node_id is None else int(tip_node_id)
+        self.tip_sensor = TipSensorSim(self, tip_id) if tip_id else None
         self._warm_up()
         self.node.nmt.state = "PRE-OPERATIONAL"
         self.network.send_message(0x700 + self.node_id, [0])        # boot-up
@@ -347,6 +357,8 @@ class DriveSim:
             if ms and not self._hb_dead and self.time + 1e-12 >= self._next_hb:
                 self._next_hb = self.time + ms * 1e-3
                 self.network.send_message(0x700 + self.node_id, [self.node.nmt._state])
+        if from_sync and self.tip_sensor is not None:
+            self.tip_sensor.on_sync(actual["tip_plant"])
         if from_sync and operational:
             self._send_tpdos(actual)
 
@@ -367,6 +379,7 @@ class DriveSim:
         x_motor, x_table, x_tip = fb.x_motor, fb.x_table, fb.x_tip
         if math.isnan(x_tip):
             x_tip = x_table
+        tip_plant = x_tip        # the tip mass as a separate sensor sees it (the drive's homing is not its)
         x_motor += self._home_offset
         x_table += self._home_offset + self._fe_offset
         x_tip += self._home_offset + self._fe_offset
@@ -377,7 +390,7 @@ class DriveSim:
         act = {"pos": int(round(x_motor * cpm)), "vel": int(round(v * cpm)),
                "torque": int(round(pl._u_act / rated * 1e3)) if self.state == "OPERATION ENABLED" else 0,
                "table": int(round(x_table * 1e9)), "tip": int(round(x_tip * 1e9)), "v": v,
-               "x": (x_motor, x_table, x_tip)}
+               "x": (x_motor, x_table, x_tip), "tip_plant": tip_plant}
         d = self.node
         d.sdo[0x6064].raw = act["pos"]
         d.sdo[0x606C].raw = act["vel"]
@@ -478,6 +491,10 @@ class DriveSim:
                 self._missing = int(value or 1)
             elif fault == "following_error":
                 self._fe_offset = float(value if value is not None else 0.01)
+            elif fault == "tip_missing_pdo":
+                if self.tip_sensor is None:
+                    raise ValueError("tip_missing_pdo: this drive simulation has no tip sensor node")
+                self.tip_sensor.missing = int(value or 1)
             else:
                 raise ValueError(f"unknown fault {fault!r} (known: {', '.join(FAULTS)})")
 
@@ -489,6 +506,8 @@ class DriveSim:
 
     def close(self) -> None:
         self._stop.set()
+        if self.tip_sensor is not None:
+            self.tip_sensor.node.nmt.stop_heartbeat()
         if self._idle_thread is not None:
             self._idle_thread.join(1.0)
         self.node.nmt.stop_heartbeat()
@@ -496,6 +515,60 @@ class DriveSim:
             self.network.disconnect()
         except Exception:
             pass
+
+
+class TipSensorSim:
+    """A tool-tip sensor on its own CANopen node: a CiA 406-like absolute linear encoder
+    (config/tip_encoder_cia406.eds) on the drive's bus. Position value 0x6004 = the plant's tip mass
+    in steps of 0x6005.1 nm, plus the preset 0x6003 (written at homing: the value the sensor
+    shows there); TPDO1 (0x6004) on every SYNC while OPERATIONAL, sent before the drive's TPDOs in
+    the same SYNC (in lockstep, the host's SDO barrier covers it too). It answers SDO and NMT
+    (canopen's LocalNode); its heartbeat (0x1017) is not produced."""
+
+    def __init__(self, drive: DriveSim, node_id: int, eds: str | None = None):
+        if node_id == drive.node_id:
+            raise ValueError(f"tip sensor node id {node_id} is the drive's")
+        self.drive = drive
+        self.node_id = node_id
+        self.node = canopen.LocalNode(node_id, canopen.import_od(eds or TIP_EDS, node_id))
+        self.node.add_write_callback(self._on_sdo_write)
+        drive.network.add_node(self.node)
+        self.offset = 0.0            # m, set by the preset
+        self.missing = 0
+        self.sent = 0
+        self._last_tip = 0.0
+        self.node.nmt.state = "PRE-OPERATIONAL"
+        drive.network.send_message(0x700 + node_id, [0])        # boot-up
+
+    def _step(self) -> float:
+        return max(1, self.node.sdo[0x6005][1].raw) * 1e-9
+
+    def _on_sdo_write(self, index, subindex, od, data):
+        if index == 0x6003:              # preset: the present position shows this value from now on
+            preset = struct.unpack("<i", data)[0]
+            self.offset = preset * self._step() - self._last_tip
+            self.node.sdo[0x6004].raw = preset
+
+    def on_sync(self, x_tip: float) -> None:
+        self._last_tip = x_tip
+        value = int(round((x_tip + self.offset) / self._step()))
+        self.node.sdo[0x6004].raw = max(-2 ** 31, min(2 ** 31 - 1, value))
+        if self.node.nmt.state != "OPERATIONAL":
+            return
+        comm, mapping = self.node.sdo[0x1800], self.node.sdo[0x1A00]
+        cob = comm[1].raw
+        if cob & 0x80000000 or mapping[0].raw == 0:
+            return
+        if self.missing > 0:
+            self.missing -= 1
+            self.drive.log.append((self.drive.syncs, "tip sensor TPDO withheld"))
+            return
+        data = b""
+        for k in range(1, mapping[0].raw + 1):
+            entry = mapping[k].raw
+            data += self.node.get_data(entry >> 16, (entry >> 8) & 0xFF)[: (entry & 0xFF) // 8]
+        self.sent += 1
+        self.drive.network.send_message(cob & 0x7FF, data)
 
 
 def _sp(position=0.0, speed=0.0, output=0.0):

@@ -24,7 +24,11 @@ The drive runs on the wall clock: one cycle per SYNC, and on its own clock when 
 (the drive-side guards, heartbeat consumer 0x1016 with 0x6007, stop the axis then).
 Faults to inject (repeatable): KIND[=VALUE]@SECONDS after the start, e.g. --fault emcy=0x2310@20,
 --fault heartbeat_loss@30. Kinds: emcy, heartbeat_loss, frozen_encoder, late_pdo (seconds),
-missing_pdo (count), following_error (metres).
+missing_pdo (count), following_error (metres), tip_missing_pdo (count; with a tip sensor node).
+
+--set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
+CiA 406-like linear encoder (config/tip_encoder_cia406.eds) sending the tip mass's position in
+its TPDO1 on every SYNC.
 """
 
 
@@ -50,7 +54,7 @@ def parse_fault(text: str):
         raise UserError(f"--fault {text!r}: unknown kind {kind!r} (known: {', '.join(FAULTS)})")
     try:
         t = float(at) if at else 0.0
-        v = (int(value, 0) if kind in ("emcy", "missing_pdo") else float(value)) if value else None
+        v = (int(value, 0) if kind in ("emcy", "missing_pdo", "tip_missing_pdo") else float(value)) if value else None
     except ValueError:
         raise UserError(f"--fault {text!r}: expected KIND[=VALUE]@SECONDS") from None
     return kind, v, t
@@ -70,13 +74,14 @@ def run(args) -> int:
         raise UserError(f"cannot serve on 127.0.0.1:{port} ({exc}); choose another --port") from None
     sim = DriveSim(cfg, bus=bus, lockstep=False)
     info = {"interface": "socketcand", "host": "127.0.0.1", "port": bus.port, "channel": args.channel,
-            "node_id": sim.node_id}
+            "node_id": sim.node_id, "tip_node_id": sim.tip_sensor.node_id if sim.tip_sensor else None}
     sets = (f"--set canopen.interface=socketcand --set canopen.channel={args.channel} "
             f"--set canopen.port={bus.port}")
     if args.json:
         print(json.dumps(info), flush=True)
     else:
-        print(f"simulated CiA 402 drive, node {sim.node_id}, on socketcand 127.0.0.1:{bus.port} "
+        tip = f", tip sensor node {sim.tip_sensor.node_id}" if sim.tip_sensor else ""
+        print(f"simulated CiA 402 drive, node {sim.node_id}{tip}, on socketcand 127.0.0.1:{bus.port} "
               f"channel {args.channel}", flush=True)
         print(f"host: hil move --config {cfg.source} --backend canopen {sets} ...; Ctrl-C to stop",
               file=sys.stderr, flush=True)

@@ -53,5 +53,8 @@ def run(args) -> int:
         print(f"node {st['node']} ({st['nmt']}): {st['state']} (statusword {st['statusword']}), mode {st['mode']}")
         print(f"  position {st['position_m'] * 1e3:.4f} mm (motor), table {st['table_m'] * 1e3:.4f} mm, "
               f"error code {st['error_code']}")
+        if "tip_node" in st:
+            tip = st["tip_m"]
+            print(f"  tip sensor node {st['tip_node']}: " + (f"{tip * 1e3:.4f} mm" if isinstance(tip, float) else tip))
         print(f"  supervisor: {'TRIPPED: ' + sup.reason if sup.tripped else 'clear'}")
     return 0

@@ -265,3 +265,76 @@ def test_hil_move_and_sweep_commands_on_the_canopen_backend(tmp_path, capsys):
     finally:
         sim.close()
     assert sim.state == "READY TO SWITCH ON"
+
+
+# -- a tool-tip sensor on its own node (CiA 406-like encoder, config/tip_encoder_cia406.eds) ---------
+def _tip_rig(mode="csp", **ov):
+    return _rig(mode, **{"canopen.tip_node_id": 2, **ov})
+
+
+def test_tip_sensor_node_start_up_and_recorded_beside_the_drive(tmp_path):
+    cfg, sim, be = _tip_rig()
+    assert sim.tip_sensor is not None and be.tip_id == 2 and not be.tip
+    try:
+        rec = run_trajectory(cfg, _move(), backend=be, out_file=tmp_path / "m.csv", settle=0.0)
+        d = sim.tip_sensor.node.sdo
+        assert d[0x1A00][0].raw == 1 and d[0x1A00][1].raw == 0x60040020 and d[0x1800][2].raw == 1
+        # the drive's TPDO3 no longer carries 0x60E4.2: the tip comes from node 2
+        assert all(sim.node.sdo[0x1A02][k].raw >> 16 != 0x60E4 for k in range(1, sim.node.sdo[0x1A02][0].raw + 1))
+    finally:
+        sim.close()
+    assert rec.status == "complete", rec.reason
+    assert be.missed_total == 0 and sim.tip_sensor.sent >= len(rec["t"])
+    step = sim.tip_sensor.node.sdo[0x6005][1].raw * 1e-9
+    # the same tip mass as the drive's own second encoder input shows, in the same cycle
+    assert abs(sim.tip_sensor.node.sdo[0x6004].raw * step - sim.node.sdo[0x60E4][2].raw * 1e-9) < step + 1e-9
+    # a real tip: it lags and rings beside the table during the move, and arrives
+    assert max(abs(rec["x_tip"] - rec["x_table"])) > 20e-6
+    assert abs(rec["x_tip"][-1] - 0.02) < 0.5e-3
+    assert sim.tip_sensor.node.nmt.state == "PRE-OPERATIONAL"      # put back with the drive at close
+
+
+def test_tip_sensor_missing_pdo_trips_as_lost_communication(tmp_path):
+    from hil.supervisor import Supervisor
+
+    class Injector(Supervisor):
+        def check(self, t, fb, x_cmd):
+            if self.k == 20:
+                sim.inject("tip_missing_pdo", 5)
+            return super().check(t, fb, x_cmd)
+
+    cfg, sim, be = _tip_rig()
+    sup = Injector(cfg)
+    try:
+        rec = run_trajectory(cfg, _move(), backend=be, out_file=tmp_path / "m.csv", settle=0.0, supervisor=sup)
+    finally:
+        sim.close()
+    assert rec.status == "tripped"
+    assert "no TPDO from the tip sensor node 2 for 2 cycles" in rec.reason
+    assert 1 <= sup.trip_cycle - 20 <= 2 and be.quick_stop_sync == sup.trip_cycle
+    assert sim.state == "SWITCH ON DISABLED"
+
+
+def test_tip_sensor_preset_at_homing_and_wrong_node():
+    cfg, sim, be = _tip_rig()
+    try:
+        be.open()
+        sim.home_at(0.1234)
+        out = be.home(offset=0.05)
+        assert abs(out["tip_m"] - 0.05) < 1e-6
+        assert abs(be.status()["tip_m"] - 0.05) < 1e-6
+    finally:
+        be.close()
+        sim.close()
+    # node 3 answers nothing: the start-up says which node is missing
+    cfg = config.load("config/paper_bench_canopen.toml", {"canopen.lockstep": True, "canopen.tip_node_id": 3,
+                                                            "canopen.sdo_timeout": 0.05})
+    ch = f"co{next(_ids)}"
+    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True, tip_node_id=0)
+    be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    try:
+        with pytest.raises(BackendFault, match="tip sensor node 3 does not answer"):
+            be.open()
+    finally:
+        be.close()
+        sim.close()
