@@ -332,6 +332,14 @@ def candidate_names(cfg, plant, include_parameters: bool = True) -> list[str]:
     return names
 
 
+def _close(simple: Candidate, rich: Candidate, tol: float = 0.05) -> bool:
+    """The simpler fit leaves no more than ``tol`` more RMS error than the richer one in every
+    channel: the richer one's BIC lead is then the fits' convergence (stick-slip makes the cost
+    rough), not the data."""
+    return bool(simple.errors_after) and all(
+        simple.errors_after[c] <= (1 + tol) * rich.errors_after.get(c, 0.0) for c in simple.errors_after)
+
+
 def _rank(cands: list[Candidate]) -> list[Candidate]:
     cands = sorted(cands, key=lambda c: -c.score)
     # a simpler nested effect first when it explains most of the richer one's gain
@@ -343,7 +351,7 @@ def _rank(cands: list[Candidate]) -> list[Candidate]:
                 rich, simple = cands[i], cands[j]
                 eff = CATALOGUE.get(rich.effect)
                 if eff and simple.effect in getattr(eff, "nests", ()) and simple.significant \
-                        and rich.score - simple.score < MIN_SCORE:
+                        and (rich.score - simple.score < MIN_SCORE or _close(simple, rich)):
                     cands.insert(i, cands.pop(j))
                     changed = True
                     break
