@@ -66,6 +66,36 @@ def _fmt(index: int, bits: int) -> str:
     return f.upper() if index in _UNSIGNED else f
 
 
+# Objects the drive itself updates every cycle: written straight into the node's data store (the
+# SDO server reads them from there), not through the SDO layer, which costs tens of microseconds
+# per access; they do not invalidate the cached configuration.
+_LIVE = {0x6040, 0x6041, 0x6064, 0x606C, 0x6077, 0x60E4, 0x2001, 0x603F, 0x1001, 0x6061}
+
+
+def _raw(node, index: int, sub: int) -> bytes:
+    """The stored bytes of an object (the data store, else the dictionary's default)."""
+    try:
+        return node.data_store[index][sub]
+    except KeyError:
+        return node.get_data(index, sub)
+
+
+def _put(node, index: int, sub: int, fmt: str, value: int) -> None:
+    node.data_store.setdefault(index, {})[sub] = struct.pack("<" + fmt, value)
+
+
+def _pdo_plan(node, comm_base: int, map_base: int, n: int):
+    """(COB-ID or None when disabled, [(index, sub, bytes, struct format)]) of one PDO."""
+    comm, mapping = node.sdo[comm_base + n], node.sdo[map_base + n]
+    cob = comm[1].raw
+    entries = []
+    for k in range(1, mapping[0].raw + 1):
+        entry = mapping[k].raw
+        index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+        entries.append((index, sub, bits // 8, _fmt(index, bits)))
+    return (None if cob & 0x80000000 or not entries else cob & 0x7FF), entries
+
+
 class DriveSim:
     """``DriveSim(cfg, bus=bus)`` on an existing python-can bus, or ``interface=``/``channel=``."""
 
@@ -96,6 +126,7 @@ class DriveSim:
         self.host_id = 0
         self.network.subscribe(0x700 + int(cfg.get("canopen.host_node_id", 127)), self._on_host_heartbeat)
         # drive state
+        self._conf = None
         self.state = "SWITCH ON DISABLED"
         self.cw = 0
         self.mode = "csp"
@@ -183,9 +214,26 @@ class DriveSim:
         feed = d.sdo[0x6092][1].raw * 1e-6 / max(d.sdo[0x6092][2].raw, 1)      # um per shaft rev
         return cpr * gear / feed, d.sdo[0x6076].raw * 1e-3                         # counts per m, rated N m
 
+    def _config(self) -> dict:
+        """The configuration the host set over SDO (scaling, limits, guards, PDO mapping), read once
+        after every SDO write to a configuration object and cached: one cycle reads no SDO object."""
+        c = self._conf
+        if c is None:
+            d = self.node.sdo
+            cpm, rated = self._scales()
+            c = {"cpm": cpm, "rated": rated, "lo": d[0x607D][1].raw, "hi": d[0x607D][2].raw,
+                 "tmax": d[0x6072].raw * 1e-3 * rated, "hb_timeout": (d[0x1016][1].raw & 0xFFFF) * 1e-3,
+                 "fe_window": d[0x6065].raw, "fe_time_ms": d[0x6066].raw, "hb_ms": d[0x1017].raw,
+                 "tpdo": [_pdo_plan(self.node, 0x1800, 0x1A00, n) for n in range(4)],
+                 "rpdo": [_pdo_plan(self.node, 0x1400, 0x1600, n)[1] for n in range(4)]}
+            self._conf = c
+        return c
+
     # -- bus callbacks ---------------------------------------------------------------------------
     def _on_sdo_write(self, index, subindex, od, data):
         with self.lock:
+            if index not in _LIVE:
+                self._conf = None          # configuration changed: read it again at the next cycle
             if index == 0x6040:
                 self._controlword(struct.unpack("<H", data)[0])
             elif index == 0x6060:
@@ -255,12 +303,9 @@ class DriveSim:
             if self.node.nmt.state != "OPERATIONAL":
                 return
             off = 0
-            mapping = self.node.sdo[0x1600 + n]
-            for k in range(1, mapping[0].raw + 1):
-                entry = mapping[k].raw
-                index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
-                value = struct.unpack_from("<" + _fmt(index, bits), data, off)[0]
-                off += bits // 8
+            for index, sub, nbytes, f in self._config()["rpdo"][n]:
+                value = struct.unpack_from("<" + f, data, off)[0]
+                off += nbytes
                 if index == 0x6040:
                     self._controlword(value)          # the controlword acts on receipt
                 else:
@@ -275,7 +320,7 @@ class DriveSim:
         with self.lock:
             self._last_sync_wall = time.perf_counter()
             self.sync_counter = data[0] if data else 0       # CiA 301 SYNC counter (0x1019 > 0)
-            self.node.sdo[0x2001].raw = self.sync_counter
+            _put(self.node, 0x2001, 0, "B", self.sync_counter)
             self._cycle(from_sync=True)
 
     def _idle_loop(self):
@@ -287,7 +332,7 @@ class DriveSim:
                 self._heartbeat_wall()
 
     def _heartbeat_wall(self):
-        ms = self.node.sdo[0x1017].raw
+        ms = self._config()["hb_ms"]
         if ms and not self._hb_dead and time.perf_counter() >= self._next_hb:
             self._next_hb = time.perf_counter() + ms * 1e-3
             self.network.send_message(0x700 + self.node_id, [self.node.nmt._state])
@@ -302,24 +347,24 @@ class DriveSim:
     def _cycle(self, from_sync: bool) -> None:
         self.syncs += 1
         self.time += self.period
-        cpm, rated = self._scales()
+        conf = self._config()
+        cpm, rated = conf["cpm"], conf["rated"]
         pl = self.plant
         operational = self.node.nmt.state == "OPERATIONAL"
         # heartbeat consumer (0x1016) and the abort-connection option (0x6007)
-        hb = self.node.sdo[0x1016][1].raw
-        timeout = (hb & 0xFFFF) * 1e-3
+        timeout = conf["hb_timeout"]
         now_hb = self._hb_now()
         if timeout > 0 and self.state == "OPERATION ENABLED" and now_hb - self.last_host_heartbeat > timeout:
             self._abort_connection()
         # targets latched at SYNC, clamped to the software limits
-        lo, hi = self.node.sdo[0x607D][1].raw, self.node.sdo[0x607D][2].raw
+        lo, hi = conf["lo"], conf["hi"]
         if (0x607A, 0) in self.rx:
             self.target_position = min(max(self.rx[(0x607A, 0)], lo), hi)
         if (0x60FF, 0) in self.rx:
             self.target_velocity = self.rx[(0x60FF, 0)]
         if (0x6071, 0) in self.rx:
             self.target_torque = self.rx[(0x6071, 0)]
-        tmax = self.node.sdo[0x6072].raw * 1e-3 * rated
+        tmax = conf["tmax"]
         if self.state == "OPERATION ENABLED":
             if self.mode in ("csp", "hm"):
                 pl.write_setpoint(_sp(position=self.target_position / cpm - self._home_offset))
@@ -344,16 +389,16 @@ class DriveSim:
         if self.state == "OPERATION ENABLED":
             if not (lo <= actual["pos"] <= hi):
                 self.fault(0x8612)
-            win = self.node.sdo[0x6065].raw
+            win = conf["fe_window"]
             if self.mode in ("csp", "hm") and win != 0xFFFFFFFF and abs(self.target_position - actual["pos"]) > win:
                 self._fe_count += 1
-                if self._fe_count * self.period * 1e3 > self.node.sdo[0x6066].raw:
+                if self._fe_count * self.period * 1e3 > conf["fe_time_ms"]:
                     self.fault(0x8611)
             else:
                 self._fe_count = 0
         # heartbeat on the drive's clock (lockstep)
         if self.lockstep:
-            ms = self.node.sdo[0x1017].raw
+            ms = conf["hb_ms"]
             if ms and not self._hb_dead and self.time + 1e-12 >= self._next_hb:
                 self._next_hb = self.time + ms * 1e-3
                 self.network.send_message(0x700 + self.node_id, [self.node.nmt._state])
@@ -392,11 +437,12 @@ class DriveSim:
                "table": int(round(x_table * 1e9)), "tip": int(round(x_tip * 1e9)), "v": v,
                "x": (x_motor, x_table, x_tip), "tip_plant": tip_plant}
         d = self.node
-        d.sdo[0x6064].raw = act["pos"]
-        d.sdo[0x606C].raw = act["vel"]
-        d.sdo[0x6077].raw = max(-32768, min(32767, act["torque"]))
-        d.sdo[0x60E4][1].raw = act["table"]
-        d.sdo[0x60E4][2].raw = act["tip"]
+        clamp = lambda v: max(-2 ** 31, min(2 ** 31 - 1, v))      # noqa: E731
+        _put(d, 0x6064, 0, "i", clamp(act["pos"]))
+        _put(d, 0x606C, 0, "i", clamp(act["vel"]))
+        _put(d, 0x6077, 0, "h", max(-32768, min(32767, act["torque"])))
+        _put(d, 0x60E4, 1, "i", clamp(act["table"]))
+        _put(d, 0x60E4, 2, "i", clamp(act["tip"]))
         return act
 
     def _send_tpdos(self, actual) -> None:
@@ -405,18 +451,11 @@ class DriveSim:
             self.log.append((self.syncs, "TPDO withheld"))
             return
         frames = []
-        for n in range(4):
-            comm, mapping = self.node.sdo[0x1800 + n], self.node.sdo[0x1A00 + n]
-            cob = comm[1].raw
-            if cob & 0x80000000 or mapping[0].raw == 0:
+        node = self.node
+        for cob, entries in self._config()["tpdo"]:
+            if cob is None:
                 continue
-            data = b""
-            for k in range(1, mapping[0].raw + 1):
-                entry = mapping[k].raw
-                index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
-                value = self.node.get_data(index, sub)
-                data += value[: bits // 8]
-            frames.append((cob & 0x7FF, data))
+            frames.append((cob, b"".join(_raw(node, index, sub)[:nbytes] for index, sub, nbytes, _ in entries)))
         due = [f for f in self._held if f[0] <= self.syncs]
         self._held = [f for f in self._held if f[0] > self.syncs]
         for _, old in due:                                   # late answers to earlier SYNCs go out first
@@ -533,6 +572,7 @@ class TipSensorSim:
         self.node = canopen.LocalNode(node_id, canopen.import_od(eds or TIP_EDS, node_id))
         self.node.add_write_callback(self._on_sdo_write)
         drive.network.add_node(self.node)
+        self._plan = None            # (step m, COB-ID or None, mapping), cached until an SDO write
         self.offset = 0.0            # m, set by the preset
         self.missing = 0
         self.sent = 0
@@ -544,6 +584,7 @@ class TipSensorSim:
         return max(1, self.node.sdo[0x6005][1].raw) * 1e-9
 
     def _on_sdo_write(self, index, subindex, od, data):
+        self._plan = None
         if index == 0x6003:              # preset: the present position shows this value from now on
             preset = struct.unpack("<i", data)[0]
             self.offset = preset * self._step() - self._last_tip
@@ -551,24 +592,20 @@ class TipSensorSim:
 
     def on_sync(self, x_tip: float) -> None:
         self._last_tip = x_tip
-        value = int(round((x_tip + self.offset) / self._step()))
-        self.node.sdo[0x6004].raw = max(-2 ** 31, min(2 ** 31 - 1, value))
-        if self.node.nmt.state != "OPERATIONAL":
-            return
-        comm, mapping = self.node.sdo[0x1800], self.node.sdo[0x1A00]
-        cob = comm[1].raw
-        if cob & 0x80000000 or mapping[0].raw == 0:
+        if self._plan is None:
+            self._plan = (self._step(), *_pdo_plan(self.node, 0x1800, 0x1A00, 0))
+        step, cob, entries = self._plan
+        value = int(round((x_tip + self.offset) / step))
+        _put(self.node, 0x6004, 0, "i", max(-2 ** 31, min(2 ** 31 - 1, value)))
+        if self.node.nmt.state != "OPERATIONAL" or cob is None:
             return
         if self.missing > 0:
             self.missing -= 1
             self.drive.log.append((self.drive.syncs, "tip sensor TPDO withheld"))
             return
-        data = b""
-        for k in range(1, mapping[0].raw + 1):
-            entry = mapping[k].raw
-            data += self.node.get_data(entry >> 16, (entry >> 8) & 0xFF)[: (entry & 0xFF) // 8]
+        data = b"".join(_raw(self.node, index, sub)[:nbytes] for index, sub, nbytes, _ in entries)
         self.sent += 1
-        self.drive.network.send_message(cob & 0x7FF, data)
+        self.drive.network.send_message(cob, data)
 
 
 def _sp(position=0.0, speed=0.0, output=0.0):
