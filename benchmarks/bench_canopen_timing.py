@@ -63,25 +63,38 @@ def run(cfg, seconds, transport):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=60.0, help="per rate and transport (default 60)")
+    ap.add_argument("--rates", default="1000,250", help="cycle rates in Hz (default 1000,250)")
+    ap.add_argument("--transports", default="virtual,socketcand", help="virtual, socketcand or both (default)")
+    ap.add_argument("--switch-interval", type=float, default=None, metavar="S",
+                    help="sys.setswitchinterval in the host (and drive) process; default: the backend's choice")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
+    if args.switch_interval is not None:
+        sys.setswitchinterval(args.switch_interval)
+    transports = args.transports.split(",")
     results = []
-    for period in ("1 ms", "4 ms"):
+    load = [os.getloadavg()]
+    for period in [f"{1000.0 / float(r):g} ms" for r in args.rates.split(",")]:
         over = {"control.position_period": period, "canopen.interface": "virtual", "canopen.channel": "bench"}
         cfg = config.load(ROOT / "config/paper_bench_canopen.toml", over)
         import can
         from drivers.drive_sim import DriveSim
-        sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="bench"), lockstep=False)
-        try:
-            results.append(run(cfg, args.seconds, "virtual (in process)"))
-        finally:
-            sim.close()
+        if "virtual" in transports:
+            sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="bench"), lockstep=False)
+            try:
+                results.append(run(cfg, args.seconds, "virtual (in process)"))
+            finally:
+                sim.close()
+            load.append(os.getloadavg())
+        if "socketcand" not in transports:
+            continue
         with socket.socket() as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
         proc = subprocess.Popen([sys.executable, "-m", "hil.cli", "drive-sim", "--config",
                                  str(ROOT / "config/paper_bench_canopen.toml"), "--set",
-                                 f"control.position_period={period}", "--port", str(port), "--json"],
+                                 f"control.position_period={period}", "--port", str(port), "--json"]
+                                + ([] if args.switch_interval is None else ["--switch-interval", str(args.switch_interval)]),
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                 env=dict(os.environ, PYTHONPATH=str(ROOT)))
         try:
@@ -92,8 +105,11 @@ def main(argv=None):
         finally:
             proc.terminate()
             proc.wait(5)
+        load.append(os.getloadavg())
+    info = {"load_average_1_5_15min": [tuple(round(x, 2) for x in l) for l in load], "cpus": os.cpu_count(),
+            "switch_interval_s": sys.getswitchinterval()}
     if args.json:
-        print(json.dumps(results, indent=2))
+        print(json.dumps({"machine": info, "results": results}, indent=2))
     else:
         print(f"{'transport':30s} {'rate':>5s} {'p50 us':>8s} {'p99 us':>8s} {'max us':>9s} {'overruns':>8s} "
               f"{'no answer':>9s} {'late':>5s} {'SYNC->ans p50/p99 us':>21s} {'SYNC->setpoint p50 us':>21s}")
@@ -101,6 +117,9 @@ def main(argv=None):
             print(f"{r['transport']:30s} {r['rate_hz']:5d} {r['lateness_p50_us']:8.1f} {r['lateness_p99_us']:8.1f} "
                   f"{r['lateness_max_us']:9.1f} {r['overruns']:8d} {r['syncs_without_answer']:9d} {r['late_answers']:5d} "
                   f"{r['sync_to_answer_p50_us']:10.0f}/{r['sync_to_answer_p99_us']:<10.0f} {r['sync_to_setpoint_p50_us']:21.0f}")
+        print(f"{info['cpus']} CPUs; load average (1/5/15 min) before and after each run: "
+              + ", ".join("/".join(f"{x:.2f}" for x in l) for l in info["load_average_1_5_15min"])
+              + f"; switch interval {info['switch_interval_s'] * 1e6:.0f} us")
     return 0
 
 
