@@ -38,7 +38,7 @@ class SimulatedPlant(Backend):
         disc = self.plant.chain.discretize(self.ctrl.velocity_period, inputs="all")
         self._Ad, self._Bd = disc.A, disc.B
         self._codes, self._eparams = _effect_table(self.plant)
-        self._fric = self.plant.friction.as_array()
+        self._fric = self.plant.friction.as_tuple()
         self._dry = self.plant.friction.active
         n = self.plant.n
         self.x = np.zeros(2 * n)

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
-           "new_velocity_state", "measured_speed", "quantize", "P", "S"]
+           "new_velocity_state", "measured_speed", "pi_law", "quantize", "P", "S"]
 
 
 class P(IntEnum):
@@ -140,21 +140,28 @@ def measured_speed(p, s, v_motor, x_motor):
 
 
 @njit(cache=True, inline="always")
-def velocity_law(p, s, w_ref, w_meas, a_cmd):
-    """One velocity-loop step: the (limited) controller output, torque or command."""
+def pi_law(kp, ti, tv, limit, integral, saturated, w_ref, w_meas, feed_forward):
+    """The velocity PI on scalars: returns (output, integral, saturated). The reference order:
+    e = w_ref - w; I = I + e Tv unless the previous output saturated; u = Kp (e + I / Ti) + ff,
+    limited to +-limit. (Scalars, so that compiled loops keep the state in registers.)"""
     e = w_ref - w_meas
-    if s[S.SATURATED] == 0.0:
-        s[S.INTEGRAL] += e * p[P.TV]
-    u = p[P.KP] * (e + s[S.INTEGRAL] / p[P.TI]) + p[P.ACC_FF] * a_cmd
-    lim = p[P.ULIM]
-    if u > lim:
-        u = lim
-        s[S.SATURATED] = 1.0
-    elif u < -lim:
-        u = -lim
-        s[S.SATURATED] = 1.0
-    else:
-        s[S.SATURATED] = 0.0
+    if not saturated:
+        integral += e * tv
+    u = kp * (e + integral / ti) + feed_forward
+    if u > limit:
+        return limit, integral, True
+    if u < -limit:
+        return -limit, integral, True
+    return u, integral, False
+
+
+@njit(cache=True, inline="always")
+def velocity_law(p, s, w_ref, w_meas, a_cmd):
+    """One velocity-loop step on the settings and state arrays: the (limited) controller output,
+    torque or command."""
+    u, s[S.INTEGRAL], sat = pi_law(p[P.KP], p[P.TI], p[P.TV], p[P.ULIM], s[S.INTEGRAL], s[S.SATURATED] != 0.0,
+                                   w_ref, w_meas, p[P.ACC_FF] * a_cmd)
+    s[S.SATURATED] = 1.0 if sat else 0.0
     return u
 
 

@@ -16,7 +16,7 @@ from numba import njit
 from sim_plant.kernel import effect_forces, empty_effects, friction_force
 from sim_plant.plant import Plant, plant_from_config
 
-from .control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state,
+from .control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state, pi_law,
                       position_law, quantize, velocity_law)
 
 __all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step", "drive_steps"]
@@ -143,6 +143,12 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
     K = x_cmd.shape[0] - 1
     tp = p[0]          # P.TP
+    # the velocity loop's settings and state as locals: they stay in registers in the hot loop
+    kp, ti, tv, limit, acc_ff, speed_scale = p[4], p[5], p[1], p[6], p[8], p[7]   # P.KP, TI, TV, ULIM, ACC_FF, SPEED_SCALE
+    speed_from_position = p[9] > 0.0                                               # P.N_TAPS
+    integral = 0.0
+    saturated = False
+    countdown = 1                  # velocity steps until the next recorded sample
     rec = 0
     step = 0
     w_ref = 0.0
@@ -157,11 +163,14 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
             a_cmd = (x_cmd[k + 1] - 2.0 * x_cmd[k] + x_cmd[k - 1]) / (tp * tp)
         else:
             a_cmd = (x_cmd[k + 1] - x_cmd[k]) / (tp * tp)
+        ff = acc_ff * a_cmd
         for j in range(n_sub):
             # --- velocity loop ---
-            xm = quantize(x[0], res_motor)
-            w_meas = measured_speed(p, s, x[n], xm)
-            u = velocity_law(p, s, w_ref, w_meas, a_cmd)
+            if speed_from_position:
+                w_meas = measured_speed(p, s, x[n], quantize(x[0], res_motor))
+            else:
+                w_meas = x[n] * speed_scale
+            u, integral, saturated = pi_law(kp, ti, tv, limit, integral, saturated, w_ref, w_meas, ff)
             # computation delay, then the current loop (ideal, or a first-order lag)
             if ubuf is not None:       # None (no delay): compiled away
                 for i in range(d_int + 1, 0, -1):
@@ -169,18 +178,20 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                 ubuf[0] = u
                 u = (1.0 - d_frac) * ubuf[d_int] + d_frac * ubuf[d_int + 1]
             u_act += lag_alpha * (u - u_act)
-            if step % record_every == 0:
-                X[rec, :] = x[:n]
-                V[rec, :] = x[n:]
+            countdown -= 1
+            if countdown == 0:
+                countdown = record_every
+                for i in range(n):
+                    X[rec, i] = x[i]
+                    V[rec, i] = x[n + i]
                 U[rec] = u_act
-                XM[rec] = xm
+                XM[rec] = quantize(x[0], res_motor)
                 XT[rec] = quantize(x[table], res_table)
                 # between ticks the command is interpolated, as the NC's fine interpolation would
                 XCMD[rec] = x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub
                 rec += 1
             # --- plant over one Tv ---
             plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-            step += 1
     return rec
 
 
@@ -217,7 +228,7 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     ubuf = np.zeros(int(math.floor(delay)) + 2) if delay > 0.0 else None
     closed_loop_kernel(disc.A, disc.B, state0, ctrl.as_array(), plant.force_gain, cmd, n_sub,
                        plant.table, plant.tip, ctrl.position_feedback == "motor",
-                       plant.friction.as_array(), plant.table_resolution, plant.motor_resolution,
+                       plant.friction.as_tuple(), plant.table_resolution, plant.motor_resolution,
                        codes, eparams, delay, ubuf, lag, record_every, X, V, U, XM, XT, XC)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:

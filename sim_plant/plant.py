@@ -26,6 +26,10 @@ class Friction:
     static_neg: float = 0.0
     stribeck_velocity: float = 0.0
 
+    def as_tuple(self) -> tuple:
+        """The kernel's form: a tuple is a value, so compiled loops keep it in registers."""
+        return (self.coulomb_pos, self.coulomb_neg, self.static_pos, self.static_neg, self.stribeck_velocity)
+
     def as_array(self) -> np.ndarray:
         return np.array([self.coulomb_pos, self.coulomb_neg, self.static_pos, self.static_neg,
                          self.stribeck_velocity], float)
