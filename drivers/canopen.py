@@ -102,6 +102,9 @@ SECTION = {
                                     default=2, positive=True),
     "canopen.lockstep": Field("bool", "drive time advances with SYNC only (a simulated drive in this process)",
                               default=False),
+    "canopen.switch_interval": Field("time", "real-time runs: the interpreter's thread switch interval at most this "
+                                     "(process-wide; Python's default 5 ms delays the receive threads)",
+                                     default=1e-4, positive=True),
     "canopen.sdo_timeout": Field("time", "SDO response timeout", default=0.5, positive=True),
     "canopen.stop_timeout": Field("time", "how long the host keeps the SYNC going while the drive finishes a "
                                   "quick stop", default=2.0, positive=True),
@@ -201,6 +204,11 @@ class CanopenBackend(Backend):
         """Full start-up: connect, NMT pre-operational, SDO configuration and PDO mapping, NMT
         operational, the host's heartbeat."""
         cfg = self.cfg
+        if not self.lockstep:
+            # the receive threads (python-can's, canopen's notifier) must get the interpreter soon
+            # after a TPDO arrives, not after Python's default 5 ms switch interval: process-wide
+            import sys
+            sys.setswitchinterval(min(sys.getswitchinterval(), float(cfg.get("canopen.switch_interval", 1e-4))))
         self.connect()
         self.node.nmt.state = "PRE-OPERATIONAL"
         self._sdo_retry(lambda: self.node.sdo[0x1000].raw)        # the drive answers
