@@ -141,7 +141,10 @@ class ControlLoop:
         status, reason = "complete", ""
         try:
             for k in range(K):
-                v_cmd = (cmd[k + 1] - cmd[k]) / self.ctrl.position_period
+                tp = self.ctrl.position_period
+                v_cmd = (cmd[k + 1] - cmd[k]) / tp
+                # the interpolator's acceleration (for the acceleration feed-forward), as in the simulator
+                a_cmd = (cmd[k + 1] - 2.0 * cmd[k] + (cmd[k - 1] if k > 0 else cmd[k])) / tp ** 2
                 for j in range(self.per_tick):
                     fb = b.read_feedback()
                     if fb.fault and (self.supervisor is None or j != 0):
@@ -159,7 +162,7 @@ class ControlLoop:
                             sp, out = Setpoint(speed=w_ref), fb.output
                         else:
                             w = measured_speed(p, s, fb.v_motor, fb.x_motor)
-                            u = velocity_law(p, s, w_ref, w, 0.0)
+                            u = velocity_law(p, s, w_ref, w, a_cmd)
                             self._delay.insert(0, u)
                             u = self._delay.pop()
                             sp, out = Setpoint(output=u), u

@@ -132,9 +132,11 @@ def test_stiction_holds_and_slips(bench):
     assert sim.x[3] * R == pytest.approx(alpha * t, rel=2e-3)
 
 
-def test_stepwise_loop_equals_compiled_kernel(bench):
+@pytest.mark.parametrize("acc_ff", [0.0, 1.0])
+def test_stepwise_loop_equals_compiled_kernel(bench, acc_ff):
     """The real-time loop's path (ControlLoop + per-cycle backend) and the compiled simulator run
-    the same law: identical records."""
+    the same law: identical records (with and without the acceleration feed-forward)."""
+    bench = bench.with_values({"control.acc_ff": acc_ff})
     traj = Trajectory()
     traj.move(MoveSpec(0.01, 0.1, a_max=3.0))
     traj.dwell(0.05)
