@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from hil.control import controller_from_config, new_velocity_state, position_law, quantize
-from hil.simulate import _effect_table, _lag_alpha, drive_steps, plant_step, simulate
+from hil.simulate import _effect_table, _lag_alpha, coast_steps, drive_steps, plant_step, simulate
 from sim_plant.plant import plant_from_config
 
 from .base import LOOPS, Backend, Feedback, Setpoint
@@ -80,10 +80,11 @@ class SimulatedPlant(Backend):
     def sync(self) -> None:
         """Advance one cycle."""
         n, pl = self.plant.n, self.plant
-        if not self.enabled:
-            u_steps = [0.0] * (1 if self.closes == "none" else self.ctrl.substeps)
-            for u in u_steps:
-                self._step(u)
+        if not self.enabled:          # no torque: the plant coasts (friction and effects still act)
+            steps = 1 if self.closes == "none" else self.ctrl.substeps
+            self._u_act = coast_steps(self._Ad, self._Bd, self.x, steps, self._lag, self._u_act, pl.force_gain,
+                                      self._fric, self._dry, self._codes, self._eparams, self._f, self._xn)
+            self.time += steps * self.ctrl.velocity_period
             return
         if self.closes == "none":
             self._step(self._set.output)

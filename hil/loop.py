@@ -11,6 +11,7 @@ write the setpoint, record (every position tick), let the supervisor check, end 
 """
 from __future__ import annotations
 
+import gc
 import math
 import time
 from dataclasses import dataclass, field
@@ -120,6 +121,9 @@ class ControlLoop:
             self.per_tick = 1
         self._delay = [0.0] * int(ctrl.output_delay)     # outputs still in the computation delay
         _warm_up(self.p)
+        if self.clock.real_time:
+            gc.collect()
+            gc.freeze()
 
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
         if self.recorder is None:
@@ -136,6 +140,11 @@ class ControlLoop:
         K = x_cmd.size
         b, p = self.backend, self.p
         s = new_velocity_state()
+        # no garbage-collection pauses inside the cycle on hardware (collected in __init__,
+        # before the drive was enabled: a collection can take longer than a drive's watchdog)
+        gc_was_on = gc.isenabled()
+        if self.clock.real_time:
+            gc.disable()
         self.clock.start()
         k = 0
         status, reason = "complete", ""
@@ -190,6 +199,10 @@ class ControlLoop:
             status, reason = "aborted", f"{type(exc).__name__}: {exc}"
             raise
         finally:
+            if self.clock.real_time:
+                gc.unfreeze()
+                if gc_was_on:
+                    gc.enable()
             if self.recorder is not None and status != "complete":
                 self.recorder.close(status, reason)
         return self._end(K, status, reason)

@@ -19,7 +19,7 @@ from sim_plant.plant import Plant, plant_from_config
 from .control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state, pi_law,
                       position_law, quantize, velocity_law)
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step", "drive_steps"]
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step", "drive_steps", "coast_steps"]
 
 
 @dataclass
@@ -120,6 +120,16 @@ def drive_steps(Ad, Bd, x, s, p, w_ref, steps, res_motor, lag_alpha, u_act, fgai
         u_act += lag_alpha * (u - u_act)
         plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
     return u, u_act
+
+
+@njit(cache=True)
+def coast_steps(Ad, Bd, x, steps, lag_alpha, u_act, fgain, fric, dry, codes, eparams, f, x_new):
+    """``steps`` plant steps with no torque commanded (a disabled drive): the current decays
+    through the current loop's lag, the plant coasts. Returns the current loop's state."""
+    for _ in range(steps):
+        u_act += lag_alpha * (0.0 - u_act)
+        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+    return u_act
 
 
 @njit(cache=True)
