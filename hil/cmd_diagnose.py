@@ -11,9 +11,11 @@ HELP = "rank the catalogue's effects by how much of the model error each explain
 DESCRIPTION = """\
 For each candidate (every catalogue effect that fits the plant, and parameter:<key> for the chain's
 masses, stiffnesses and dampings) adds it to the model, fits its parameters (scipy least squares on
-every measured channel) and scores it by the fall of the BIC. A candidate is significant only if it
-also removes >= 3 % of the weighted residual and the error stands above the noise floor; otherwise
-the verdict is "none" (no significant missing effect).
+every measured channel) and scores it by the fall of the BIC (on the effective sample count). A
+candidate is significant when its score exceeds 6 and the error stands above the noise floor;
+otherwise the verdict is "none" (no significant missing effect). A richer effect that simpler ones
+can mimic (asymmetric_friction: coulomb_friction + constant_force) is compared with them fitted
+jointly; when they explain most of its gain they are named first (verdict, then "also_missing").
 
   hil diagnose data.csv --config config/paper_bench.toml --json
   hil diagnose data.csv --config config/paper_bench.toml --candidates coulomb_friction,parameter:plant.c2
@@ -28,6 +30,7 @@ def add_arguments(parser) -> None:
 
 def candidates_json(d):
     return {"candidates": [c.as_json() for c in d["candidates"]], "verdict": d["verdict"],
+            "also_missing": d.get("also_missing", []), "combinations": d.get("combinations", []),
             "noise_floor": d["noise_floor"], "error_before": d["error_before"]}
 
 
@@ -59,4 +62,10 @@ def run(args) -> int:
     for i, c in enumerate(d["candidates"]):
         mark = "*" if c.significant else " "
         print(f"{i + 1:2d}{mark} {c.effect:26s} score {c.score:10.1f}  {c.evidence}")
+    for m in d.get("also_missing", []):
+        print(f"also missing: {m['effect']} (score {m['score']:.1f} beside {d['verdict']}): {m['evidence']}")
+    for cb in d.get("combinations", []):
+        print(f"combination {' + '.join(cb['effects'])} against {cb['explains']}: score {cb['score']:.1f}, "
+              f"{100 * cb['explained']:.0f} % of its gain, {cb['explains']} against it {cb['rich_against_combination']:.1f}"
+              f" -> {'named first' if cb['preferred'] else cb['explains'] + ' first'}")
     return 0

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from sim_plant.effects import CATALOGUE, Effect, candidate, default_parameters
+from sim_plant.effects import CATALOGUE, Combination, Effect, candidate, default_parameters
 
 from .compare import Replay, noise_floor, periodic_in_position, spectrum_peaks
 
@@ -36,6 +36,7 @@ __all__ = ["Candidate", "fit_effects", "diagnose", "MIN_SCORE", "bic_score", "ef
 
 MIN_SCORE = 6.0          # a BIC difference above 6: "strong" evidence (Kass and Raftery)
 SIGNIFICANT_ABOVE_NOISE = 1.2
+EXPLAINED = 0.9          # a combination of simpler effects explaining this share of a richer one's gain goes first
 
 
 @dataclass
@@ -52,6 +53,7 @@ class Candidate:
     cfg: object = None
     errors_after: dict = field(default_factory=dict)
     nfev: int = 0
+    res: dict = field(default=None, repr=False)     # residuals after the fit (for pairwise comparisons)
 
     def as_json(self) -> dict:
         return {"effect": self.effect, "params": {k: float(v) for k, v in self.params.items()},
@@ -192,7 +194,48 @@ def _starts(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -> list[d
         return _prefilter(eff, replay, _mode_starts(eff, replay, res0, g), cfg)
     if eff.name == "time_delay":
         return [g, dict(g, delay=4 * g["delay"])]
-    return [g]
+    reg = _regression_start(eff, replay, res0)
+    return [reg, g] if reg else [g]
+
+
+def _regression_start(eff: Effect, replay: Replay, res0: dict) -> dict | None:
+    """Starting values of the friction and force effects from a linear regression of the force
+    residual while moving: residual = Fc sign(v) + c v + f0 (or per direction for
+    asymmetric_friction), v the commanded velocity. The replayed axis follows its command closely,
+    so the missing force shows almost unchanged in the force channel; None without one."""
+    fch = replay.force_channel
+    names = [m.name for m in eff.members] if isinstance(eff, Combination) else [eff.name]
+    known = ("coulomb_friction", "constant_force", "asymmetric_friction", "viscous_friction")
+    if fch is None or not all(n in known for n in names):
+        return None
+    m = replay.meas
+    v = np.gradient(m["x_cmd"], m.t)
+    moving = np.abs(v) > 0.02 * max(float(np.max(np.abs(v))), 1e-12)
+    if moving.sum() < 16:
+        return None
+    vm, r = v[moving], res0[fch][moving]
+    pos = (vm > 0).astype(float)
+    X = np.column_stack([pos, -(1 - pos), vm * pos, vm * (1 - pos), np.ones(vm.size)])
+    coef, *_ = np.linalg.lstsq(np.column_stack([np.sign(vm), vm, np.ones(vm.size)]), r, rcond=None)
+    cp, *_ = np.linalg.lstsq(X[:, :4], r, rcond=None)
+    plant, cfg = replay.plant, replay.cfg
+    sp = plant.speed_scale                       # rad/s (rotary) or m/s per m/s of the load
+    c0 = plant.chain.c_ground[0] / (sp * sp)     # the model's viscous coefficient, motor units
+    fp = plant.friction.coulomb_pos / sp         # the model's Coulomb levels, motor units
+    fn = plant.friction.coulomb_neg / sp
+    f0 = float(cfg.get("effects.constant_force.force", 0.0) or 0.0)
+    cv = float(cfg.get("effects.viscous_friction.coefficient", 0.0) or 0.0)
+    # what the model has plus what the residual asks for; the force channel is in motor units
+    # (torque on a rotary axis): a load-side force is that times force_to_load
+    vals = {"coulomb_friction": {"level": max(0.5 * (fp + fn) + float(coef[0]), 0.0)},
+            "constant_force": {"force": f0 - float(coef[2]) * replay.force_to_load},
+            "viscous_friction": {"coefficient": cv + float(coef[1]) / sp},
+            "asymmetric_friction": {"level_pos": max(fp + float(cp[0]), 0.0), "level_neg": max(fn + float(cp[1]), 0.0),
+                                    "viscous_pos": max(c0 + float(cp[2]) / sp, 0.0),
+                                    "viscous_neg": max(c0 + float(cp[3]) / sp, 0.0)}}
+    if isinstance(eff, Combination):
+        return {f"{n}.{k}": v for n in names for k, v in vals[n].items()}
+    return vals[eff.name]
 
 
 def _mode_starts(eff, replay, res0, g) -> list[dict]:
@@ -243,6 +286,13 @@ def _evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, 
               base_modes) -> str:
     unit = replay.unit(chan)
     fall = f"RMS {chan} error {before:.3g} -> {after:.3g} {unit} ({100 * (1 - after / before) if before else 0:.0f} % less)"
+    if "+" in eff_name:
+        # a combination: each member's evidence, then the fall of the joint fit
+        heads = []
+        for m, v in zip(eff_name.split("+"), candidate(eff_name).split(vals)):
+            h = _evidence(m, v, replay, res0, chan, before, after, base_modes)
+            heads.append(h[:-len(fall)].rstrip("; ") if h.endswith(fall) and h != fall else "")
+        return "; ".join([h for h in heads if h] + [fall])
     m = replay.meas
     v = np.gradient(m["x_cmd"], m.t)
     moving = np.abs(v) > 0.02 * np.max(np.abs(v))
@@ -259,8 +309,11 @@ def _evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, 
         if eff_name == "viscous_friction":
             return f"{fch} residual grows with velocity, {coef[1]:.3g} {fu} per m/s; " + fall
         if eff_name == "asymmetric_friction":
-            return (f"{fch} residual differs per direction: {np.mean(pos) if pos.size else 0:.3g} {fu} moving +, "
-                    f"{np.mean(neg) if neg.size else 0:.3g} {fu} moving -; " + fall)
+            vm = v[moving]
+            p = (vm > 0).astype(float)
+            cp, *_ = np.linalg.lstsq(np.column_stack([p, 1 - p, vm * p, vm * (1 - p)]), rf[moving], rcond=None)
+            return (f"{fch} residual differs per direction: {cp[0]:.3g} {fu} + {cp[2]:.3g} {fu} per m/s moving +, "
+                    f"{cp[1]:.3g} {fu} + {cp[3]:.3g} {fu} per m/s moving -; " + fall)
         return f"{fch} residual follows sign(v), {abs(coef[0]):.3g} {fu}; " + fall
     if eff_name in ("pitch_error", "torque_ripple"):
         r = res0["x_motor"] - res0["x_table"] if (eff_name == "pitch_error" and "x_table" in res0) else res0[chan]
@@ -322,7 +375,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     significant = score > MIN_SCORE and before > SIGNIFICANT_ABOVE_NOISE * floor
     ev = _evidence(name, vals, replay, res0, chan, before, after, _model_modes(cfg))
     return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant, cfg1,
-                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev)
+                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1)
 
 
 def candidate_names(cfg, plant, include_parameters: bool = True) -> list[str]:
@@ -340,8 +393,74 @@ def _close(simple: Candidate, rich: Candidate, tol: float = 0.05) -> bool:
         simple.errors_after[c] <= (1 + tol) * rich.errors_after.get(c, 0.0) for c in simple.errors_after)
 
 
-def _rank(cands: list[Candidate]) -> list[Candidate]:
+def _rank(cands: list[Candidate], combos: list | None = None, floor=None):
+    """The candidates best first, and the combination that leads the ranking (or None).
+
+    A combination of simpler effects is preferred over the richer effect it mimics when its score is
+    not lower by more than :data:`MIN_SCORE` (the richer effect's extra parameters do not pay for
+    themselves) or it leaves no more error (:func:`_close`); a preferred combination takes the
+    richer effect's place if that is higher, and stands in the ranking for its leading member (the
+    one whose removal costs the most)."""
+    entries = _rank_single(list(cands) + [c for c in combos or () if _prefer(c, floor=floor)])
+    out, lead = [], None
+    for e in entries:
+        if isinstance(e, Combo):
+            if lead is None and not out:
+                lead = e
+            single = next((c for c in cands if c.effect == e.leader), None)
+            if single is not None and single not in out:
+                rest = [m["effect"] for m in e.members if m["effect"] != e.leader]
+                single.evidence += (f"; with {' and '.join(rest)} it explains {100 * e.explained:.0f} % of the gain of "
+                                    f"{e.rich.effect} (whose remainder scores {e.pair:.1f}: judged once these are fitted)")
+                out.append(single)
+        elif e not in out:
+            out.append(e)
+    return out, lead
+
+
+def pair_score(simple: Candidate, rich: Candidate, chans, floor=None) -> float:
+    """The same BIC score between two fits: the richer model against the simpler one (its residual
+    as "before", the extra parameters as the penalty). Each candidate's own score counts the
+    effective samples of its own residual; comparing two scores would reward a whiter residual
+    twice."""
+    k = len(candidate(rich.effect).params) - len(candidate(simple.effect).params)
+    return bic_score(simple.res, rich.res, chans, max(k, 0), floor)
+
+
+def _log_fall(c: Candidate) -> float:
+    """ln(weighted error before / after) of a fit."""
+    return math.log(max(1.0 / max(1.0 - c.gain, 1e-300), 1.0))
+
+
+def _prefer(combo, chans=None, floor=None) -> bool:
+    """Whether the combination of simpler effects is named before the richer effect it mimics.
+
+    Marginality (lower-order terms first, as in hierarchical regression): asymmetric friction is
+    Coulomb friction and an offset plus a direction-dependent remainder; the remainder is only judged
+    once the lower-order terms are in the model. So a significant combination is named first when
+    the richer effect's extra parameters do not pay against it (their BIC score against the
+    combination, :func:`pair_score`, at most :data:`MIN_SCORE`), or when it accounts for at least
+    :data:`EXPLAINED` of the richer effect's fall of the log weighted error; the richer effect's
+    score against the combination is reported, and the next diagnosis (with the combination fitted)
+    judges the remainder by the same criterion."""
+    combo.explained = _log_fall(combo.cand) / _log_fall(combo.rich) if _log_fall(combo.rich) > 0 else 1.0
+    if combo.cand.res is not None and combo.rich.res is not None:
+        combo.pair = pair_score(combo.cand, combo.rich, chans or list(combo.cand.res), floor)
+        pays = combo.pair > MIN_SCORE
+    else:
+        pays = combo.rich.score - combo.score > MIN_SCORE
+    combo.preferred = bool(combo.significant and (not pays or combo.explained >= EXPLAINED
+                                                  or _close(combo.cand, combo.rich)))
+    return combo.preferred
+
+
+def _rank_single(cands: list) -> list:
     cands = sorted(cands, key=lambda c: -c.score)
+    # a preferred combination before the richer effect it mimics
+    for c in [c for c in cands if isinstance(c, Combo)]:
+        i, j = cands.index(c.rich), cands.index(c)
+        if j > i:
+            cands.insert(i, cands.pop(j))
     # a simpler nested effect first when it explains most of the richer one's gain
     changed = True
     while changed:
@@ -349,6 +468,8 @@ def _rank(cands: list[Candidate]) -> list[Candidate]:
         for i in range(len(cands)):
             for j in range(i + 1, len(cands)):
                 rich, simple = cands[i], cands[j]
+                if isinstance(rich, Combo) or isinstance(simple, Combo):
+                    continue
                 eff = CATALOGUE.get(rich.effect)
                 if eff and simple.effect in getattr(eff, "nests", ()) and simple.significant \
                         and (rich.score - simple.score < MIN_SCORE or _close(simple, rich)):
@@ -385,10 +506,91 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
         work = [(n, max_nfev, by_name[n].params, 1) for n in top]
         better = {c.effect: c for c in _map(replay, work, res0, jobs, progress) if c is not None}
         out = [better.get(c.effect, c) if better.get(c.effect, c).score >= c.score else c for c in out]
-    ranked = _rank(out)
-    verdict = ranked[0].effect if ranked and ranked[0].significant else "none"
-    return {"candidates": ranked, "verdict": verdict, "noise_floor": dict(replay.noise),
+    combos = _combinations(replay, out, res0, jobs, progress, max_nfev, refine)
+    ranked, lead = _rank(out, combos, replay.noise)
+    also = []
+    if lead is not None:
+        verdict = lead.leader if lead.significant else "none"
+        also = [m for m in lead.members if m["effect"] != lead.leader and m["significant"]] if lead.significant else []
+    else:
+        verdict = ranked[0].effect if ranked and ranked[0].significant else "none"
+    return {"candidates": ranked, "verdict": verdict, "also_missing": also,
+            "combinations": [c.as_json() for c in combos], "noise_floor": dict(replay.noise),
             "error_before": {c: float(np.sqrt(np.mean(res0[c] ** 2))) for c in replay.objective.weights}}
+
+
+@dataclass
+class Combo:
+    """A combination of simpler catalogue effects fitted jointly against the richer effect it can
+    mimic (``Effect.mimicked_by``): its candidate (scored like any other), the richer one, and per
+    member its marginal score (the BIC score of the joint fit against the fit without that member)."""
+    cand: Candidate
+    rich: Candidate
+    members: list            # [{"effect", "params", "score" (marginal), "significant", "evidence"}]
+    leader: str = ""
+    preferred: bool = False
+    pair: float = math.nan   # BIC score of the richer effect against the combination
+    explained: float = math.nan   # the combination's share of the richer effect's fall of the log error
+
+    @property
+    def score(self):
+        return self.cand.score
+
+    @property
+    def significant(self):
+        return self.cand.significant
+
+    def as_json(self) -> dict:
+        return {"effects": [m["effect"] for m in self.members], "explains": self.rich.effect,
+                "preferred": bool(self.preferred), "score": float(self.cand.score),
+                "rich_against_combination": float(self.pair), "explained": float(self.explained),
+                "rich_score": float(self.rich.score), "params": {k: float(v) for k, v in self.cand.params.items()},
+                "channel": self.cand.channel, "error_before": float(self.cand.error_before),
+                "error_after": float(self.cand.error_after), "evidence": self.cand.evidence,
+                "members": [{k: (float(v) if isinstance(v, float) else v) for k, v in m.items()} for m in self.members]}
+
+
+def _combinations(replay, out, res0, jobs, progress, max_nfev, refine) -> list[Combo]:
+    """Fit jointly the combinations of simpler effects that can mimic a significant richer effect
+    among the best ``refine``, when every member was a candidate; their members' single fits give the
+    starting values and the fits without each member (for the marginal scores)."""
+    by_name = {c.effect: c for c in out}
+    work, rich_of = [], {}
+    for c in sorted(out, key=lambda c: -c.score)[:max(refine, 1)]:
+        if not c.significant:
+            continue
+        for combo in getattr(CATALOGUE.get(c.effect), "mimicked_by", ()):
+            if not all(m in by_name for m in combo):
+                continue
+            name = "+".join(combo)
+            if name in rich_of:
+                continue
+            start = {f"{m}.{k}": v for m in combo for k, v in by_name[m].params.items()}
+            rich_of[name] = c
+            work.append((name, max_nfev, start, 1))
+    if not work:
+        return []
+    fits = [c for c in _map(replay, work, res0, jobs, progress) if c is not None]
+    chans = list(replay.objective.weights)
+    combos = []
+    for fc in fits:
+        eff = candidate(fc.effect, replay.cfg)
+        res1 = replay.residuals(fc.cfg)
+        members = []
+        for m, vals in zip(eff.members, eff.split(fc.params)):
+            others = [o.name for o in eff.members if o is not m]
+            if len(others) == 1:
+                without = by_name[others[0]]
+            else:
+                without = evaluate(replay, "+".join(others), res0, max_nfev,
+                                   start={k: v for k, v in fc.params.items() if not k.startswith(m.name + ".")})
+            sc = bic_score(replay.residuals(without.cfg), res1, chans, len(m.params), replay.noise)
+            members.append({"effect": m.name, "params": vals, "score": float(sc), "significant": sc > MIN_SCORE,
+                            "evidence": _evidence(m.name, vals, replay, res0, fc.channel, fc.error_before,
+                                                  fc.error_after, [])})
+        lead = max(members, key=lambda d: d["score"])["effect"]
+        combos.append(Combo(fc, rich_of[fc.effect], members, lead))
+    return combos
 
 
 def _safe_eval(replay, res0, name, max_nfev, start=None, n_starts=2):
@@ -455,6 +657,18 @@ def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=N
         c = evaluate(cur, name, max_nfev=max_nfev)
         steps.append(c)
         cur = cur.with_config(c.cfg)
+    if len(names) > 1 and len(set(names)) == len(names):
+        # then all of them together from the greedy values: the greedy fit of a later effect cannot
+        # move the earlier ones (an offset is correlated with the friction levels)
+        name = "+".join(names)
+        if progress:
+            progress(name)
+        start = {f"{s.effect}.{k}": v for s in steps for k, v in s.params.items()}
+        joint = evaluate(replay, name, max_nfev=max_nfev, start=start)
+        obj = replay.objective
+        if np.sum(obj.vector(joint.res) ** 2) < np.sum(obj.vector(cur.base_residuals) ** 2):
+            steps.append(joint)
+            return joint.cfg, steps
     return cur.cfg, steps
 
 

@@ -23,7 +23,7 @@ from .chain import Chain
 from .plant import Friction, Plant
 
 __all__ = ["Param", "Effect", "CATALOGUE", "register", "apply_effects", "effect", "candidate",
-           "ParameterEffect", "default_parameters"]
+           "ParameterEffect", "Combination", "default_parameters"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,10 @@ class Effect:
         raise NotImplementedError
 
     nests: tuple = ()          # simpler catalogue effects this one contains (ranking prefers those)
+    # combinations of simpler catalogue effects that can do (part of) this effect's work, e.g.
+    # asymmetric Coulomb levels = symmetric Coulomb + a constant force while moving: ``diagnose``
+    # fits each combination jointly and prefers it when it explains as much by the same BIC score
+    mimicked_by: tuple = ()
     periodic: bool = False     # parameters include a period along the travel
 
     def applicable(self, plant: Plant) -> bool:
@@ -156,8 +160,10 @@ class StribeckFriction(Effect):
         return dataclasses.replace(plant, friction=Friction(fc, fc, fs, fs, values["velocity"]))
 
     def guess(self, plant, scale):
-        f = scale.get("force", 1.0) / _to_linear(plant)
-        return {"level": f, "static": 1.5 * f, "velocity": max(0.05 * scale.get("speed", 0.04), 1e-4)}
+        f0 = _level_guess(plant, 0.0)     # the model's Coulomb level, when it has one
+        f = f0 or scale.get("force", 1.0) / _to_linear(plant)
+        return {"level": f, "static": (1.1 if f0 else 1.5) * f,
+                "velocity": max(0.05 * scale.get("speed", 0.04), 1e-4)}
 
 
 @register
@@ -170,6 +176,8 @@ class AsymmetricFriction(Effect):
               Param("viscous_pos", _motor_damping_kind, 0.0, 1e7, 0.0, "viscous coefficient moving in +x"),
               Param("viscous_neg", _motor_damping_kind, 0.0, 1e7, 0.0, "viscous coefficient moving in -x"))
     nests = ("coulomb_friction", "viscous_friction", "constant_force")
+    # while moving, (Fc+ + Fc-)/2 sign(v) + (Fc+ - Fc-)/2 is Coulomb friction plus a constant force
+    mimicked_by = (("coulomb_friction", "constant_force"),)
 
     def apply(self, plant, values):
         r = _to_linear(plant)
@@ -337,8 +345,42 @@ class ParameterEffect(Effect):
         return cfg.with_values({self.key: float(values["value"])})
 
 
+class Combination(Effect):
+    """Several effects fitted together: parameters named ``<effect>.<param>``; the name is the
+    members' names joined by ``+`` (``coulomb_friction+constant_force``)."""
+
+    def __init__(self, members):
+        self.members = tuple(members)
+        self.name = "+".join(m.name for m in self.members)
+        self.description = " and ".join(m.description for m in self.members)
+        self.params = tuple(dataclasses.replace(p, name=f"{m.name}.{p.name}") for m in self.members for p in m.params)
+        self.periodic = any(m.periodic for m in self.members)
+
+    def split(self, values: dict) -> list[dict]:
+        return [{p.name: values[f"{m.name}.{p.name}"] for p in m.params} for m in self.members]
+
+    def applicable(self, plant):
+        return all(m.applicable(plant) for m in self.members)
+
+    def apply(self, plant, values):
+        for m, v in zip(self.members, self.split(values)):
+            plant = m.apply(plant, v)
+        return plant
+
+    def configure(self, cfg, values):
+        for m, v in zip(self.members, self.split(values)):
+            cfg = m.configure(cfg, v)
+        return cfg
+
+    def guess(self, plant, scale):
+        return {f"{m.name}.{k}": v for m in self.members for k, v in m.guess(plant, scale).items()}
+
+
 def candidate(name: str, cfg=None) -> Effect:
-    """The effect of a catalogue name or ``parameter:<dotted name>``."""
+    """The effect of a catalogue name or ``parameter:<dotted name>``, or several joined by ``+``
+    (a :class:`Combination`, fitted together)."""
+    if "+" in name:
+        return Combination([candidate(n, cfg) for n in name.split("+")])
     if name.startswith("parameter:"):
         key = name.split(":", 1)[1]
         if cfg is not None and key not in cfg and "." not in key:
