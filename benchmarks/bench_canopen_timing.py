@@ -38,15 +38,18 @@ def run(cfg, seconds, transport):
     be = CanopenBackend(cfg, lockstep=False)
     be.open()
     be.enable()
-    clock = RealTimeClock(be.cycle_time)
+    clock = RealTimeClock(be.cycle_time, priority=cfg.get("runtime.priority", 0))
     n = int(round(seconds / be.cycle_time))
     pos = be.read_feedback().x_motor
     clock.start()
-    for _ in range(n):
-        fb = be.read_feedback()
-        be.write_setpoint(Setpoint(position=pos))
-        be.sync()
-        clock.wait()
+    try:
+        for _ in range(n):
+            fb = be.read_feedback()
+            be.write_setpoint(Setpoint(position=pos))
+            be.sync()
+            clock.wait()
+    finally:
+        clock.stop()
     be.disable()
     be.close()
     lat = np.array(clock.lateness)
@@ -67,6 +70,8 @@ def main(argv=None):
     ap.add_argument("--transports", default="virtual,socketcand", help="virtual, socketcand or both (default)")
     ap.add_argument("--switch-interval", type=float, default=None, metavar="S",
                     help="sys.setswitchinterval in the host (and drive) process; default: the backend's choice")
+    ap.add_argument("--priority", type=int, default=0,
+                    help="runtime.priority: SCHED_FIFO priority of the loop thread (0 = normal scheduling)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     if args.switch_interval is not None:
@@ -75,7 +80,8 @@ def main(argv=None):
     results = []
     load = [os.getloadavg()]
     for period in [f"{1000.0 / float(r):g} ms" for r in args.rates.split(",")]:
-        over = {"control.position_period": period, "canopen.interface": "virtual", "canopen.channel": "bench"}
+        over = {"control.position_period": period, "canopen.interface": "virtual", "canopen.channel": "bench",
+                "runtime.priority": args.priority}
         cfg = config.load(ROOT / "config/paper_bench_canopen.toml", over)
         import can
         from drivers.drive_sim import DriveSim

@@ -147,6 +147,9 @@ SCHEMA: dict[str, Field] = {
                                       nonnegative=True),
     "sensors.motor_resolution": Field("length", "motor-encoder quantum in linear units; 0 = ideal", default=0.0,
                                       nonnegative=True),
+    # --- runtime -------------------------------------------------------------------------------
+    "runtime.priority": Field("int", "real-time (SCHED_FIFO) priority of the loop's thread on hardware, 1..99 "
+                              "(Linux, needs CAP_SYS_NICE); 0 = normal scheduling", default=0, nonnegative=True),
     # --- backend -------------------------------------------------------------------------------
     "backend.type": Field("str", "sim (embedded plant model), canopen, serial", default="sim"),
     "meta.name": Field("str", "a name for the axis", default=""),

@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import gc
 import math
+import os
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,17 +53,42 @@ class RealTimeClock:
     """Absolute deadlines with hybrid sleep-then-spin waiting."""
     real_time = True
 
-    def __init__(self, period: float, spin: float = 200e-6):
+    def __init__(self, period: float, spin: float = 200e-6, priority: int = 0):
         self.period = period
         self.spin = spin
+        self.priority = int(priority)
         self.k = 0
         self.t0 = 0.0
         self.lateness: list[float] = []
         self.overruns = 0
+        self._policy = None
 
     def start(self) -> None:
+        if self.priority > 0 and hasattr(os, "sched_setscheduler"):
+            # a fixed real-time priority for the loop's thread (Linux, CAP_SYS_NICE): the OS no
+            # longer preempts the cycle for ordinary work; the loop sleeps most of each period
+            # every thread of the process: the loop waits on the GIL for the bus's receive threads,
+            # and a receive thread preempted by ordinary work would stall the loop (priority inversion)
+            try:
+                tids = [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
+                self._policy = [(t, os.sched_getscheduler(t), os.sched_getparam(t)) for t in tids]
+                for t in tids:
+                    os.sched_setscheduler(t, os.SCHED_FIFO, os.sched_param(self.priority))
+            except (PermissionError, OSError) as exc:
+                self.stop()
+                warnings.warn(f"runtime.priority {self.priority}: real-time scheduling refused ({exc}); "
+                              f"running with normal priority", RuntimeWarning, stacklevel=2)
         self.t0 = time.perf_counter()
         self.k = 0
+
+    def stop(self) -> None:
+        """Back to the thread's former scheduling."""
+        for tid, policy, param in self._policy or ():
+            try:
+                os.sched_setscheduler(tid, policy, param)
+            except OSError:       # a thread that has ended meanwhile
+                pass
+        self._policy = None
 
     def wait(self) -> float:
         """Wait for the next deadline; returns how late this wake-up is (s)."""
@@ -106,12 +133,13 @@ class ControlLoop:
     a trip or a backend fault ends the run with a controlled stop (``backend.quick_stop()``)
     commanded in the same cycle."""
 
-    def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True):
+    def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True,
+                 priority: int = 0):
         self.backend = backend
         self.ctrl = ctrl
         self.p = ctrl.as_array()
         period = backend.cycle_time
-        self.clock = clock or (SimulatedClock(period) if backend.simulated else RealTimeClock(period))
+        self.clock = clock or (SimulatedClock(period) if backend.simulated else RealTimeClock(period, priority=priority))
         self.recorder = recorder
         self.supervisor = supervisor
         self.rotary = rotary
@@ -199,6 +227,8 @@ class ControlLoop:
             status, reason = "aborted", f"{type(exc).__name__}: {exc}"
             raise
         finally:
+            if hasattr(self.clock, "stop"):
+                self.clock.stop()
             if self.clock.real_time:
                 gc.unfreeze()
                 if gc_was_on:

@@ -75,7 +75,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         from .supervisor import Supervisor
         supervisor = Supervisor(cfg, real_time=not backend.simulated)
         supervisor.arm()           # refuses motion while an earlier trip is not reset
-    loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary)
+    loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary,
+                       priority=cfg.get("runtime.priority", 0))
     try:
         backend.open()
         backend.enable()
