@@ -75,12 +75,21 @@ def _ranking(d, n=4):
              "evidence": c.evidence} for c in d["candidates"][:n]]
 
 
+def _summary(d):
+    return {"verdict": d["verdict"], "ranking": _ranking(d),
+            "also_missing": [{"effect": m["effect"], "score": round(m["score"], 1), "evidence": m["evidence"]}
+                             for m in d["also_missing"]],
+            "combinations": [{k: c[k] for k in ("effects", "explains", "preferred", "score", "explained",
+                                                "rich_against_combination")} for c in d["combinations"]]}
+
+
 def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
     """The EMPS chain. Returns (replay, rows, configs, diagnoses)."""
     from .compare import Replay
     from .config import load
     from .identify import diagnose, evaluate, fit_effects, idim_ls, joint_refit
     from .importers import read_mat
+    from sim_plant.effects import candidate
     meas = read_mat(data, MAPPING)
     cfg0 = load(config)
     rp = Replay(meas, cfg0)
@@ -91,17 +100,28 @@ def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
     rows.append({"step": "start model (M, Fv)", "params": params_of(cfg0), **errors(rp, cfg0)})
     jobs = 1 if quick else None
     cands = DIAGNOSE_CANDIDATES[:4] if quick else DIAGNOSE_CANDIDATES
+    # the diagnosis names what to add: its verdict and the effects also missing beside it
+    add = ["coulomb_friction", "constant_force"]
     if diagnose_steps:
-        diags.append({"on": "start model", **_summary(diagnose(rp, cands, jobs=jobs, max_nfev=nfev))})
-    # the greedy chain the diagnosis points along: each effect fitted on top of the previous ones
-    cfg1, _ = fit_effects(rp, ["coulomb_friction"], max_nfev=nfev, progress=progress)
-    rows.append({"step": "+ coulomb_friction", "params": params_of(cfg1), **errors(rp, cfg1)})
-    rp1 = rp.with_config(cfg1)
+        d1 = diagnose(rp, cands, jobs=jobs, max_nfev=nfev)
+        diags.append({"on": "start model", **_summary(d1)})
+        if d1["verdict"] != "none":
+            add = [d1["verdict"]] + [m["effect"] for m in d1["also_missing"]]
+    # hil fit --add ... --add ...: each effect on top of the previous ones, then all jointly
+    cfg2, steps = fit_effects(rp, add, max_nfev=nfev, progress=progress)
+    cur = cfg0
+    for st in steps:
+        if "+" in st.effect:
+            label = f"{' + '.join(st.effect.split('+'))} refitted together"
+        else:
+            label = f"+ {st.effect}"
+            cur = candidate(st.effect, cur).configure(cur, st.params)
+        rows.append({"step": label, "params": params_of(st.cfg if "+" in st.effect else cur),
+                     **errors(rp, st.cfg if "+" in st.effect else cur)})
     if diagnose_steps:
-        rest = [c for c in cands if c not in ("coulomb_friction", "stribeck_friction")]
-        diags.append({"on": "+ coulomb_friction", **_summary(diagnose(rp1, rest, jobs=jobs, max_nfev=nfev))})
-    cfg2, _ = fit_effects(rp1, ["constant_force"], max_nfev=nfev, progress=progress)
-    rows.append({"step": "+ constant_force", "params": params_of(cfg2), **errors(rp, cfg2)})
+        rp2 = rp.with_config(cfg2)
+        d2 = diagnose(rp2, cands, jobs=jobs, max_nfev=nfev)
+        diags.append({"on": "+ " + " + ".join(add), **_summary(d2)})
     # the published method on the force channel (inverse model), then output error from there
     inv = idim_ls(meas.t, meas["x_motor"], meas["force"])
     cfg_inv = _with_rigid(cfg0, inv["params"])
@@ -123,10 +143,6 @@ def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
     return rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}, diags
 
 
-def _summary(d):
-    return {"verdict": d["verdict"], "ranking": _ranking(d)}
-
-
 def table_markdown(rows) -> str:
     lines = ["| step | M kg | Fv N s/m | Fc N | offset N | position % | velocity % | force % | inverse-model force % |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -144,6 +160,25 @@ def table_markdown(rows) -> str:
     lines.append(f"| **published** (Janot et al. 2019, IDIM-LS) | {PUBLISHED['M']} | {PUBLISHED['Fv']} | "
                  f"{PUBLISHED['Fc']} | {PUBLISHED['offset']} | {e['position']} | {e['velocity']} | {e['force']} | 4.08 |")
     lines.append("| **published**, asymmetric: Fc+ 20.144, Fc- 20.628, Fv+ 166.71, Fv- 240.42 | 95.154 | | | | | | | 3.11 |")
+    return "\n".join(lines)
+
+
+def diagnosis_markdown(diags) -> str:
+    """The verdict chain: per diagnosis the verdict with its evidence, the effects also missing, the
+    combination against the richer effect, and the ranking (score, * significant)."""
+    lines = []
+    for d in diags:
+        top = d["ranking"][0] if d["ranking"] else None
+        ev = f" ({top['evidence']})" if top and top["effect"] == d["verdict"] else ""
+        lines.append(f"- diagnosis on the {d['on']}: **verdict {d['verdict']}**{ev}")
+        for m in d.get("also_missing", []):
+            lines.append(f"  - also missing: **{m['effect']}** (score {m['score']:.1f} beside the verdict; {m['evidence']})")
+        for c in d.get("combinations", []):
+            lines.append(f"  - {' + '.join(c['effects'])} against {c['explains']}: {100 * c['explained']:.0f} % of its "
+                         f"gain; {c['explains']} scores {c['rich_against_combination']:.1f} against the pair -> "
+                         + ("the pair named first" if c["preferred"] else f"{c['explains']} first"))
+        lines.append("  - ranking: " + "; ".join(f"{c['effect']} {c['score']:.1f}{' *' if c['significant'] else ''}"
+                                                   for c in d["ranking"]))
     return "\n".join(lines)
 
 
@@ -182,10 +217,7 @@ def run(args) -> int:
     figs.append(error_fall_figure(rows[1:], out / "error_fall.png"))
     md = table_markdown(rows)
     chk = check_published(rows)
-    diag_md = "\n".join(
-        f"diagnosis on the {d['on']}: verdict {d['verdict']}; " + "; ".join(
-            f"{c['effect']} {c['score']:.1f}{' *' if c['significant'] else ''}" for c in d["ranking"])
-        for d in diags)
+    diag_md = diagnosis_markdown(diags)
     (out / "table.md").write_text(md + "\n\n" + diag_md + "\n", encoding="utf-8")
     write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
                  notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."] + diag_md.splitlines())

@@ -455,7 +455,14 @@ def _prefer(combo, chans=None, floor=None) -> bool:
 
 
 def _rank_single(cands: list) -> list:
+    # best score first; the same fit twice (mass_change is parameter:plant.m<table> by another name)
+    # puts the catalogue effect, which names the physics, before the parameter
     cands = sorted(cands, key=lambda c: -c.score)
+    for i in range(len(cands) - 1):
+        a, b = cands[i], cands[i + 1]
+        if a.effect.startswith("parameter:") and not b.effect.startswith("parameter:") \
+                and abs(a.score - b.score) <= 1e-6 * abs(a.score) + 0.5:
+            cands[i], cands[i + 1] = b, a
     # a preferred combination before the richer effect it mimics
     for c in [c for c in cands if isinstance(c, Combo)]:
         i, j = cands.index(c.rich), cands.index(c)
@@ -535,6 +542,10 @@ class Combo:
     @property
     def score(self):
         return self.cand.score
+
+    @property
+    def effect(self):
+        return self.cand.effect
 
     @property
     def significant(self):

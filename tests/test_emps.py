@@ -8,6 +8,8 @@ pytestmark = pytest.mark.skipif(not DATA.exists(), reason=f"EMPS record not pres
 
 
 def test_published_model_reproduces_errors():
+    # one replay, one compiled specialisation of the loop (the start model is the same model with
+    # Fc = 0 and no offset): a cold numba cache compiles the kernel once here, not twice
     from hil.cmd_emps import MAPPING, PUBLISHED, errors
     from hil.compare import Replay
     from hil.config import load
@@ -16,12 +18,41 @@ def test_published_model_reproduces_errors():
     cfg = load("config/emps.toml")
     pub = cfg.with_values({"effects.coulomb_friction.level": PUBLISHED["Fc"],
                            "effects.constant_force.force": -PUBLISHED["offset"]})
-    e = errors(Replay(m, cfg), pub)
+    rp = Replay(m, pub)
+    e = errors(rp, pub)
     assert e["position"] < PUBLISHED["errors"]["position"]
     assert e["velocity"] < 1.25 * PUBLISHED["errors"]["velocity"]
     assert e["force"] < 1.25 * PUBLISHED["errors"]["force"]
-    e0 = errors(Replay(m, cfg), cfg)
+    e0 = errors(rp, pub.with_values({"effects.coulomb_friction.level": 0.0, "effects.constant_force.force": 0.0}))
     assert e0["force"] > 4 * e["force"]      # the start model lacks the Coulomb friction
+
+
+def test_diagnosis_names_coulomb_friction_and_the_offset():
+    # issue 8: the verdict is coulomb_friction with its evidence, constant_force also missing (about
+    # -3.2 N of force residual in both directions); asymmetric_friction is compared with the pair
+    from hil.compare import Replay
+    from hil.config import load
+    from hil.identify import diagnose
+    rp = Replay(_record(), load("config/emps.toml"))
+    d = diagnose(rp, ["coulomb_friction", "constant_force", "asymmetric_friction"], jobs=1, max_nfev=15)
+    assert d["verdict"] == "coulomb_friction"
+    assert "follows sign(v), 19" in d["candidates"][0].evidence or "follows sign(v), 20" in d["candidates"][0].evidence
+    (also,) = d["also_missing"]
+    assert also["effect"] == "constant_force" and "mean of -3.2" in also["evidence"]
+    assert also["params"]["force"] == pytest.approx(-PUBLISHED_OFFSET, abs=0.5)
+    (combo,) = d["combinations"]
+    assert combo["preferred"] and combo["explains"] == "asymmetric_friction"
+    # with the pair in the model, the remainder of the asymmetric friction is judged: significant
+    cfg2 = d["candidates"][0].cfg
+    cfg2 = cfg2.with_values({"effects.coulomb_friction.level": combo["params"]["coulomb_friction.level"],
+                             "effects.constant_force.force": combo["params"]["constant_force.force"]})
+    d2 = diagnose(rp.with_config(cfg2), ["asymmetric_friction", "constant_force"], jobs=1, max_nfev=15)
+    assert d2["verdict"] == "asymmetric_friction"
+    p = d2["candidates"][0].params
+    assert p["viscous_neg"] > 1.2 * p["viscous_pos"]          # published Fv- 240.4 against Fv+ 166.7
+
+
+PUBLISHED_OFFSET = -3.1648
 
 
 def _record():
