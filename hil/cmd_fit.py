@@ -11,9 +11,12 @@ HELP = "fit one or more effects (or parameter:<key>) to a measurement and write 
 DESCRIPTION = """\
 Adds each --add effect in turn, fitting its parameters on top of the ones before, and writes the
 config with the effects' sections ([effects.<name>]) or the re-identified parameters to --out.
-Then `hil compare DATA --config OLD --after NEW` shows the error fall.
+Then `hil compare DATA --config OLD --after NEW` shows the error fall. DATA may also be the
+frf.json that `hil frf` writes: the effects are then fitted to the measured frequency responses
+(all --add fitted together, weighted by the measured uncertainty).
 
   hil fit data.csv --config config/paper_bench.toml --add parameter:plant.c2 --out fitted.toml
+  hil fit out/frf/frf.json --config config/paper_bench.toml --add parameter:plant.c2 --out fitted.toml
   hil fit DATA_EMPS.mat --config config/emps.toml --map ... --add coulomb_friction --add constant_force --out emps_fit.toml
 """
 
@@ -27,6 +30,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from .frf_fit import is_frf_file
+    if is_frf_file(args.data):
+        return _run_frequency(args)
     from .cli import UserError
     from .identify import fit_effects, joint_refit
     from sim_plant.effects import candidate
@@ -54,5 +60,31 @@ def run(args) -> int:
             print(f"{s.effect}: " + ", ".join(f"{k} = {v:.6g}" for k, v in s.params.items()))
         for c in rp.channels:
             print(f"  {c}: RMS {before[c]:.4g} -> {after[c]:.4g}")
+        print(f"wrote {args.out}")
+    return 0
+
+
+def _run_frequency(args) -> int:
+    """``hil fit frf.json``: the same effects fitted to measured frequency responses."""
+    from .cli import UserError
+    from .config import load, parse_assignment
+    from .frf_fit import FrfDataError, fit_frf, load_frf
+    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    try:
+        data = load_frf(args.data)
+        fit = fit_frf(cfg, data, args.add)
+    except (FrfDataError, KeyError) as exc:
+        raise UserError(str(exc).strip("'\"")) from None
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(f"# fitted by hil fit on {args.data} (frequency responses): {', '.join(args.add)}\n"
+                              + fit.config.to_toml(), encoding="utf-8")
+    out = {"config": args.out, "domain": "frequency", "effect": fit.effect, "params": fit.params,
+           "error_before": fit.error_before, "error_after": fit.error_after, "per_response": fit.per_response}
+    if args.json:
+        print(json.dumps(out, indent=1))
+    else:
+        print(f"{fit.effect}: " + ", ".join(f"{k} = {v:.6g}" for k, v in fit.params.items()))
+        for name, e in fit.per_response.items():
+            print(f"  {name}: rms log error {e['before']:.4g} -> {e['after']:.4g}")
         print(f"wrote {args.out}")
     return 0
