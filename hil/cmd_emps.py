@@ -97,7 +97,7 @@ def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
     rows, diags = [], []
     pub = _with_rigid(cfg0, PUBLISHED)
     rows.append({"step": "published reference (our loop)", "params": params_of(pub), **errors(rp, pub)})
-    rows.append({"step": "start model (M, Fv)", "params": params_of(cfg0), **errors(rp, cfg0)})
+    rows.append({"step": "start model (M, Fv)", "short": "start model", "params": params_of(cfg0), **errors(rp, cfg0)})
     jobs = 1 if quick else None
     cands = DIAGNOSE_CANDIDATES[:4] if quick else DIAGNOSE_CANDIDATES
     # the diagnosis names what to add: its verdict and the effects also missing beside it
@@ -116,20 +116,29 @@ def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
         else:
             label = f"+ {st.effect}"
             cur = candidate(st.effect, cur).configure(cur, st.params)
-        rows.append({"step": label, "params": params_of(st.cfg if "+" in st.effect else cur),
+        rows.append({"step": label, "short": "joint refit" if "+" in st.effect else label,
+                     "params": params_of(st.cfg if "+" in st.effect else cur),
                      **errors(rp, st.cfg if "+" in st.effect else cur)})
     if diagnose_steps:
+        # the next diagnosis, with the pair in the model: is the asymmetry of the friction significant?
         rp2 = rp.with_config(cfg2)
         d2 = diagnose(rp2, cands, jobs=jobs, max_nfev=nfev)
         diags.append({"on": "+ " + " + ".join(add), **_summary(d2)})
+        if d2["verdict"] != "none":
+            top = d2["candidates"][0]
+            rows.append({"step": f"+ {top.effect} (the next verdict, fitted on top)", "short": f"+ {top.effect}",
+                         "params": params_of(top.cfg), **errors(rp, top.cfg)})
+            # and whatever else the residual still shows
+            d3 = diagnose(rp.with_config(top.cfg), [c for c in cands if c != top.effect], jobs=jobs, max_nfev=nfev)
+            diags.append({"on": f"+ {' + '.join(add)} + {top.effect}", **_summary(d3)})
     # the published method on the force channel (inverse model), then output error from there
     inv = idim_ls(meas.t, meas["x_motor"], meas["force"])
     cfg_inv = _with_rigid(cfg0, inv["params"])
-    rows.append({"step": "IDIM-LS on the force (inverse model)", "params": params_of(cfg_inv),
+    rows.append({"step": "IDIM-LS on the force (inverse model)", "short": "IDIM-LS", "params": params_of(cfg_inv),
                  "inverse_force": inv["relative_error"], **errors(rp, cfg_inv)})
     keys = ["plant.m1", "friction.viscous", "effects.coulomb_friction.level", "effects.constant_force.force"]
     cfg3 = joint_refit(rp.with_config(cfg_inv), cfg_inv, keys, max_nfev=nfev)
-    rows.append({"step": "output-error refit of M, Fv, Fc, offset", "params": params_of(cfg3), **errors(rp, cfg3)})
+    rows.append({"step": "output-error refit of M, Fv, Fc, offset", "short": "OE refit M, Fv, Fc, offset", "params": params_of(cfg3), **errors(rp, cfg3)})
     # asymmetric friction: its inverse model as the start, then output error on top of the fit
     inv2 = idim_ls(meas.t, meas["x_motor"], meas["force"], asymmetric=True)
     q = inv2["params"]
@@ -138,7 +147,7 @@ def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
              "viscous_pos": q["Fv+"], "viscous_neg": q["Fv-"]}
     c4 = evaluate(rp.with_config(cfg3), "asymmetric_friction", max_nfev=nfev, start=start)
     cfg4 = c4.cfg
-    rows.append({"step": "+ asymmetric_friction", "params": params_of(cfg4), "inverse_force": inv2["relative_error"],
+    rows.append({"step": "+ asymmetric_friction", "short": "+ asymmetric (IDIM start)", "params": params_of(cfg4), "inverse_force": inv2["relative_error"],
                  "inverse_params": q, **errors(rp, cfg4)})
     return rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}, diags
 

@@ -312,8 +312,8 @@ def _evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, 
             vm = v[moving]
             p = (vm > 0).astype(float)
             cp, *_ = np.linalg.lstsq(np.column_stack([p, 1 - p, vm * p, vm * (1 - p)]), rf[moving], rcond=None)
-            return (f"{fch} residual differs per direction: {cp[0]:.3g} {fu} + {cp[2]:.3g} {fu} per m/s moving +, "
-                    f"{cp[1]:.3g} {fu} + {cp[3]:.3g} {fu} per m/s moving -; " + fall)
+            return (f"{fch} residual differs per direction: level {cp[0]:.3g} {fu} and slope {cp[2]:.3g} {fu} per m/s "
+                    f"moving +, level {cp[1]:.3g} {fu} and slope {cp[3]:.3g} {fu} per m/s moving -; " + fall)
         return f"{fch} residual follows sign(v), {abs(coef[0]):.3g} {fu}; " + fall
     if eff_name in ("pitch_error", "torque_ripple"):
         r = res0["x_motor"] - res0["x_table"] if (eff_name == "pitch_error" and "x_table" in res0) else res0[chan]
@@ -461,7 +461,7 @@ def _rank_single(cands: list) -> list:
     for i in range(len(cands) - 1):
         a, b = cands[i], cands[i + 1]
         if a.effect.startswith("parameter:") and not b.effect.startswith("parameter:") \
-                and abs(a.score - b.score) <= 1e-6 * abs(a.score) + 0.5:
+                and abs(a.score - b.score) <= 1e-4 * abs(a.score) + 0.05:
             cands[i], cands[i + 1] = b, a
     # a preferred combination before the richer effect it mimics
     for c in [c for c in cands if isinstance(c, Combo)]:

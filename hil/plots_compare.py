@@ -81,11 +81,13 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
 def error_fall_figure(rows: list[dict], out: Path, keys=("position", "velocity", "force")) -> Path:
     """Bar chart of the relative errors per added effect (rows: {"step", key: %})."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(8, 3.5))
+    fig, ax = plt.subplots(figsize=(9, 4.2))
     x = np.arange(len(rows))
     for i, k in enumerate(keys):
         ax.bar(x + (i - 1) * 0.27, [r[k] for r in rows], 0.27, label=f"{k} error %")
-    ax.set_xticks(x, [r["step"] for r in rows], rotation=15, fontsize=7)
+    ax.set_xticks(x, [r.get("short", r["step"]) for r in rows], rotation=30, ha="right", fontsize=7)
+    ax.set_ylabel("relative 2-norm error %")
+    ax.grid(axis="y", which="both", alpha=0.3)
     ax.set_yscale("log")
     ax.legend(fontsize=7)
     fig.tight_layout()
