@@ -103,3 +103,17 @@ def test_output_error_fit_lands_on_the_published_values():
     e = errors(rp, fit)
     for k in ("position", "velocity", "force"):
         assert e[k] <= PUBLISHED["errors"][k]
+
+
+def test_cli_diagnose_json_names_the_pair(capsys):
+    # the JSON: candidates ranked, verdict; also_missing beside the verdict
+    import json
+    from hil.cli import main
+    rc = main(["diagnose", str(DATA), "--config", "config/emps.toml", "--map", "t=t,qg=x_cmd,qm=x_motor,vir*gtau=force",
+               "--candidates", "coulomb_friction,constant_force,asymmetric_friction", "--jobs", "1", "--json"])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["verdict"] == "coulomb_friction" == d["candidates"][0]["effect"]
+    assert {"effect", "params", "channel", "error_before", "error_after", "score", "evidence"} <= set(d["candidates"][0])
+    assert [m["effect"] for m in d["also_missing"]] == ["constant_force"]
+    assert d["combinations"][0]["preferred"]
