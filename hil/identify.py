@@ -36,7 +36,7 @@ __all__ = ["Candidate", "fit_effects", "diagnose", "MIN_SCORE", "bic_score", "ef
 
 MIN_SCORE = 6.0          # a BIC difference above 6: "strong" evidence (Kass and Raftery)
 SIGNIFICANT_ABOVE_NOISE = 1.2
-EXPLAINED = 0.9          # a combination of simpler effects explaining this share of a richer one's gain goes first
+EXPLAINED = 0.8          # a combination of simpler effects explaining this share of a richer one's gain goes first
 
 
 @dataclass
