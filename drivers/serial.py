@@ -1,7 +1,7 @@
 """Servo drives with an ASCII command interface over RS-232 / RS-485 (pyserial).
 
 The command set is configuration (``[serial]``, see :mod:`drivers.serial_protocol`,
-``config/serial_ascii_example.toml`` and ``docs/serial.md``); a user adapts the backend to a drive
+``config/serial_ascii_example.toml`` and the README (Serial drives)); a user adapts the backend to a drive
 without writing code.
 
 One cycle is two transactions, each one command line and one reply line: ``read`` (positions,

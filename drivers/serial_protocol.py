@@ -1,7 +1,7 @@
 """The command set of an ASCII serial drive, described in configuration, and its reply parser.
 
 A command set is data (the ``[serial]`` section of the axis configuration, see
-``config/serial_ascii_example.toml`` and ``docs/serial.md``):
+``config/serial_ascii_example.toml`` and the README (Serial drives)):
 
 * ``serial.commands.<op>``: the template of each operation, a Python format string whose fields
   are whole numbers in drive units: ``{position}`` (counts), ``{speed}`` (counts/s),

@@ -62,7 +62,7 @@ def _record():
 
 
 def test_vir_is_the_law_of_the_same_sample():
-    # vir(k) = kp kv (qg(k) - qm(k)) - kv dq(k): recorded before any delay (docs/emps.md)
+    # vir(k) = kp kv (qg(k) - qm(k)) - kv dq(k): recorded before any delay (README, EMPS end to end)
     import numpy as np
     import scipy.io
     d = scipy.io.loadmat(DATA)
