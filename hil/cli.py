@@ -63,6 +63,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # the bus libraries log what the backends already report as one clear line (e.g. an SDO
+    # transfer aborted because no drive answers): keep their logs for --debug users of the API
+    import logging
+    logging.getLogger("canopen").setLevel(logging.CRITICAL)
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):

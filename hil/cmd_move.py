@@ -100,6 +100,8 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rec = run_trajectory(cfg, traj, backend=backend, out_file=out / "move.csv", settle=0.0, check=False)
     ch = rec.channels
+    if len(ch["t"]) < 2:
+        raise UserError(f"the move did not start on {backend.name}: {rec.status}: {rec.reason}")
     band = parse(args.band, "length", "--band")
     t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
         traj.segments[1], "stroke") else 0.0)

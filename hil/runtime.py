@@ -86,7 +86,12 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     finally:
         _shutdown(backend)
     rec.close(result.status, result.reason, {"loop": result.clock, "supervisor": getattr(supervisor, "record", {})})
-    chans = rec.channels() if isinstance(rec, _MemoryRecorder) else read_measurement(out_file).channels
+    if isinstance(rec, _MemoryRecorder):
+        chans = rec.channels()
+    elif rec.rows >= 2:
+        chans = read_measurement(out_file).channels
+    else:                  # stopped before it moved (e.g. the drive did not answer at start-up)
+        chans = {n: np.zeros(0) for n in names}
     return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock)
 
 
