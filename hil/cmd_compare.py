@@ -1,9 +1,9 @@
 """``hil compare``: replay a measurement through the model and show where it fails."""
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
+
+from .jsonout import dumps
 
 HELP = "model against measurement: errors per channel and motion phase, residual analysis, plots, HTML report"
 DESCRIPTION = """\
@@ -77,7 +77,7 @@ def run(args) -> int:
     figs = comparison_figures(a, out, after=b)
     rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b)
     if args.json:
-        print(json.dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
+        print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
                           "figures": [str(f) for f in figs]}, indent=1))
     else:
         for c, d in a["channels"].items():

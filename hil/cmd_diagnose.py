@@ -1,11 +1,10 @@
 """``hil diagnose``: which physical effect is the model missing?"""
 from __future__ import annotations
 
-import json
 import sys
-from pathlib import Path
 
 from .cmd_compare import add_common, load_inputs, make_replay
+from .jsonout import dumps
 
 HELP = "rank the catalogue's effects by how much of the model error each explains"
 DESCRIPTION = """\
@@ -56,7 +55,7 @@ def run(args) -> int:
     if bar is not None:
         bar.close()
     if args.json:
-        print(json.dumps(candidates_json(d), indent=1))
+        print(dumps(candidates_json(d), indent=1))
         return 0
     print(f"verdict: {d['verdict'] if d['verdict'] != 'none' else 'none (no significant missing effect)'}")
     for i, c in enumerate(d["candidates"]):

@@ -2,12 +2,12 @@
 from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
-import json
 import sys
 import threading
 import time
 
 from .cli import UserError
+from .jsonout import dumps
 
 HELP = "run the simulated CiA 402 drive on a socketcand server on 127.0.0.1 (for --backend canopen)"
 DESCRIPTION = """Run the simulated CiA 402 servo drive (the config's plant as its shaft, the object
@@ -83,7 +83,7 @@ def run(args) -> int:
     sets = (f"--set canopen.interface=socketcand --set canopen.channel={args.channel} "
             f"--set canopen.port={bus.port}")
     if args.json:
-        print(json.dumps(info), flush=True)
+        print(dumps(info), flush=True)
     else:
         tip = f", tip sensor node {sim.tip_sensor.node_id}" if sim.tip_sensor else ""
         print(f"simulated CiA 402 drive, node {sim.node_id}{tip}, on socketcand 127.0.0.1:{bus.port} "

@@ -1,11 +1,12 @@
 """``hil emps``: the EMPS benchmark end to end, against its published reference model."""
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from .jsonout import dumps
 
 HELP = "EMPS record: effects added one by one, fitted parameters and errors beside the published reference"
 DESCRIPTION = """\
@@ -237,7 +238,7 @@ def run(args) -> int:
         for f in figs:
             shutil.copy(f, d / f"emps_{Path(f).name}")
     if args.json:
-        print(json.dumps({"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out)},
+        print(dumps({"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out)},
                          indent=1, default=float))
     else:
         print(md)

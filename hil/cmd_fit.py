@@ -1,11 +1,11 @@
 """``hil fit``: add effects with fitted parameters and write the new config."""
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 from .cmd_compare import add_common, load_inputs, make_replay
+from .jsonout import dumps
 
 HELP = "fit one or more effects (or parameter:<key>) to a measurement and write the new config"
 DESCRIPTION = """\
@@ -54,7 +54,7 @@ def run(args) -> int:
                               encoding="utf-8")
     out = {"config": args.out, "steps": [s.as_json() for s in steps], "error_before": before, "error_after": after}
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(dumps(out, indent=1))
     else:
         for s in steps:
             print(f"{s.effect}: " + ", ".join(f"{k} = {v:.6g}" for k, v in s.params.items()))
@@ -81,7 +81,7 @@ def _run_frequency(args) -> int:
     out = {"config": args.out, "domain": "frequency", "effect": fit.effect, "params": fit.params,
            "error_before": fit.error_before, "error_after": fit.error_after, "per_response": fit.per_response}
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(dumps(out, indent=1))
     else:
         print(f"{fit.effect}: " + ", ".join(f"{k} = {v:.6g}" for k, v in fit.params.items()))
         for name, e in fit.per_response.items():

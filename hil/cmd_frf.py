@@ -1,12 +1,11 @@
 """``hil frf``: measure the axis's frequency responses, set them against the model, tune."""
 from __future__ import annotations
 
-import json
 import math
-import sys
 from pathlib import Path
 
-import numpy as np
+from .jsonout import dumps
+
 
 HELP = "measure frequency responses (TF1', TF2, TF3, velocity and position loops) against the model"
 DESCRIPTION = """\
@@ -192,13 +191,13 @@ def run(args) -> int:
         paths["coherence"] = str(out / "coherence.png")
         fig.savefig(paths["coherence"], dpi=110)
         plt.close(fig)
-        (out / "frf.json").write_text(json.dumps(report, default=_jsonable))
+        (out / "frf.json").write_text(dumps(report, indent=None))
         (out / "config_diff.txt").write_text(_diff_text(result) + "\n")
         report["plots"] = paths
     except OSError as exc:
         raise UserError(f"--out {args.out}: cannot write ({exc.strerror or exc})") from None
     if args.json:
-        print(json.dumps(report, default=_jsonable))
+        print(dumps(report, indent=None))
     else:
         print(_text(result, report))
     return 0
@@ -253,10 +252,3 @@ def _text(result, report) -> str:
         lines.append("plots: " + ", ".join(report["plots"].values()))
     return "\n".join(lines)
 
-
-def _jsonable(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return str(x)

@@ -1,9 +1,9 @@
 """``hil home``: CiA 402 homing (mode 6) on the drive."""
 from __future__ import annotations
 
-import json
 
 from .units import parse
+from .jsonout import dumps
 
 HELP = "home the CANopen drive (homing mode 6; method 37: the present position becomes --offset)"
 DESCRIPTION = """Home the drive: homing mode (6) with the method given (default 37, CiA 402 'homing
@@ -35,6 +35,6 @@ def run(args) -> int:
         raise UserError(exc.reason) from None
     finally:
         be.close()
-    print(json.dumps(out, indent=2) if args.json else
+    print(dumps(out, indent=2) if args.json else
           f"homed (method {out['method']}): position {out['position_m'] * 1e3:.4f} mm")
     return 0

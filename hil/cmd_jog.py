@@ -1,9 +1,9 @@
 """``hil jog``: a short relative move from where the axis is, supervised."""
 from __future__ import annotations
 
-import json
 
 from .units import parse
+from .jsonout import dumps
 
 HELP = "jog the axis by a distance from its present position (CANopen backend, supervised)"
 DESCRIPTION = """Move the axis by --distance from where it stands, at --speed with --amax, through the
@@ -49,6 +49,6 @@ def run(args) -> int:
         raise UserError(str(exc)) from None
     rec = run_trajectory(cfg, traj, backend=CanopenBackend(cfg), settle=0.0, supervisor=sup, check=False)
     out = {"start_m": start, "end_m": float(rec["x_table"][-1]), "status": rec.status, "reason": rec.reason}
-    print(json.dumps(out, indent=2) if args.json else
+    print(dumps(out, indent=2) if args.json else
           f"jog {start * 1e3:.3f} -> {out['end_m'] * 1e3:.3f} mm: {rec.status} {rec.reason}".rstrip())
     return 0 if rec.status == "complete" else 1

@@ -1,12 +1,13 @@
 """``hil model``: the plant model of a configuration: parameters, modes, damping, Bode plots."""
 from __future__ import annotations
 
-import json
 import math
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from .jsonout import dumps
 
 HELP = "model summary: modes, damping ratios, Bode plots of TF1, TF2, TF3"
 DESCRIPTION = """\
@@ -128,18 +129,11 @@ def run(args) -> int:
         else:
             report["closed_loop"] = closed_loop_report(cfg, Path(args.out))
     if args.json:
-        print(json.dumps(report, indent=2, default=_jsonable))
+        print(dumps(report, indent=2))
     else:
         print(_text(report))
         if "closed_loop" in report:
             cl = report["closed_loop"]
-            print(cl if isinstance(cl, str) else json.dumps(cl, indent=2, default=_jsonable))
+            print(cl if isinstance(cl, str) else dumps(cl, indent=2))
     return 0
 
-
-def _jsonable(x):
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return str(x)

@@ -1,8 +1,6 @@
 """``hil move``: one sine-square move (optionally back again), checked against the limits first."""
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 from . import config as config_mod
@@ -10,6 +8,7 @@ from .analysis import move_figures
 from .cli import UserError
 from .profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
 from .units import parse
+from .jsonout import dumps
 
 HELP = "run a sine-square move on the backend (the simulated plant by default)"
 DESCRIPTION = """Run one jerk-limited sine-square move (Eq. 15-16 of the paper), record it and report
@@ -86,7 +85,7 @@ def run(args) -> int:
     if args.check:
         summary = {"ok": True, "j_max": first.j_max, "a_max": first.a_max, "peak_speed": first.peak_speed,
                    "duration": traj.duration, "reduced_peak_speed": first.reduced}
-        print(json.dumps(summary, indent=2) if args.json else
+        print(dumps(summary, indent=2) if args.json else
               f"move fits the limits: j_max {first.j_max:.4g} m/s^3, a_max {first.a_max:.4g} m/s^2, "
               f"peak speed {first.peak_speed * 60e3:.0f} mm/min, duration {traj.duration:.3f} s")
         return 0
@@ -114,7 +113,7 @@ def run(args) -> int:
     summary = dict(fig.as_dict(), status=rec.status, reason=rec.reason, record=str(rec.path), plot=str(png),
                    backend=backend.name)
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(dumps(summary, indent=2))
     else:
         st = lambda v: "not settled" if v is None else f"{v * 1e3:.1f} ms"  # noqa: E731
         print(f"move {first.stroke * 1e3:g} mm at {first.peak_speed * 60e3:.0f} mm/min on {backend.name}: "

@@ -1,7 +1,8 @@
 """``hil reset``: CiA 402 fault reset on the drive and the supervisor's latch cleared."""
 from __future__ import annotations
 
-import json
+
+from .jsonout import dumps
 
 HELP = "reset a drive fault (controlword bit 7) and clear the supervisor's latched trip"
 DESCRIPTION = """Send FAULT RESET (controlword 0x0080, rising edge) to the drive and clear the
@@ -32,6 +33,6 @@ def run(args) -> int:
             out["state"] = be.fault_reset()
         finally:
             be.close()
-    print(json.dumps(out, indent=2) if args.json else
+    print(dumps(out, indent=2) if args.json else
           "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in out.items()))
     return 0 if out.get("state", "SWITCH ON DISABLED") != "FAULT" else 1

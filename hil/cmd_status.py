@@ -1,9 +1,9 @@
 """``hil status``: the CiA 402 drive's state, position and last faults (no configuration, no motion)."""
 from __future__ import annotations
 
-import json
 
 from .cli import UserError
+from .jsonout import dumps
 
 HELP = "show the CANopen drive's state, position, error code and recent EMCY (no motion)"
 DESCRIPTION = """Connect to the drive (the config's [canopen] section, or --set canopen.*) without
@@ -21,7 +21,6 @@ def add_arguments(p) -> None:
 
 
 def connect(args):
-    from drivers.base import BackendFault
     from drivers.canopen import CanopenBackend
     from .cmd_move import load_config
     cfg = load_config(args)
@@ -48,7 +47,7 @@ def run(args) -> int:
     sup = Supervisor(cfg)
     st["supervisor"] = {"tripped": sup.tripped, "reason": sup.reason}
     if args.json:
-        print(json.dumps(st, indent=2))
+        print(dumps(st, indent=2))
     else:
         print(f"node {st['node']} ({st['nmt']}): {st['state']} (statusword {st['statusword']}), mode {st['mode']}")
         print(f"  position {st['position_m'] * 1e3:.4f} mm (motor), table {st['table_m'] * 1e3:.4f} mm, "

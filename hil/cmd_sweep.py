@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import csv
-import json
-import math
 import re
-import sys
 from pathlib import Path
+
+from .jsonout import dumps
 
 HELP = "jerk sweep: overshoot vs. jerk, the largest safe jerk for a tolerance, 2-dof vs. 3-dof"
 DESCRIPTION = """\
@@ -222,17 +221,6 @@ def _text(r: dict) -> str:
     return "\n".join(lines)
 
 
-def _jsonable(x):
-    import numpy as np
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return str(x)
-
-
 def run(args) -> int:
     from .cli import UserError
     from .config import load, parse_assignment
@@ -283,9 +271,9 @@ def run(args) -> int:
         plt.close(fig)
         files["plot"] = str(out / "sweep.png")
     report["files"] = files
-    (out / "sweep.json").write_text(json.dumps(report, indent=2, default=_jsonable))
+    (out / "sweep.json").write_text(dumps(report, indent=2))
     if args.json:
-        print(json.dumps(report, indent=2, default=_jsonable))
+        print(dumps(report, indent=2))
     else:
         print(_text(report))
     return 0

@@ -1,7 +1,8 @@
 """``hil synth``: write a measurement file of a richer plant with a hidden effect."""
 from __future__ import annotations
 
-import json
+
+from .jsonout import dumps
 
 HELP = "synthetic measurement with a hidden effect (0.5 um quantization, noise, 4 ms sampling)"
 DESCRIPTION = """\
@@ -45,5 +46,5 @@ def run(args) -> int:
     write(args.out, ch, {"sample_period": f"{args.sample_period} s", "config": args.config,
                          "hidden_effect": truth["effect"], "seed": args.seed})
     info = {"out": args.out, "effect": truth["effect"], "params": truth["params"], "samples": int(ch["t"].size)}
-    print(json.dumps(info) if args.json else f"wrote {args.out}: hidden {truth['effect']} {truth['params']}")
+    print(dumps(info) if args.json else f"wrote {args.out}: hidden {truth['effect']} {truth['params']}")
     return 0

@@ -4,6 +4,8 @@ Plotting only; the transfer functions come from :mod:`sim_plant.transfer`.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 __all__ = ["bode_figure"]

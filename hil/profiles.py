@@ -194,7 +194,6 @@ class Trajectory:
         t = np.asarray(t, float)
         out = np.zeros_like(t) + (self.start if what == "position" else 0.0)
         t0 = 0.0
-        pos = self.start
         for seg in self.segments:
             if isinstance(seg, SineSquareMove):
                 inside = (t >= t0) & (t <= t0 + seg.duration)
@@ -202,7 +201,6 @@ class Trajectory:
                 out = np.where(inside, getattr(seg, what)(t - t0), out)
                 if what == "position":
                     out = np.where(after, seg.end, out)
-                pos = seg.end
             t0 += seg.duration
         return out
 
@@ -267,7 +265,6 @@ def _fit_hint(move: SineSquareMove, which: str, lim: AxisLimits) -> str:
 def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
     """Refuse a trajectory that would break a limit of the axis, before any motion."""
     problems = []
-    pos = traj.start
     for i, seg in enumerate(traj.segments):
         if not isinstance(seg, SineSquareMove):
             continue
@@ -289,6 +286,5 @@ def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
             if value > limit * (1 + 1e-9):
                 problems.append(f"{label}: {which} {value:.4g} {unit} exceeds limits.{which} {limit:g} {unit} "
                                 f"by {(value / limit - 1) * 100:.1f} %; {_fit_hint(seg, which, lim)}")
-        pos = seg.end
     if problems:
         raise LimitError("move refused before motion: " + "; ".join(problems))

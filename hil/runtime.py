@@ -7,7 +7,6 @@ measurement format as it goes.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 

@@ -160,7 +160,6 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     saturated = False
     countdown = 1                  # velocity steps until the next recorded sample
     rec = 0
-    step = 0
     w_ref = 0.0
     a_cmd = 0.0
     for k in range(K):
