@@ -14,6 +14,7 @@ import sys
 from drivers import BackendError
 from drivers.base import BackendFault
 
+from .closed_loop import UnstableLoopError
 from .config import ConfigError
 from .measurement import MeasurementError
 from .profiles import LimitError
@@ -74,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
-    except (ConfigError, UnitError, UserError, MeasurementError, BackendError, LimitError, SupervisorTripped) as exc:
+    except (ConfigError, UnitError, UserError, MeasurementError, BackendError, LimitError, SupervisorTripped,
+            UnstableLoopError) as exc:
         print(f"hil {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except BackendFault as exc:

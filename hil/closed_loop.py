@@ -128,3 +128,31 @@ def closed_loop_report(cfg, out_dir=None) -> dict:
         from .plots_model import closed_loop_figure
         rep["plot"] = str(closed_loop_figure(r, out_dir))
     return rep
+
+
+class UnstableLoopError(ValueError):
+    """A loop configuration that the model shows unstable; refused before motion."""
+
+
+def loop_stability(cfg) -> tuple[bool, float] | None:
+    """(stable, spectral radius) of the configured cascade on the model, lifted exactly to the
+    position period; None where the lifted model does not cover the configuration (a speed
+    estimated from position, or a computation delay)."""
+    if cfg.get("control.velocity_feedback", "motor_speed") != "motor_speed" or cfg.get("control.output_delay", 0):
+        return None
+    r = closed_loop_response(cfg, [1.0])
+    return r.stable, r.spectral_radius
+
+
+def check_loop_stability(cfg) -> None:
+    """Refuse a loop configuration whose closed loop the model shows unstable."""
+    res = loop_stability(cfg)
+    if res is None or res[0]:
+        return
+    tv, tp = cfg["control.velocity_period"], cfg["control.position_period"]
+    raise UnstableLoopError(
+        f"loop configuration refused: the model's closed loop is unstable (spectral radius {res[1]:.3g} > 1 "
+        f"per position period) with control.velocity_period {tv * 1e3:g} ms, control.position_period "
+        f"{tp * 1e3:g} ms, control.kp {cfg['control.kp']:g}, control.ti {cfg['control.ti']:g} s, control.kv "
+        f"{cfg['control.kv']:g} 1/s; a shorter velocity period or lower gains would fit ('hil model "
+        f"--closed-loop' shows the loop)")

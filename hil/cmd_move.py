@@ -5,6 +5,7 @@ from pathlib import Path
 
 from . import config as config_mod
 from .analysis import move_figures
+from .closed_loop import UnstableLoopError, check_loop_stability
 from .cli import UserError
 from .profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
 from .units import parse
@@ -79,7 +80,8 @@ def run(args) -> int:
     traj = build_trajectory(args, cfg)
     try:
         check_limits(traj, AxisLimits.from_config(cfg))
-    except LimitError as exc:
+        check_loop_stability(cfg)
+    except (LimitError, UnstableLoopError) as exc:
         raise UserError(str(exc)) from None
     first = traj.moves[0]
     if args.check:

@@ -16,6 +16,7 @@ from drivers import open_backend
 from drivers.base import BackendFault
 from drivers.sim import SimulatedPlant
 
+from .closed_loop import check_loop_stability
 from .control import controller_from_config
 from .loop import ControlLoop, LoopResult
 from .measurement import read as read_measurement
@@ -49,6 +50,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     and record every position tick."""
     if check:
         check_limits(traj, AxisLimits.from_config(cfg))
+        check_loop_stability(cfg)
     tp = cfg["control.position_period"]
     t, x_cmd = traj.sample(tp, settle)
     backend = backend if backend is not None else open_backend(cfg)
