@@ -14,6 +14,7 @@ A configuration switches an effect on by giving its section, e.g.::
 from __future__ import annotations
 
 import dataclasses
+from abc import ABC, abstractmethod
 import math
 import re
 from dataclasses import dataclass
@@ -38,14 +39,15 @@ class Param:
     doc: str
 
 
-class Effect:
+class Effect(ABC):
     """Base class of the catalogue's effects."""
     name: str = ""
     description: str = ""
     params: tuple[Param, ...] = ()
 
-    def apply(self, plant: Plant, values: dict[str, float]) -> Plant:  # pragma: no cover - interface
-        raise NotImplementedError
+    @abstractmethod
+    def apply(self, plant: Plant, values: dict[str, float]) -> Plant:
+        """The plant with this effect's contribution (new masses, links, friction or force terms)."""
 
     nests: tuple = ()          # simpler catalogue effects this one contains (ranking prefers those)
     # combinations of simpler catalogue effects that can do (part of) this effect's work, e.g.
