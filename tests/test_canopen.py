@@ -3,7 +3,6 @@
 against canopen's own BaseNode402 tables, the full start-up, a move in each mode, homing,
 status, EMCY decoding, fault reset, shutdown; and the separate-process transport (socketcand
 protocol on 127.0.0.1)."""
-import itertools
 import math
 import socket
 
@@ -19,19 +18,10 @@ from hil import config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 
-_ids = itertools.count()
-
+from canopen_rig import channel, rig
 
 def _rig(mode="csp", **ov):
-    over = {"canopen.lockstep": True}
-    if mode == "cst":
-        over["control.velocity_period"] = "1 ms"
-    over.update(ov)
-    cfg = config.load("config/paper_bench_canopen.toml", over)
-    ch = f"co{next(_ids)}"
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
-    be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), mode=mode, lockstep=True)
-    return cfg, sim, be
+    return rig(mode, prefix="co", **ov)
 
 
 # -- the CiA 402 tables against canopen's ------------------------------------------------------------
@@ -211,7 +201,7 @@ def test_drive_over_socketcand_on_loopback():
 def _drive_on_channel(**ov):
     """A lockstep simulated drive on its own virtual channel, and the config whose canopen section
     points at it: every backend that config opens (one per run) reaches this drive."""
-    ch = f"co{next(_ids)}"
+    ch = channel("co")
     over = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch}
     over.update(ov)
     cfg = config.load("config/paper_bench_canopen.toml", over)
@@ -329,7 +319,7 @@ def test_tip_sensor_preset_at_homing_and_wrong_node():
     # node 3 answers nothing: the start-up says which node is missing
     cfg = config.load("config/paper_bench_canopen.toml", {"canopen.lockstep": True, "canopen.tip_node_id": 3,
                                                             "canopen.sdo_timeout": 0.05})
-    ch = f"co{next(_ids)}"
+    ch = channel("co")
     sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True, tip_node_id=0)
     be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     try:

@@ -1,35 +1,21 @@
 """Each injected fault against the simulated CiA 402 drive on python-can's virtual bus (lockstep,
 simulated time): the supervisor's reaction time in cycles, the stop, the recorded reason, the
 intact recording."""
-import itertools
 import json
 import math
 
-import can
 import pytest
 
 from drivers.base import Setpoint
-from drivers.canopen import CanopenBackend
-from drivers.drive_sim import DriveSim
-from hil import config
 from hil.measurement import read as read_measurement
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
+
+from canopen_rig import rig
 from hil.supervisor import Supervisor, SupervisorTripped
 
-_ids = itertools.count()
-
-
 def _rig(mode="csp", **ov):
-    over = {"canopen.lockstep": True}
-    if mode == "cst":
-        over["control.velocity_period"] = "1 ms"
-    over.update(ov)
-    cfg = config.load("config/paper_bench_canopen.toml", over)
-    ch = f"sup{next(_ids)}"
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
-    be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), mode=mode, lockstep=True)
-    return cfg, sim, be
+    return rig(mode, prefix="sup", **ov)
 
 
 class Injector(Supervisor):
