@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from drivers.base import Setpoint  # noqa: E402
-from drivers.canopen import CanopenBackend  # noqa: E402
+from drivers.canopen.backend import CanopenBackend  # noqa: E402
 from hil import config  # noqa: E402
 from hil.loop import RealTimeClock  # noqa: E402
 
@@ -84,7 +84,7 @@ def main(argv=None):
                 "runtime.priority": args.priority}
         cfg = config.load(ROOT / "config/paper_bench_canopen.toml", over)
         import can
-        from drivers.drive_sim import DriveSim
+        from drivers.canopen.drive_sim import DriveSim
         if "virtual" in transports:
             sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="bench"), lockstep=False)
             try:

@@ -21,9 +21,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from drivers.base import Setpoint  # noqa: E402
-from drivers.serial import SerialBackend  # noqa: E402
-from drivers.serial_protocol import CommandSet, render_reply  # noqa: E402
-from drivers.serial_sim import SimulatedSerialDrive  # noqa: E402
+from drivers.serial.backend import SerialBackend  # noqa: E402
+from drivers.serial.protocol import CommandSet, render_reply  # noqa: E402
+from drivers.serial.drive_sim import SimulatedSerialDrive  # noqa: E402
 from hil.config import load  # noqa: E402
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import importlib
 
-from .base import LOOPS, Backend, BackendFault, Feedback, Setpoint
+from drivers.base import LOOPS, Backend, BackendFault, Feedback, Setpoint
 
 # backend type -> "module:class"; each class is built as cls(cfg, **options)
 BACKENDS = {
     "sim": "drivers.sim:SimulatedPlant",
-    "canopen": "drivers.canopen:CanopenBackend",
-    "serial": "drivers.serial:SerialBackend",
+    "canopen": "drivers.canopen.backend:CanopenBackend",
+    "serial": "drivers.serial.backend:SerialBackend",
 }
 
 

@@ -17,7 +17,7 @@ from hil.control import controller_from_config, new_velocity_state, position_law
 from hil.simulate import _effect_table, _lag_alpha, coast_steps, drive_steps, plant_step, simulate
 from sim_plant.plant import plant_from_config
 
-from .base import LOOPS, Backend, Feedback, Setpoint
+from drivers.base import LOOPS, Backend, Feedback, Setpoint
 
 __all__ = ["SimulatedPlant"]
 

@@ -14,31 +14,31 @@ import sys
 from drivers import BackendError
 from drivers.base import BackendFault
 
-from .closed_loop import UnstableLoopError
-from .config import ConfigError
-from .measurement import MeasurementError
-from .profiles import LimitError
-from .supervisor import SupervisorTripped
-from .units import UnitError
+from hil.closed_loop import UnstableLoopError
+from hil.config import ConfigError
+from hil.io.measurement import MeasurementError
+from hil.profiles import LimitError
+from hil.supervisor import SupervisorTripped
+from hil.units import UnitError
 
 # command name -> module (kept in the order `hil --help` lists them). A module not yet present in
 # this checkout is left out of the listing.
 COMMANDS = {
-    "model": "hil.cmd_model",
-    "move": "hil.cmd_move",
-    "sweep": "hil.cmd_sweep",
-    "compare": "hil.cmd_compare",
-    "diagnose": "hil.cmd_diagnose",
-    "fit": "hil.cmd_fit",
-    "synth": "hil.cmd_synth",
-    "emps": "hil.cmd_emps",
-    "frf": "hil.cmd_frf",
-    "drive-sim": "hil.cmd_drive_sim",
-    "home": "hil.cmd_home",
-    "jog": "hil.cmd_jog",
-    "status": "hil.cmd_status",
-    "reset": "hil.cmd_reset",
-    "serial-sim": "hil.cmd_serial_sim",
+    "model": "hil.commands.model",
+    "move": "hil.commands.move",
+    "sweep": "hil.commands.sweep",
+    "compare": "hil.commands.compare",
+    "diagnose": "hil.commands.diagnose",
+    "fit": "hil.commands.fit",
+    "synth": "hil.commands.synth",
+    "emps": "hil.commands.emps",
+    "frf": "hil.commands.frf",
+    "drive-sim": "hil.commands.drive_sim",
+    "home": "hil.commands.home",
+    "jog": "hil.commands.jog",
+    "status": "hil.commands.status",
+    "reset": "hil.commands.reset",
+    "serial-sim": "hil.commands.serial_sim",
 }
 
 

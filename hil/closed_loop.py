@@ -16,7 +16,7 @@ import numpy as np
 from sim_plant.plant import plant_from_config
 from sim_plant.transfer import chain_tfs
 
-from .control import controller_from_config
+from hil.control import controller_from_config
 
 __all__ = ["ClosedLoopResponse", "closed_loop_response", "closed_loop_report", "bandwidth"]
 
@@ -125,7 +125,7 @@ def closed_loop_report(cfg, out_dir=None) -> dict:
            "peak_gain_db": {k: float(20 * np.log10(np.max(np.abs(v)))) for k, v in
                             (("table_ff", r.table), ("tip_ff", r.tip), ("table_ff_tf3", r.table_tf3))}}
     if out_dir is not None:
-        from .plots_model import closed_loop_figure
+        from hil.plots.model import closed_loop_figure
         rep["plot"] = str(closed_loop_figure(r, out_dir))
     return rep
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from .units import SI_UNIT, UnitError, parse
+from hil.units import SI_UNIT, UnitError, parse
 
 __all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section",
            "parse_assignment", "schema_markdown"]
@@ -159,7 +159,7 @@ SCHEMA: dict[str, Field] = {
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {}
 # The module that registers each such section, imported the first time one of its keys is read.
-SECTION_PROVIDERS = {"effects": "sim_plant.effects", "serial": "drivers.serial", "canopen": "drivers.canopen",
+SECTION_PROVIDERS = {"effects": "sim_plant.effects", "serial": "drivers.serial.backend", "canopen": "drivers.canopen.backend",
                      "supervisor": "hil.supervisor"}
 
 

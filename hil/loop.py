@@ -22,7 +22,7 @@ import numpy as np
 
 from drivers.base import Backend, BackendFault, Feedback, Setpoint
 
-from .control import measured_speed, new_velocity_state, position_law, velocity_law
+from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
 
 __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult"]
 

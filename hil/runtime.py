@@ -16,12 +16,12 @@ from drivers import open_backend
 from drivers.base import BackendFault
 from drivers.sim import SimulatedPlant
 
-from .closed_loop import check_loop_stability
-from .control import controller_from_config
-from .loop import ControlLoop, LoopResult
-from .measurement import read as read_measurement
-from .profiles import AxisLimits, Trajectory, check_limits
-from .recorder import Recorder
+from hil.closed_loop import check_loop_stability
+from hil.control import controller_from_config
+from hil.loop import ControlLoop, LoopResult
+from hil.io.measurement import read as read_measurement
+from hil.profiles import AxisLimits, Trajectory, check_limits
+from hil.io.recorder import Recorder
 
 __all__ = ["RunRecord", "run_trajectory", "record_channels"]
 
@@ -73,7 +73,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     if isinstance(backend, SimulatedPlant):
         backend.home_at(x_cmd[0])
     if supervisor is None:
-        from .supervisor import Supervisor
+        from hil.supervisor import Supervisor
         supervisor = Supervisor(cfg, real_time=not backend.simulated)
         supervisor.arm()           # refuses motion while an earlier trip is not reset
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary,

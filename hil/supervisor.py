@@ -19,7 +19,7 @@ import time
 from collections import deque
 from pathlib import Path
 
-from .config import Field, register_section
+from hil.config import Field, register_section
 
 __all__ = ["Supervisor", "SupervisorTripped", "SECTION"]
 

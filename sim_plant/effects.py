@@ -19,9 +19,9 @@ import math
 import re
 from dataclasses import dataclass
 
-from . import kernel
-from .chain import Chain
-from .plant import Friction, Plant
+from sim_plant import kernel
+from sim_plant.chain import Chain
+from sim_plant.plant import Friction, Plant
 
 __all__ = ["Param", "Effect", "CATALOGUE", "register", "apply_effects", "effect", "candidate",
            "ParameterEffect", "Combination", "default_parameters"]

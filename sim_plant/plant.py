@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .chain import Chain
+from sim_plant.chain import Chain
 
 __all__ = ["Plant", "Friction", "plant_from_config"]
 
@@ -102,5 +102,5 @@ def plant_from_config(cfg) -> Plant:
         motor_resolution=cfg.get("sensors.motor_resolution", 0.0),
         pitch=pitch,
         current_loop_time_constant=cfg.get("actuator.current_loop_time_constant", 0.0))
-    from .effects import apply_effects    # late: effects build on Plant
+    from sim_plant.effects import apply_effects    # late: effects build on Plant
     return apply_effects(plant, cfg)

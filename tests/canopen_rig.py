@@ -4,8 +4,8 @@ import itertools
 
 import can
 
-from drivers.canopen import CanopenBackend
-from drivers.drive_sim import DriveSim
+from drivers.canopen.backend import CanopenBackend
+from drivers.canopen.drive_sim import DriveSim
 from hil import config
 
 _ids = itertools.count()

@@ -10,10 +10,10 @@ import can
 import pytest
 from canopen.profiles.p402 import OperationMode, State402
 
-from drivers import cia402
+from drivers.canopen import cia402
 from drivers.base import BackendFault
-from drivers.canopen import CanopenBackend
-from drivers.drive_sim import DriveSim
+from drivers.canopen.backend import CanopenBackend
+from drivers.canopen.drive_sim import DriveSim
 from hil import config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
@@ -166,14 +166,14 @@ def _free_port():
 
 
 def test_socketcand_server_refuses_other_addresses():
-    from drivers.drive_sim import SocketcandServerBus
+    from drivers.canopen.drive_sim import SocketcandServerBus
     with pytest.raises(ValueError, match="127.0.0.1"):
         SocketcandServerBus(host="0.0.0.0", port=_free_port())
 
 
 def test_drive_over_socketcand_on_loopback():
     """The python-can socketcand client (the host) against the drive's own socketcand server."""
-    from drivers.drive_sim import SocketcandServerBus
+    from drivers.canopen.drive_sim import SocketcandServerBus
     port = _free_port()
     cfg = config.load("config/paper_bench_canopen.toml", {"canopen.interface": "socketcand",
                                                             "canopen.channel": "can0", "canopen.port": port})

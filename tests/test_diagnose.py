@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from hil.compare import Replay
+from hil.ident.replay import Replay
 from hil.config import load
-from hil.identify import diagnose, evaluate
-from hil.measurement import Measurement
-from hil.synth import HIDDEN_DEFAULTS, synthesize
+from hil.ident.diagnose import diagnose, evaluate
+from hil.io.measurement import Measurement
+from hil.ident.synth import HIDDEN_DEFAULTS, synthesize
 
 CFG = load("config/paper_bench.toml")
 

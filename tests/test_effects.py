@@ -18,7 +18,7 @@ def test_catalogue_names():
 
 @pytest.mark.parametrize("name", sorted(CATALOGUE))
 def test_effect_changes_response(name):
-    from hil.synth import HIDDEN_DEFAULTS
+    from hil.ident.synth import HIDDEN_DEFAULTS
     base = simulate_config(CFG, X).channels()
     r = simulate_config(candidate(name).configure(CFG, HIDDEN_DEFAULTS[name]), X).channels()
     diff = max(np.max(np.abs(r[c] - base[c])) for c in ("x_motor", "x_table", "x_tip"))

@@ -175,8 +175,8 @@ def test_canopen_torque_mode_backend():
     """Over the CANopen contract: the simulated CiA 402 drive in cyclic synchronous torque mode
     (lock-step), the host closing both loops at 1 ms."""
     can = pytest.importorskip("can")
-    from drivers.canopen import CanopenBackend
-    from drivers.drive_sim import DriveSim
+    from drivers.canopen.backend import CanopenBackend
+    from drivers.canopen.drive_sim import DriveSim
     cfg = load(ROOT / "config" / "paper_bench_canopen.toml",
                {"canopen.lockstep": True, "control.velocity_period": "1 ms"})
     sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="frf-test"), lockstep=True)  # noqa: F841

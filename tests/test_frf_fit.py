@@ -5,7 +5,7 @@ import pytest
 
 from hil.cli import main
 from hil.config import load
-from hil.frf_fit import FrfDataError, fit_frf, is_frf_file, load_frf
+from hil.ident.frf_fit import FrfDataError, fit_frf, is_frf_file, load_frf
 
 from conftest import CONFIG
 

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import scipy.io
 
-from hil.importers import parse_mapping, read_any
-from hil.measurement import MeasurementError
+from hil.io.importers import parse_mapping, read_any
+from hil.io.measurement import MeasurementError
 
 
 def _mat(tmp_path):

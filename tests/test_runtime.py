@@ -11,9 +11,9 @@ from drivers.sim import SimulatedPlant
 from hil import config
 from hil.control import ControllerSettings, new_velocity_state, velocity_law
 from hil.loop import ControlLoop
-from hil.measurement import read
+from hil.io.measurement import read
 from hil.profiles import MoveSpec, Trajectory
-from hil.recorder import Recorder
+from hil.io.recorder import Recorder
 from hil.runtime import record_channels, run_trajectory
 from hil.simulate import simulate, simulate_config
 from sim_plant.plant import plant_from_config

@@ -13,7 +13,7 @@ import pytest
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 
 from drivers.base import BackendFault, Setpoint  # noqa: E402
-from drivers.serial_protocol import (ChecksumError, CommandSet, GarbledReply, ReplyError,  # noqa: E402
+from drivers.serial.protocol import (ChecksumError, CommandSet, GarbledReply, ReplyError,  # noqa: E402
                                      UnexpectedReply, render_reply)
 from hil.config import load  # noqa: E402
 
@@ -29,14 +29,14 @@ def cfg():
 
 @pytest.fixture
 def drive(cfg):
-    from drivers.serial_sim import SimulatedSerialDrive
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     d = SimulatedSerialDrive(cfg)
     yield d
     d.stop()
 
 
 def _backend(cfg, drive, **kw):
-    from drivers.serial import SerialBackend
+    from drivers.serial.backend import SerialBackend
     opts = dict(FAST)
     opts.update(kw)
     b = SerialBackend(cfg, port=drive.port, **opts)
@@ -115,7 +115,7 @@ def test_move_end_to_end_hil_move(cfg, drive, tmp_path, capsys):
     summary = json.loads(out[out.index("{"):])
     assert rc == 0, summary
     assert summary["status"] == "complete" and summary["backend"] == "serial"
-    from hil.measurement import read
+    from hil.io.measurement import read
     ch = read(tmp_path / "move.csv").channels
     assert abs(ch["x_table"][-1] - 0.010) < 20e-6          # arrived (within 20 um) through the drive
     assert np.max(np.abs(ch["e_table"])) < 2e-3
@@ -124,7 +124,7 @@ def test_move_end_to_end_hil_move(cfg, drive, tmp_path, capsys):
 
 
 def test_run_trajectory_free_run(cfg, drive):
-    from drivers.serial import SerialBackend
+    from drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -171,7 +171,7 @@ def test_persistent_fault_raises_backend_fault(cfg, drive, kind, words):
 
 
 def test_drive_fault_stops_the_loop(cfg, drive):
-    from drivers.serial import SerialBackend
+    from drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -184,7 +184,7 @@ def test_drive_fault_stops_the_loop(cfg, drive):
 
 
 def test_vanished_port(cfg, drive):
-    from drivers.serial import SerialBackend
+    from drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -215,7 +215,7 @@ def test_watchdog_stops_drive_when_host_falls_silent(cfg, drive):
 
 
 def test_no_port_is_a_clear_fault(cfg):
-    from drivers.serial import SerialBackend
+    from drivers.serial.backend import SerialBackend
     from drivers import BackendError
     with pytest.raises(BackendError, match="serial.port"):
         SerialBackend(cfg)
@@ -225,8 +225,8 @@ def test_no_port_is_a_clear_fault(cfg):
 
 def test_velocity_mode_host_closes_position_loop(cfg):
     """serial.mode = velocity: the host runs the position loop and sends speeds (set_speed)."""
-    from drivers.serial import SerialBackend
-    from drivers.serial_sim import SimulatedSerialDrive
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     vcfg = cfg.with_values({"serial.mode": "velocity"})
@@ -242,7 +242,7 @@ def test_velocity_mode_host_closes_position_loop(cfg):
 
 def test_fuzz_simulated_drive_commands(cfg):
     """The simulated drive answers random command bytes with its error reply, never crashes."""
-    from drivers.serial_sim import _Drive
+    from drivers.serial.drive_sim import _Drive
     d = _Drive(cfg)
     rng = np.random.default_rng(7)
     for _ in range(1000):

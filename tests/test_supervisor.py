@@ -7,7 +7,7 @@ import math
 import pytest
 
 from drivers.base import Setpoint
-from hil.measurement import read as read_measurement
+from hil.io.measurement import read as read_measurement
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 

@@ -1,0 +1,726 @@
+"""A simulated CiA 402 servo drive on a CAN bus: a ``canopen`` LocalNode with the object dictionary
+of config/cia402_generic.eds, answering SDO (canopen's server), NMT (canopen's NMT slave), SYNC,
+PDO, heartbeat and EMCY. Its shaft is the sim_plant model (drivers.sim.SimulatedPlant), advanced
+one cycle per SYNC, closing in the drive the loops the mode of operation gives it (CSP: both,
+CSV: velocity, CST: none).
+
+Time: ``lockstep=True`` (the tests, the in-process benchmarks) makes the drive's clock the SYNC
+count, heartbeats included, so that runs are deterministic; ``lockstep=False`` (a separate
+process, ``hil drive-sim``) produces heartbeats on the wall clock, and keeps the shaft moving on
+its own clock when SYNCs stop (the link died: the drive-side guards must stop it).
+
+Drive-side guards (set by the host over SDO at start-up): heartbeat consumer 0x1016 with the
+abort-connection option 0x6007, following-error window 0x6065/0x6066, software position limits
+0x607D, max torque 0x6072.
+
+Fault injection (:meth:`DriveSim.inject`): ``emcy`` (a drive fault: EMCY + FAULT state),
+``heartbeat_loss``, ``frozen_encoder``, ``late_pdo``, ``missing_pdo``, ``following_error``,
+``tip_missing_pdo`` (the tip sensor's TPDO withheld).
+
+A tool-tip sensor on its own node (``tip_node_id``, config ``canopen.tip_node_id``):
+:class:`TipSensorSim`, a CiA 406-like absolute linear encoder (config/tip_encoder_cia406.eds) on
+the same bus, whose position value 0x6004 is the plant's tip mass, sent in its TPDO1 on every SYNC.
+"""
+from __future__ import annotations
+
+import math
+import struct
+import threading
+import time
+
+import can
+import canopen
+import numpy as np
+
+from hil.control import new_velocity_state, velocity_law
+
+from drivers.canopen import cia402
+from drivers.canopen.eds import DEFAULT_EDS, TIP_EDS
+from drivers.sim import SimulatedPlant
+
+__all__ = ["DriveSim", "TipSensorSim", "DEFAULT_EDS", "TIP_EDS", "EMCY_CODES", "FAULTS", "SocketcandServerBus"]
+
+
+# EMCY codes the simulated drive sends (CiA 301 / CiA 402)
+EMCY_CODES = {
+    0x2310: "continuous overcurrent",
+    0x3210: "DC link overvoltage",
+    0x4310: "drive overtemperature",
+    0x7305: "incremental encoder 1 broken",
+    0x8130: "life guard / heartbeat error (host heartbeat lost)",
+    0x8611: "following error (drive-side window 0x6065)",
+    0x8612: "reference limit (software position limit 0x607D)",
+    0x8100: "communication error",
+}
+FAULTS = ("emcy", "heartbeat_loss", "frozen_encoder", "late_pdo", "missing_pdo", "following_error",
+          "tip_missing_pdo")
+
+_FMT = {1: "b", 2: "h", 4: "i"}          # signed by default; unsigned objects fixed below
+_UNSIGNED = {0x6040, 0x6041, 0x603F, 0x1001}
+
+
+def _fmt(index: int, bits: int) -> str:
+    f = _FMT[bits // 8]
+    return f.upper() if index in _UNSIGNED else f
+
+
+# Objects the drive itself updates every cycle: written straight into the node's data store (the
+# SDO server reads them from there), not through the SDO layer, which costs tens of microseconds
+# per access; they do not invalidate the cached configuration.
+_LIVE = {0x6040, 0x6041, 0x6064, 0x606C, 0x6077, 0x60E4, 0x2001, 0x603F, 0x1001, 0x6061}
+
+
+def _raw(node, index: int, sub: int) -> bytes:
+    """The stored bytes of an object (the data store, else the dictionary's default)."""
+    try:
+        return node.data_store[index][sub]
+    except KeyError:
+        return node.get_data(index, sub)
+
+
+def _put(node, index: int, sub: int, fmt: str, value: int) -> None:
+    node.data_store.setdefault(index, {})[sub] = struct.pack("<" + fmt, value)
+
+
+def _pdo_plan(node, comm_base: int, map_base: int, n: int):
+    """(COB-ID or None when disabled, [(index, sub, bytes, struct format)]) of one PDO."""
+    comm, mapping = node.sdo[comm_base + n], node.sdo[map_base + n]
+    cob = comm[1].raw
+    entries = []
+    for k in range(1, mapping[0].raw + 1):
+        entry = mapping[k].raw
+        index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+        entries.append((index, sub, bits // 8, _fmt(index, bits)))
+    return (None if cob & 0x80000000 or not entries else cob & 0x7FF), entries
+
+
+class DriveSim:
+    """``DriveSim(cfg, bus=bus)`` on an existing python-can bus, or ``interface=``/``channel=``."""
+
+    def __init__(self, cfg, bus=None, interface: str | None = None, channel: str | None = None,
+                 node_id: int | None = None, eds: str | None = None, lockstep: bool = True, bitrate: int = 1000000,
+                 tip_node_id: int | None = None):
+        self.cfg = cfg
+        self.node_id = node_id or int(cfg.get("canopen.node_id", 1))
+        self.lockstep = lockstep
+        self.lock = threading.RLock()
+        self._own_bus = bus is None
+        self.network = canopen.Network(bus)
+        self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
+        if bus is None:
+            self.network.connect(interface=interface or cfg.get("canopen.interface", "virtual"),
+                                 channel=channel or cfg.get("canopen.channel", "hil"), bitrate=bitrate)
+        else:
+            self.network.connect()
+        eds = eds or cfg.get("canopen.eds") or DEFAULT_EDS
+        self.node = canopen.LocalNode(self.node_id, canopen.import_od(eds, self.node_id))
+        # heartbeats are produced here (on the SYNC clock in lockstep, else the wall clock)
+        self.node._write_callbacks.remove(self.node.nmt.on_write)
+        self.node.add_write_callback(self._on_sdo_write)
+        self.network.add_node(self.node)
+        self.network.subscribe(0x80, self._on_sync)
+        for n in range(4):
+            self.network.subscribe(0x200 + 0x100 * n + self.node_id, self._on_rpdo)
+        self.host_id = 0
+        self.network.subscribe(0x700 + int(cfg.get("canopen.host_node_id", 127)), self._on_host_heartbeat)
+        # drive state
+        self._conf = None
+        self.state = "SWITCH ON DISABLED"
+        self.cw = 0
+        self.mode = "csp"
+        self.plant: SimulatedPlant | None = None
+        self._make_plant("csp")
+        self.time = 0.0
+        self.syncs = 0
+        self.rx: dict[tuple[int, int], int] = {}
+        self.target_position = 0
+        self.target_velocity = 0
+        self.target_torque = 0
+        self.last_host_heartbeat = 0.0
+        self.host_heartbeat_seen = False
+        self._next_hb = 0.0
+        self.emcy_sent: list[tuple[float, int]] = []
+        self.log: list[tuple[int, str]] = []          # (sync count, event)
+        self.quick_stop_at: int | None = None         # sync count when the quick stop was received
+        self.fault_at: int | None = None              # sync count when the drive faulted
+        self.fault_code = 0
+        self._qs_state = new_velocity_state()
+        self._fe_count = 0
+        self._home_offset = 0.0
+        self.sw_extra = 0
+        self.sync_counter = 0
+        self._held: list[tuple[int, list]] = []     # late TPDOs: (release at sync count, frames)
+        # injected faults
+        self.inject_state: dict[str, float] = {}
+        self._frozen: tuple | None = None
+        self._missing = 0
+        self._late = 0.0
+        self._fe_offset = 0.0
+        self._hb_dead = False
+        self._last_sync_wall = time.perf_counter()
+        self._stop = threading.Event()
+        self._idle_thread = None
+        self.node.sdo[0x6041].raw = cia402.statusword_for(self.state)
+        tip_id = int(cfg.get("canopen.tip_node_id", 0) or 0) if tip_node_id is None else int(tip_node_id)
+        self.tip_sensor = TipSensorSim(self, tip_id) if tip_id else None
+        self._warm_up()
+        self.node.nmt.state = "PRE-OPERATIONAL"
+        self.network.send_message(0x700 + self.node_id, [0])        # boot-up
+        if not lockstep:
+            self._idle_thread = threading.Thread(target=self._idle_loop, daemon=True)
+            self._idle_thread.start()
+
+    # -- plant ----------------------------------------------------------------------------------
+    def _make_plant(self, mode: str) -> None:
+        closes = cia402.MODE_CLOSES[mode]
+        new = SimulatedPlant(self.cfg, closes=closes)
+        if self.plant is not None:
+            new.x[:] = self.plant.x
+            new._u_act = self.plant._u_act
+            new._prev_position = self.plant.x[0]
+        new.open()
+        self.plant = new
+        self.mode = mode
+        self.period = new.cycle_time
+
+    def _hb_now(self) -> float:
+        """The heartbeat consumer's clock: the SYNC clock in lockstep, else the wall clock."""
+        return self.time if self.lockstep else time.perf_counter()
+
+    def _warm_up(self) -> None:
+        """Run the compiled plant and loop functions once on a throw-away copy, so that the first
+        SYNC is not held up by loading them (a late first answer)."""
+        x = self.plant.x.copy()
+        self.plant.enabled = True
+        self.plant.sync()
+        self._quick_stop_step(1.0)
+        self.plant.enabled = False
+        self.plant.x[:] = x
+        self.plant._u_act = 0.0
+        self.plant._s = new_velocity_state()
+        self.plant._prev_position = None
+
+    def home_at(self, position: float) -> None:
+        with self.lock:
+            self.plant.home_at(position)
+
+    # scaling (the same as the host's: from the drive's own 0x608F/0x6091/0x6092)
+    def _scales(self):
+        d = self.node
+        cpr = d.sdo[0x608F][1].raw / max(d.sdo[0x608F][2].raw, 1)
+        gear = d.sdo[0x6091][1].raw / max(d.sdo[0x6091][2].raw, 1)
+        feed = d.sdo[0x6092][1].raw * 1e-6 / max(d.sdo[0x6092][2].raw, 1)      # um per shaft rev
+        return cpr * gear / feed, d.sdo[0x6076].raw * 1e-3                         # counts per m, rated N m
+
+    def _config(self) -> dict:
+        """The configuration the host set over SDO (scaling, limits, guards, PDO mapping), read once
+        after every SDO write to a configuration object and cached: one cycle reads no SDO object."""
+        c = self._conf
+        if c is None:
+            d = self.node.sdo
+            cpm, rated = self._scales()
+            c = {"cpm": cpm, "rated": rated, "lo": d[0x607D][1].raw, "hi": d[0x607D][2].raw,
+                 "tmax": d[0x6072].raw * 1e-3 * rated, "hb_timeout": (d[0x1016][1].raw & 0xFFFF) * 1e-3,
+                 "fe_window": d[0x6065].raw, "fe_time_ms": d[0x6066].raw, "hb_ms": d[0x1017].raw,
+                 "tpdo": [_pdo_plan(self.node, 0x1800, 0x1A00, n) for n in range(4)],
+                 "rpdo": [_pdo_plan(self.node, 0x1400, 0x1600, n)[1] for n in range(4)]}
+            self._conf = c
+        return c
+
+    # -- bus callbacks ---------------------------------------------------------------------------
+    def _on_sdo_write(self, index, subindex, od, data):
+        with self.lock:
+            if index not in _LIVE:
+                self._conf = None          # configuration changed: read it again at the next cycle
+            if index == 0x6040:
+                self._controlword(struct.unpack("<H", data)[0])
+            elif index == 0x6060:
+                code = struct.unpack("<b", data)[0]
+                if code == cia402.HOMING_MODE:
+                    if self.mode != "csp":
+                        self._make_plant("csp")           # homing holds the shaft in position
+                    self.mode = "hm"
+                    self.target_position = self.node.sdo[0x6064].raw
+                    self.rx.pop((0x607A, 0), None)
+                for name, c in cia402.MODES.items():
+                    if c == code and name != self.mode:
+                        self._make_plant(name)
+                self.node.sdo[0x6061].raw = code
+            elif index == 0x1016 and subindex == 1:
+                self.last_host_heartbeat = self._hb_now()
+
+    def _controlword(self, cw: int) -> None:
+        prev, self.cw = self.cw, cw
+        old = self.state
+        if self.mode == "hm" and old == "OPERATION ENABLED" and cw & 0x10 and not prev & 0x10:
+            self._home()
+        new = cia402.next_state(old, cw, prev)
+        if new == old:
+            return
+        if new == "QUICK STOP ACTIVE":
+            self.quick_stop_at = self.syncs
+            self._qs_state = new_velocity_state()
+        if new == "OPERATION ENABLED":
+            self.plant._prev_position = None
+            self.plant._s = new_velocity_state()
+            self.last_host_heartbeat = self._hb_now()
+            self._fe_count = 0
+        if old == "FAULT":
+            self.fault_code = 0
+            self.node.sdo[0x603F].raw = 0
+            self.node.emcy.reset()
+        self._set_state(new)
+
+    def _set_state(self, new: str) -> None:
+        self.log.append((self.syncs, f"{self.state} -> {new}"))
+        self.state = new
+        self.plant.enabled = new == "OPERATION ENABLED"
+        if new != "OPERATION ENABLED":
+            self.sw_extra = 0
+        self.node.sdo[0x6041].raw = cia402.statusword_for(new, self.sw_extra)
+
+    def _home(self) -> None:
+        """Homing method 35/37 (CiA 402: the present position is the home position): the position
+        reading becomes the home offset 0x607C; statusword bits 12 (homing attained) and 10."""
+        method = self.node.sdo[0x6098].raw
+        if method not in (35, 37):
+            self.sw_extra = 1 << cia402.SW_BITS["following_error"]        # bit 13: homing error
+        else:
+            cpm, _ = self._scales()
+            x_motor = self.plant.read_feedback().x_motor
+            self._home_offset = self.node.sdo[0x607C].raw / cpm - x_motor
+            self.target_position = int(round((x_motor + self._home_offset) * cpm))
+            self.node.sdo[0x6064].raw = self.target_position
+            self.sw_extra = (1 << cia402.SW_BITS["setpoint_acknowledge"]) | (1 << cia402.SW_BITS["target_reached"])
+        self.log.append((self.syncs, f"homing method {method}: offset {self._home_offset:.6f} m"))
+        self.node.sdo[0x6041].raw = cia402.statusword_for(self.state, self.sw_extra)
+
+    def _on_rpdo(self, can_id, data, timestamp):
+        n = ((can_id - self.node_id) - 0x200) // 0x100
+        with self.lock:
+            if self.node.nmt.state != "OPERATIONAL":
+                return
+            off = 0
+            for index, sub, nbytes, f in self._config()["rpdo"][n]:
+                value = struct.unpack_from("<" + f, data, off)[0]
+                off += nbytes
+                if index == 0x6040:
+                    self._controlword(value)          # the controlword acts on receipt
+                else:
+                    self.rx[(index, sub)] = value     # targets act at the next SYNC
+
+    def _on_host_heartbeat(self, can_id, data, timestamp):
+        with self.lock:
+            self.last_host_heartbeat = self._hb_now()
+            self.host_heartbeat_seen = True
+
+    def _on_sync(self, can_id, data, timestamp):
+        with self.lock:
+            self._last_sync_wall = time.perf_counter()
+            self.sync_counter = data[0] if data else 0       # CiA 301 SYNC counter (0x1019 > 0)
+            _put(self.node, 0x2001, 0, "B", self.sync_counter)
+            self._cycle(from_sync=True)
+
+    def _idle_loop(self):
+        """Wall-clock mode: the shaft keeps moving when SYNCs stop (3 periods without one)."""
+        while not self._stop.wait(self.period):
+            with self.lock:
+                if time.perf_counter() - self._last_sync_wall > 3 * self.period:
+                    self._cycle(from_sync=False)
+                self._heartbeat_wall()
+
+    def _heartbeat_wall(self):
+        ms = self._config()["hb_ms"]
+        if ms and not self._hb_dead and time.perf_counter() >= self._next_hb:
+            self._next_hb = time.perf_counter() + ms * 1e-3
+            self.network.send_message(0x700 + self.node_id, [self.node.nmt._state])
+
+    def advance(self, cycles: int) -> None:
+        """Let ``cycles`` periods pass without a SYNC (the link is dead; lockstep tests)."""
+        for _ in range(cycles):
+            with self.lock:
+                self._cycle(from_sync=False)
+
+    # -- one drive cycle -------------------------------------------------------------------------
+    def _cycle(self, from_sync: bool) -> None:
+        self.syncs += 1
+        self.time += self.period
+        conf = self._config()
+        cpm, rated = conf["cpm"], conf["rated"]
+        pl = self.plant
+        operational = self.node.nmt.state == "OPERATIONAL"
+        # heartbeat consumer (0x1016) and the abort-connection option (0x6007)
+        timeout = conf["hb_timeout"]
+        now_hb = self._hb_now()
+        if timeout > 0 and self.state == "OPERATION ENABLED" and now_hb - self.last_host_heartbeat > timeout:
+            self._abort_connection()
+        # targets latched at SYNC, clamped to the software limits
+        lo, hi = conf["lo"], conf["hi"]
+        if (0x607A, 0) in self.rx:
+            self.target_position = min(max(self.rx[(0x607A, 0)], lo), hi)
+        if (0x60FF, 0) in self.rx:
+            self.target_velocity = self.rx[(0x60FF, 0)]
+        if (0x6071, 0) in self.rx:
+            self.target_torque = self.rx[(0x6071, 0)]
+        tmax = conf["tmax"]
+        if self.state == "OPERATION ENABLED":
+            if self.mode in ("csp", "hm"):
+                pl.write_setpoint(_sp(position=self.target_position / cpm - self._home_offset))
+            elif self.mode == "csv":
+                pl.write_setpoint(_sp(speed=self.target_velocity / cpm * pl.ctrl.speed_scale))
+            else:
+                u = self.target_torque * 1e-3 * rated
+                pl.write_setpoint(_sp(output=max(-tmax, min(tmax, u))))
+            pl.sync()
+        elif self.state in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE"):
+            self._quick_stop_step(tmax)
+            if abs(pl.x[pl.plant.n]) < 1e-4:
+                # quick stop option 2 / fault reaction 0x605E = 2: stop on the quick-stop ramp, then disable
+                self._set_state("SWITCH ON DISABLED" if self.state == "QUICK STOP ACTIVE" else "FAULT")
+        else:
+            pl.enabled = False
+            pl.sync()
+        if self._fe_offset:
+            pl.x[: pl.plant.n] += 0.0                      # the load does not move: offset on the reading
+        actual = self._actual(cpm, rated)
+        # drive-side guards
+        if self.state == "OPERATION ENABLED":
+            if not (lo <= actual["pos"] <= hi):
+                self.fault(0x8612)
+            win = conf["fe_window"]
+            if self.mode in ("csp", "hm") and win != 0xFFFFFFFF and abs(self.target_position - actual["pos"]) > win:
+                self._fe_count += 1
+                if self._fe_count * self.period * 1e3 > conf["fe_time_ms"]:
+                    self.fault(0x8611)
+            else:
+                self._fe_count = 0
+        # heartbeat on the drive's clock (lockstep)
+        if self.lockstep:
+            ms = conf["hb_ms"]
+            if ms and not self._hb_dead and self.time + 1e-12 >= self._next_hb:
+                self._next_hb = self.time + ms * 1e-3
+                self.network.send_message(0x700 + self.node_id, [self.node.nmt._state])
+        if from_sync and self.tip_sensor is not None:
+            self.tip_sensor.on_sync(actual["tip_plant"])
+        if from_sync and operational:
+            self._send_tpdos(actual)
+
+    def _quick_stop_step(self, tmax: float) -> None:
+        """The drive's own velocity loop to zero speed at full torque (quick stop option 2)."""
+        pl = self.plant
+        n = pl.plant.n
+        steps = max(1, int(round(self.period / pl.ctrl.velocity_period)))
+        for _ in range(steps):
+            w = pl.x[n] * pl.ctrl.speed_scale
+            u = velocity_law(pl._p, self._qs_state, 0.0, w, 0.0)
+            pl._step(max(-tmax, min(tmax, u)))
+
+    def _actual(self, cpm: float, rated: float) -> dict:
+        pl = self.plant
+        n, p = pl.plant.n, pl.plant
+        fb = pl.read_feedback()
+        x_motor, x_table, x_tip = fb.x_motor, fb.x_table, fb.x_tip
+        if math.isnan(x_tip):
+            x_tip = x_table
+        tip_plant = x_tip        # the tip mass as a separate sensor sees it (the drive's homing is not its)
+        x_motor += self._home_offset
+        x_table += self._home_offset + self._fe_offset
+        x_tip += self._home_offset + self._fe_offset
+        if self._frozen is not None:
+            x_motor, x_table, x_tip, v = self._frozen
+        else:
+            v = pl.x[n]
+        act = {"pos": int(round(x_motor * cpm)), "vel": int(round(v * cpm)),
+               "torque": int(round(pl._u_act / rated * 1e3)) if self.state == "OPERATION ENABLED" else 0,
+               "table": int(round(x_table * 1e9)), "tip": int(round(x_tip * 1e9)), "v": v,
+               "x": (x_motor, x_table, x_tip), "tip_plant": tip_plant}
+        d = self.node
+        clamp = lambda v: max(-2 ** 31, min(2 ** 31 - 1, v))      # noqa: E731
+        _put(d, 0x6064, 0, "i", clamp(act["pos"]))
+        _put(d, 0x606C, 0, "i", clamp(act["vel"]))
+        _put(d, 0x6077, 0, "h", max(-32768, min(32767, act["torque"])))
+        _put(d, 0x60E4, 1, "i", clamp(act["table"]))
+        _put(d, 0x60E4, 2, "i", clamp(act["tip"]))
+        return act
+
+    def _send_tpdos(self, actual) -> None:
+        if self._missing > 0:
+            self._missing -= 1
+            self.log.append((self.syncs, "TPDO withheld"))
+            return
+        frames = []
+        node = self.node
+        for cob, entries in self._config()["tpdo"]:
+            if cob is None:
+                continue
+            frames.append((cob, b"".join(_raw(node, index, sub)[:nbytes] for index, sub, nbytes, _ in entries)))
+        due = [f for f in self._held if f[0] <= self.syncs]
+        self._held = [f for f in self._held if f[0] > self.syncs]
+        for _, old in due:                                   # late answers to earlier SYNCs go out first
+            for cob, data in old:
+                self.network.send_message(cob, data)
+        if self._late > 0:
+            delay = self._late
+            self.log.append((self.syncs, f"TPDO late by {delay * 1e3:g} ms"))
+            if self.lockstep:
+                # drive time is the SYNC count: the answer goes out with a later SYNC's
+                self._held.append((self.syncs + max(1, int(math.ceil(delay / self.period - 1e-9))), frames))
+            else:
+                threading.Timer(delay, lambda: [self.network.send_message(c, d) for c, d in frames]).start()
+            return
+        for cob, data in frames:
+            self.network.send_message(cob, data)
+
+    # -- faults ------------------------------------------------------------------------------------
+    def fault(self, code: int = 0x2310, data: bytes = b"") -> None:
+        """The drive faults: EMCY, error register, 0x603F; FAULT REACTION ACTIVE (the shaft brakes on
+        the quick-stop ramp, fault reaction option 2), then FAULT (disabled)."""
+        with self.lock:
+            if self.state in ("FAULT", "FAULT REACTION ACTIVE"):
+                return
+            self.fault_code = code
+            self.node.sdo[0x603F].raw = code
+            self.node.sdo[0x1001].raw = 0x01 | (0x10 if code & 0xFF00 == 0x8100 else 0)
+            self.node.emcy.send(code, self.node.sdo[0x1001].raw, data)
+            self.emcy_sent.append((self.time, code))
+            self.fault_at = self.syncs
+            self._qs_state = new_velocity_state()
+            was_enabled = self.state in ("OPERATION ENABLED", "QUICK STOP ACTIVE")
+            self._set_state("FAULT REACTION ACTIVE")
+            if not was_enabled:
+                self._set_state("FAULT")
+
+    def _abort_connection(self) -> None:
+        option = self.node.sdo[0x6007].raw
+        self.log.append((self.syncs, f"host heartbeat lost, abort connection option {option}"))
+        if option == 1:
+            self.fault(0x8130)
+        elif option == 2:
+            self.node.emcy.send(0x8130, 0x11, b"")
+            self._set_state("SWITCH ON DISABLED")
+        elif option == 3:
+            self.node.emcy.send(0x8130, 0x11, b"")
+            self.quick_stop_at = self.syncs
+            self._qs_state = new_velocity_state()
+            self._set_state("QUICK STOP ACTIVE")
+
+    def inject(self, fault: str, value: float | int | None = None) -> None:
+        """Inject a fault: emcy [code], heartbeat_loss, frozen_encoder, late_pdo [seconds],
+        missing_pdo [count], following_error [metres of offset on the position reading].
+
+        ``late_pdo``: from now on every TPDO answers its SYNC ``value`` seconds late (default two
+        cycles; in lockstep, with the SYNC ``ceil(value / period)`` cycles later), until
+        :meth:`clear_injections`: a drive or bus that no longer keeps up."""
+        with self.lock:
+            self.log.append((self.syncs, f"inject {fault} {value if value is not None else ''}".strip()))
+            if fault == "emcy":
+                self.fault(int(value or 0x2310))
+            elif fault == "heartbeat_loss":
+                self._hb_dead = True
+                self.node.nmt.stop_heartbeat()
+            elif fault == "frozen_encoder":
+                cpm, rated = self._scales()
+                a = self._actual(cpm, rated)
+                self._frozen = (*a["x"], a["v"])
+            elif fault == "late_pdo":
+                self._late = float(value if value is not None else 2 * self.period)
+            elif fault == "missing_pdo":
+                self._missing = int(value or 1)
+            elif fault == "following_error":
+                self._fe_offset = float(value if value is not None else 0.01)
+            elif fault == "tip_missing_pdo":
+                if self.tip_sensor is None:
+                    raise ValueError("tip_missing_pdo: this drive simulation has no tip sensor node")
+                self.tip_sensor.missing = int(value or 1)
+            else:
+                raise ValueError(f"unknown fault {fault!r} (known: {', '.join(FAULTS)})")
+
+    def clear_injections(self) -> None:
+        with self.lock:
+            self._frozen, self._missing, self._late, self._fe_offset = None, 0, 0.0, 0.0
+            self._held = []
+            self._hb_dead = False
+
+    def close(self) -> None:
+        self._stop.set()
+        if self.tip_sensor is not None:
+            self.tip_sensor.node.nmt.stop_heartbeat()
+        if self._idle_thread is not None:
+            self._idle_thread.join(1.0)
+        self.node.nmt.stop_heartbeat()
+        try:
+            self.network.disconnect()
+        except Exception:
+            pass
+
+
+class TipSensorSim:
+    """A tool-tip sensor on its own CANopen node: a CiA 406-like absolute linear encoder
+    (config/tip_encoder_cia406.eds) on the drive's bus. Position value 0x6004 = the plant's tip mass
+    in steps of 0x6005.1 nm, plus the preset 0x6003 (written at homing: the value the sensor
+    shows there); TPDO1 (0x6004) on every SYNC while OPERATIONAL, sent before the drive's TPDOs in
+    the same SYNC (in lockstep, the host's SDO barrier covers it too). It answers SDO and NMT
+    (canopen's LocalNode); its heartbeat (0x1017) is not produced."""
+
+    def __init__(self, drive: DriveSim, node_id: int, eds: str | None = None):
+        if node_id == drive.node_id:
+            raise ValueError(f"tip sensor node id {node_id} is the drive's")
+        self.drive = drive
+        self.node_id = node_id
+        self.node = canopen.LocalNode(node_id, canopen.import_od(eds or TIP_EDS, node_id))
+        self.node.add_write_callback(self._on_sdo_write)
+        drive.network.add_node(self.node)
+        self._plan = None            # (step m, COB-ID or None, mapping), cached until an SDO write
+        self.offset = 0.0            # m, set by the preset
+        self.missing = 0
+        self.sent = 0
+        self._last_tip = 0.0
+        self.node.nmt.state = "PRE-OPERATIONAL"
+        drive.network.send_message(0x700 + node_id, [0])        # boot-up
+
+    def _step(self) -> float:
+        return max(1, self.node.sdo[0x6005][1].raw) * 1e-9
+
+    def _on_sdo_write(self, index, subindex, od, data):
+        self._plan = None
+        if index == 0x6003:              # preset: the present position shows this value from now on
+            preset = struct.unpack("<i", data)[0]
+            self.offset = preset * self._step() - self._last_tip
+            self.node.sdo[0x6004].raw = preset
+
+    def on_sync(self, x_tip: float) -> None:
+        self._last_tip = x_tip
+        if self._plan is None:
+            self._plan = (self._step(), *_pdo_plan(self.node, 0x1800, 0x1A00, 0))
+        step, cob, entries = self._plan
+        value = int(round((x_tip + self.offset) / step))
+        _put(self.node, 0x6004, 0, "i", max(-2 ** 31, min(2 ** 31 - 1, value)))
+        if self.node.nmt.state != "OPERATIONAL" or cob is None:
+            return
+        if self.missing > 0:
+            self.missing -= 1
+            self.drive.log.append((self.drive.syncs, "tip sensor TPDO withheld"))
+            return
+        data = b"".join(_raw(self.node, index, sub)[:nbytes] for index, sub, nbytes, _ in entries)
+        self.sent += 1
+        self.drive.network.send_message(cob, data)
+
+
+def _sp(position=0.0, speed=0.0, output=0.0):
+    from drivers.base import Setpoint
+    return Setpoint(position=position, speed=speed, output=output)
+
+
+# -- the separate-process transport: a socketcand-protocol server on the loopback address ------------
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+class SocketcandServerBus(can.BusABC):
+    """A python-can bus that *is* a small socketcand server (raw mode) on 127.0.0.1: the simulated
+    drive uses it as its bus, and every other process reaches the drive with python-can's own
+    socketcand interface (``interface="socketcand", host="127.0.0.1", port=..., channel=...``).
+    Frames a client sends go to the drive and to the other clients, as on one CAN bus. Only the
+    loopback address is served: nothing leaves the machine."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 29536, channel: str = "can0", **kwargs):
+        if host not in LOOPBACK:
+            raise ValueError(f"the simulated drive serves 127.0.0.1 only, not {host!r}")
+        import queue
+        import socket
+        self._queue: "queue.Queue[can.Message]" = queue.Queue()
+        self._clients: list = []
+        self._clients_lock = threading.Lock()
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self._sock.bind(("127.0.0.1", int(port)))
+        self._sock.listen(4)
+        self.port = self._sock.getsockname()[1]
+        self.channel = channel
+        self.channel_info = f"socketcand server {channel}@127.0.0.1:{self.port}"
+        self._t0 = time.time()
+        self._closed = False
+        threading.Thread(target=self._accept, daemon=True).start()
+        super().__init__(channel=channel, **kwargs)
+
+    def _accept(self):
+        import socket
+        while not self._closed:
+            try:
+                conn, _ = self._sock.accept()
+            except OSError:
+                return
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
+
+    def _serve(self, conn):
+        buf, ready = "", False
+        try:
+            conn.sendall(b"< hi >")
+            while not self._closed:
+                data = conn.recv(4096)
+                if not data:
+                    break
+                buf += data.decode("ascii", "replace")
+                while ">" in buf:
+                    end = buf.index(">")
+                    start = buf.find("<")
+                    cmd, buf = buf[start + 1:end].split(), buf[end + 1:]
+                    if not cmd:
+                        continue
+                    if cmd[0] == "open":
+                        conn.sendall(b"< ok >")
+                    elif cmd[0] == "rawmode":
+                        conn.sendall(b"< ok >")
+                        ready = True
+                        with self._clients_lock:
+                            self._clients.append(conn)
+                    elif cmd[0] == "send" and ready and len(cmd) >= 3:
+                        can_id, n = int(cmd[1], 16), int(cmd[2], 16)
+                        payload = bytes(int(b, 16) for b in cmd[3:3 + n])
+                        msg = can.Message(arbitration_id=can_id, data=payload, is_extended_id=len(cmd[1]) > 3,
+                                          timestamp=time.time(), is_rx=True, channel=self.channel)
+                        self._queue.put(msg)
+                        self._broadcast(msg, skip=conn)
+        except OSError:
+            pass
+        finally:
+            with self._clients_lock:
+                if conn in self._clients:
+                    self._clients.remove(conn)
+            conn.close()
+
+    def _broadcast(self, msg, skip=None):
+        cid = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
+        line = f"< frame {cid} {time.time() - self._t0:.6f} {bytes(msg.data).hex().upper()} >".encode()
+        with self._clients_lock:
+            clients = [c for c in self._clients if c is not skip]
+        for c in clients:
+            try:
+                c.sendall(line)
+            except OSError:
+                pass
+
+    def send(self, msg, timeout=None):
+        self._broadcast(msg)
+
+    def _recv_internal(self, timeout):
+        import queue
+        try:
+            return self._queue.get(timeout=timeout), False
+        except queue.Empty:
+            return None, False
+
+    def shutdown(self):
+        self._closed = True
+        try:
+            self._sock.close()
+        except OSError:
+            pass
+        with self._clients_lock:
+            for c in self._clients:
+                try:
+                    c.close()
+                except OSError:
+                    pass
+            self._clients = []
+        super().shutdown()

@@ -1,0 +1,336 @@
+"""Servo drives with an ASCII command interface over RS-232 / RS-485 (pyserial).
+
+The command set is configuration (``[serial]``, see :mod:`drivers.serial_protocol`,
+``config/serial_ascii_example.toml`` and the README (Serial drives)); a user adapts the backend to a drive
+without writing code.
+
+One cycle is two transactions, each one command line and one reply line: ``read`` (positions,
+speed, torque, fault state) and ``set_position`` (position mode: the drive closes both loops) or
+``set_speed`` (velocity mode: the host closes the position loop).
+
+Robustness. Every command must be confirmed by its reply; a setpoint counts only when the drive
+echoes it. A missing reply (timeout), a partial or garbled line, a checksum error, an unexpected
+reply or the drive's error reply is retried, at most ``serial.retries`` times and only while the
+transaction's time budget lasts (``serial.budget``, default: half the cycle); a port that vanished
+is reopened within the same budget. Then :class:`~drivers.base.BackendFault` is raised, with the
+reason, and the loop stops the axis. Retrying is safe because every cyclic command is absolute
+(a target, not an increment): executing it twice is executing it once. The drive's own watchdog is
+armed at :meth:`open` where the command set has one (``watchdog``), so that the drive stops when
+the host falls silent.
+"""
+from __future__ import annotations
+
+import math
+import os
+import select
+import time
+
+from drivers.base import Backend, BackendFault, Feedback, Setpoint
+from drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError
+
+__all__ = ["SerialBackend", "SerialStats"]
+
+
+# -- the configuration section ------------------------------------------------------------------------
+def _section_lookup(key: str):
+    from hil.config import Field
+    fixed = {
+        "serial.port": Field("str", "serial port (/dev/ttyUSB0, COM3, /dev/pts/N of hil serial-sim, or a pyserial URL)",
+                             default=""),
+        "serial.baudrate": Field("int", "baud rate", default=115200, nonnegative=True),
+        "serial.parity": Field("str", "parity", default="N", choices=("N", "E", "O")),
+        "serial.stopbits": Field("int", "stop bits", default=1, nonnegative=True),
+        "serial.mode": Field("str", "position: the drive closes both loops (set_position); velocity: the host closes "
+                             "the position loop (set_speed)", default="position", choices=("position", "velocity")),
+        "serial.cycle_time": Field("time", "exchange period; default control.position_period", default=None,
+                                   positive=True),
+        "serial.timeout": Field("time", "reply timeout of one attempt in the cycle", default=None, positive=True),
+        "serial.retries": Field("int", "retries of a cyclic transaction (within serial.budget)", default=2,
+                                nonnegative=True),
+        "serial.budget": Field("time", "time budget of one cyclic transaction; default half the cycle", default=None,
+                               positive=True),
+        "serial.setup_timeout": Field("time", "reply timeout of open/enable/disable commands", default=None,
+                                      positive=True),
+        "serial.watchdog": Field("time", "drive watchdog armed at open (0: none)", default=None, nonnegative=True),
+        "serial.line_ending": Field("str", "line ending of commands and replies (\\r, \\n, \\r\\n, CR, LF, CRLF)",
+                                    default="\r"),
+        "serial.checksum": Field("str", "line checksum", default="none", choices=("none", "sum8", "xor8")),
+        "serial.checksum_separator": Field("str", "character before the checksum's two hex digits", default="*"),
+        "serial.max_reply": Field("int", "longest reply line accepted (bytes)", default=128, nonnegative=True),
+        "serial.scale_position": Field("dimensionless", "drive position counts per metre (load side)", default=None,
+                                       positive=True),
+        "serial.scale_speed": Field("dimensionless", "velocity mode: drive speed units per controller speed unit "
+                                    "(rad/s of the motor, or m/s)", default=None, positive=True),
+        "serial.scale_output": Field("dimensionless", "drive torque units per N*m (or per V)", default=None,
+                                     positive=True),
+    }
+    if key in fixed:
+        return fixed[key]
+    parts = key.split(".")
+    if len(parts) == 3 and parts[1] == "commands":
+        return Field("str", f"template of the {parts[2]} command")
+    if len(parts) == 3 and parts[1] == "replies":
+        return Field("str", f"regular expression of the reply to {parts[2]}")
+    return None
+
+
+def _register_config():
+    from hil.config import register_section
+    register_section("serial", _section_lookup)
+
+
+_register_config()
+
+
+def _warm_up_host_loop(cfg) -> None:
+    """Compile the host loop's laws now: their first call (hundreds of ms of JIT loading) must not
+    fall between enabling the drive and the first cycle, or the drive's watchdog trips."""
+    try:
+        from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, \
+            velocity_law
+        from sim_plant.plant import plant_from_config
+        p = controller_from_config(cfg, plant_from_config(cfg)).as_array()
+        s = new_velocity_state()
+        position_law(p, 0.0, 0.0, 0.0)
+        measured_speed(p, s, 0.0, 0.0)
+        velocity_law(p, s, 0.0, 0.0, 0.0)
+    except Exception:       # a config without a plant model: nothing to warm up
+        pass
+
+
+class SerialStats:
+    """Counters of one session: transactions, retries and why, bytes exchanged."""
+
+    def __init__(self):
+        self.transactions = 0
+        self.retries = 0
+        self.reasons: dict[str, int] = {}
+        self.bytes_out = 0
+        self.bytes_in = 0
+        self.reopened = 0
+
+    def note(self, reason: str) -> None:
+        self.retries += 1
+        key = reason.split(":")[0]
+        self.reasons[key] = self.reasons.get(key, 0) + 1
+
+    def as_dict(self) -> dict:
+        return dict(transactions=self.transactions, retries=self.retries, reasons=dict(self.reasons),
+                    bytes_out=self.bytes_out, bytes_in=self.bytes_in, reopened=self.reopened)
+
+
+class _Timeout(ReplyError):
+    pass
+
+
+class _PortLost(Exception):
+    pass
+
+
+class SerialBackend(Backend):
+    """A drive behind an ASCII command set. ``options`` override the ``[serial]`` keys of the config
+    (``port=``, ``timeout=``, ...); ``free_run=True`` lets the host loop run as fast as the link
+    permits (for a simulated drive that advances one cycle per setpoint; never for a real one)."""
+
+    name = "serial"
+
+    def __init__(self, cfg, port: str | None = None, free_run: bool = False, **options):
+        self.cfg = cfg
+
+        def opt(key, default=None):
+            v = options.get(key)
+            return v if v is not None else cfg.get(f"serial.{key}", default)
+
+        self.port = port or opt("port", "")
+        self.baudrate = int(opt("baudrate", 115200))
+        self.parity = opt("parity", "N")
+        self.stopbits = int(opt("stopbits", 1))
+        mode = opt("mode", "position")
+        self.closes = "both" if mode == "position" else "velocity"
+        tp = cfg.get("control.position_period", 0.004)
+        self.cycle_time = float(opt("cycle_time", None) or tp)
+        if abs(self.cycle_time - tp) > 1e-9:
+            from drivers import BackendError     # the loop times its record and commands on control.position_period
+            raise BackendError(f"serial.cycle_time ({self.cycle_time:g} s) must equal control.position_period "
+                               f"({tp:g} s): set the position period instead")
+        self.timeout = float(opt("timeout", None) or self.cycle_time / 4)
+        self.retries = int(opt("retries", 2))
+        self.budget = float(opt("budget", None) or self.cycle_time / 2)
+        self.setup_timeout = float(opt("setup_timeout", None) or 0.2)
+        self.watchdog = float(opt("watchdog", 0.0) or 0.0)
+        self.cs: CommandSet = options.get("command_set") or CommandSet.from_config(cfg)
+        self.k_pos = float(opt("scale_position", None) or 1e6)
+        self.k_speed = float(opt("scale_speed", None) or self.k_pos)
+        self.k_out = float(opt("scale_output", None) or 1.0)
+        self.simulated = bool(free_run)
+        self.stats = SerialStats()
+        self.drive_name = ""
+        self.enabled = False
+        self._ser = None
+        self._faulted = ""
+        self._last_fb: Feedback | None = None
+        self._set_op = "set_position" if self.closes == "both" else "set_speed"
+        for op in ("enable", "disable", "read", self._set_op):
+            if not self.cs.has(op):
+                raise ValueError(f"the serial command set has no {op!r} command (serial.commands.{op})")
+        if not self.port:
+            from drivers import BackendError     # hil move reports it as one line, before anything moves
+            raise BackendError("serial backend: no port; set serial.port in the config or "
+                               "--set serial.port=/dev/ttyUSB0 (hil serial-sim prints the port of the simulated drive)")
+        _warm_up_host_loop(cfg)
+
+
+    # -- the port ----------------------------------------------------------------------------------
+    def _open_port(self):
+        import serial
+        if not self.port:
+            raise BackendFault("no serial port: set serial.port in the config or --set serial.port=/dev/...")
+        try:
+            ser = serial.serial_for_url(self.port, do_not_open=True, baudrate=self.baudrate, parity=self.parity,
+                                        stopbits=self.stopbits, timeout=self.timeout, write_timeout=self.setup_timeout)
+            ser.open()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise BackendFault(f"cannot open serial port {self.port}: {exc}") from None
+        self._ser = ser
+
+    def _close_port(self):
+        ser, self._ser = self._ser, None
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception:
+                pass
+
+    # -- one transaction ---------------------------------------------------------------------------
+    def _readline(self, deadline: float) -> bytes:
+        ser, eol, cap = self._ser, self.cs.line_ending, self.cs.max_reply + 8
+        try:
+            fd = ser.fileno()
+        except Exception:
+            fd = None
+        buf = bytearray()
+        while True:
+            left = deadline - time.perf_counter()
+            if left <= 0:
+                if buf:
+                    raise GarbledReply(f"partial reply {bytes(buf[:40])!r} (no line ending)")
+                raise _Timeout("no reply")
+            if fd is not None:          # select on the descriptor: no tcsetattr per read for a new timeout
+                if not select.select([fd], [], [], left)[0]:
+                    continue
+                chunk = os.read(fd, 4096)
+                if not chunk:
+                    raise OSError("port closed (read returned no data)")
+            else:
+                if ser.timeout != left:
+                    ser.timeout = left
+                chunk = ser.read(max(1, min(ser.in_waiting, cap)))
+            if chunk:
+                buf += chunk
+                i = buf.find(eol)
+                if i >= 0:
+                    return bytes(buf[:i + len(eol)])
+                if len(buf) > cap:
+                    raise GarbledReply(f"reply longer than {self.cs.max_reply} bytes")
+
+    def transact(self, op: str, setup: bool = False, **values) -> dict:
+        """Send ``op`` and return the named groups of its confirmed reply; retry within the budget,
+        then raise BackendFault."""
+        import serial
+        frame = self.cs.encode(op, **values)
+        t0 = time.perf_counter()
+        attempt_timeout = self.setup_timeout if setup else self.timeout
+        end = t0 + (self.setup_timeout * (self.retries + 1) if setup else self.budget)
+        last = ""
+        self.stats.transactions += 1
+        for attempt in range(self.retries + 1):
+            now = time.perf_counter()
+            if attempt and now >= end:
+                break
+            try:
+                if self._ser is None:
+                    self.stats.reopened += 1
+                    self._open_port()
+                ser = self._ser
+                ser.reset_input_buffer()        # a late reply to an earlier attempt is not this one's
+                ser.write(frame)
+                self.stats.bytes_out += len(frame)
+                line = self._readline(min(now + attempt_timeout, end))
+                self.stats.bytes_in += len(line)
+                return self.cs.parse(op, line, values)
+            except ReplyError as exc:
+                last = f"{type(exc).__name__}: {exc}" if not isinstance(exc, _Timeout) else \
+                    f"timeout: no reply within {attempt_timeout * 1e3:.3g} ms"
+                if isinstance(exc, DriveRefused):
+                    last = f"refused: {exc}"
+            except (serial.SerialException, OSError) as exc:
+                last = f"port lost: {exc}"
+                self._close_port()
+            except BackendFault as exc:      # reopening failed
+                last = f"port lost: {exc.reason}"
+            if attempt < self.retries:
+                self.stats.note(last)
+        reason = f"serial {op}: {last} (after {attempt + 1} attempt(s), {(time.perf_counter() - t0) * 1e3:.1f} ms)"
+        self._faulted = reason
+        raise BackendFault(reason)
+
+    # -- the contract --------------------------------------------------------------------------------
+    def open(self) -> None:
+        self._faulted = ""
+        self._open_port()
+        if self.cs.has("identify"):
+            self.drive_name = self.transact("identify", setup=True).get("name", "")
+        if self.cs.has("watchdog") and self.watchdog > 0:
+            self.transact("watchdog", setup=True, ms=max(1, round(self.watchdog * 1e3)))
+
+    def enable(self) -> None:
+        fb = self.read_feedback(setup=True)
+        if fb.fault and self.cs.has("clear_fault"):
+            self.transact("clear_fault", setup=True)
+        self.transact("enable", setup=True)
+        fb = self.read_feedback(setup=True)
+        if fb.fault:
+            raise BackendFault(f"serial drive did not enable: {fb.fault}")
+        self.enabled = True
+
+    def read_feedback(self, setup: bool = False) -> Feedback:
+        g = self.transact("read", setup=setup)
+        try:
+            xm = int(g["x_motor"]) / self.k_pos
+        except KeyError:
+            raise BackendFault("serial.replies.read has no x_motor group") from None
+        xt = int(g["x_table"]) / self.k_pos if "x_table" in g else xm
+        v = int(g["v_motor"]) / self.k_pos if "v_motor" in g else math.nan      # counts/s
+        out = int(g["output"]) / self.k_out if "output" in g else 0.0
+        code = int(g.get("fault", "0"))
+        fb = Feedback(x_motor=xm, x_table=xt, v_motor=v, output=out,
+                      fault=f"drive fault {code}" if code else "")
+        self._last_fb = fb
+        return fb
+
+    def write_setpoint(self, setpoint: Setpoint) -> None:
+        if self.closes == "both":
+            self.transact("set_position", position=round(setpoint.position * self.k_pos))
+        else:
+            self.transact("set_speed", speed=round(setpoint.speed * self.k_speed))
+
+    def quick_stop(self) -> None:
+        op = "quick_stop" if self.cs.has("quick_stop") else "disable"
+        self.enabled = False
+        self.transact(op, setup=True)
+
+    def disable(self) -> None:
+        """Disable; after a fault (link likely gone) a failure here is recorded, not raised: the
+        drive's watchdog stops it."""
+        was = self.enabled
+        self.enabled = False
+        if self._ser is None and self._faulted:
+            return
+        try:
+            self.transact("disable", setup=True)
+        except BackendFault:
+            if not self._faulted and was:
+                raise
+
+    def close(self) -> None:
+        self._close_port()

@@ -1,0 +1,369 @@
+"""A simulated ASCII serial drive on a pseudo-terminal, in a process of its own.
+
+It speaks the command set of the config's ``[serial]`` section (commands recognised from their
+templates, replies rendered from their patterns: literal text and named groups) and its shaft is
+the sim_plant model (:class:`drivers.sim.SimulatedPlant`, ``closes="both"`` in position mode,
+``"velocity"`` in velocity mode).
+
+Time: with ``advance="setpoint"`` (the default) the plant advances one cycle (one position
+period) per setpoint received, so that a host loop may run as fast as the link permits; with
+``advance="wall"`` it advances with the wall clock, one cycle per elapsed position period, as a
+real drive on its own clock does. Either way the watchdog runs on the wall clock: armed by the
+``watchdog`` command, it disables the drive and reports fault 1 when no valid command arrived for
+that long while enabled.
+
+Fault injection (:meth:`SimulatedSerialDrive.inject`, or ``hil serial-sim --fault``): after
+``after`` further commands (of operation ``op`` if given), the next ``count`` commands get, instead
+of their execution and reply:
+
+=============  ==============================================================================
+``timeout``     no reply
+``partial``     the first half of the reply, no line ending
+``garbled``     the reply with random bytes in it
+``checksum``    the reply with a wrong checksum
+``unexpected``  a well-formed line that is not the reply (``HELLO``)
+``refuse``      the error reply (code 9)
+``drive_fault`` the drive faults (code 2, disabled): executes, and reports it in ``read``
+``vanish``      the port disappears (the process closes the pseudo-terminal and ends)
+=============  ==============================================================================
+
+Fault codes in ``read``: 0 none, 1 watchdog, 2 drive fault (injected), 3 command while disabled.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import select
+import sys
+import time
+import tty
+
+import numpy as np
+
+from drivers.serial.protocol import CommandSet, ReplyError, command_pattern, render_reply
+
+__all__ = ["SimulatedSerialDrive", "serve", "FAULTS", "parse_fault"]
+
+FAULTS = ("timeout", "partial", "garbled", "checksum", "unexpected", "refuse", "drive_fault", "vanish")
+
+
+def parse_fault(text: str) -> dict:
+    """``kind[@after][xcount][:op]``, e.g. ``timeout@100x3:set_position``."""
+    op = None
+    if ":" in text:
+        text, op = text.split(":", 1)
+    count = 1
+    if "x" in text:
+        text, c = text.rsplit("x", 1)
+        count = int(c)
+    after = 0
+    if "@" in text:
+        text, a = text.split("@", 1)
+        after = int(a)
+    if text not in FAULTS:
+        raise ValueError(f"unknown fault {text!r} (known: {', '.join(FAULTS)})")
+    return {"kind": text, "after": after, "count": count, "op": op}
+
+
+class _Drive:
+    def __init__(self, cfg, advance: str = "setpoint", seed: int = 1):
+        from drivers.sim import SimulatedPlant
+        self.cs = CommandSet.from_config(cfg)
+        mode = cfg.get("serial.mode", "position")
+        self.plant = SimulatedPlant(cfg, closes="both" if mode == "position" else "velocity")
+        self.plant.open()
+        self._warm_up()
+        self.k_pos = float(cfg.get("serial.scale_position", 1e6))
+        self.k_speed = float(cfg.get("serial.scale_speed", self.k_pos))
+        self.k_out = float(cfg.get("serial.scale_output", 1.0))
+        self.period = self.plant.cycle_time
+        self.advance = advance
+        self.patterns = [(op, command_pattern(t)) for op, t in self.cs.commands.items()]
+        self.enabled = False
+        self.fault = 0
+        self.watchdog = 0.0
+        self.last_valid = time.perf_counter()
+        self.t_next = time.perf_counter() + self.period
+        self.faults: list[dict] = []
+        self.rng = np.random.default_rng(seed)
+        self.commands = 0
+        self.vanish = False
+        self.name = "SIMDRIVE"
+        # self-check: every reply can be rendered and parses back
+        self._reply("read", dict(x_motor=0, x_table=0, v_motor=0, output=0, fault=0))
+
+    def _warm_up(self) -> None:
+        """Compile the control law before the first command (a first setpoint must not take 100 ms)."""
+        from drivers.base import Setpoint
+        pl = self.plant
+        pl.enable()
+        pl.write_setpoint(Setpoint(position=0.0, speed=0.0))
+        pl.sync()
+        pl.disable()
+        pl.home_at(0.0)
+        pl._prev_position = None
+        pl._u_act = 0.0
+        pl._set = Setpoint()
+        pl.time = 0.0
+
+    # -- replies -------------------------------------------------------------------------------
+    def _reply(self, op, values=None) -> bytes:
+        text = render_reply(self.cs.replies[op], values or {})
+        return self.cs.frame(text)
+
+    def _error(self, code: int) -> bytes:
+        if "error" in self.cs.replies:
+            return self._reply("error", {"code": code})
+        return self.cs.frame("?")
+
+    def _feedback(self) -> dict:
+        fb = self.plant.read_feedback()
+        return dict(x_motor=round(fb.x_motor * self.k_pos), x_table=round(fb.x_table * self.k_pos),
+                    v_motor=round(fb.v_motor * self.k_pos), output=round(fb.output * self.k_out),
+                    fault=self.fault)
+
+    # -- one command line --------------------------------------------------------------------------
+    def handle(self, line: bytes) -> bytes | None:
+        self.commands += 1
+        try:
+            text = self.cs.unframe(line)
+        except ReplyError:
+            return self._error(1)
+        for op, pat in self.patterns:
+            m = pat.fullmatch(text)
+            if m:
+                break
+        else:
+            return self._error(1)
+        vals = {k: int(v) for k, v in m.groupdict().items()}
+        f = self._due(op)
+        if f is not None:
+            return self._inject(f, op, vals)
+        self.last_valid = time.perf_counter()
+        return self.execute(op, vals)
+
+    def _due(self, op):
+        for f in self.faults:
+            if f["op"] and f["op"] != op:
+                continue
+            if f["after"] > 0:
+                f["after"] -= 1
+                return None
+            f["count"] -= 1
+            if f["count"] <= 0:
+                self.faults.remove(f)
+            return f
+        return None
+
+    def _inject(self, f, op, vals) -> bytes | None:
+        kind = f["kind"]
+        if kind == "timeout":
+            return None
+        if kind == "vanish":
+            self.vanish = True
+            return None
+        if kind == "drive_fault":
+            self.fault, self.enabled = 2, False
+            self.plant.disable()
+            return self.execute(op, vals)
+        if kind == "refuse":
+            return self._error(9)
+        if kind == "unexpected":
+            return self.cs.frame("HELLO")
+        good = self._render_for(op, vals)
+        if kind == "partial":
+            return good[:max(1, len(good) // 2)].replace(self.cs.line_ending, b"")
+        if kind == "checksum":
+            body = good[:-len(self.cs.line_ending)]
+            if self.cs.checksum == "none":
+                return body + b"#" + self.cs.line_ending
+            last = body[-1:]
+            return body[:-1] + (b"0" if last != b"0" else b"1") + self.cs.line_ending
+        if kind == "garbled":
+            b = bytearray(good)
+            for i in self.rng.integers(0, max(1, len(b) - 1), size=max(1, len(b) // 4)):
+                b[i] = int(self.rng.integers(0, 256))
+            return bytes(b)
+        return None
+
+    def _render_for(self, op, vals) -> bytes:
+        if op == "read":
+            return self._reply("read", self._feedback())
+        v = dict(vals)
+        if vals:
+            v["echo"] = next(iter(vals.values()))
+        v.setdefault("name", self.name)
+        return self._reply(op, v)
+
+    def execute(self, op, vals) -> bytes:
+        pl = self.plant
+        if op == "read":
+            return self._reply("read", self._feedback())
+        if op == "identify":
+            return self._reply(op, {"name": self.name})
+        if op == "watchdog":
+            self.watchdog = vals.get("ms", 0) / 1e3
+            return self._reply(op, {"echo": vals.get("ms", 0)})
+        if op == "clear_fault":
+            self.fault = 0
+            return self._reply(op, {})
+        if op == "enable":
+            if self.fault:
+                return self._error(3)
+            self.enabled = True
+            pl.enable()
+            pl._prev_position = None
+            self.t_next = time.perf_counter() + self.period
+            return self._reply(op, {})
+        if op in ("disable", "quick_stop"):
+            self.enabled = False
+            pl.disable()
+            return self._reply(op, {})
+        if op in ("set_position", "set_speed", "set_output"):
+            if not self.enabled:
+                return self._error(3)
+            from drivers.base import Setpoint
+            v = next(iter(vals.values()))
+            if op == "set_position":
+                pl.write_setpoint(Setpoint(position=v / self.k_pos))
+            elif op == "set_speed":
+                pl.write_setpoint(Setpoint(speed=v / self.k_speed))
+            else:
+                pl.write_setpoint(Setpoint(output=v / self.k_out))
+            if self.advance == "setpoint":
+                pl.sync()
+            return self._reply(op, {"echo": v})
+        return self._error(1)
+
+    def tick(self) -> None:
+        now = time.perf_counter()
+        if self.enabled and self.watchdog > 0 and now - self.last_valid > self.watchdog:
+            self.enabled, self.fault = False, 1
+            self.plant.disable()
+        if self.advance == "wall":
+            n = 0
+            while now >= self.t_next and n < 100:
+                self.plant.sync()
+                self.t_next += self.period
+                n += 1
+            if now >= self.t_next:
+                self.t_next = now + self.period
+
+
+def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None) -> None:
+    """Run the drive on a new pseudo-terminal until ``conn`` says stop (or the port vanishes);
+    ``announce(path)`` is told the slave's path."""
+    drive = _Drive(cfg, advance)
+    drive.faults = [dict(f) for f in faults]
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    tty.setraw(master)
+    path = os.ttyname(slave)
+    if conn is not None:
+        conn.send(path)
+    if announce is not None:
+        announce(path)
+    eol = drive.cs.line_ending
+    buf = bytearray()
+    watch = [master] + ([conn] if conn is not None else [])
+    try:
+        while True:
+            r = select.select(watch, [], [], 0.0005)[0]
+            if conn is not None and conn in r:
+                try:
+                    msg = conn.recv()
+                except EOFError:
+                    return
+                if msg[0] == "stop":
+                    return
+                if msg[0] == "inject":
+                    drive.faults.append(dict(msg[1]))
+                if msg[0] == "state":
+                    conn.send({"enabled": drive.enabled, "fault": drive.fault, "commands": drive.commands,
+                               "x": float(drive.plant.x[0])})
+            if master in r:
+                try:
+                    data = os.read(master, 4096)
+                except OSError:          # no slave open: nothing to read
+                    data = b""
+                buf += data
+                while True:
+                    i = buf.find(eol)
+                    if i < 0:
+                        if len(buf) > 4096:
+                            buf.clear()
+                        break
+                    line = bytes(buf[:i + len(eol)])
+                    del buf[:i + len(eol)]
+                    reply = drive.handle(line)
+                    if drive.vanish:
+                        return
+                    if reply:
+                        os.write(master, reply)
+            drive.tick()
+    finally:
+        for fd in (master, slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+def _child(cfg, conn, faults, advance):
+    try:
+        serve(cfg, conn, faults, advance)
+    except KeyboardInterrupt:
+        pass
+
+
+class SimulatedSerialDrive:
+    """The simulated drive in a child process. ``port`` is the pseudo-terminal to open."""
+
+    def __init__(self, cfg, faults=(), advance: str = "setpoint"):
+        try:
+            ctx = mp.get_context("fork")
+        except ValueError:
+            ctx = mp.get_context()
+        self._conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_child, args=(cfg, child, list(faults), advance), daemon=True)
+        self.proc.start()
+        if not self._conn.poll(60):
+            self.proc.kill()
+            raise RuntimeError("the simulated serial drive did not start")
+        self.port = self._conn.recv()
+
+    def inject(self, kind: str, count: int = 1, after: int = 0, op: str | None = None) -> None:
+        if kind not in FAULTS:
+            raise ValueError(f"unknown fault {kind!r}")
+        self._conn.send(("inject", {"kind": kind, "count": count, "after": after, "op": op}))
+
+    def state(self) -> dict:
+        self._conn.send(("state",))
+        return self._conn.recv() if self._conn.poll(5) else {}
+
+    @property
+    def alive(self) -> bool:
+        return self.proc.is_alive()
+
+    def stop(self) -> None:
+        try:
+            if self.proc.is_alive():
+                self._conn.send(("stop",))
+        except (OSError, BrokenPipeError):
+            pass
+        self.proc.join(5)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join(5)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+
+if __name__ == "__main__":      # pragma: no cover - python -m drivers.serial_sim CONFIG
+    from hil.config import load
+    serve(load(sys.argv[1]), announce=lambda p: print(p, flush=True))

@@ -1,0 +1,254 @@
+"""``hil frf``: measure the axis's frequency responses, set them against the model, tune."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from hil.io.jsonout import dumps
+
+
+HELP = "measure frequency responses (TF1', TF2, TF3, velocity and position loops) against the model"
+DESCRIPTION = """\
+Excite the axis around a working point (a slow constant-speed move, so that friction keeps its
+sign) with a periodic multisine, chirp or PRBS, added to the torque (controller output) or to
+the speed reference of the velocity loop. Estimates, with coherence and uncertainty, averaged
+over periods (the excitation as instrumental variable, no closed-loop bias):
+  TF1' torque -> motor speed, TF2 table/motor, TF3 tip/table (where the tip is measured),
+  torque -> tip speed, open and closed velocity loop, open and closed position loop.
+Then: the modes fitted in the measurement beside the model's, one sentence per discrepancy
+naming the parameter to change, margins and bandwidths, largest gains keeping the margins,
+filter suggestions, acceleration feed-forward effect; a config diff (never applied).
+
+  hil frf --config config/paper_bench.toml
+  hil frf --config config/paper_bench.toml --sim-set plant.c2=40      # a plant unlike its model
+  hil frf --config config/paper_bench.toml --input velocity --signal chirp --json
+
+--set changes the config (the model and, on the simulated backend, the plant); --sim-set
+changes only the simulated plant (to rehearse finding a wrong parameter).
+"""
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--config", required=True, help="axis configuration (TOML)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config parameter (model and simulated plant), repeatable")
+    p.add_argument("--sim-set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a parameter of the simulated plant only (the model keeps the config's)")
+    p.add_argument("--backend", help="sim (default: the compiled loop) or another backend in torque mode")
+    p.add_argument("--signal", choices=("multisine", "chirp", "prbs"), default="multisine")
+    p.add_argument("--input", choices=("torque", "velocity"), default="torque",
+                   help="where the excitation enters: the controller output or the speed reference")
+    p.add_argument("--amplitude", help="peak of the excitation: a torque (default 10%% of the output limit) "
+                                       "or a speed (default 5 mm/s, or rad/s of the motor)")
+    p.add_argument("--band", default="1Hz..200Hz", help="frequency band, e.g. 1Hz..200Hz")
+    p.add_argument("--periods", type=int, default=6, help="averaged excitation periods (default 6)")
+    p.add_argument("--period", default="2s", help="length of one excitation period (default 2 s)")
+    p.add_argument("--settle", default="4s", help="least excitation time before averaging (default 4 s; "
+                                                  "longer when the model has a slow mode)")
+    p.add_argument("--speed", default="10mm/s", help="speed of the working point (default 10 mm/s)")
+    p.add_argument("--noise", default="0 rad/s", help="simulated speed measurement noise, rms, in rad/s "
+                                                "(simulated backend only; default 0)")
+    p.add_argument("--pm", type=float, default=45.0, help="phase margin to keep, deg (default 45)")
+    p.add_argument("--gm", type=float, default=6.0, help="gain margin to keep, dB (default 6)")
+    p.add_argument("--out", default="out/frf", help="folder for plots and data (default out/frf)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _band(text: str):
+    from hil.cli import UserError
+    from hil.units import parse
+    parts = text.replace("...", "..").split("..")
+    if len(parts) != 2:
+        raise UserError(f"--band {text!r}: expected LOW..HIGH, e.g. 1Hz..200Hz")
+    unit = "".join(ch for ch in parts[1] if ch.isalpha())
+    lo = parts[0] if any(ch.isalpha() for ch in parts[0]) else parts[0] + unit
+    return parse(lo, "frequency", "--band"), parse(parts[1], "frequency", "--band")
+
+
+def settings_from_args(args, cfg, ctrl):
+    from hil.cli import UserError
+    from hil.frf import FrfSettings
+    from hil.units import UnitError, parse
+    band = _band(args.band)
+    if args.amplitude is None:
+        amp = 0.1 * ctrl.output_limit if args.input == "torque" else 0.005 * ctrl.speed_scale
+    elif args.input == "torque":
+        kind = "torque" if cfg.rotary else "dimensionless"
+        amp = parse(args.amplitude, kind, "--amplitude")
+    else:
+        try:
+            amp = parse(args.amplitude, "speed", "--amplitude") * ctrl.speed_scale
+        except UnitError:
+            amp = parse(args.amplitude, "angular_speed", "--amplitude")
+    if not amp > 0:
+        raise UserError("--amplitude must be positive")
+    if args.input == "torque" and amp >= ctrl.output_limit:
+        raise UserError(f"--amplitude {amp:g} N m reaches the output limit {ctrl.output_limit:g}")
+    if args.periods < 1:
+        raise UserError("--periods must be at least 1")
+    tv = ctrl.velocity_period
+    if band[1] >= 0.5 / tv:
+        raise UserError(f"--band: {band[1]:g} Hz is above the velocity loop's Nyquist frequency {0.5 / tv:g} Hz")
+    if band[0] <= 0 or band[0] >= band[1]:
+        raise UserError(f"--band {args.band}: needs 0 < low < high")
+    period = parse(args.period, "time", "--period")
+    if period * band[0] < 1 - 1e-9:
+        period = 1.0 / band[0]
+    return FrfSettings(signal=args.signal, input=args.input, amplitude=amp, band=band, periods=args.periods,
+                       period=period, settle=parse(args.settle, "time", "--settle"),
+                       speed=parse(args.speed, "speed", "--speed"),
+                       noise_speed=parse(args.noise, "angular_speed", "--noise"))
+
+
+def _check_travel(cfg, st, duration: float, x0: float) -> None:
+    from hil.cli import UserError
+    lo, hi = cfg.get("limits.travel_min", -math.inf), cfg.get("limits.travel_max", math.inf)
+    end = x0 + st.speed * duration
+    if not (lo <= min(x0, end) and max(x0, end) <= hi):
+        raise UserError(f"the working-point move ends at {end * 1e3:.1f} mm, outside the travel "
+                        f"{lo * 1e3:g}..{hi * 1e3:g} mm: lower --speed, --periods or --period")
+    vmax = cfg.get("limits.speed", math.inf)
+    if abs(st.speed) > vmax:
+        raise UserError(f"--speed {st.speed:g} m/s exceeds limits.speed {vmax:g} m/s")
+
+
+def run(args) -> int:
+    from hil import frf
+    from hil.cli import UserError
+    from hil.config import load, parse_assignment
+    from hil.control import controller_from_config
+    from sim_plant.plant import plant_from_config
+
+    overrides = dict(parse_assignment(s) for s in args.set)
+    cfg = load(args.config, overrides)
+    plant_model = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant_model)
+    st = settings_from_args(args, cfg, ctrl)
+    if args.sim_set:
+        cfg_true = load(args.config, dict(overrides, **dict(parse_assignment(s) for s in args.sim_set)))
+    else:
+        cfg_true = cfg
+    plant_true = plant_from_config(cfg_true)
+    settle = frf._settle_time(plant_model, st)
+    duration = st.lead_in + math.ceil(settle / st.period + st.periods) * st.period + 1.0
+    _check_travel(cfg, st, duration, 0.0)
+    name = args.backend or cfg.get("backend.type", "sim")
+    backend = None
+    if name != "sim":
+        from drivers import BackendError, open_backend
+        if args.sim_set:
+            raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
+        from drivers.base import BackendFault
+        from hil.supervisor import Supervisor, SupervisorTripped
+        options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
+        try:
+            backend = open_backend(cfg, name, **options)
+        except (BackendError, BackendFault, TypeError, ValueError) as exc:
+            raise UserError(str(exc)) from None
+        if backend.closes != "none":
+            raise UserError(f"backend {name}: frf closes both loops on the host and needs the drive in torque mode")
+        supervisor = Supervisor(cfg)
+        try:
+            supervisor.arm()
+        except SupervisorTripped as exc:
+            raise UserError(str(exc)) from None
+        try:
+            backend.open()
+            backend.enable()
+        except BackendFault as exc:
+            raise UserError(f"backend {name}: {exc.reason}") from None
+    else:
+        supervisor = None
+    progress = frf.stderr_progress
+    try:
+        result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
+                             pm_min=args.pm, gm_min_db=args.gm, supervisor=supervisor)
+    except (ValueError, RuntimeError) as exc:
+        raise UserError(str(exc)) from None
+    finally:
+        if backend is not None:
+            for step in (backend.disable, backend.close):
+                try:
+                    step()
+                except Exception:
+                    pass
+    out = Path(args.out)
+    report = result.as_dict()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        from hil.plots.frf import bode_measured_vs_model, coherence_figure
+        import matplotlib.pyplot as plt
+        title = f"{cfg.get('meta.name') or cfg.source}: measured ({st.signal}, {st.input}) vs model"
+        plant_names = [n for n in ("TF1p", "TF2", "TF3", "tip") if n in result.responses]
+        loop_names = [n for n in ("Lv", "Tv", "Lp", "Tp") if n in result.responses]
+        paths = {}
+        for key, names in (("bode_plant", plant_names), ("bode_loops", loop_names)):
+            fig = bode_measured_vs_model(result, names, title)
+            paths[key] = str(out / f"{key}.png")
+            fig.savefig(paths[key], dpi=110)
+            plt.close(fig)
+        fig = coherence_figure(result, title)
+        paths["coherence"] = str(out / "coherence.png")
+        fig.savefig(paths["coherence"], dpi=110)
+        plt.close(fig)
+        (out / "frf.json").write_text(dumps(report, indent=None))
+        (out / "config_diff.txt").write_text(_diff_text(result) + "\n")
+        report["plots"] = paths
+    except OSError as exc:
+        raise UserError(f"--out {args.out}: cannot write ({exc.strerror or exc})") from None
+    if args.json:
+        print(dumps(report, indent=None))
+    else:
+        print(_text(result, report))
+    return 0
+
+
+def _diff_text(result) -> str:
+    lines = ["# hil frf: suggested changes (not applied)"]
+    for d in result.discrepancies:
+        lines.append("# " + d["sentence"])
+        for k, (old, new) in d["changes"].items():
+            lines.append(f"{k} = {new:.4g}   # was {old:.4g}")
+    if result.tuning.get("config_diff"):
+        lines.append(result.tuning["config_diff"])
+    return "\n".join(lines)
+
+
+def _fmt(x, spec, unit=""):
+    return "-" if x is None else f"{x:{spec}}{unit}"
+
+
+def _text(result, report) -> str:
+    ex = report["excitation"]
+    lines = [f"frf on {ex['backend']}: {ex['signal']} {ex['input']} excitation, {ex['lines']} lines, "
+             f"{ex['periods']} periods of {ex['period_s']:g} s averaged"]
+    lines.append("modes (fit of the measured peaks | same fit on the model | model eigenvalues):")
+    for m in result.modes:
+        me, mo, mi = m["measured"], m["model"], m["model_eigen"]
+        lines.append(f"  mode {m['mode']} in {m['response']:5s}: {me['frequency_hz']:8.3f} Hz zeta {me['damping_ratio']:.4f}"
+                     f" | {mo['frequency_hz']:8.3f} Hz {mo['damping_ratio']:.4f}"
+                     f" | {mi['frequency_hz']:8.3f} Hz {mi['damping_ratio']:.4f}")
+    if result.discrepancies:
+        lines.append("discrepancies:")
+        lines += ["  " + d["sentence"] for d in result.discrepancies]
+    else:
+        lines.append("no discrepancy beyond 2 % in frequency and 20 % in damping")
+    t = result.tuning
+    v, p = t.get("velocity_loop", {}), t.get("position_loop", {})
+    lines.append(f"velocity loop: crossover {_fmt(v.get('crossover_hz'), '.1f', ' Hz')}, PM "
+                 f"{_fmt(v.get('phase_margin_deg'), '.1f', ' deg')}, GM {_fmt(v.get('gain_margin_db'), '.1f', ' dB')}, "
+                 f"bandwidth {_fmt(v.get('bandwidth_hz'), '.1f', ' Hz')}")
+    lines.append(f"position loop: crossover {_fmt(p.get('crossover_hz'), '.1f', ' Hz')}, PM "
+                 f"{_fmt(p.get('phase_margin_deg'), '.1f', ' deg')}, GM {_fmt(p.get('gain_margin_db'), '.1f', ' dB')}, "
+                 f"bandwidth {_fmt(p.get('bandwidth_hz'), '.1f', ' Hz')}")
+    a = t.get("acceleration_feed_forward")
+    if a:
+        lines.append(f"following error per acceleration: {a['error_per_acc_now'] * 1e6:.3g} um/(m/s^2) now, "
+                     f"{a['error_per_acc_with_ff'] * 1e6:.3g} with acc_ff = 1")
+    lines += ["warning: " + w for w in result.warnings]
+    lines.append("suggested config diff (not applied):")
+    lines += ["  " + ln for ln in _diff_text(result).splitlines()[1:]] or ["  (none)"]
+    if "plots" in report:
+        lines.append("plots: " + ", ".join(report["plots"].values()))
+    return "\n".join(lines)
+

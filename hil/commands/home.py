@@ -1,0 +1,40 @@
+"""``hil home``: CiA 402 homing (mode 6) on the drive."""
+from __future__ import annotations
+
+
+from hil.units import parse
+from hil.io.jsonout import dumps
+
+HELP = "home the CANopen drive (homing mode 6; method 37: the present position becomes --offset)"
+DESCRIPTION = """Home the drive: homing mode (6) with the method given (default 37, CiA 402 'homing
+on the present position': no motion, the present position becomes the home offset 0x607C).
+Other methods are the drive's own; the simulated drive knows 35 and 37.
+"""
+
+
+def add_arguments(p) -> None:
+    from hil.commands.move import add_common
+    add_common(p, backend=False)
+    p.add_argument("--offset", default="0mm", help="position of the home point (default 0mm)")
+    p.add_argument("--method", type=int, default=37, help="homing method 0x6098 (default 37)")
+    p.add_argument("--json", action="store_true", help="print as JSON")
+
+
+def run(args) -> int:
+    from drivers.base import BackendFault
+    from hil.cli import UserError
+    from hil.commands.move import load_config
+    from drivers.canopen.backend import CanopenBackend
+    cfg = load_config(args)
+    offset = parse(args.offset, "length", "--offset")
+    be = CanopenBackend(cfg)
+    try:
+        be.open()
+        out = be.home(offset=offset, method=args.method)
+    except BackendFault as exc:
+        raise UserError(exc.reason) from None
+    finally:
+        be.close()
+    print(dumps(out, indent=2) if args.json else
+          f"homed (method {out['method']}): position {out['position_m'] * 1e3:.4f} mm")
+    return 0

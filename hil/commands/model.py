@@ -1,0 +1,139 @@
+"""``hil model``: the plant model of a configuration: parameters, modes, damping, Bode plots."""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from hil.io.jsonout import dumps
+
+HELP = "model summary: modes, damping ratios, Bode plots of TF1, TF2, TF3"
+DESCRIPTION = """\
+Print the lumped chain of a configuration: masses, stiffnesses, dampings, the undamped modal
+frequencies of the elastic modes and their damping ratios (diag(Phi^T C Phi) / 2 omega), for the
+mechanical chain alone and with the motor's viscous friction (friction.viscous, reflected to
+linear units by (2 pi/p)^2 for a rotary actuator). Writes Bode plots of TF1 = x1/f, TF2 = x2/x1
+and TF3 = x3/x2 (no TF3 for a 2-dof chain) to --out.
+
+  hil model --config config/paper_bench.toml
+  hil model --config config/paper_bench.toml --set plant.c2=33 --json
+"""
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a parameter, e.g. plant.c2=33 or 'plant.m3=4.3 kg' (repeatable)")
+    parser.add_argument("--out", default="out/model", metavar="DIR", help="folder for the plots (default: out/model)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    parser.add_argument("--closed-loop", action="store_true",
+                        help="also report the closed position loop (needs the runtime's hil.closed_loop)")
+
+
+def model_report(cfg) -> dict:
+    """The numbers ``hil model`` reports, SI units, from a validated config."""
+    from sim_plant.chain import Chain
+    from sim_plant.plant import plant_from_config
+
+    plant = plant_from_config(cfg)
+    ch = plant.chain
+    bare = Chain(ch.m, ch.k, ch.c)
+    w, _ = ch.modes()
+    elastic = slice(1, None)          # mode 1 of a free chain is the rigid-body mode
+    report = {
+        "name": cfg.get("meta.name", ""),
+        "config": cfg.source,
+        "actuator": cfg.get("actuator.type", "rotary"),
+        "pitch_m": plant.pitch,
+        "masses_kg": list(ch.m),
+        "stiffness_N_per_m": list(ch.k),
+        "damping_N_s_per_m": list(ch.c),
+        "viscous_friction_N_s_per_m": float(ch.c_ground[0]),
+        "modes_hz": [float(x) for x in w[elastic] / (2 * math.pi)],
+        "damping_ratios": [float(x) for x in bare.modal_damping_ratios()] if ch.n > 1 else [],
+        "damping_ratios_with_friction": ([float(x) for x in ch.modal_damping_ratios(include_ground=True)]
+                                         if ch.n > 1 else []),
+    }
+    if ch.n > 1:
+        # no proportional-damping assumption: eigenvalues of the damped state matrix
+        wd, zd = ch.damped_modes(include_ground=True)
+        keep = wd > 1e-6 * max(wd.max(), 1.0)
+        report["damped_modes_hz"] = [float(x) for x in wd[keep][-(ch.n - 1):] / (2 * math.pi)]
+        report["damped_ratios"] = [float(x) for x in zd[keep][-(ch.n - 1):]]
+    return report
+
+
+def write_plots(cfg, report: dict, out_dir: Path) -> str:
+    from sim_plant.chain import Chain
+    from sim_plant.plant import plant_from_config
+    from sim_plant.transfer import chain_tfs
+    from hil.plots.model import bode_figure
+
+    # the mechanical chain, as in Table 1 and Fig. 9: the motor's friction is a disturbance there
+    ch = plant_from_config(cfg).chain
+    tfs = chain_tfs(Chain(ch.m, ch.k, ch.c))[:3]
+    fmax = 10 * max(report["modes_hz"] or [100.0])
+    f = np.logspace(np.log10(max(fmax / 1e4, 0.1)), np.log10(fmax), 2000)
+    fig = bode_figure(tfs, f, title=f"{report['name'] or cfg.source}: transfer functions (Table 1, Eq. 6)",
+                      modes_hz=report["modes_hz"])
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "bode_tf.png"
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    return str(path)
+
+
+def _text(r: dict) -> str:
+    lines = [f"{r['name'] or 'model'} ({r['config']})",
+             f"chain of {len(r['masses_kg'])} masses, {r['actuator']} actuator"
+             + (f", pitch {r['pitch_m'] * 1e3:g} mm" if r["pitch_m"] else "")]
+    for sym, vals, unit in (("m", r["masses_kg"], "kg"), ("k", r["stiffness_N_per_m"], "N/m"),
+                            ("c", r["damping_N_s_per_m"], "N s/m")):
+        if vals:
+            lines.append("  " + "   ".join(f"{sym}{i} = {v:.6g} {unit}" for i, v in enumerate(vals, 1)))
+    lines.append(f"  motor viscous friction on mass 1: {r['viscous_friction_N_s_per_m']:.6g} N s/m (linear units)")
+    if not r["modes_hz"]:
+        lines.append("no elastic mode (a single mass)")
+    else:
+        lines.append("elastic modes: undamped frequency, damping ratio (chain alone | with viscous friction"
+                     " | damped eigenvalues, friction included)")
+        for i, f in enumerate(r["modes_hz"]):
+            lines.append(f"  mode {i + 2}: {f:9.3f} Hz   zeta = {r['damping_ratios'][i]:.4f} | "
+                         f"{r['damping_ratios_with_friction'][i]:.4f} | {r['damped_ratios'][i]:.4f} "
+                         f"at {r['damped_modes_hz'][i]:.3f} Hz")
+    if r.get("plot"):
+        lines.append(f"Bode plots: {r['plot']}")
+    return "\n".join(lines)
+
+
+def run(args) -> int:
+    from hil.cli import UserError
+    from hil.config import load, parse_assignment
+
+    overrides = dict(parse_assignment(s) for s in args.set)
+    cfg = load(args.config, overrides)
+    report = model_report(cfg)
+    try:
+        report["plot"] = write_plots(cfg, report, Path(args.out))
+    except OSError as exc:
+        raise UserError(f"--out {args.out}: cannot write the plots ({exc.strerror or exc})") from None
+    if args.closed_loop:
+        try:
+            from hil.closed_loop import closed_loop_report
+        except ImportError:
+            print("hil model: --closed-loop: the closed-loop analysis (hil.closed_loop) is not available "
+                  "in this version; skipped", file=sys.stderr)
+        else:
+            report["closed_loop"] = closed_loop_report(cfg, Path(args.out))
+    if args.json:
+        print(dumps(report, indent=2))
+    else:
+        print(_text(report))
+        if "closed_loop" in report:
+            cl = report["closed_loop"]
+            print(cl if isinstance(cl, str) else dumps(cl, indent=2))
+    return 0
+

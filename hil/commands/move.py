@@ -1,0 +1,129 @@
+"""``hil move``: one sine-square move (optionally back again), checked against the limits first."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from hil import config as config_mod
+from hil.analysis import move_figures
+from hil.closed_loop import UnstableLoopError, check_loop_stability
+from hil.cli import UserError
+from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
+from hil.units import parse
+from hil.io.jsonout import dumps
+
+HELP = "run a sine-square move on the backend (the simulated plant by default)"
+DESCRIPTION = """Run one jerk-limited sine-square move (Eq. 15-16 of the paper), record it and report
+overshoot, following errors and settling at table and tool tip.
+
+How fast to accelerate: --tacc (the NC's acceleration time to reach G0; G0 from the config's
+nc.g0 or --g0), or --amax, or --jmax. A stroke too short to reach the feed keeps the quantity
+given and lowers the peak speed. Limits are checked before any motion (--check: only check).
+
+example:
+  hil move --config config/paper_bench.toml --stroke 100mm --feed 7000mm/min --tacc 200ms
+"""
+
+
+def add_common(p, backend: bool = True) -> None:
+    p.add_argument("--config", required=True, help="axis configuration (TOML)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config parameter, e.g. --set plant.c2=33 (repeatable)")
+    if backend:
+        p.add_argument("--backend", help="sim (default), canopen or serial; default: the config's backend.type")
+
+
+def load_config(args):
+    overrides = dict(config_mod.parse_assignment(s) for s in args.set)
+    return config_mod.load(args.config, overrides)
+
+
+def add_arguments(p) -> None:
+    add_common(p)
+    p.add_argument("--stroke", required=True, help="signed stroke, e.g. 100mm or -0.1m")
+    p.add_argument("--feed", required=True, help="feed (peak speed), e.g. 7000mm/min")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--tacc", help="NC acceleration time to reach G0, e.g. 200ms")
+    g.add_argument("--amax", help="peak acceleration, e.g. 4m/s^2")
+    g.add_argument("--jmax", help="peak jerk, e.g. 200m/s^3")
+    p.add_argument("--g0", help="rapid speed G0 (default: the config's nc.g0)")
+    p.add_argument("--start", default="0mm", help="start position (default 0mm)")
+    p.add_argument("--back", action="store_true", help="return to the start after the dwell")
+    p.add_argument("--dwell", default="1s", help="standstill after each move (default 1s)")
+    p.add_argument("--band", default="1um", help="settling band around the target (default 1um)")
+    p.add_argument("--check", action="store_true", help="check the move against the limits, do not run it")
+    p.add_argument("--out", default="out/move", help="output folder for the record and the plot (default out/move)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def build_trajectory(args, cfg) -> Trajectory:
+    g0 = parse(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
+    try:
+        spec = MoveSpec(stroke=parse(args.stroke, "length", "--stroke"), feed=parse(args.feed, "speed", "--feed"),
+                        t_acc=parse(args.tacc, "time", "--tacc") if args.tacc else None,
+                        g0=g0 if args.tacc else None,
+                        a_max=parse(args.amax, "acceleration", "--amax") if args.amax else None,
+                        j_max=parse(args.jmax, "jerk", "--jmax") if args.jmax else None)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    dwell = parse(args.dwell, "time", "--dwell")
+    traj = Trajectory(start=parse(args.start, "length", "--start"))
+    traj.move(spec)
+    traj.dwell(dwell)
+    if args.back:
+        traj.move(MoveSpec(-spec.stroke, spec.feed, spec.t_acc, spec.g0, spec.a_max, spec.j_max))
+        traj.dwell(dwell)
+    return traj
+
+
+def run(args) -> int:
+    cfg = load_config(args)
+    traj = build_trajectory(args, cfg)
+    try:
+        check_limits(traj, AxisLimits.from_config(cfg))
+        check_loop_stability(cfg)
+    except (LimitError, UnstableLoopError) as exc:
+        raise UserError(str(exc)) from None
+    first = traj.moves[0]
+    if args.check:
+        summary = {"ok": True, "j_max": first.j_max, "a_max": first.a_max, "peak_speed": first.peak_speed,
+                   "duration": traj.duration, "reduced_peak_speed": first.reduced}
+        print(dumps(summary, indent=2) if args.json else
+              f"move fits the limits: j_max {first.j_max:.4g} m/s^3, a_max {first.a_max:.4g} m/s^2, "
+              f"peak speed {first.peak_speed * 60e3:.0f} mm/min, duration {traj.duration:.3f} s")
+        return 0
+    from drivers import BackendError, open_backend
+    from hil.runtime import run_trajectory
+    try:
+        backend = open_backend(cfg, args.backend)
+    except BackendError as exc:
+        raise UserError(str(exc)) from None
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rec = run_trajectory(cfg, traj, backend=backend, out_file=out / "move.csv", settle=0.0, check=False)
+    ch = rec.channels
+    if len(ch["t"]) < 2:
+        raise UserError(f"the move did not start on {backend.name}: {rec.status}: {rec.reason}")
+    band = parse(args.band, "length", "--band")
+    t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
+        traj.segments[1], "stroke") else 0.0)
+    fig = move_figures(ch["t"], ch["x_cmd"], ch["x_table"], ch["x_tip"], ch.get("torque", ch.get("command")),
+                       first, 0.0, t_next, band)
+    from hil.plots.move import plot_move
+    png = plot_move(ch, out / "move.png", title=f"{cfg.get('meta.name') or cfg.source}: stroke "
+                    f"{first.stroke * 1e3:g} mm, feed {first.peak_speed * 60e3:.0f} mm/min, "
+                    f"j_max {first.j_max:.0f} m/s^3")
+    summary = dict(fig.as_dict(), status=rec.status, reason=rec.reason, record=str(rec.path), plot=str(png),
+                   backend=backend.name)
+    if args.json:
+        print(dumps(summary, indent=2))
+    else:
+        st = lambda v: "not settled" if v is None else f"{v * 1e3:.1f} ms"  # noqa: E731
+        print(f"move {first.stroke * 1e3:g} mm at {first.peak_speed * 60e3:.0f} mm/min on {backend.name}: "
+              f"j_max {first.j_max:.4g} m/s^3, a_max {first.a_max:.4g} m/s^2")
+        print(f"  overshoot          table {fig.overshoot_table_um:8.2f} um   tip {fig.overshoot_tip_um:8.2f} um")
+        print(f"  peak follow. error table {fig.peak_following_error_table_um:8.1f} um   tip "
+              f"{fig.peak_following_error_tip_um:8.1f} um")
+        print(f"  settling (+-{band * 1e6:g} um) table {st(fig.settling_time_table)}   tip {st(fig.settling_time_tip)}")
+        print(f"  residual tip vibration {fig.residual_tip_um:.2f} um, peak torque {fig.peak_torque:.2f}")
+        print(f"  record {rec.path}, plot {png}" + ("" if rec.status == "complete" else f"  [{rec.status}: {rec.reason}]"))
+    return 0 if rec.status == "complete" else 1

@@ -1,0 +1,38 @@
+"""``hil reset``: CiA 402 fault reset on the drive and the supervisor's latch cleared."""
+from __future__ import annotations
+
+
+from hil.io.jsonout import dumps
+
+HELP = "reset a drive fault (controlword bit 7) and clear the supervisor's latched trip"
+DESCRIPTION = """Send FAULT RESET (controlword 0x0080, rising edge) to the drive and clear the
+supervisor's latch file (supervisor.latch_file), so that motion is allowed again. Find and fix
+the cause first: 'hil status' shows the error code and the trip reason.
+"""
+
+
+def add_arguments(p) -> None:
+    from hil.commands.move import add_common
+    add_common(p, backend=False)
+    p.add_argument("--supervisor-only", action="store_true", help="only clear the supervisor's latch")
+    p.add_argument("--json", action="store_true", help="print as JSON")
+
+
+def run(args) -> int:
+    from hil.commands.move import load_config
+    from hil.supervisor import Supervisor
+    cfg = load_config(args)
+    sup = Supervisor(cfg)
+    out = {"supervisor_was": sup.reason if sup.tripped else "clear"}
+    sup.reset()
+    if not args.supervisor_only:
+        from hil.commands.status import connect
+        _, be = connect(args)
+        try:
+            out["error_code"] = f"0x{be.node.sdo[0x603F].raw:04X}"
+            out["state"] = be.fault_reset()
+        finally:
+            be.close()
+    print(dumps(out, indent=2) if args.json else
+          "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in out.items()))
+    return 0 if out.get("state", "SWITCH ON DISABLED") != "FAULT" else 1

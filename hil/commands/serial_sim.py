@@ -1,0 +1,51 @@
+"""``hil serial-sim``: a simulated ASCII serial drive on a pseudo-terminal (drivers.serial_sim)."""
+from __future__ import annotations
+
+import sys
+
+from hil.cli import UserError
+
+HELP = "run a simulated serial (ASCII) drive on a pseudo-terminal and print the port to use"
+DESCRIPTION = """Run a simulated servo drive that speaks the config's [serial] command set on a new
+pseudo-terminal, with the sim_plant model as its shaft, until Ctrl-C. It prints the port
+(/dev/pts/N); run the host against it in another shell:
+
+  hil serial-sim --config config/serial_ascii_example.toml
+  hil move --config config/serial_ascii_example.toml --backend serial --set serial.port=/dev/pts/N \\
+      --stroke 10mm --feed 7000mm/min --tacc 200ms --dwell 0.3s
+
+Faults to inject (repeatable): KIND[@AFTER][xCOUNT][:OP], e.g. --fault timeout@200x3:set_position
+(after 200 more commands, the next 3 set_position commands get no reply). Kinds: timeout, partial,
+garbled, checksum, unexpected, refuse, drive_fault, vanish.
+"""
+
+
+def add_arguments(p) -> None:
+    from hil.commands.move import add_common
+    add_common(p, backend=False)
+    p.add_argument("--fault", action="append", default=[], metavar="KIND[@AFTER][xCOUNT][:OP]",
+                   help="inject a fault (repeatable)")
+    p.add_argument("--advance", choices=("setpoint", "wall"), default="wall",
+                   help="the plant advances one cycle per setpoint, or with the wall clock (default)")
+
+
+def run(args) -> int:
+    from drivers.serial.drive_sim import parse_fault, serve
+    from hil.commands.move import load_config
+    cfg = load_config(args)
+    try:
+        faults = [parse_fault(f) for f in args.fault]
+    except ValueError as exc:
+        raise UserError(f"--fault: {exc}") from None
+    if not cfg.section("serial.commands"):
+        raise UserError(f"{cfg.source}: no [serial.commands] section (see config/serial_ascii_example.toml)")
+
+    def announce(path):
+        print(path, flush=True)
+        print(f"simulated serial drive on {path} (advance: {args.advance}); use --set serial.port={path}; "
+              "Ctrl-C to stop", file=sys.stderr, flush=True)
+    try:
+        serve(cfg, faults=faults, advance=args.advance, announce=announce)
+    except KeyboardInterrupt:
+        pass
+    return 0

@@ -1,0 +1,113 @@
+"""Test data with a hidden effect (``hil synth``): measurement records of a richer plant.
+
+The plant of a config plus one hidden effect (a catalogue effect with values, or a changed config
+parameter) is driven through the config's loops by a varied move sequence: slow and fast moves,
+short and long strokes, direct reversals and long dwells, sine-square velocity ramps. What is
+recorded imitates a real bench: positions read through a 0.5 um linear encoder (quantization
+after a small Gaussian sensor noise), torque or force with Gaussian noise, 4 ms sampling.
+The quantization is applied to the record, not inside the loop, so that the clean record of a
+config replays through that config to within the sensor noise.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim_plant.effects import candidate
+
+from hil.simulate import simulate_config
+
+__all__ = ["move_sequence", "synthesize", "HIDDEN_DEFAULTS"]
+
+# Values of the hidden effects for the paper bench (rotary: torques in N m on the motor).
+HIDDEN_DEFAULTS = {
+    "coulomb_friction": {"level": 2.2},
+    "viscous_friction": {"coefficient": 0.02},
+    "stribeck_friction": {"level": 1.5, "static": 3.5, "velocity": 3e-3},
+    "asymmetric_friction": {"level_pos": 1.2, "level_neg": 3.0, "viscous_pos": 0.0076, "viscous_neg": 0.02},
+    "constant_force": {"force": 400.0},
+    "backlash": {"gap": 20e-6},
+    "time_delay": {"delay": 2e-3},
+    "pitch_error": {"amplitude": 4e-6, "period": 0.01, "phase": 0.5},
+    "torque_ripple": {"amplitude": 0.6, "period": 0.005, "phase": 0.3},
+    "compliant_mode": {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02},
+    "mass_change": {"mass": 80.0},
+    "parameter:plant.c2": {"value": 40.0},
+}
+
+
+def _ramp_move(x0, stroke, vmax, t_r, dt):
+    """Positions of a sine-square move (ramps of t_r, cruise at vmax) sampled every dt."""
+    d = abs(stroke)
+    s = math.copysign(1.0, stroke)
+    if vmax * t_r > d:              # too short to reach vmax: lower the speed
+        vmax = d / t_r
+    t_c = (d - vmax * t_r) / vmax
+    T = 2 * t_r + t_c
+    t = np.arange(1, int(math.ceil(T / dt)) + 1) * dt
+    v = np.where(t < t_r, vmax * np.sin(np.pi * t / (2 * t_r)) ** 2,
+                 np.where(t < t_r + t_c, vmax, vmax * np.sin(np.pi * np.clip(T - t, 0, None) / (2 * t_r)) ** 2))
+    x = np.cumsum(v) * dt
+    x *= d / x[-1]
+    return x0 + s * x
+
+
+def move_sequence(duration: float = 12.0, dt: float = 4e-3, seed: int = 0, travel: float = 0.08,
+                  vmax: float = 0.2, amax: float = 6.0) -> np.ndarray:
+    """A varied command on the dt clock: strokes 1..60 mm, speeds 5..vmax, ramps from amax down,
+    dwells 0..0.6 s, some direct reversals; stays within [0, travel]."""
+    rng = np.random.default_rng(seed)
+    n = int(round(duration / dt))
+    xs = [np.zeros(int(0.2 / dt))]
+    x = 0.0
+    while sum(a.size for a in xs) < n:
+        stroke = rng.choice([1, 1, 1, 1, 2]) * rng.uniform(0.002, 0.03) * (1 if rng.random() < 0.3 else 2)
+        if x + stroke > travel or (x - stroke >= 0 and rng.random() < 0.5):
+            stroke = -stroke
+        v = rng.uniform(0.005, vmax) if rng.random() < 0.7 else rng.uniform(0.002, 0.02)
+        t_r = max(math.pi * v / (2 * rng.uniform(0.3 * amax, amax)), 2 * dt)
+        seg = _ramp_move(x, stroke, v, t_r, dt)
+        xs.append(seg)
+        x = float(seg[-1])
+        if rng.random() < 0.6:
+            xs.append(np.full(int(rng.uniform(0.05, 0.6) / dt), x))
+    return np.concatenate(xs)[:n]
+
+
+def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, duration: float = 12.0,
+               sample_period: float = 4e-3, seed: int = 0, resolution: float = 0.5e-6,
+               position_noise: float = 0.1e-6, force_noise: float | None = None, x_cmd=None):
+    """Channels (SI) of a record of ``cfg``'s plant with the hidden ``effect`` (None: clean).
+    Returns (channels, truth) with the config of the richer plant in ``truth["config"]``."""
+    rich = cfg
+    if effect:
+        eff = candidate(effect, cfg)
+        vals = dict(HIDDEN_DEFAULTS.get(effect, {})) if values is None else dict(values)
+        if not vals:
+            vals = {p.name: p.guess for p in eff.params}
+        rich = eff.configure(cfg, vals)
+    else:
+        vals = {}
+    tp = cfg["control.position_period"]
+    ratio = sample_period / tp
+    if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
+        raise ValueError(f"sample period {sample_period:g} s must be a whole multiple of the position period {tp:g} s")
+    k = int(round(ratio))
+    if x_cmd is None:
+        x_cmd = move_sequence(duration, tp, seed)
+    res = simulate_config(rich, x_cmd)
+    ch = res.channels()
+    rng = np.random.default_rng(seed + 1000)
+    out = {"t": ch["t"][::k].copy(), "x_cmd": ch["x_cmd"][::k].copy()}
+    for c in ("x_motor", "x_table", "x_tip"):
+        y = ch[c][::k] + rng.normal(0.0, position_noise, ch[c][::k].size)
+        out[c] = resolution * np.floor(y / resolution + 0.5) if resolution > 0 else y
+    fch = "torque" if cfg.rotary else "force"
+    y = ch[fch][::k]
+    if force_noise is None:
+        force_noise = 0.01 * float(np.sqrt(np.mean(y * y))) + 1e-9
+    out[fch] = y + rng.normal(0.0, force_noise, y.size)
+    truth = {"effect": effect or "none", "params": vals, "config": rich, "seed": seed,
+             "resolution": resolution, "position_noise": position_noise, "force_noise": force_noise}
+    return out, truth
