@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 
 from drivers.base import LOOPS, Backend, BackendFault, Feedback, Setpoint
+from hil.errors import BackendError
 
 # backend type -> "module:class"; each class is built as cls(cfg, **options)
 BACKENDS = {
@@ -13,10 +14,6 @@ BACKENDS = {
     "canopen": "drivers.canopen.backend:CanopenBackend",
     "serial": "drivers.serial.backend:SerialBackend",
 }
-
-
-class BackendError(ValueError):
-    """An unknown or unavailable backend."""
 
 
 def open_backend(cfg, name: str | None = None, **options) -> Backend:

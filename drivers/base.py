@@ -20,17 +20,11 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
+from hil.errors import BackendFault
+
 __all__ = ["Backend", "Feedback", "Setpoint", "BackendFault", "LOOPS"]
 
 LOOPS = ("both", "velocity", "none")
-
-
-class BackendFault(RuntimeError):
-    """The backend lost the drive, or the drive reported a fault. ``reason`` says which."""
-
-    def __init__(self, reason: str):
-        super().__init__(reason)
-        self.reason = reason
 
 
 @dataclass

@@ -1,8 +1,9 @@
-"""The ``hil`` command line: one sub-command per module ``hil/cmd_<name>.py``.
+"""The ``hil`` command line: one sub-command per module ``hil/commands/<name>.py``.
 
 Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``.
-Errors the user can fix (bad config, bad data, refused moves) print one clear line and exit 2;
-they never end in a traceback.
+Every error the project raises on purpose derives from :class:`hil.errors.HilError`; ``main``
+catches that root and prints one line: exit 2 for what the user can fix (bad config, bad data,
+refused moves), 1 for a drive fault, 130 for an interrupt. Never a traceback.
 """
 from __future__ import annotations
 
@@ -11,15 +12,7 @@ import importlib
 import importlib.util
 import sys
 
-from drivers import BackendError
-from drivers.base import BackendFault
-
-from hil.closed_loop import UnstableLoopError
-from hil.config import ConfigError
-from hil.io.measurement import MeasurementError
-from hil.profiles import LimitError
-from hil.supervisor import SupervisorTripped
-from hil.units import UnitError
+from hil.errors import HilError, UserError
 
 # command name -> module (kept in the order `hil --help` lists them). A module not yet present in
 # this checkout is left out of the listing.
@@ -42,8 +35,6 @@ COMMANDS = {
 }
 
 
-class UserError(Exception):
-    """An error in what the user asked for; printed as one line, exit status 2."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,19 +66,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args._run(args) or 0)
-    except (ConfigError, UnitError, UserError, MeasurementError, BackendError, LimitError, SupervisorTripped,
-            UnstableLoopError) as exc:
-        print(f"hil {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except BackendFault as exc:
-        print(f"hil {args.command}: drive fault: {exc.reason}", file=sys.stderr)
-        return 1
+    except HilError as exc:
+        # one line, and the exit code of the error's kind (2: fix and retry; 1: drive fault)
+        print(f"hil {args.command}: {exc.label}: {exc}", file=sys.stderr)
+        return exc.exit_code
     except KeyboardInterrupt:
         print(f"hil {args.command}: interrupted", file=sys.stderr)
         return 130
 
 
 if __name__ == "__main__":  # pragma: no cover
-    # run the imported module's main, so that the commands and this code share one UserError class
-    from hil.cli import main as _main
-    sys.exit(_main())
+    sys.exit(main())

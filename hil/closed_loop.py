@@ -17,6 +17,7 @@ from sim_plant.plant import plant_from_config
 from sim_plant.transfer import chain_tfs
 
 from hil.control import controller_from_config
+from hil.errors import UnstableLoopError
 
 __all__ = ["ClosedLoopResponse", "closed_loop_response", "closed_loop_report", "bandwidth"]
 
@@ -128,10 +129,6 @@ def closed_loop_report(cfg, out_dir=None) -> dict:
         from hil.plots.model import closed_loop_figure
         rep["plot"] = str(closed_loop_figure(r, out_dir))
     return rep
-
-
-class UnstableLoopError(ValueError):
-    """A loop configuration that the model shows unstable; refused before motion."""
 
 
 def loop_stability(cfg) -> tuple[bool, float] | None:

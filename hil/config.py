@@ -19,14 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from hil.errors import ConfigError
 from hil.units import SI_UNIT, UnitError, parse
 
 __all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section",
            "parse_assignment", "schema_markdown"]
-
-
-class ConfigError(ValueError):
-    """A configuration that cannot be used; the message names the file, the key and what was expected."""
 
 
 @dataclass(frozen=True)

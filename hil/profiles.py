@@ -16,12 +16,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hil.errors import LimitError
+
 __all__ = ["MoveSpec", "SineSquareMove", "Dwell", "Trajectory", "LimitError", "AxisLimits",
            "plan_move", "check_limits"]
-
-
-class LimitError(ValueError):
-    """A move refused before motion: the message says which limit, by how much, and what would fit."""
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ from collections import deque
 from pathlib import Path
 
 from hil.config import Field, register_section
+from hil.errors import SupervisorTripped
 
 __all__ = ["Supervisor", "SupervisorTripped", "SECTION"]
 
@@ -37,10 +38,6 @@ SECTION = {
                                    default=""),
 }
 register_section("supervisor", lambda key: SECTION.get(key))
-
-
-class SupervisorTripped(RuntimeError):
-    """Motion refused: the supervisor tripped and was not reset."""
 
 
 class Supervisor:

@@ -10,11 +10,9 @@ import math
 import re
 from functools import lru_cache
 
+from hil.errors import UnitError
+
 __all__ = ["UnitError", "parse", "parse_list", "DIMENSIONS"]
-
-
-class UnitError(ValueError):
-    """A value whose unit is missing, unknown or of the wrong kind."""
 
 
 # Expected kinds of quantity, by name, as pint dimensionalities written as strings.

@@ -40,7 +40,7 @@ def load_inputs(args):
     from hil.config import load, parse_assignment
     from hil.io.importers import parse_mapping, read_any
     from hil.io.measurement import MeasurementError
-    from hil.cli import UserError
+    from hil.errors import UserError
     overrides = dict(parse_assignment(s) for s in args.set)
     cfg = load(args.config, overrides)
     try:

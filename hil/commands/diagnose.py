@@ -34,7 +34,7 @@ def candidates_json(d):
 
 
 def run(args) -> int:
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.ident.diagnose import diagnose
     from sim_plant.effects import candidate
     cfg, meas = load_inputs(args)

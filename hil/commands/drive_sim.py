@@ -6,7 +6,7 @@ import sys
 import threading
 import time
 
-from hil.cli import UserError
+from hil.errors import UserError
 from hil.io.jsonout import dumps
 
 HELP = "run the simulated CiA 402 drive on a socketcand server on 127.0.0.1 (for --backend canopen)"

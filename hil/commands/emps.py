@@ -205,7 +205,7 @@ def check_published(rows) -> dict:
 
 
 def run(args) -> int:
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.ident.replay import analyse
     from hil.io.measurement import MeasurementError
     from hil.plots.compare import comparison_figures, error_fall_figure

@@ -33,7 +33,7 @@ def run(args) -> int:
     from hil.ident.frf_fit import is_frf_file
     if is_frf_file(args.data):
         return _run_frequency(args)
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.ident.diagnose import fit_effects, joint_refit
     from sim_plant.effects import candidate
     cfg, meas = load_inputs(args)
@@ -66,7 +66,7 @@ def run(args) -> int:
 
 def _run_frequency(args) -> int:
     """``hil fit frf.json``: the same effects fitted to measured frequency responses."""
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.ident.frf_fit import FrfDataError, fit_frf, load_frf
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))

@@ -55,7 +55,7 @@ def add_arguments(p) -> None:
 
 
 def _band(text: str):
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.units import parse
     parts = text.replace("...", "..").split("..")
     if len(parts) != 2:
@@ -66,7 +66,7 @@ def _band(text: str):
 
 
 def settings_from_args(args, cfg, ctrl):
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.frf import FrfSettings
     from hil.units import UnitError, parse
     band = _band(args.band)
@@ -101,7 +101,7 @@ def settings_from_args(args, cfg, ctrl):
 
 
 def _check_travel(cfg, st, duration: float, x0: float) -> None:
-    from hil.cli import UserError
+    from hil.errors import UserError
     lo, hi = cfg.get("limits.travel_min", -math.inf), cfg.get("limits.travel_max", math.inf)
     end = x0 + st.speed * duration
     if not (lo <= min(x0, end) and max(x0, end) <= hi):
@@ -114,7 +114,7 @@ def _check_travel(cfg, st, duration: float, x0: float) -> None:
 
 def run(args) -> int:
     from hil import frf
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.control import controller_from_config
     from sim_plant.plant import plant_from_config

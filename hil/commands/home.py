@@ -22,7 +22,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from drivers.base import BackendFault
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.commands.move import load_config
     from drivers.canopen.backend import CanopenBackend
     cfg = load_config(args)

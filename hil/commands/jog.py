@@ -24,7 +24,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from drivers.canopen.backend import CanopenBackend
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.commands.status import connect
     from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
     from hil.runtime import run_trajectory

@@ -110,7 +110,7 @@ def _text(r: dict) -> str:
 
 
 def run(args) -> int:
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.config import load, parse_assignment
 
     overrides = dict(parse_assignment(s) for s in args.set)

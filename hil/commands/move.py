@@ -6,7 +6,7 @@ from pathlib import Path
 from hil import config as config_mod
 from hil.analysis import move_figures
 from hil.closed_loop import UnstableLoopError, check_loop_stability
-from hil.cli import UserError
+from hil.errors import UserError
 from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
 from hil.units import parse
 from hil.io.jsonout import dumps

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 
-from hil.cli import UserError
+from hil.errors import UserError
 
 HELP = "run a simulated serial (ASCII) drive on a pseudo-terminal and print the port to use"
 DESCRIPTION = """Run a simulated servo drive that speaks the config's [serial] command set on a new

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 
-from hil.cli import UserError
+from hil.errors import UserError
 from hil.io.jsonout import dumps
 
 HELP = "show the CANopen drive's state, position, error code and recent EMCY (no motion)"

@@ -77,7 +77,7 @@ _RANGE = re.compile(r"^\s*(.+?)\s*\.\.\s*(.+?)\s*$")
 
 def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
     """A list ("60ms,80ms") or a log-spaced range ("1..2000", "60ms..300ms") of quantities."""
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.sweep import jerk_grid
     from hil.units import parse, parse_list
     from hil.units import SI_UNIT
@@ -105,7 +105,7 @@ def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
 
 
 def _budget(text):
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.units import parse
     if text is None:
         return None, 5.0
@@ -125,7 +125,7 @@ def _budget(text):
 
 
 def settings_from_args(args, cfg):
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.sweep import SweepSettings
     from hil.units import parse
     stroke = parse(args.stroke, "length", "--stroke")
@@ -222,7 +222,7 @@ def _text(r: dict) -> str:
 
 
 def run(args) -> int:
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.profiles import LimitError
     from hil.sweep import run_sweep

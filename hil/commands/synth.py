@@ -25,7 +25,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from hil.cli import UserError
+    from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.io.measurement import write
     from hil.ident.synth import synthesize

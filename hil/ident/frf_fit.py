@@ -21,6 +21,7 @@ from sim_plant.effects import Combination, candidate
 from sim_plant.plant import plant_from_config
 
 from hil.control import controller_from_config
+from hil.errors import MeasurementError
 
 __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RESPONSES"]
 
@@ -28,7 +29,7 @@ __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RES
 PLANT_RESPONSES = ("TF1p", "TF2", "TF3", "tip")
 
 
-class FrfDataError(ValueError):
+class FrfDataError(MeasurementError):
     """A frequency-response file that cannot be used; the message names the file and the key."""
 
 

@@ -178,12 +178,12 @@ class Replay:
         if channels:
             bad = [c for c in channels if c not in avail]
             if bad:
-                from hil.cli import UserError
+                from hil.errors import UserError
                 raise UserError(f"{meas.source}: channel {bad[0]!r} is not in the record or not simulated "
                                 f"(available: {', '.join(avail)})")
             avail = list(channels)
         if not avail:
-            from hil.cli import UserError
+            from hil.errors import UserError
             raise UserError(f"{meas.source}: no measured channel to compare (need one of x_motor, x_table, x_tip, "
                             f"torque, force)")
         self.channels = avail

@@ -24,11 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.errors import MeasurementError
+
 __all__ = ["Measurement", "MeasurementError", "read", "write", "CHANNELS", "UNITS", "header_name"]
-
-
-class MeasurementError(ValueError):
-    """A measurement file that cannot be used; the message names the file, the line or column."""
 
 
 # unit text -> (quantity kind, factor to SI)

@@ -313,7 +313,7 @@ def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None) -> dict:
     traj, move = backend_trajectory(spec)
     rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend), out_file=None, settle=0.0)
     if getattr(rec, "status", "complete") != "complete":
-        from hil.cli import UserError
+        from hil.errors import UserError
         raise UserError(f"run at j_max {move.j_max:.4g} m/s^3 stopped: {rec.status}: {rec.reason}; the runs "
                         f"finished before it are kept and the sweep resumes from there")
     ch = rec.channels
