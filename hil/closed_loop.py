@@ -116,19 +116,15 @@ def bandwidth(f_hz, h) -> float | None:
     return float(10 ** (np.log10(f_hz[i - 1]) + t * (np.log10(f_hz[i]) - np.log10(f_hz[i - 1]))))
 
 
-def closed_loop_report(cfg, out_dir=None) -> dict:
-    """Bandwidths and peak gains of the closed position loop; a PNG if ``out_dir`` is given."""
-    r = closed_loop_response(cfg)
-    rep = {"stable": r.stable, "spectral_radius": r.spectral_radius,
+def closed_loop_report(r: ClosedLoopResponse) -> dict:
+    """Bandwidths and peak gains of the closed position loop of a :func:`closed_loop_response`
+    (the figure is hil.plots.model's)."""
+    return {"stable": r.stable, "spectral_radius": r.spectral_radius,
            "bandwidth_hz": {"table_ff": bandwidth(r.f_hz, r.table), "table_no_ff": bandwidth(r.f_hz, r.table_no_ff),
                             "tip_ff": bandwidth(r.f_hz, r.tip), "table_ff_tf3": bandwidth(r.f_hz, r.table_tf3),
                             "table_no_ff_tf3": bandwidth(r.f_hz, r.table_no_ff_tf3)},
            "peak_gain_db": {k: float(20 * np.log10(np.max(np.abs(v)))) for k, v in
                             (("table_ff", r.table), ("tip_ff", r.tip), ("table_ff_tf3", r.table_tf3))}}
-    if out_dir is not None:
-        from hil.plots.model import closed_loop_figure
-        rep["plot"] = str(closed_loop_figure(r, out_dir))
-    return rep
 
 
 def loop_stability(cfg) -> tuple[bool, float] | None:

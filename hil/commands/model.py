@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -121,13 +120,11 @@ def run(args) -> int:
     except OSError as exc:
         raise UserError(f"--out {args.out}: cannot write the plots ({exc.strerror or exc})") from None
     if args.closed_loop:
-        try:
-            from hil.closed_loop import closed_loop_report
-        except ImportError:
-            print("hil model: --closed-loop: the closed-loop analysis (hil.closed_loop) is not available "
-                  "in this version; skipped", file=sys.stderr)
-        else:
-            report["closed_loop"] = closed_loop_report(cfg, Path(args.out))
+        from hil.closed_loop import closed_loop_report, closed_loop_response
+        from hil.plots.model import closed_loop_figure
+        response = closed_loop_response(cfg)
+        report["closed_loop"] = closed_loop_report(response)
+        report["closed_loop"]["plot"] = str(closed_loop_figure(response, Path(args.out)))
     if args.json:
         print(dumps(report, indent=2))
     else:

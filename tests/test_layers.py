@@ -1,0 +1,184 @@
+"""The architecture as a test: imports point one way, and there is no import circle.
+
+Layers, lowest first (a module may import its own layer and the layers below it, never above):
+
+0. the physics (``sim_plant``) and the foundations every layer uses (``hil.errors``, ``hil.units``)
+1. the configuration, the one control law and the reading of a configuration into a plant
+2. the backends (``drivers``)
+3. the runtime core: simulator, cycle loop, runtime, supervisor, profiles, measurement files
+4. the applications: identification, jerk sweeps, frequency responses
+5. figures and reports
+6. the command line
+
+Every import statement counts, at the top of a module or inside a function: an import inside a
+function is still an arrow of the graph. The table is data; docs/architecture.md says the same
+in words.
+"""
+from __future__ import annotations
+
+import ast
+import importlib.util
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+PACKAGES = ("sim_plant", "drivers", "hil")
+
+# module prefix -> layer; the longest matching prefix decides
+LAYERS = {
+    "sim_plant": 0, "hil.errors": 0, "hil.units": 0,
+    "hil": 1, "hil.config": 1, "hil.control": 1, "hil.plant_config": 1,
+    "drivers": 2,
+    "hil.simulate": 3, "hil.loop": 3, "hil.runtime": 3, "hil.supervisor": 3, "hil.profiles": 3,
+    "hil.closed_loop": 3, "hil.analysis": 3, "hil.io": 3,
+    "hil.ident": 4, "hil.sweep": 4, "hil.frf": 4,
+    "hil.plots": 5,
+    "hil.commands": 6, "hil.cli": 6,
+}
+
+
+def layer_of(module: str) -> tuple[str, int]:
+    """(matching prefix, layer) of a module of the project."""
+    parts = module.split(".")
+    for i in range(len(parts), 0, -1):
+        prefix = ".".join(parts[:i])
+        if prefix in LAYERS:
+            return prefix, LAYERS[prefix]
+    raise KeyError(module)
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        spec = importlib.util.find_spec(pkg)
+        assert spec is not None and spec.submodule_search_locations, pkg
+        root = Path(list(spec.submodule_search_locations)[0])
+        for path in root.rglob("*.py"):
+            rel = path.relative_to(root.parent).with_suffix("")
+            name = ".".join(rel.parts)
+            if name.endswith(".__init__"):
+                name = name[: -len(".__init__")]
+            out[name] = path
+    return out
+
+
+def _imports(name: str, path: Path, known: set[str]) -> set[str]:
+    """The project modules ``name`` imports (relative imports resolved; ``from pkg import mod``
+    counted as an import of ``pkg.mod``)."""
+    is_pkg = path.name == "__init__.py"
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = name.split(".") if is_pkg else name.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module or ""
+            targets = [f"{mod}.{a.name}" if f"{mod}.{a.name}" in known else mod for a in node.names]
+        else:
+            continue
+        for t in targets:
+            if t.split(".")[0] in PACKAGES:
+                # the deepest known module the import names
+                while t not in known and "." in t:
+                    t = t.rsplit(".", 1)[0]
+                if t in known and t != name:
+                    found.add(t)
+    return found
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    mods = _modules()
+    known = set(mods)
+    return {name: _imports(name, path, known) for name, path in mods.items()}
+
+
+def test_every_module_has_a_layer(graph):
+    missing = []
+    for name in graph:
+        try:
+            layer_of(name)
+        except KeyError:
+            missing.append(name)
+    assert not missing, f"modules with no layer in LAYERS (add them to the table): {missing}"
+
+
+def test_no_upward_import(graph):
+    upward = []
+    for name, targets in sorted(graph.items()):
+        _, low = layer_of(name)
+        for t in sorted(targets):
+            prefix, high = layer_of(t)
+            if high > low:
+                upward.append(f"{name} (layer {low}) imports {t} (layer {high})")
+    assert not upward, "imports pointing up:\n  " + "\n  ".join(upward)
+
+
+def test_physics_imports_nothing_of_the_application(graph):
+    bad = [f"{n} -> {t}" for n, ts in graph.items() if n.startswith("sim_plant")
+           for t in ts if not t.startswith("sim_plant")]
+    assert not bad, bad
+
+
+def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import circle of the graph, or None (depth-first search, three colours)."""
+    state: dict[str, int] = defaultdict(int)       # 0 new, 1 on the stack, 2 done
+    stack: list[str] = []
+
+    def visit(n):
+        state[n] = 1
+        stack.append(n)
+        for m in sorted(graph.get(n, ())):
+            if state[m] == 1:
+                return stack[stack.index(m):] + [m]
+            if state[m] == 0:
+                found = visit(m)
+                if found:
+                    return found
+        stack.pop()
+        state[n] = 2
+        return None
+
+    for n in sorted(graph):
+        if state[n] == 0:
+            found = visit(n)
+            if found:
+                return found
+    return None
+
+
+def test_no_import_circle_between_modules(graph):
+    cycle = _cycle(graph)
+    assert cycle is None, "import circle: " + " -> ".join(cycle)
+
+
+def test_no_import_circle_between_parts(graph):
+    """The parts of one layer (e.g. identification and frequency responses) import each other
+    in one direction only."""
+    parts: dict[str, set[str]] = defaultdict(set)
+    for name, targets in graph.items():
+        a = layer_of(name)[0]
+        for t in targets:
+            b = layer_of(t)[0]
+            if a != b:
+                parts[a].add(b)
+    cycle = _cycle(parts)
+    assert cycle is None, "import circle between parts: " + " -> ".join(cycle)
+
+
+def test_the_checker_sees_an_upward_import(tmp_path):
+    """The test itself: an upward import in a module is found (a checker that sees nothing
+    would pass everything)."""
+    mod = tmp_path / "probe.py"
+    mod.write_text("def f():\n    from hil.commands.move import run\n    from .chain import Chain\n")
+    found = _imports("sim_plant.probe", mod, {"hil.commands.move", "sim_plant.chain"})
+    assert found == {"hil.commands.move", "sim_plant.chain"}
+    assert layer_of("hil.commands.move")[1] > layer_of("sim_plant.probe")[1]
+    assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert _cycle({"a": {"b"}, "b": set()}) is None
