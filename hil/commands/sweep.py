@@ -5,7 +5,9 @@ import csv
 import re
 from pathlib import Path
 
+from hil.errors import LimitError, UserError
 from hil.io.jsonout import dumps
+from hil.units import SI_UNIT, parse, parse_list
 
 HELP = "jerk sweep: overshoot vs. jerk, the largest safe jerk for a tolerance, 2-dof vs. 3-dof"
 DESCRIPTION = """\
@@ -77,10 +79,7 @@ _RANGE = re.compile(r"^\s*(.+?)\s*\.\.\s*(.+?)\s*$")
 
 def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
     """A list ("60ms,80ms") or a log-spaced range ("1..2000", "60ms..300ms") of quantities."""
-    from hil.errors import UserError
     from hil.sweep import jerk_grid
-    from hil.units import parse, parse_list
-    from hil.units import SI_UNIT
     m = _RANGE.match(text)
     bare = r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?"
     if m and re.fullmatch(bare, m.group(2)):          # bare numbers are SI
@@ -105,8 +104,6 @@ def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
 
 
 def _budget(text):
-    from hil.errors import UserError
-    from hil.units import parse
     if text is None:
         return None, 5.0
     t = text.strip()
@@ -125,9 +122,7 @@ def _budget(text):
 
 
 def settings_from_args(args, cfg):
-    from hil.errors import UserError
     from hil.sweep import SweepSettings
-    from hil.units import parse
     stroke = parse(args.stroke, "length", "--stroke")
     feed = parse(args.feed, "speed", "--feed")
     if stroke == 0:
@@ -222,9 +217,7 @@ def _text(r: dict) -> str:
 
 
 def run(args) -> int:
-    from hil.errors import UserError
     from hil.config import load, parse_assignment
-    from hil.profiles import LimitError
     from hil.sweep import run_sweep
 
     overrides = dict(parse_assignment(s) for s in args.set)

@@ -6,6 +6,11 @@ Plotting only; the numbers come from :func:`hil.sweep.run_sweep`'s report.
 """
 from __future__ import annotations
 
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
 __all__ = ["sweep_figure"]
 
 
@@ -15,10 +20,6 @@ def _xy(rows, field):
 
 
 def sweep_figure(report: dict, title: str = ""):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), sharex=True)
     an = "transmission" if report.get("analysis") == "transmission" else "mechatronic"
     name = report.get("name") or report.get("config", "model")

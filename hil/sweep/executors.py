@@ -1,0 +1,117 @@
+"""Where the runs of a sweep go: a process pool, a Dask cluster, or an axis, one run after another.
+
+Every executor has the same three methods: ``map(cfg, tasks)`` yields ``(key, figures)`` for
+``tasks``, a list of ``(key, RunSpec)``, in the order they finish (so the store keeps each run as
+soon as it is done and an interrupted sweep loses little); ``one(cfg, key, spec)`` computes one
+run (a refinement step waits for it); ``close()`` lets the workers go. The numbers do not depend
+on the executor: every run is :func:`hil.sweep.run.run_task` on the same configuration.
+
+``dask.distributed`` is optional and imported only when a scheduler is given. Its protocol
+unpickles what it receives: use only a scheduler you trust.
+"""
+from __future__ import annotations
+
+import hashlib
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+from hil.sweep.run import run_on_backend, run_task
+
+__all__ = ["LocalExecutor", "DaskExecutor", "BackendExecutor"]
+
+
+def _chunk(cfg, tasks):
+    return [run_task(cfg, key, spec) for key, spec in tasks]
+
+
+class LocalExecutor:
+    """Runs in this process, or on a process pool (fork: the workers inherit the compiled kernel
+    and the discretized models of the parent)."""
+
+    def __init__(self, jobs: int | None):
+        self.jobs = max(1, jobs or os.cpu_count() or 1)
+        self.pool = None
+
+    def map(self, cfg, tasks):
+        if self.jobs == 1 or len(tasks) <= 1:
+            for key, spec in tasks:
+                yield run_task(cfg, key, spec)
+            return
+        if self.pool is None:
+            try:
+                ctx = multiprocessing.get_context("fork")
+            except ValueError:              # pragma: no cover - platforms without fork
+                ctx = None
+            self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx)
+        # a few chunks per worker: little inter-process traffic, yet results stream in for the
+        # store (resume) and the progress bar
+        n_chunks = min(len(tasks), 4 * self.jobs)
+        chunks = [tasks[i::n_chunks] for i in range(n_chunks)]
+        futs = [self.pool.submit(_chunk, cfg, c) for c in chunks]
+        try:
+            for fut in as_completed(futs):
+                yield from fut.result()
+        finally:
+            for f in futs:
+                f.cancel()
+
+    def one(self, cfg, key, spec):
+        return run_task(cfg, key, spec)
+
+    def close(self):
+        if self.pool is not None:
+            self.pool.shutdown(wait=False, cancel_futures=True)   # workers exit on their own
+            self.pool = None
+
+
+class DaskExecutor:
+    """Runs on a dask.distributed cluster (``scheduler``: an address or a Client)."""
+
+    def __init__(self, scheduler):
+        from distributed import Client  # optional: only for --scheduler
+        if isinstance(scheduler, Client):
+            self.client, self.own = scheduler, False
+        else:
+            self.client, self.own = Client(scheduler, set_as_default=False), True
+
+    def map(self, cfg, tasks):
+        from distributed import as_completed as das_completed
+        if not tasks:
+            return
+        futs = [self.client.submit(run_task, cfg, key, spec, key=f"sweep-{hashlib.sha1(key.encode()).hexdigest()}",
+                                   pure=False) for key, spec in tasks]
+        try:
+            with self.client.as_current():
+                done = das_completed(futs)
+            for fut in done:
+                yield fut.result()
+        finally:
+            for f in futs:
+                f.cancel()
+
+    def one(self, cfg, key, spec):
+        return self.client.submit(run_task, cfg, key, spec, pure=False).result()
+
+    def close(self):
+        if self.own:
+            self.client.close()
+
+
+class BackendExecutor:
+    """A real axis: one run after the other."""
+
+    def __init__(self, backend, out_dir):
+        self.backend, self.out_dir = backend, out_dir
+
+    def map(self, cfg, tasks):
+        for key, spec in tasks:
+            yield self.one(cfg, key, spec)
+
+    def one(self, cfg, key, spec):
+        if spec.analysis == "transmission":      # a model analysis: the axis is not needed
+            return run_task(cfg, key, spec)
+        return key, run_on_backend(cfg, spec, self.backend, self.out_dir)
+
+    def close(self):
+        pass

@@ -1,0 +1,179 @@
+"""One run of a sweep: one sine-square move from rest plus a dwell, and its figures.
+
+A :class:`RunSpec` names the move (stroke, feed and either ``t_acc`` with G0 or ``j_max``; SI
+units), the dwell after it, how densely it is recorded and which analysis computes it:
+
+- ``mechatronic``: the whole closed loop on the simulated plant (:func:`hil.simulate.simulate`,
+  recorded every ``record_every`` velocity steps, 0.5 ms by default, so that overshoot is not
+  sampled at the 4 ms position clock only), or on an axis through a runtime backend
+  (:func:`run_on_backend`: the move, a dwell, the return move and a dwell, so the axis ends
+  where it started);
+- ``transmission``: the motor follows the path exactly and masses 2..N respond
+  (:mod:`hil.sweep.transmission`).
+
+A run's figures are :class:`hil.analysis.MoveFigures` over the move and its dwell (overshoot of
+table and tip floored at 0, peak following errors, residual tip vibration, settling, peak torque)
+plus the ramp time T_r, the move's duration and the dominant frequency of the tip after the move;
+``t_acc`` is filled from G0 by Eq. (15) when the run was given a jerk. :data:`RUN_FIELDS` are the
+figures a report row keeps.
+
+``RunSpec.key(fingerprint)`` identifies a run in ``runs.jsonl``; its text must not change, or old
+stores stop resuming. :func:`run_task` is what a worker computes: module-level, so that a process
+pool and Dask can pickle it by name.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from drivers import open_backend
+from hil.analysis import move_figures
+from hil.errors import UserError
+from hil.profiles import MoveSpec, Trajectory, plan_move
+from hil.runtime import run_trajectory
+from hil.simulate import simulate
+from hil.sweep.model import model_of
+from hil.sweep.transmission import transmission_response
+
+__all__ = ["ANALYSES", "RUN_FIELDS", "RunSpec", "dominant_frequency", "run_one", "run_task",
+           "backend_trajectory", "run_on_backend"]
+
+ANALYSES = ("mechatronic", "transmission")
+RUN_FIELDS = ("j_max", "a_max", "t_acc", "peak_speed", "ramp_time", "duration",
+              "overshoot_table_um", "overshoot_tip_um", "peak_following_error_table_um",
+              "peak_following_error_tip_um", "residual_tip_um", "settling_time_table",
+              "settling_time_tip", "peak_torque", "f_dom_tip_hz")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One move of a sweep, SI units. Exactly one of ``t_acc`` (with g0) and ``j_max``."""
+    analysis: str
+    stroke: float
+    feed: float
+    g0: float | None
+    t_acc: float | None
+    j_max: float | None
+    dwell: float
+    record_every: int = 8
+    refine: bool = False          # a bisection/proposal point, not a grid point
+
+    def move_spec(self) -> MoveSpec:
+        if self.t_acc is not None:
+            return MoveSpec(self.stroke, self.feed, t_acc=self.t_acc, g0=self.g0)
+        return MoveSpec(self.stroke, self.feed, j_max=self.j_max, g0=self.g0)
+
+    def key(self, fp: str) -> str:
+        what = f"t_acc={self.t_acc!r}" if self.t_acc is not None else f"j_max={self.j_max!r}"
+        return (f"{fp}|{self.analysis}|stroke={self.stroke!r}|feed={self.feed!r}|g0={self.g0!r}|{what}"
+                f"|dwell={self.dwell!r}|rec={self.record_every}")
+
+
+def dominant_frequency(t, x, t_from: float, fmin: float = 1.0) -> float | None:
+    """Frequency (Hz) of the largest spectral peak of ``x`` after ``t_from`` (Hann window,
+    zero-padded FFT, parabolic interpolation); None when there is too little signal."""
+    t = np.asarray(t, float)
+    sel = t >= t_from
+    if np.count_nonzero(sel) < 16:
+        return None
+    y = np.asarray(x, float)[sel]
+    tt = t[sel] - t[sel].mean()
+    y = y - y.mean() - tt * (np.dot(tt, y) / np.dot(tt, tt))       # drop offset and drift
+    if not np.any(np.abs(y) > 1e-12):
+        return None
+    dt = t[1] - t[0]
+    nfft = max(1 << 15, 1 << int(math.ceil(math.log2(len(y) * 8))))
+    spec = np.abs(np.fft.rfft(y * np.hanning(len(y)), nfft))
+    f = np.fft.rfftfreq(nfft, dt)
+    spec[f < fmin] = 0.0
+    i = int(np.argmax(spec))
+    if 0 < i < len(spec) - 1:
+        a, b, c = np.log(spec[i - 1:i + 2] + 1e-300)
+        den = a - 2 * b + c
+        shift = 0.5 * (a - c) / den if den != 0 else 0.0
+        return float(f[i] + shift * (f[1] - f[0]))
+    return float(f[i])
+
+
+def _figures(t, x_cmd, x_table, x_tip, u, move, spec: RunSpec, t_end=None) -> dict:
+    fig = move_figures(t, x_cmd, x_table, x_tip, u, move, t_end=t_end).as_dict()
+    fig.pop("settle_band_um", None)
+    if fig.get("t_acc") is None and spec.g0:
+        fig["t_acc"] = math.pi * spec.g0 / (2.0 * move.a_max)
+    fig["ramp_time"] = move.ramp_time
+    fig["duration"] = move.duration
+    sel = np.asarray(t) <= (t[-1] if t_end is None else t_end)
+    fig["f_dom_tip_hz"] = dominant_frequency(np.asarray(t)[sel], np.asarray(x_tip)[sel], move.duration)
+    return {k: (None if v is None else float(v)) for k, v in fig.items()}
+
+
+def _run_mechatronic(cfg, spec: RunSpec) -> dict:
+    plant, ctrl = model_of(cfg)
+    traj = Trajectory()
+    move = traj.move(spec.move_spec())
+    traj.dwell(spec.dwell)
+    _, x = traj.sample(ctrl.position_period)
+    r = simulate(plant, ctrl, x, record_every=spec.record_every)
+    return _figures(r.t, r.x_cmd, r.x_table, r.x_tip, r.u, move, spec)
+
+
+def _run_transmission(cfg, spec: RunSpec) -> dict:
+    _, ctrl = model_of(cfg)
+    move = plan_move(spec.move_spec())
+    dt = spec.record_every * ctrl.velocity_period
+    n = int(math.ceil((move.duration + spec.dwell) / dt)) + 1
+    t = np.arange(n) * dt
+    x1, x2, x3 = transmission_response(cfg, move, t)
+    return _figures(t, x1, x2, x3, np.zeros(0), move, spec)
+
+
+def run_one(cfg, spec: RunSpec) -> dict:
+    """The figures of one run on the simulated plant (what a worker computes)."""
+    if spec.analysis == "mechatronic":
+        return _run_mechatronic(cfg, spec)
+    if spec.analysis == "transmission":
+        return _run_transmission(cfg, spec)
+    raise ValueError(f"unknown analysis {spec.analysis!r} (mechatronic or transmission)")
+
+
+def run_task(cfg, key: str, spec: RunSpec) -> tuple[str, dict]:
+    """``(key, figures)`` of one run on the simulated plant: a worker's unit of work.
+
+    Parameters
+    ----------
+    cfg : hil.config.Config
+        The axis configuration (pickled to the worker).
+    key : str
+        The run's store key, ``spec.key(fingerprint(cfg))``, handed back with the figures.
+    spec : RunSpec
+        The run.
+    """
+    return key, run_one(cfg, spec)
+
+
+def backend_trajectory(spec: RunSpec, start: float = 0.0) -> tuple[Trajectory, object]:
+    """The sequence run on an axis for one run: the move, a dwell, the return move, a dwell."""
+    traj = Trajectory(start=start)
+    move = traj.move(spec.move_spec())
+    traj.dwell(spec.dwell)
+    back = spec.move_spec()
+    traj.move(replace(back, stroke=-back.stroke))
+    traj.dwell(spec.dwell)
+    return traj, move
+
+
+def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None) -> dict:
+    """One run on a runtime backend (``hil.runtime.run_trajectory``): the move, a dwell, the
+    return move and a dwell, so the axis ends where it started. Limits are checked first."""
+    traj, move = backend_trajectory(spec)
+    rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend), out_file=None, settle=0.0)
+    if getattr(rec, "status", "complete") != "complete":
+        raise UserError(f"run at j_max {move.j_max:.4g} m/s^3 stopped: {rec.status}: {rec.reason}; the runs "
+                        f"finished before it are kept and the sweep resumes from there")
+    ch = rec.channels
+    t = np.asarray(ch["t"], float)
+    u = ch.get("torque", ch.get("command", np.zeros(0)))
+    tip = ch.get("x_tip", ch["x_table"])
+    return _figures(t, ch["x_cmd"], ch["x_table"], tip, u, move, spec, t_end=move.duration + spec.dwell)
