@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from hil.control import controller_from_config, new_velocity_state, position_law, quantize
+from hil.plant_config import plant_from_config
 from hil.simulate import _effect_table, _lag_alpha, coast_steps, drive_steps, plant_step, simulate
-from sim_plant.plant import plant_from_config
 
 from drivers.base import LOOPS, Backend, Feedback, Setpoint
 

@@ -14,10 +14,11 @@ import numpy as np
 from numba import njit
 
 from sim_plant.kernel import effect_forces, empty_effects, friction_force
-from sim_plant.plant import Plant, plant_from_config
+from sim_plant.plant import Plant
 
 from hil.control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state, pi_law,
                       position_law, quantize, velocity_law)
+from hil.plant_config import plant_from_config
 
 __all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step", "drive_steps", "coast_steps"]
 

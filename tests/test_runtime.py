@@ -16,7 +16,7 @@ from hil.profiles import MoveSpec, Trajectory
 from hil.io.recorder import Recorder
 from hil.runtime import record_channels, run_trajectory
 from hil.simulate import simulate, simulate_config
-from sim_plant.plant import plant_from_config
+from hil.plant_config import plant_from_config
 
 from conftest import CONFIG
 

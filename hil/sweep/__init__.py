@@ -115,7 +115,7 @@ def _model(cfg):
     """(plant, controller) of a config, built once per process."""
     fp = fingerprint(cfg)
     if fp not in _MODELS:
-        from sim_plant.plant import plant_from_config
+        from hil.plant_config import plant_from_config
         from hil.control import controller_from_config
         plant = plant_from_config(cfg)
         ctrl = controller_from_config(cfg, plant)
