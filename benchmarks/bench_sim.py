@@ -25,9 +25,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from hil import config  # noqa: E402
 from hil.control import controller_from_config  # noqa: E402
+from hil.plant_config import plant_from_config  # noqa: E402
 from hil.profiles import MoveSpec, Trajectory  # noqa: E402
 from hil.simulate import simulate  # noqa: E402
-from sim_plant.plant import plant_from_config  # noqa: E402
 
 
 def best_of(fn, repeat):

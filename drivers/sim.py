@@ -7,19 +7,54 @@ speed every position period and this backend runs the velocity loop, as a drive 
 mode) or ``"both"`` (the host sends positions, as cyclic synchronous position mode). The loops it
 closes are hil.control's functions: the same law everywhere.
 
+The terms between the law and the plant are hil.control's :func:`~hil.control.loop_terms`, as in
+the compiled loop: the output delay (in torque mode the host's loop applies the controller's
+output delay and this backend the plant's transport delay), the current loop's lag and the
+effect table.
+
 For dry runs, :meth:`SimulatedPlant.run` runs a whole command through the compiled loop at once.
 """
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from hil.control import controller_from_config, new_velocity_state, position_law, quantize
-from hil.simulate import _effect_table, _lag_alpha, coast_steps, drive_steps, plant_step, simulate
-from sim_plant.plant import plant_from_config
+from hil.control import (controller_from_config, delay_line, loop_terms, measured_speed, new_velocity_state,
+                         position_law, quantize, velocity_law)
+from hil.plant_config import plant_from_config
+from hil.simulate import simulate
+from sim_plant.kernel import plant_step
 
 from drivers.base import LOOPS, Backend, Feedback, Setpoint
 
 __all__ = ["SimulatedPlant"]
+
+
+@njit(cache=True)
+def drive_steps(Ad, Bd, x, s, p, w_ref, steps, res_motor, ubuf, d_int, d_frac, lag_alpha, u_act, fgain, fric, dry,
+                codes, eparams, f, x_new):
+    """``steps`` velocity-loop steps of a drive that closes the velocity loop itself (the simulated
+    plant standing in for a drive in velocity or position mode): returns the current loop's
+    state. The same law, delay line and plant step as the closed-loop kernel."""
+    n = Ad.shape[0] // 2
+    for _ in range(steps):
+        w = measured_speed(p, s, x[n], quantize(x[0], res_motor))
+        u = velocity_law(p, s, w_ref, w, 0.0)
+        if ubuf is not None:       # None (no delay): compiled away
+            u = delay_line(ubuf, u, d_int, d_frac)
+        u_act += lag_alpha * (u - u_act)
+        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+    return u_act
+
+
+@njit(cache=True)
+def coast_steps(Ad, Bd, x, steps, lag_alpha, u_act, fgain, fric, dry, codes, eparams, f, x_new):
+    """``steps`` plant steps with no torque commanded (a disabled drive): the current decays
+    through the current loop's lag, the plant coasts. Returns the current loop's state."""
+    for _ in range(steps):
+        u_act += lag_alpha * (0.0 - u_act)
+        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+    return u_act
 
 
 class SimulatedPlant(Backend):
@@ -37,7 +72,9 @@ class SimulatedPlant(Backend):
         self._p = self.ctrl.as_array()
         disc = self.plant.chain.discretize(self.ctrl.velocity_period, inputs="all")
         self._Ad, self._Bd = disc.A, disc.B
-        self._codes, self._eparams = _effect_table(self.plant)
+        # in torque mode the host's loop delays its output itself (hil.loop); the plant's transport delay is ours
+        self.terms = loop_terms(self.plant, self.ctrl, with_output_delay=closes != "none")
+        self._ubuf = self.terms.delay_buffer()
         self._fric = self.plant.friction.as_tuple()
         self._dry = self.plant.friction.active
         n = self.plant.n
@@ -47,10 +84,9 @@ class SimulatedPlant(Backend):
         self._s = new_velocity_state()
         self._set = Setpoint()
         self._prev_position = None
-        self.enabled = False
+        self._enabled = False
         self.time = 0.0
         self._u_act = 0.0
-        self._lag = _lag_alpha(self.plant, self.ctrl)
 
     # -- contract -------------------------------------------------------------------------------
     def open(self) -> None:
@@ -63,6 +99,17 @@ class SimulatedPlant(Backend):
         self.x[:n] = position
         self._s = new_velocity_state()
         self._prev_position = position
+        self._ubuf = self.terms.delay_buffer()
+
+    @property
+    def enabled(self) -> bool:
+        return self._enabled
+
+    @enabled.setter
+    def enabled(self, on: bool) -> None:
+        if on and not self._enabled:       # switched on: nothing commanded is in transit yet
+            self._ubuf = self.terms.delay_buffer()
+        self._enabled = bool(on)
 
     def enable(self) -> None:
         self.enabled = True
@@ -79,11 +126,11 @@ class SimulatedPlant(Backend):
 
     def sync(self) -> None:
         """Advance one cycle."""
-        n, pl = self.plant.n, self.plant
+        pl, terms = self.plant, self.terms
         if not self.enabled:          # no torque: the plant coasts (friction and effects still act)
             steps = 1 if self.closes == "none" else self.ctrl.substeps
-            self._u_act = coast_steps(self._Ad, self._Bd, self.x, steps, self._lag, self._u_act, pl.force_gain,
-                                      self._fric, self._dry, self._codes, self._eparams, self._f, self._xn)
+            self._u_act = coast_steps(self._Ad, self._Bd, self.x, steps, terms.lag_alpha, self._u_act, pl.force_gain,
+                                      self._fric, self._dry, terms.codes, terms.params, self._f, self._xn)
             self.time += steps * self.ctrl.velocity_period
             return
         if self.closes == "none":
@@ -98,15 +145,20 @@ class SimulatedPlant(Backend):
                 self._prev_position = self._set.position
             else:
                 w_ref = self._set.speed
-            _, self._u_act = drive_steps(self._Ad, self._Bd, self.x, self._s, self._p, w_ref, self.ctrl.substeps,
-                                         pl.motor_resolution, self._lag, self._u_act, pl.force_gain, self._fric,
-                                         self._dry, self._codes, self._eparams, self._f, self._xn)
+            d_int, d_frac = terms.delay_parts
+            self._u_act = drive_steps(self._Ad, self._Bd, self.x, self._s, self._p, w_ref, self.ctrl.substeps,
+                                      pl.motor_resolution, self._ubuf, d_int, d_frac, terms.lag_alpha, self._u_act,
+                                      pl.force_gain, self._fric, self._dry, terms.codes, terms.params, self._f,
+                                      self._xn)
             self.time += self.ctrl.position_period
 
     def _step(self, u: float) -> None:
-        self._u_act += self._lag * (u - self._u_act)      # current loop: ideal, or a first-order lag
+        terms = self.terms
+        if self._ubuf is not None:     # the plant's transport delay
+            u = delay_line(self._ubuf, u, *terms.delay_parts)
+        self._u_act += terms.lag_alpha * (u - self._u_act)      # current loop: ideal, or a first-order lag
         plant_step(self._Ad, self._Bd, self.x, self._u_act * self.plant.force_gain, self._fric, self._dry,
-                   self._codes, self._eparams, self._f, self._xn)
+                   terms.codes, terms.params, self._f, self._xn)
         self.time += self.ctrl.velocity_period
 
     def disable(self) -> None:

@@ -14,6 +14,7 @@ import copy
 import importlib
 import math
 import re
+import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,7 @@ from typing import Any, Callable
 from hil.errors import ConfigError
 from hil.units import SI_UNIT, UnitError, parse
 
-__all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section",
+__all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section", "field_for",
            "parse_assignment", "schema_markdown"]
 
 
@@ -156,7 +157,7 @@ SCHEMA: dict[str, Field] = {
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {}
 # The module that registers each such section, imported the first time one of its keys is read.
-SECTION_PROVIDERS = {"effects": "sim_plant.effects", "serial": "drivers.serial.backend", "canopen": "drivers.canopen.backend",
+SECTION_PROVIDERS = {"effects": "hil.plant_config", "serial": "drivers.serial.backend", "canopen": "drivers.canopen.backend",
                      "supervisor": "hil.supervisor"}
 
 
@@ -165,7 +166,8 @@ def register_section(prefix: str, lookup: Callable[[str], Field | None]) -> None
     _SECTIONS[prefix] = lookup
 
 
-def _field_for(key: str) -> Field | None:
+def field_for(key: str) -> Field | None:
+    """The schema field of a dotted key (a registered section's included), or None if unknown."""
     if key in SCHEMA:
         return SCHEMA[key]
     m = _NUMBERED_RE.match(key)
@@ -295,7 +297,7 @@ class Config:
             if value is None:
                 continue
             sect, _, name = key.rpartition(".")
-            f = _field_for(key)
+            f = field_for(key)
             sections.setdefault(sect, []).append(f"{name} = {_toml_value(value, f, self.values)}")
         lines = []
         for sect, rows in sections.items():
@@ -330,7 +332,7 @@ def _validate(raw: dict[str, Any], where: str) -> Config:
     if "actuator.type" in raw:
         values["actuator.type"] = _convert("actuator.type", raw["actuator.type"], SCHEMA["actuator.type"], {}, where)
     for key, value in raw.items():
-        f = _field_for(key)
+        f = field_for(key)
         if f is None:
             section = key.split(".", 1)[0] if "." in key else ""
             known = _known_in_section(section) if section else ""
@@ -405,7 +407,7 @@ def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None 
     raw = _flatten(table)
     if overrides:
         for k, v in overrides.items():
-            if _field_for(k) is None:
+            if field_for(k) is None:
                 raise ConfigError(f"--set {k}: unknown key {k!r} (not a parameter of {source})")
             raw[k] = v
     return _validate(raw, source)
@@ -462,6 +464,5 @@ def schema_markdown() -> str:
 
 
 if __name__ == "__main__":      # python -m hil.config > config/SCHEMA.md
-    import sys
     text = Path(__file__).resolve().parents[1].joinpath("config", "SCHEMA.md").read_text(encoding="utf-8")
     sys.stdout.write(text.split("| key |")[0] + schema_markdown())

@@ -10,6 +10,12 @@ Reference order (the project's; see the runtime issue):
   I = I + e Tv unless the previous output saturated (conditional-integration anti-windup);
   u = Kp (e + I / Ti) (+ acceleration feed-forward); u limited to +-u_max and held over the step.
 
+Between the law and the plant sit the loop terms, built once by :func:`loop_terms` for every
+loop that runs the law on the simulated plant: the output delay (the controller's computation
+delay plus the plant's transport delay, in velocity periods, interpolated linearly between held
+outputs when it is not a whole number), the current loop's first-order lag, and the effect table
+of the plant step.
+
 The controller's settings and state are small float arrays (index constants below) so that the
 same functions run inside compiled loops without Python objects.
 """
@@ -22,8 +28,12 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
+from sim_plant.kernel import effect_table, time_delay
+from sim_plant.plant import Plant
+
 __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
-           "new_velocity_state", "measured_speed", "pi_law", "quantize", "P", "S"]
+           "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "LoopTerms", "loop_terms",
+           "lag_alpha", "P", "S"]
 
 
 class P(IntEnum):
@@ -170,3 +180,69 @@ def quantize(x, q):
     if q > 0.0:
         return q * math.floor(x / q + 0.5)
     return x
+
+
+@njit(cache=True, inline="always")
+def delay_line(ubuf, u, d_int, d_frac):
+    """Push the output ``u`` into ``ubuf`` (newest first) and return the delayed output: the
+    outputs ``d_int`` and ``d_int + 1`` periods old, interpolated linearly by ``d_frac``."""
+    for i in range(d_int + 1, 0, -1):
+        ubuf[i] = ubuf[i - 1]
+    ubuf[0] = u
+    return (1.0 - d_frac) * ubuf[d_int] + d_frac * ubuf[d_int + 1]
+
+
+def lag_alpha(plant: Plant, ctrl: ControllerSettings) -> float:
+    """The current loop's first-order lag as a step factor over one velocity period (1: ideal)."""
+    tc = plant.current_loop_time_constant
+    return 1.0 if tc <= 0 else float(1.0 - np.exp(-ctrl.velocity_period / tc))
+
+
+@dataclass(frozen=True, eq=False)
+class LoopTerms:
+    """The terms between the control law and the plant step of one plant and controller.
+
+    ``codes``, ``params``: the effect table (:func:`sim_plant.kernel.effect_table`; ``codes`` is
+    None without effects, which the compiled loops leave out). ``delay``: velocity periods from
+    the law's output to the current loop. ``lag_alpha``: the current loop's step factor."""
+    codes: np.ndarray | None
+    params: np.ndarray
+    delay: float
+    lag_alpha: float
+
+    @property
+    def delay_parts(self) -> tuple[int, float]:
+        """The delay as whole periods and the fraction interpolated beyond them (as the compiled
+        loop splits it)."""
+        d_int = int(math.floor(self.delay))
+        return d_int, self.delay - d_int
+
+    def delay_buffer(self) -> np.ndarray | None:
+        """A fresh buffer of held outputs for :func:`delay_line`, or None without a delay (the
+        compiled loops then leave the delay out)."""
+        return np.zeros(self.delay_parts[0] + 2) if self.delay > 0.0 else None
+
+
+def loop_terms(plant: Plant, ctrl: ControllerSettings, with_output_delay: bool = True) -> LoopTerms:
+    """The loop terms of ``plant`` under ``ctrl``.
+
+    Parameters
+    ----------
+    plant : sim_plant.plant.Plant
+        The plant: its effect rows (transport delays included) and current-loop time constant.
+    ctrl : ControllerSettings
+        The controller: velocity period and output delay.
+    with_output_delay : bool
+        Whether the delay includes the controller's ``output_delay``; False where the caller's
+        controller applies it itself (the host's loop, hil.loop) and only the plant's transport
+        delay is left to the plant side.
+
+    Returns
+    -------
+    LoopTerms
+    """
+    codes, params = effect_table(plant)
+    delay = time_delay(plant) / ctrl.velocity_period
+    if with_output_delay:
+        delay = float(ctrl.output_delay) + delay
+    return LoopTerms(codes, params, delay, lag_alpha(plant, ctrl))

@@ -108,7 +108,7 @@ def _shutdown(backend) -> None:
 
 def _plant_scales(cfg):
     """Speed and force scales for the controller when the backend has no model of its own."""
-    from sim_plant.plant import plant_from_config
+    from hil.plant_config import plant_from_config
     return plant_from_config(cfg)
 
 

@@ -1,8 +1,10 @@
 """The closed loop on the simulated plant, compiled: position loop every Tp, velocity loop every
 Tv, the plant advanced by its exact zero-order-hold discretization over each Tv.
 
-The control law is hil.control's (the same functions the real-time loop calls); plant forces
-(dry friction, effects) are sim_plant.kernel's. :func:`simulate` returns a
+The control law is hil.control's (the same functions the real-time loop calls), and so are the
+terms between the law and the plant (delays, current-loop lag, effect table:
+:func:`hil.control.loop_terms`); the plant step and its forces (dry friction, effects) are
+sim_plant.kernel's. :func:`simulate` returns a
 :class:`SimulationResult`, a plain data object (plotting lives in hil.plots).
 """
 from __future__ import annotations
@@ -13,13 +15,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from sim_plant.kernel import effect_forces, empty_effects, friction_force
-from sim_plant.plant import Plant, plant_from_config
+from sim_plant.kernel import plant_step
+from sim_plant.plant import Plant
 
-from hil.control import (ControllerSettings, controller_from_config, measured_speed, new_velocity_state, pi_law,
-                      position_law, quantize, velocity_law)
+from hil.control import (ControllerSettings, controller_from_config, delay_line, loop_terms, measured_speed,
+                         new_velocity_state, pi_law, position_law, quantize)
+from hil.plant_config import plant_from_config
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "plant_step", "drive_steps", "coast_steps"]
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel"]
 
 
 @dataclass
@@ -61,75 +64,6 @@ class SimulationResult:
         out["e_table"] = self.e_table
         out["e_tip"] = self.e_tip
         return out
-
-
-@njit(cache=True, inline="always")
-def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
-    """Advance the plant state ``x`` in place over one step: x+ = Ad x + Bd f, where f holds the
-    drive force on mass 1, the effects' forces and the dry friction on the motor (which needs the
-    free motion of the step to decide between sticking and sliding).
-
-    Written for speed (this is the simulator's inner loop): one pass over Ad, the friction decided
-    from mass 1's free velocity alone, the other force columns only when effects exist."""
-    nn = Ad.shape[0]
-    n = nn // 2
-    f0 = f_drive
-    effects = codes is not None        # None (no effects): numba compiles the branch away
-    if effects:
-        for i in range(n):
-            f[i] = 0.0
-        effect_forces(codes, eparams, x[:n], x[n:], f)
-        f[0] += f_drive
-        f0 = f[0]
-    stuck = False
-    if dry:
-        v_free = Bd[n, 0] * f0
-        for c in range(nn):
-            v_free += Ad[n, c] * x[c]
-        if effects:
-            for c in range(1, n):
-                v_free += Bd[n, c] * f[c]
-        ff, stuck = friction_force(fric, x[n], v_free, Bd[n, 0])
-        f0 += ff
-    for r in range(nn):
-        acc = Bd[r, 0] * f0
-        for c in range(nn):
-            acc += Ad[r, c] * x[c]
-        x_new[r] = acc
-    if effects:
-        for r in range(nn):
-            for c in range(1, n):
-                x_new[r] += Bd[r, c] * f[c]
-    for r in range(nn):
-        x[r] = x_new[r]
-    if stuck:
-        x[n] = 0.0       # exactly at rest, not a round-off away from it
-
-
-@njit(cache=True)
-def drive_steps(Ad, Bd, x, s, p, w_ref, steps, res_motor, lag_alpha, u_act, fgain, fric, dry, codes, eparams,
-                f, x_new):
-    """``steps`` velocity-loop steps of a drive that closes the velocity loop itself (the simulated
-    plant standing in for a drive in velocity or position mode): returns the last output and the
-    current loop's state. The same law and plant step as the closed-loop kernel."""
-    n = Ad.shape[0] // 2
-    u = 0.0
-    for _ in range(steps):
-        w = measured_speed(p, s, x[n], quantize(x[0], res_motor))
-        u = velocity_law(p, s, w_ref, w, 0.0)
-        u_act += lag_alpha * (u - u_act)
-        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-    return u, u_act
-
-
-@njit(cache=True)
-def coast_steps(Ad, Bd, x, steps, lag_alpha, u_act, fgain, fric, dry, codes, eparams, f, x_new):
-    """``steps`` plant steps with no torque commanded (a disabled drive): the current decays
-    through the current loop's lag, the plant coasts. Returns the current loop's state."""
-    for _ in range(steps):
-        u_act += lag_alpha * (0.0 - u_act)
-        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-    return u_act
 
 
 @njit(cache=True)
@@ -182,10 +116,7 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
             u, integral, saturated = pi_law(kp, ti, tv, limit, integral, saturated, w_ref, w_meas, ff)
             # computation delay, then the current loop (ideal, or a first-order lag)
             if ubuf is not None:       # None (no delay): compiled away
-                for i in range(d_int + 1, 0, -1):
-                    ubuf[i] = ubuf[i - 1]
-                ubuf[0] = u
-                u = (1.0 - d_frac) * ubuf[d_int] + d_frac * ubuf[d_int + 1]
+                u = delay_line(ubuf, u, d_int, d_frac)
             u_act += lag_alpha * (u - u_act)
             countdown -= 1
             if countdown == 0:
@@ -229,16 +160,12 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     state0[:n] = x_cmd[0] if x0 is None else x0
     X, V = np.zeros((n_rec, n)), np.zeros((n_rec, n))
     U, XM, XT, XC = (np.zeros(n_rec) for _ in range(4))
-    codes, eparams = _effect_table(plant)
-    # transport delays of the plant (sim_plant.kernel.TIME_DELAY rows) join the output delay
-    from sim_plant.kernel import TIME_DELAY
-    delay = float(ctrl.output_delay) + float(sum(q[0] for c, q in plant.effects if c == TIME_DELAY)) / ctrl.velocity_period
-    lag = _lag_alpha(plant, ctrl)
-    ubuf = np.zeros(int(math.floor(delay)) + 2) if delay > 0.0 else None
+    terms = loop_terms(plant, ctrl)
     closed_loop_kernel(disc.A, disc.B, state0, ctrl.as_array(), plant.force_gain, cmd, n_sub,
                        plant.table, plant.tip, ctrl.position_feedback == "motor",
                        plant.friction.as_tuple(), plant.table_resolution, plant.motor_resolution,
-                       codes, eparams, delay, ubuf, lag, record_every, X, V, U, XM, XT, XC)
+                       terms.codes, terms.params, terms.delay, terms.delay_buffer(), terms.lag_alpha, record_every,
+                       X, V, U, XM, XT, XC)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command
@@ -250,24 +177,6 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
                             x_tip=X[:, plant.tip].copy() if plant.tip != plant.table else XT.copy(),
                             rotary=plant.pitch is not None,
                             meta={"force_gain": plant.force_gain, "record_period": record_every * ctrl.velocity_period})
-
-
-def _effect_table(plant: Plant):
-    """The effects' kernel terms: (codes, params), or (None, params) when there are none, so that
-    the compiled loop is specialised without the effect branch (it is the simulator's hot path)."""
-    if not plant.effects:
-        return None, empty_effects()[1]
-    codes = np.array([c for c, _ in plant.effects], np.int64)
-    from sim_plant.kernel import N_EFFECT_PARAMS
-    params = np.zeros((len(plant.effects), N_EFFECT_PARAMS))
-    for i, (_, q) in enumerate(plant.effects):
-        params[i, :len(q)] = q
-    return codes, params
-
-
-def _lag_alpha(plant: Plant, ctrl: ControllerSettings) -> float:
-    tc = plant.current_loop_time_constant
-    return 1.0 if tc <= 0 else float(1.0 - np.exp(-ctrl.velocity_period / tc))
 
 
 def simulate_config(cfg, x_cmd, **kw) -> SimulationResult:

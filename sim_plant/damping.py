@@ -6,8 +6,6 @@ and Eq. (10) gives both modal ratios from c1, so one chosen ratio fixes c1 and c
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from sim_plant.modal import frequencies_3dof, modal_matrix_2dof, modal_matrix_3dof, omega_2dof

@@ -10,21 +10,23 @@ A configuration switches an effect on by giving its section, e.g.::
 
     [effects.constant_force]
     force = "-3.2 N"
+
+(read by hil.plant_config, which also holds the ``parameter:<key>`` effects that re-identify a
+config value). The physics here knows no configuration: a parameter it cannot take raises
+ValueError, which the config layer reports as a configuration error naming the key.
 """
 from __future__ import annotations
 
 import dataclasses
-from abc import ABC, abstractmethod
 import math
-import re
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 from sim_plant import kernel
 from sim_plant.chain import Chain
 from sim_plant.plant import Friction, Plant
 
-__all__ = ["Param", "Effect", "CATALOGUE", "register", "apply_effects", "effect", "candidate",
-           "ParameterEffect", "Combination", "default_parameters"]
+__all__ = ["Param", "Effect", "CATALOGUE", "register", "effect", "Combination"]
 
 
 @dataclass(frozen=True)
@@ -316,37 +318,6 @@ class MassChange(Effect):
         return {"mass": 0.05 * plant.chain.m[plant.table]}
 
 
-class ParameterEffect(Effect):
-    """``parameter:<dotted name>``: re-identify a parameter the config already has (a mass, a
-    stiffness, a damping, a friction value). It changes the config, not the plant."""
-    rescale = True
-
-    def __init__(self, key: str, cfg=None):
-        from hil.config import _field_for
-        f = _field_for(key)
-        if f is None or key.startswith("effects."):
-            raise KeyError(f"parameter:{key}: not a parameter of the config schema")
-        self.key = key
-        self.name = f"parameter:{key}"
-        self.description = f"re-identify {key} ({f.doc})"
-        value = cfg.get(key) if cfg is not None else None
-        kind = f.kind
-        if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
-            value = None
-        g = float(value) if value else 1.0
-        lo = 0.0 if (f.positive or f.nonnegative) else -1e12
-        self.params = (Param("value", kind, lo, 1e12, g, f"new value of {key}"),)
-
-    def applicable(self, plant):
-        return True
-
-    def apply(self, plant, values):      # pragma: no cover - parameters act on the config
-        raise TypeError("parameter effects act on the config: use configure()")
-
-    def configure(self, cfg, values):
-        return cfg.with_values({self.key: float(values["value"])})
-
-
 class Combination(Effect):
     """Several effects fitted together: parameters named ``<effect>.<param>``; the name is the
     members' names joined by ``+`` (``coulomb_friction+constant_force``)."""
@@ -377,73 +348,3 @@ class Combination(Effect):
     def guess(self, plant, scale):
         return {f"{m.name}.{k}": v for m in self.members for k, v in m.guess(plant, scale).items()}
 
-
-def candidate(name: str, cfg=None) -> Effect:
-    """The effect of a catalogue name or ``parameter:<dotted name>``, or several joined by ``+``
-    (a :class:`Combination`, fitted together)."""
-    if "+" in name:
-        return Combination([candidate(n, cfg) for n in name.split("+")])
-    if name.startswith("parameter:"):
-        key = name.split(":", 1)[1]
-        if cfg is not None and key not in cfg and "." not in key:
-            # short form parameter:c2 -> plant.c2
-            for sect in ("plant", "friction", "actuator", "control"):
-                if f"{sect}.{key}" in cfg:
-                    key = f"{sect}.{key}"
-                    break
-        try:
-            return ParameterEffect(key, cfg)
-        except KeyError as exc:
-            raise KeyError(str(exc).strip("'\"")) from None
-    return effect(name)
-
-
-def default_parameters(cfg) -> list[str]:
-    """The config parameters ``diagnose`` tries to re-identify by default: the chain's masses,
-    stiffnesses and dampings, and the actuator gain of a linear actuator."""
-    out = [k for k in cfg.keys() if re.fullmatch(r"plant\.[mkc][0-9]+", k) and cfg.get(k)]
-    if not cfg.rotary and cfg.get("actuator.gain"):
-        out.append("actuator.gain")
-    return [f"parameter:{k}" for k in out]
-
-
-def _section_lookup(key: str):
-    """Config fields of the ``effects.<name>.<param>`` keys."""
-    from hil.config import Field
-    parts = key.split(".")
-    if len(parts) != 3 or parts[1] not in CATALOGUE:
-        return None
-    eff = CATALOGUE[parts[1]]
-    for p in eff.params:
-        if p.name == parts[2]:
-            return Field(p.kind, f"{eff.name}: {p.doc}", default=None, required=False)
-    return None
-
-
-def apply_effects(plant: Plant, cfg) -> Plant:
-    """The plant with every effect the config switches on (sections ``[effects.<name>]``)."""
-    names = []
-    for key in cfg.keys():
-        if key.startswith("effects.") and cfg.values[key] is not None:
-            name = key.split(".")[1]
-            if name not in names:
-                names.append(name)
-    for name in names:
-        eff = effect(name)
-        sect = cfg.section(f"effects.{name}")
-        values = {p.name: sect.get(p.name, p.guess) for p in eff.params}
-        for p in eff.params:
-            v = values[p.name]
-            if not (p.lower <= v <= p.upper) or (isinstance(v, float) and math.isnan(v)):
-                from hil.config import ConfigError
-                raise ConfigError(f"{cfg.source}: effects.{name}.{p.name}: expected {p.lower:g} .. {p.upper:g}, got {v:g}")
-        plant = eff.apply(plant, values)
-    return plant
-
-
-def _register_config():
-    from hil.config import register_section
-    register_section("effects", _section_lookup)
-
-
-_register_config()

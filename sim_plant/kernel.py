@@ -1,9 +1,11 @@
-"""Compiled pieces of the plant used inside the simulation loop: dry friction on the motor
-(time-stepping, with stiction) and the force terms of plant effects.
+"""Compiled pieces of the plant used inside the simulation loops: the plant step (exact
+zero-order hold over one velocity period), dry friction on the motor (time-stepping, with
+stiction) and the force terms of plant effects.
 
 Effects reach the compiled loop as rows of a small table: a code and up to ``N_EFFECT_PARAMS``
-numbers. The Python side of each effect (sim_plant.effects) writes its rows; this module is the
-only place that knows what the codes mean.
+numbers. The Python side of each effect (sim_plant.effects) writes its rows into
+``Plant.effects``; :func:`effect_table` turns them into the arrays the loops take. This module is
+the only place that knows what the codes mean.
 """
 from __future__ import annotations
 
@@ -11,6 +13,12 @@ import math
 
 import numpy as np
 from numba import njit
+
+from sim_plant.plant import Plant
+
+__all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
+           "TIME_DELAY", "empty_effects", "effect_table", "time_delay", "effect_forces", "friction_force",
+           "plant_step"]
 
 N_EFFECT_PARAMS = 8
 
@@ -20,11 +28,29 @@ BACKLASH = 2             # [link i (between mass i and i+1), half gap m, stiffne
 PITCH_ERROR = 3          # [link, amplitude m, period m, phase rad, stiffness N/m]: lead error x1 -> nut
 TORQUE_RIPPLE = 4        # [amplitude N, period m (of x1), phase rad]: cogging on mass 1
 VISCOUS_ASYMMETRIC = 5   # [mass, extra damping for v>0 N s/m, extra for v<0 N s/m]
-TIME_DELAY = 6           # [delay s]: read by the loop (hil.simulate), no force here
+TIME_DELAY = 6           # [delay s]: a delay of the loop (hil.control.loop_terms), no force here
 
 
 def empty_effects():
     return np.zeros(0, np.int64), np.zeros((0, N_EFFECT_PARAMS))
+
+
+def effect_table(plant: Plant):
+    """The effects' kernel terms as arrays: (codes, params), or (None, params) when there are
+    none, so that the compiled loop is specialised without the effect branch (it is the
+    simulator's hot path)."""
+    if not plant.effects:
+        return None, empty_effects()[1]
+    codes = np.array([c for c, _ in plant.effects], np.int64)
+    params = np.zeros((len(plant.effects), N_EFFECT_PARAMS))
+    for i, (_, q) in enumerate(plant.effects):
+        params[i, :len(q)] = q
+    return codes, params
+
+
+def time_delay(plant: Plant) -> float:
+    """The plant's transport delay (s): the sum of its ``TIME_DELAY`` rows."""
+    return float(sum(q[0] for c, q in plant.effects if c == TIME_DELAY))
 
 
 @njit(cache=True)     # not inlined: a large body that most runs never enter
@@ -96,3 +122,46 @@ def friction_force(fric, v_start, v_free, b):
     if abs(f_stop) <= level:
         return f_stop, True
     return (level if f_stop > 0.0 else -level), False
+
+
+@njit(cache=True, inline="always")
+def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
+    """Advance the plant state ``x`` in place over one step: x+ = Ad x + Bd f, where f holds the
+    drive force on mass 1, the effects' forces and the dry friction on the motor (which needs the
+    free motion of the step to decide between sticking and sliding).
+
+    Written for speed (this is the simulator's inner loop): one pass over Ad, the friction decided
+    from mass 1's free velocity alone, the other force columns only when effects exist."""
+    nn = Ad.shape[0]
+    n = nn // 2
+    f0 = f_drive
+    effects = codes is not None        # None (no effects): numba compiles the branch away
+    if effects:
+        for i in range(n):
+            f[i] = 0.0
+        effect_forces(codes, eparams, x[:n], x[n:], f)
+        f[0] += f_drive
+        f0 = f[0]
+    stuck = False
+    if dry:
+        v_free = Bd[n, 0] * f0
+        for c in range(nn):
+            v_free += Ad[n, c] * x[c]
+        if effects:
+            for c in range(1, n):
+                v_free += Bd[n, c] * f[c]
+        ff, stuck = friction_force(fric, x[n], v_free, Bd[n, 0])
+        f0 += ff
+    for r in range(nn):
+        acc = Bd[r, 0] * f0
+        for c in range(nn):
+            acc += Ad[r, c] * x[c]
+        x_new[r] = acc
+    if effects:
+        for r in range(nn):
+            for c in range(1, n):
+                x_new[r] += Bd[r, c] * f[c]
+    for r in range(nn):
+        x[r] = x_new[r]
+    if stuck:
+        x[n] = 0.0       # exactly at rest, not a round-off away from it

@@ -1,19 +1,18 @@
 """The simulated plant as the runtime sees it: a chain, its actuator, motor friction, sensors and
-effects, built from a configuration.
+effects (built from a configuration by hil.plant_config).
 
 Everything is in linear units on the load side: mass 1 is the motor's inertia reflected through
 the pitch, and its torque enters as the force f = tau 2 pi / p (Eq. 12, 23).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from sim_plant.chain import Chain
 
-__all__ = ["Plant", "Friction", "plant_from_config"]
+__all__ = ["Plant", "Friction"]
 
 
 @dataclass(frozen=True)
@@ -68,39 +67,3 @@ class Plant:
     def total_mass(self) -> float:
         return float(sum(self.chain.m))
 
-
-def plant_from_config(cfg) -> Plant:
-    """Build the plant of a validated :class:`hil.config.Config` (effects included)."""
-    n = cfg.n_masses
-    m = tuple(cfg[f"plant.m{i}"] for i in range(1, n + 1))
-    k = tuple(cfg[f"plant.k{i}"] for i in range(1, n))
-    c = tuple(cfg[f"plant.c{i}"] for i in range(1, n))
-    if cfg.rotary:
-        pitch = cfg["plant.pitch"]
-        ratio = 2.0 * math.pi / pitch
-        force_gain = ratio           # N per N m
-        speed_scale = ratio          # rad/s per m/s
-        to_linear = ratio            # N m -> N on mass 1
-        viscous = cfg.get("friction.viscous", 0.0) * ratio ** 2
-    else:
-        pitch = None
-        force_gain = cfg["actuator.gain"]
-        speed_scale = 1.0
-        to_linear = 1.0
-        viscous = cfg.get("friction.viscous", 0.0)
-    fc = cfg.get("friction.coulomb", 0.0) * to_linear
-    fs = cfg.get("friction.static", None)
-    fs = fc if fs is None else fs * to_linear
-    friction = Friction(fc, fc, fs, fs, 0.0)
-    table = (cfg.get("plant.table_mass", 0) or min(2, n)) - 1
-    tip = (cfg.get("plant.tip_mass", 0) or n) - 1
-    plant = Plant(
-        chain=Chain(m, k, c, (viscous,) + (0.0,) * (n - 1)),
-        force_gain=force_gain, speed_scale=speed_scale, friction=friction,
-        table=table, tip=tip,
-        table_resolution=cfg.get("sensors.table_resolution", 0.0),
-        motor_resolution=cfg.get("sensors.motor_resolution", 0.0),
-        pitch=pitch,
-        current_loop_time_constant=cfg.get("actuator.current_loop_time_constant", 0.0))
-    from sim_plant.effects import apply_effects    # late: effects build on Plant
-    return apply_effects(plant, cfg)

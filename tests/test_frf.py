@@ -12,7 +12,7 @@ import pytest
 from hil import frf
 from hil.config import load
 from hil.control import controller_from_config
-from sim_plant.plant import plant_from_config
+from hil.plant_config import plant_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "config" / "paper_bench.toml"

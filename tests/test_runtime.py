@@ -8,15 +8,14 @@ import scipy.linalg
 
 from drivers.base import Backend, BackendFault, Feedback
 from drivers.sim import SimulatedPlant
-from hil import config
 from hil.control import ControllerSettings, new_velocity_state, velocity_law
 from hil.loop import ControlLoop
 from hil.io.measurement import read
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.io.recorder import Recorder
 from hil.runtime import record_channels, run_trajectory
-from hil.simulate import simulate, simulate_config
-from sim_plant.plant import plant_from_config
+from hil.simulate import simulate_config
 
 from conftest import CONFIG
 
@@ -132,28 +131,38 @@ def test_stiction_holds_and_slips(bench):
     assert sim.x[3] * R == pytest.approx(alpha * t, rel=2e-3)
 
 
-@pytest.mark.parametrize("acc_ff", [0.0, 1.0])
-def test_stepwise_loop_equals_compiled_kernel(bench, acc_ff):
+@pytest.mark.parametrize("changes", [{"control.acc_ff": 0.0}, {"control.acc_ff": 1.0},
+                                     {"effects.time_delay.delay": "2 ms"},
+                                     {"effects.time_delay.delay": "2 ms", "control.output_delay": 3}],
+                         ids=["0.0", "1.0", "time_delay", "time_delay+output_delay"])
+def test_stepwise_loop_equals_compiled_kernel(bench, changes):
     """The real-time loop's path (ControlLoop + per-cycle backend) and the compiled simulator run
-    the same law: identical records (with and without the acceleration feed-forward)."""
-    bench = bench.with_values({"control.acc_ff": acc_ff})
+    the same law: identical records (with and without the acceleration feed-forward, with a
+    transport delay of the plant and the controller's output delay).
+
+    The loop records the output it commands, the kernel the output reaching the current loop:
+    they are the same values, the plant's transport delay apart."""
+    bench = bench.with_values(changes)
     traj = Trajectory()
     traj.move(MoveSpec(0.01, 0.1, a_max=3.0))
     traj.dwell(0.05)
     _, x_cmd = traj.sample(0.004)
-    fast = simulate_config(bench, x_cmd)
+    fast = simulate_config(bench, x_cmd, record_every=1)
     sim = SimulatedPlant(bench, closes="none")
     sim.home_at(0.0)
     sim.enable()
     from hil.control import controller_from_config
-    loop = ControlLoop(sim, controller_from_config(bench, sim.plant), recorder=None)
+    ctrl = controller_from_config(bench, sim.plant)
+    loop = ControlLoop(sim, ctrl, recorder=None)
     rows = []
     loop._record = lambda k, xc, vc, fb, out: rows.append((fb.x_table, fb.x_tip, out))
     loop.run(x_cmd)
     rows = np.array(rows)
-    assert np.max(np.abs(rows[:, 0] - fast.x_table)) < 1e-12
-    assert np.max(np.abs(rows[:, 1] - fast.x_tip)) < 1e-12
-    assert np.max(np.abs(rows[:, 2] - fast.u)) < 1e-9
+    n_sub = ctrl.substeps
+    transport = round(bench.get("effects.time_delay.delay", 0.0) / ctrl.velocity_period)
+    assert np.max(np.abs(rows[:, 0] - fast.x_table[::n_sub])) < 1e-12
+    assert np.max(np.abs(rows[:, 1] - fast.x_tip[::n_sub])) < 1e-12
+    assert np.max(np.abs(rows[:, 2] - fast.u[transport::n_sub])) < 1e-9
 
 
 def test_velocity_and_position_mode_backends_run_the_same_law(bench):

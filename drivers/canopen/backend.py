@@ -153,7 +153,7 @@ class CanopenBackend(Backend):
         self.counts_per_m = (cfg.get("canopen.counts_per_rev", 1048576) * cfg.get("canopen.gear_motor_revs", 1)
                              / cfg.get("canopen.gear_shaft_revs", 1) / pitch)
         self.rated = float(cfg.get("canopen.rated_torque", 10.0))
-        from sim_plant.plant import plant_from_config
+        from hil.plant_config import plant_from_config
         from hil.control import controller_from_config
         self.speed_scale = controller_from_config(cfg, plant_from_config(cfg)).speed_scale
         self.tip_id = int(cfg.get("canopen.tip_node_id", 0) or 0)

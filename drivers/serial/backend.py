@@ -88,7 +88,7 @@ def _warm_up_host_loop(cfg) -> None:
     try:
         from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, \
             velocity_law
-        from sim_plant.plant import plant_from_config
+        from hil.plant_config import plant_from_config
         p = controller_from_config(cfg, plant_from_config(cfg)).as_array()
         s = new_velocity_state()
         position_law(p, 0.0, 0.0, 0.0)

@@ -36,7 +36,7 @@ def candidates_json(d):
 def run(args) -> int:
     from hil.errors import UserError
     from hil.ident.diagnose import diagnose
-    from sim_plant.effects import candidate
+    from hil.plant_config import candidate
     cfg, meas = load_inputs(args)
     rp = make_replay(args, cfg, meas)
     names = args.candidates.split(",") if args.candidates else None

@@ -90,7 +90,7 @@ def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
     from hil.config import load
     from hil.ident.diagnose import diagnose, evaluate, fit_effects, idim_ls, joint_refit
     from hil.io.importers import read_mat
-    from sim_plant.effects import candidate
+    from hil.plant_config import candidate
     meas = read_mat(data, MAPPING)
     cfg0 = load(config)
     rp = Replay(meas, cfg0)

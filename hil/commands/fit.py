@@ -35,7 +35,7 @@ def run(args) -> int:
         return _run_frequency(args)
     from hil.errors import UserError
     from hil.ident.diagnose import fit_effects, joint_refit
-    from sim_plant.effects import candidate
+    from hil.plant_config import candidate
     cfg, meas = load_inputs(args)
     for n in args.add:
         try:

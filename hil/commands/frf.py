@@ -117,7 +117,7 @@ def run(args) -> int:
     from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.control import controller_from_config
-    from sim_plant.plant import plant_from_config
+    from hil.plant_config import plant_from_config
 
     overrides = dict(parse_assignment(s) for s in args.set)
     cfg = load(args.config, overrides)

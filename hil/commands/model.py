@@ -34,7 +34,7 @@ def add_arguments(parser) -> None:
 def model_report(cfg) -> dict:
     """The numbers ``hil model`` reports, SI units, from a validated config."""
     from sim_plant.chain import Chain
-    from sim_plant.plant import plant_from_config
+    from hil.plant_config import plant_from_config
 
     plant = plant_from_config(cfg)
     ch = plant.chain
@@ -66,7 +66,7 @@ def model_report(cfg) -> dict:
 
 def write_plots(cfg, report: dict, out_dir: Path) -> str:
     from sim_plant.chain import Chain
-    from sim_plant.plant import plant_from_config
+    from hil.plant_config import plant_from_config
     from sim_plant.transfer import chain_tfs
     from hil.plots.model import bode_figure
 

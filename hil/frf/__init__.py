@@ -40,7 +40,7 @@ import numpy as np
 from numba import njit
 
 from hil.control import measured_speed, new_velocity_state, position_law, quantize, velocity_law
-from hil.simulate import plant_step as _plant_step
+from sim_plant.kernel import plant_step as _plant_step
 
 __all__ = ["Excitation", "make_excitation", "FrfSettings", "FrfRecord", "run_sim", "run_backend",
            "estimate", "model_responses", "fit_modes", "model_modes", "discrepancies", "tuning",
@@ -266,8 +266,8 @@ def _settle_time(plant, st: FrfSettings) -> float:
 
 def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> FrfRecord:
     """Run the excitation on the simulated plant through the compiled loop."""
-    from hil.simulate import _effect_table, _lag_alpha
-    from sim_plant.kernel import TIME_DELAY
+    from hil.control import lag_alpha as _lag_alpha
+    from sim_plant.kernel import TIME_DELAY, effect_table as _effect_table
     tv = ctrl.velocity_period
     exc = make_excitation(st.signal, tv, st.period, st.band, st.amplitude, st.seed)
     n_settle = int(math.ceil(_settle_time(plant, st) / exc.period))
@@ -518,7 +518,7 @@ def model_responses(plant, ctrl, f, tip_measured: bool = True) -> dict[str, np.n
     """Exact responses of the sampled loop at ``f`` (Hz): zero-order hold of the chain over the
     velocity period, output delay and current-loop lag; controller and speed measurement as
     hil.control's law. Position loop: hold approximation (delay Tp/2, sinc)."""
-    from hil.simulate import _lag_alpha
+    from hil.control import lag_alpha as _lag_alpha
     from sim_plant.kernel import TIME_DELAY
     f = np.asarray(f, float)
     tv, tp = ctrl.velocity_period, ctrl.position_period

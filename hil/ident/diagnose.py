@@ -28,9 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from sim_plant.effects import CATALOGUE, Combination, Effect, candidate, default_parameters
+from sim_plant.effects import CATALOGUE, Combination, Effect
 
 from hil.ident.replay import Replay, noise_floor, periodic_in_position, spectrum_peaks
+from hil.plant_config import candidate, default_parameters
 
 __all__ = ["Candidate", "fit_effects", "diagnose", "MIN_SCORE", "bic_score", "effective_samples", "idim_ls"]
 
@@ -340,7 +341,7 @@ def _evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, 
 
 def _model_modes(cfg):
     try:
-        from sim_plant.plant import plant_from_config
+        from hil.plant_config import plant_from_config
         pl = plant_from_config(cfg)
         w = np.sqrt(np.maximum(np.linalg.eigvals(np.linalg.solve(pl.chain.M, pl.chain.K)).real, 0))
         return sorted(float(x / (2 * np.pi)) for x in w if x > 1e-6)

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from sim_plant.effects import Combination, candidate
-from sim_plant.plant import plant_from_config
+from sim_plant.effects import Combination
 
 from hil.control import controller_from_config
 from hil.errors import MeasurementError
+from hil.plant_config import candidate, plant_from_config
 
 __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RESPONSES"]
 

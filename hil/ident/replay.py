@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_plant.plant import plant_from_config
+from hil.plant_config import plant_from_config
 
 __all__ = ["Replay", "metrics", "analyse", "noise_floor", "spectrum_peaks", "periodic_in_position",
            "relative_error", "nrmse_fit", "motion_phases", "POSITION_CHANNELS"]

@@ -14,8 +14,7 @@ import math
 
 import numpy as np
 
-from sim_plant.effects import candidate
-
+from hil.plant_config import candidate
 from hil.simulate import simulate_config
 
 __all__ = ["move_sequence", "synthesize", "HIDDEN_DEFAULTS"]

@@ -17,7 +17,7 @@ from dataclasses import replace
 
 from hil.control import controller_from_config
 from sim_plant.chain import Chain
-from sim_plant.plant import plant_from_config
+from hil.plant_config import plant_from_config
 
 __all__ = ["fingerprint", "model_of"]
 

@@ -1,0 +1,286 @@
+"""Reading a configuration into the plant: the one place where config keys meet sim_plant.
+
+* :func:`plant_from_config`: the chain, actuator, motor friction and sensors of a validated
+  :class:`hil.config.Config`, with the effects its ``[effects.<name>]`` sections switch on
+  (:func:`apply_effects`). Everything in linear units on the load side: mass 1 is the motor's
+  inertia reflected through the pitch, and its torque enters as the force f = tau 2 pi / p
+  (Eq. 12, 23).
+* The ``[effects.<name>]`` config section (its keys are the catalogue's parameters, registered
+  with :func:`hil.config.register_section` on import), and the ``parameter:<key>`` effects that
+  re-identify a value the config already has (:class:`ParameterEffect`, :func:`candidate`).
+* The components file (catalogue data with units, Appendix 2 and 3) read into SI values for
+  :func:`sim_plant.components.equivalents` (:func:`load_components`).
+
+sim_plant knows no configuration and raises ValueError or KeyError; here they become
+:class:`hil.errors.ConfigError` naming the file and the key.
+"""
+from __future__ import annotations
+
+import math
+import re
+import tomllib
+from pathlib import Path
+
+from hil.config import Config, Field, field_for, register_section
+from hil.errors import ConfigError, UnitError
+from hil.units import parse
+from sim_plant.chain import Chain
+from sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
+from sim_plant.effects import CATALOGUE, Combination, Effect, Param, effect
+from sim_plant.plant import Friction, Plant
+
+__all__ = ["plant_from_config", "apply_effects", "ParameterEffect", "candidate", "default_parameters",
+           "load_components", "components_from_dict"]
+
+
+# --- the plant -----------------------------------------------------------------------------------
+
+def plant_from_config(cfg: Config) -> Plant:
+    """Build the plant of a validated configuration (effects included)."""
+    n = cfg.n_masses
+    m = tuple(cfg[f"plant.m{i}"] for i in range(1, n + 1))
+    k = tuple(cfg[f"plant.k{i}"] for i in range(1, n))
+    c = tuple(cfg[f"plant.c{i}"] for i in range(1, n))
+    if cfg.rotary:
+        pitch = cfg["plant.pitch"]
+        ratio = 2.0 * math.pi / pitch
+        force_gain = ratio           # N per N m
+        speed_scale = ratio          # rad/s per m/s
+        to_linear = ratio            # N m -> N on mass 1
+        viscous = cfg.get("friction.viscous", 0.0) * ratio ** 2
+    else:
+        pitch = None
+        force_gain = cfg["actuator.gain"]
+        speed_scale = 1.0
+        to_linear = 1.0
+        viscous = cfg.get("friction.viscous", 0.0)
+    fc = cfg.get("friction.coulomb", 0.0) * to_linear
+    fs = cfg.get("friction.static", None)
+    fs = fc if fs is None else fs * to_linear
+    friction = Friction(fc, fc, fs, fs, 0.0)
+    table = (cfg.get("plant.table_mass", 0) or min(2, n)) - 1
+    tip = (cfg.get("plant.tip_mass", 0) or n) - 1
+    plant = Plant(
+        chain=Chain(m, k, c, (viscous,) + (0.0,) * (n - 1)),
+        force_gain=force_gain, speed_scale=speed_scale, friction=friction,
+        table=table, tip=tip,
+        table_resolution=cfg.get("sensors.table_resolution", 0.0),
+        motor_resolution=cfg.get("sensors.motor_resolution", 0.0),
+        pitch=pitch,
+        current_loop_time_constant=cfg.get("actuator.current_loop_time_constant", 0.0))
+    return apply_effects(plant, cfg)
+
+
+# --- the effects' config section ------------------------------------------------------------------
+
+def _effects_field(key: str) -> Field | None:
+    """Config fields of the ``effects.<name>.<param>`` keys: the catalogue's parameters."""
+    parts = key.split(".")
+    if len(parts) != 3 or parts[1] not in CATALOGUE:
+        return None
+    eff = CATALOGUE[parts[1]]
+    for p in eff.params:
+        if p.name == parts[2]:
+            return Field(p.kind, f"{eff.name}: {p.doc}", default=None, required=False)
+    return None
+
+
+register_section("effects", _effects_field)
+
+
+def apply_effects(plant: Plant, cfg: Config) -> Plant:
+    """The plant with every effect the config switches on (sections ``[effects.<name>]``)."""
+    names = []
+    for key in cfg.keys():
+        if key.startswith("effects.") and cfg.values[key] is not None:
+            name = key.split(".")[1]
+            if name not in names:
+                names.append(name)
+    for name in names:
+        eff = effect(name)
+        sect = cfg.section(f"effects.{name}")
+        values = {p.name: sect.get(p.name, p.guess) for p in eff.params}
+        for p in eff.params:
+            v = values[p.name]
+            if not (p.lower <= v <= p.upper) or (isinstance(v, float) and math.isnan(v)):
+                raise ConfigError(f"{cfg.source}: effects.{name}.{p.name}: expected {p.lower:g} .. {p.upper:g}, "
+                                  f"got {v:g}")
+        try:
+            plant = eff.apply(plant, values)
+        except ValueError as exc:        # the physics names the effect; the key says it here
+            raise ConfigError(f"{cfg.source}: effects.{name}: {str(exc).removeprefix(f'{name}: ')}") from None
+    return plant
+
+
+class ParameterEffect(Effect):
+    """``parameter:<dotted name>``: re-identify a parameter the config already has (a mass, a
+    stiffness, a damping, a friction value). It changes the config, not the plant."""
+    rescale = True
+
+    def __init__(self, key: str, cfg: Config | None = None):
+        f = field_for(key)
+        if f is None or key.startswith("effects."):
+            raise KeyError(f"parameter:{key}: not a parameter of the config schema")
+        self.key = key
+        self.name = f"parameter:{key}"
+        self.description = f"re-identify {key} ({f.doc})"
+        value = cfg.get(key) if cfg is not None else None
+        kind = f.kind
+        if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
+            value = None
+        g = float(value) if value else 1.0
+        lo = 0.0 if (f.positive or f.nonnegative) else -1e12
+        self.params = (Param("value", kind, lo, 1e12, g, f"new value of {key}"),)
+
+    def applicable(self, plant):
+        return True
+
+    def apply(self, plant, values):      # pragma: no cover - parameters act on the config
+        raise TypeError("parameter effects act on the config: use configure()")
+
+    def configure(self, cfg, values):
+        return cfg.with_values({self.key: float(values["value"])})
+
+
+def candidate(name: str, cfg: Config | None = None) -> Effect:
+    """The effect of a catalogue name or ``parameter:<dotted name>``, or several joined by ``+``
+    (a :class:`~sim_plant.effects.Combination`, fitted together)."""
+    if "+" in name:
+        return Combination([candidate(n, cfg) for n in name.split("+")])
+    if name.startswith("parameter:"):
+        key = name.split(":", 1)[1]
+        if cfg is not None and key not in cfg and "." not in key:
+            # short form parameter:c2 -> plant.c2
+            for sect in ("plant", "friction", "actuator", "control"):
+                if f"{sect}.{key}" in cfg:
+                    key = f"{sect}.{key}"
+                    break
+        try:
+            return ParameterEffect(key, cfg)
+        except KeyError as exc:
+            raise KeyError(str(exc).strip("'\"")) from None
+    return effect(name)
+
+
+def default_parameters(cfg: Config) -> list[str]:
+    """The config parameters ``diagnose`` tries to re-identify by default: the chain's masses,
+    stiffnesses and dampings, and the actuator gain of a linear actuator."""
+    out = [k for k in cfg.keys() if re.fullmatch(r"plant\.[mkc][0-9]+", k) and cfg.get(k)]
+    if not cfg.rotary and cfg.get("actuator.gain"):
+        out.append("actuator.gain")
+    return [f"parameter:{k}" for k in out]
+
+
+# --- the components file -------------------------------------------------------------------------
+
+# key -> (kind, meaning); a stiffness may also be an element {G, J, L} / {E, A, L} / {E, I, L} (Eq. 20)
+_KEYS = {
+    "drive.pitch": ("length", "screw pitch p"),
+    "stiffness.k_em": ("rot_stiffness", "motor shaft, torsion"),
+    "stiffness.k_AF": ("rot_stiffness", "flexible coupling, torsion"),
+    "stiffness.k_Ht": ("rot_stiffness", "ball screw, torsion"),
+    "stiffness.k_Ha": ("stiffness", "ball screw, axial (or its parts k_tb, k_Ha1, k_b, k_Ha2, Eq. 13)"),
+    "stiffness.k_T": ("stiffness", "nut, axial"),
+    "stiffness.k_M": ("stiffness", "nut-table link (or its parts k_aT, k_aS, k_ft, Eq. 14)"),
+    "stiffness.k_c": ("stiffness", "compliant structure (column), k2"),
+    "inertia.J_m": ("inertia", "motor"),
+    "inertia.J_AF1": ("inertia", "coupling, first half"),
+    "inertia.J_AF2": ("inertia", "coupling, second half"),
+    "inertia.J_H": ("inertia", "ball screw"),
+    "mass.m_T": ("mass", "nut"),
+    "mass.m_M": ("mass", "table"),
+    "mass.extra_table": ("mass", "extra mass carried by the table"),
+    "mass.m_c": ("mass", "compliant structure (column), m3"),
+}
+_OPTIONAL = {"mass.extra_table": 0.0}
+_PARTS = {
+    "stiffness.k_Ha": (k_screw_axial, ("k_tb", "k_Ha1", "k_b", "k_Ha2"), "stiffness"),
+    "stiffness.k_M": (k_nut_table, ("k_aT", "k_aS", "k_ft"), "stiffness"),
+}
+_ELEMENTS = {   # Eq. (20): which keys make which element
+    frozenset("GJL"): (k_torsional, (("G", "pressure"), ("J", "area_moment"), ("L", "length")), "rot_stiffness"),
+    frozenset("EAL"): (k_axial, (("E", "pressure"), ("A", "area"), ("L", "length")), "stiffness"),
+    frozenset("EIL"): (k_flexure, (("E", "pressure"), ("I", "area_moment"), ("L", "length")), "stiffness"),
+}
+
+
+def _quantity(value, kind, what, zero_ok=False):
+    try:
+        out = parse(value, kind, what)
+    except UnitError as exc:
+        raise ConfigError(str(exc)) from None
+    if not (out >= 0 if zero_ok else out > 0) or math.isinf(out):
+        raise ConfigError(f"{what}: expected a {'' if zero_ok else 'positive '}finite {kind}"
+                          f"{' >= 0' if zero_ok else ''}, got {value!r}")
+    return out
+
+
+def _element(value: dict, kind: str, what: str) -> float:
+    fn, args, ekind = _ELEMENTS.get(frozenset(value), (None, None, None))
+    if fn is None:
+        raise ConfigError(f"{what}: expected an element {{G, J, L}} (torsion), {{E, A, L}} (axial) or "
+                          f"{{E, I, L}} (flexure), got keys {', '.join(sorted(value))}")
+    if ekind != kind:
+        raise ConfigError(f"{what}: an element {{{', '.join(sorted(value))}}} gives a {ekind}, expected a {kind}")
+    return fn(*(_quantity(value[a], k, f"{what}.{a}") for a, k in args))
+
+
+def _stiffness(value, kind, what):
+    return _element(value, kind, what) if isinstance(value, dict) else _quantity(value, kind, what)
+
+
+def components_from_dict(table: dict, source: str = "<components>") -> dict[str, float]:
+    """Validate a components table (as read from TOML) and return SI values by dotted key; parts
+    (Eq. 13, 14) and elements (Eq. 20) are reduced to the stiffness they stand for."""
+    flat = {}
+    for sect, body in table.items():
+        if sect == "meta":
+            continue
+        if not isinstance(body, dict):
+            raise ConfigError(f"{source}: {sect}: expected a section [{sect}], got {body!r}")
+        for name, value in body.items():
+            flat[f"{sect}.{name}"] = value
+    for key in flat:
+        if key not in _KEYS:
+            raise ConfigError(f"{source}: unknown key {key!r} (known: {', '.join(_KEYS)})")
+    out = {}
+    for key, (kind, doc) in _KEYS.items():
+        what = f"{source}: {key}"
+        if key not in flat:
+            if key in _OPTIONAL:
+                out[key] = _OPTIONAL[key]
+                continue
+            raise ConfigError(f"{what}: missing ({doc}, a {kind})")
+        value = flat[key]
+        if key in _PARTS and isinstance(value, dict) and not frozenset(value) in _ELEMENTS:
+            fn, names, pkind = _PARTS[key]
+            missing = [n for n in names if n not in value]
+            extra = [n for n in value if n not in names]
+            if missing or extra:
+                raise ConfigError(f"{what}: expected the parts {', '.join(names)}"
+                                  + (f"; missing {', '.join(missing)}" if missing else "")
+                                  + (f"; unknown {', '.join(extra)}" if extra else ""))
+            out[key] = fn(*(_stiffness(value[n], pkind, f"{what}.{n}") for n in names))
+        elif key.startswith("stiffness."):
+            out[key] = _stiffness(value, kind, what)
+        elif key == "mass.extra_table":
+            out[key] = _quantity(value, kind, what, zero_ok=True)
+        else:
+            out[key] = _quantity(value, kind, what)
+    return out
+
+
+def load_components(path: str | Path) -> dict[str, float]:
+    """Read and validate a components TOML file (see :func:`components_from_dict`)."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such components file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return components_from_dict(table, str(path))
