@@ -239,7 +239,7 @@ def run(args) -> int:
             shutil.copy(f, d / f"emps_{Path(f).name}")
     if args.json:
         print(dumps({"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out)},
-                         indent=1, default=float))
+                         indent=1))
     else:
         print(md)
         print(diag_md)
