@@ -18,11 +18,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hil.ident.replay import Replay  # noqa: E402
 from hil.config import load  # noqa: E402
-from hil.ident.diagnose import diagnose  # noqa: E402
+from hil.ident import Replay, diagnose, synthesize  # noqa: E402
 from hil.io.measurement import Measurement  # noqa: E402
-from hil.ident.synth import synthesize  # noqa: E402
 
 
 def load_avg() -> str:

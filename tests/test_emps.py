@@ -32,7 +32,7 @@ def test_diagnosis_names_coulomb_friction_and_the_offset():
     # -3.2 N of force residual in both directions); asymmetric_friction is compared with the pair
     from hil.ident.replay import Replay
     from hil.config import load
-    from hil.ident.diagnose import diagnose
+    from hil.ident.diagnosis import diagnose
     rp = Replay(_record(), load("config/emps.toml"))
     d = diagnose(rp, ["coulomb_friction", "constant_force", "asymmetric_friction"], jobs=1, max_nfev=15)
     assert d["verdict"] == "coulomb_friction"
@@ -75,7 +75,7 @@ def test_vir_is_the_law_of_the_same_sample():
 
 def test_idim_ls_reproduces_the_published_inverse_model():
     from hil.commands.emps import PUBLISHED
-    from hil.ident.diagnose import idim_ls
+    from hil.ident.inverse import idim_ls
     m = _record()
     p = idim_ls(m.t, m["x_motor"], m["force"])["params"]
     for k in ("M", "Fv", "Fc"):
@@ -90,7 +90,8 @@ def test_output_error_fit_lands_on_the_published_values():
     from hil.commands.emps import PUBLISHED, _with_rigid, errors, params_of
     from hil.ident.replay import Replay
     from hil.config import load
-    from hil.ident.diagnose import idim_ls, joint_refit
+    from hil.ident.fit import joint_refit
+    from hil.ident.inverse import idim_ls
     m = _record()
     cfg = _with_rigid(load("config/emps.toml"), idim_ls(m.t, m["x_motor"], m["force"])["params"])
     rp = Replay(m, cfg)

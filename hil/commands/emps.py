@@ -42,7 +42,7 @@ def velocity(q, dt):
 
 
 def errors(replay, cfg) -> dict:
-    from hil.ident.replay import relative_error
+    from hil.ident.scores import relative_error
     m = replay.meas
     sim = replay.simulated(cfg)
     dt = replay.sample_period
@@ -88,7 +88,9 @@ def run_emps(data, config, quick=False, progress=None, diagnose_steps=True):
     """The EMPS chain. Returns (replay, rows, configs, diagnoses)."""
     from hil.ident.replay import Replay
     from hil.config import load
-    from hil.ident.diagnose import diagnose, evaluate, fit_effects, idim_ls, joint_refit
+    from hil.ident.diagnosis import diagnose
+    from hil.ident.fit import evaluate, fit_effects, joint_refit
+    from hil.ident.inverse import idim_ls
     from hil.io.importers import read_mat
     from sim_plant.effects import candidate
     meas = read_mat(data, MAPPING)
@@ -206,7 +208,7 @@ def check_published(rows) -> dict:
 
 def run(args) -> int:
     from hil.errors import UserError
-    from hil.ident.replay import analyse
+    from hil.ident.compare import analyse
     from hil.io.measurement import MeasurementError
     from hil.plots.compare import comparison_figures, error_fall_figure
     from hil.plots.report import write_report

@@ -22,6 +22,7 @@ from sim_plant.plant import plant_from_config
 
 from hil.control import controller_from_config
 from hil.errors import MeasurementError
+from hil.frf import model_responses
 
 __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RESPONSES"]
 
@@ -100,7 +101,6 @@ class FrfFit:
 
 
 def _residuals(cfg, data: FrfData, min_coherence: float):
-    from hil.frf import model_responses
     plant = plant_from_config(cfg)
     ctrl = controller_from_config(cfg, plant)
     out, per = [], {}
