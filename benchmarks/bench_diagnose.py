@@ -55,7 +55,7 @@ def main() -> None:
         subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True)
         print(f"hil diagnose (fresh process) 12 s record: {time.perf_counter() - t0:.1f} s  [{load_avg()}]")
     if a.emps:
-        from hil.commands.emps import MAPPING
+        from hil.ident.emps import MAPPING
         from hil.io.importers import read_mat
         data = ROOT.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat"
         rp = Replay(read_mat(data, MAPPING), load(ROOT / "config" / "emps.toml"))

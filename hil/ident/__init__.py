@@ -13,11 +13,13 @@ Modules, each importing only those above it:
 - ``parallel``: many candidates in worker processes;
 - ``diagnosis``: every candidate fitted, ranked, the verdict (:func:`diagnose`);
 - ``inverse``: the inverse dynamic model by least squares (:func:`idim_ls`);
+- ``emps``: the EMPS benchmark end to end;
 - ``frf_fit``: the same effects fitted to measured frequency responses;
 - ``synth``: records of a richer plant with a hidden effect.
 """
 from hil.ident.compare import analyse, metrics
 from hil.ident.diagnosis import Combo, candidate_names, diagnose, pair_score
+from hil.ident.emps import EmpsResult, run_emps
 from hil.ident.fit import Candidate, evaluate, fit_effects, joint_refit
 from hil.ident.frf_fit import FrfData, FrfFit, fit_frf, is_frf_file, load_frf
 from hil.ident.inverse import idim_ls
@@ -29,5 +31,5 @@ from hil.ident.synth import HIDDEN_DEFAULTS, synthesize
 __all__ = ["Replay", "POSITION_CHANNELS", "analyse", "metrics", "relative_error", "nrmse_fit", "noise_floor",
            "effective_samples", "bic_score", "MIN_SCORE", "spectrum_peaks", "periodic_in_position",
            "motion_phases", "Candidate", "evaluate", "fit_effects", "joint_refit", "diagnose", "candidate_names",
-           "Combo", "pair_score", "idim_ls", "fit_frf", "load_frf", "is_frf_file",
+           "Combo", "pair_score", "idim_ls", "run_emps", "EmpsResult", "fit_frf", "load_frf", "is_frf_file",
            "FrfData", "FrfFit", "synthesize", "HIDDEN_DEFAULTS"]
