@@ -18,11 +18,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hil.ident.replay import Replay  # noqa: E402
 from hil.config import load  # noqa: E402
-from hil.ident.diagnose import diagnose  # noqa: E402
+from hil.ident import Replay, diagnose, synthesize  # noqa: E402
 from hil.io.measurement import Measurement  # noqa: E402
-from hil.ident.synth import synthesize  # noqa: E402
 
 
 def load_avg() -> str:
@@ -57,7 +55,7 @@ def main() -> None:
         subprocess.run(cmd, check=True, cwd=ROOT, capture_output=True)
         print(f"hil diagnose (fresh process) 12 s record: {time.perf_counter() - t0:.1f} s  [{load_avg()}]")
     if a.emps:
-        from hil.commands.emps import MAPPING
+        from hil.ident.emps import MAPPING
         from hil.io.importers import read_mat
         data = ROOT.parent / "shared" / "data" / "emps" / "DATA_EMPS.mat"
         rp = Replay(read_mat(data, MAPPING), load(ROOT / "config" / "emps.toml"))

@@ -1,6 +1,6 @@
 import numpy as np
 
-from hil.ident.replay import motion_phases, noise_floor, nrmse_fit, relative_error, spectrum_peaks
+from hil.ident import motion_phases, noise_floor, nrmse_fit, relative_error, spectrum_peaks
 
 
 def test_fit_and_relative_error():

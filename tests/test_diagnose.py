@@ -1,12 +1,9 @@
 """Synthetic records with a hidden effect: diagnose names it, fit removes its error."""
-import numpy as np
 import pytest
 
-from hil.ident.replay import Replay
 from hil.config import load
-from hil.ident.diagnose import diagnose, evaluate
+from hil.ident import HIDDEN_DEFAULTS, Replay, diagnose, synthesize
 from hil.io.measurement import Measurement
-from hil.ident.synth import HIDDEN_DEFAULTS, synthesize
 
 CFG = load("config/paper_bench.toml")
 

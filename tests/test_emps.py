@@ -10,9 +10,9 @@ pytestmark = pytest.mark.skipif(not DATA.exists(), reason=f"EMPS record not pres
 def test_published_model_reproduces_errors():
     # one replay, one compiled specialisation of the loop (the start model is the same model with
     # Fc = 0 and no offset): a cold numba cache compiles the kernel once here, not twice
-    from hil.commands.emps import MAPPING, PUBLISHED, errors
-    from hil.ident.replay import Replay
     from hil.config import load
+    from hil.ident import Replay
+    from hil.ident.emps import MAPPING, PUBLISHED, errors
     from hil.io.importers import read_mat
     m = read_mat(DATA, MAPPING)
     cfg = load("config/emps.toml")
@@ -30,9 +30,8 @@ def test_published_model_reproduces_errors():
 def test_diagnosis_names_coulomb_friction_and_the_offset():
     # issue 8: the verdict is coulomb_friction with its evidence, constant_force also missing (about
     # -3.2 N of force residual in both directions); asymmetric_friction is compared with the pair
-    from hil.ident.replay import Replay
     from hil.config import load
-    from hil.ident.diagnose import diagnose
+    from hil.ident import Replay, diagnose
     rp = Replay(_record(), load("config/emps.toml"))
     d = diagnose(rp, ["coulomb_friction", "constant_force", "asymmetric_friction"], jobs=1, max_nfev=15)
     assert d["verdict"] == "coulomb_friction"
@@ -56,7 +55,7 @@ PUBLISHED_OFFSET = -3.1648
 
 
 def _record():
-    from hil.commands.emps import MAPPING
+    from hil.ident.emps import MAPPING
     from hil.io.importers import read_mat
     return read_mat(DATA, MAPPING)
 
@@ -74,8 +73,8 @@ def test_vir_is_the_law_of_the_same_sample():
 
 
 def test_idim_ls_reproduces_the_published_inverse_model():
-    from hil.commands.emps import PUBLISHED
-    from hil.ident.diagnose import idim_ls
+    from hil.ident import idim_ls
+    from hil.ident.emps import PUBLISHED
     m = _record()
     p = idim_ls(m.t, m["x_motor"], m["force"])["params"]
     for k in ("M", "Fv", "Fc"):
@@ -87,10 +86,10 @@ def test_idim_ls_reproduces_the_published_inverse_model():
 
 
 def test_output_error_fit_lands_on_the_published_values():
-    from hil.commands.emps import PUBLISHED, _with_rigid, errors, params_of
-    from hil.ident.replay import Replay
     from hil.config import load
-    from hil.ident.diagnose import idim_ls, joint_refit
+    from hil.ident import Replay, idim_ls, joint_refit
+    from hil.ident.emps import PUBLISHED, errors, params_of
+    from hil.ident.emps import with_rigid as _with_rigid
     m = _record()
     cfg = _with_rigid(load("config/emps.toml"), idim_ls(m.t, m["x_motor"], m["force"])["params"])
     rp = Replay(m, cfg)

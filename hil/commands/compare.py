@@ -37,24 +37,15 @@ def add_arguments(parser) -> None:
 
 
 def load_inputs(args):
+    """The config (``--config`` with ``--set``) and the record (``data`` with ``--map``)."""
     from hil.config import load, parse_assignment
     from hil.io.importers import parse_mapping, read_any
-    from hil.io.measurement import MeasurementError
-    from hil.errors import UserError
-    overrides = dict(parse_assignment(s) for s in args.set)
-    cfg = load(args.config, overrides)
-    try:
-        mapping = parse_mapping(args.map)
-        path = args.data
-        if not mapping and str(path).endswith(".csv"):
-            mapping = None
-        meas = read_any(path, mapping or None)
-    except MeasurementError as exc:
-        raise UserError(str(exc)) from None
-    return cfg, meas
+    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    return cfg, read_any(args.data, parse_mapping(args.map) or None)
 
 
 def make_replay(args, cfg, meas):
+    """The record replayed through the config, on the ``--channels`` asked for, ``--align``-ed."""
     from hil.ident.replay import Replay
     chans = args.channels.split(",") if getattr(args, "channels", None) else None
     return Replay(meas, cfg, chans, align=getattr(args, "align", False))
@@ -65,8 +56,8 @@ def strip(analysis):
 
 
 def run(args) -> int:
-    from hil.ident.replay import analyse
     from hil.config import load
+    from hil.ident.compare import analyse
     from hil.plots.compare import comparison_figures
     from hil.plots.report import write_report
     cfg, meas = load_inputs(args)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import sys
 
 from hil.commands.compare import add_common, load_inputs, make_replay
+from hil.errors import UserError
 from hil.io.jsonout import dumps
 
 HELP = "rank the catalogue's effects by how much of the model error each explains"
@@ -34,9 +35,9 @@ def candidates_json(d):
 
 
 def run(args) -> int:
-    from hil.errors import UserError
-    from hil.ident.diagnose import diagnose
     from hil.plant_config import candidate
+
+    from hil.ident.diagnosis import diagnose
     cfg, meas = load_inputs(args)
     rp = make_replay(args, cfg, meas)
     names = args.candidates.split(",") if args.candidates else None

@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from hil.commands.compare import add_common, load_inputs, make_replay
+from hil.errors import UserError
 from hil.io.jsonout import dumps
 
 HELP = "fit one or more effects (or parameter:<key>) to a measurement and write the new config"
@@ -33,9 +34,9 @@ def run(args) -> int:
     from hil.ident.frf_fit import is_frf_file
     if is_frf_file(args.data):
         return _run_frequency(args)
-    from hil.errors import UserError
-    from hil.ident.diagnose import fit_effects, joint_refit
     from hil.plant_config import candidate
+
+    from hil.ident.fit import fit_effects, joint_refit
     cfg, meas = load_inputs(args)
     for n in args.add:
         try:
@@ -66,7 +67,6 @@ def run(args) -> int:
 
 def _run_frequency(args) -> int:
     """``hil fit frf.json``: the same effects fitted to measured frequency responses."""
-    from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.ident.frf_fit import FrfDataError, fit_frf, load_frf
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))

@@ -1,7 +1,7 @@
 """``hil synth``: write a measurement file of a richer plant with a hidden effect."""
 from __future__ import annotations
 
-
+from hil.errors import UserError
 from hil.io.jsonout import dumps
 
 HELP = "synthetic measurement with a hidden effect (0.5 um quantization, noise, 4 ms sampling)"
@@ -25,10 +25,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from hil.errors import UserError
     from hil.config import load, parse_assignment
-    from hil.io.measurement import write
     from hil.ident.synth import synthesize
+    from hil.io.measurement import write
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
     vals = None
     if args.param:

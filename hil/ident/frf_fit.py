@@ -18,10 +18,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from sim_plant.effects import Combination
+from hil.plant_config import candidate, plant_from_config
 
 from hil.control import controller_from_config
 from hil.errors import MeasurementError
-from hil.plant_config import candidate, plant_from_config
+from hil.frf import model_responses
 
 __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RESPONSES"]
 
@@ -100,7 +101,6 @@ class FrfFit:
 
 
 def _residuals(cfg, data: FrfData, min_coherence: float):
-    from hil.frf import model_responses
     plant = plant_from_config(cfg)
     ctrl = controller_from_config(cfg, plant)
     out, per = [], {}

@@ -1,0 +1,275 @@
+"""Which effect is the model missing? Every candidate fitted to a replayed record, scored and ranked
+(``hil diagnose``; the fits in hil.ident.fit, the scores in hil.ident.scores).
+
+Every candidate (each catalogue effect that applies to the plant, and ``parameter:<key>`` for the
+chain's masses, stiffnesses and dampings) is first fitted briefly, then the few best are fitted
+fully. Its score is BIC(before) - BIC(after) on the effective samples; it is significant above
+:data:`~hil.ident.scores.MIN_SCORE` (6) when the channel's error stands above its noise floor.
+Otherwise the verdict is ``"none"``: no significant missing effect.
+
+Ranking: best score first; a catalogue effect before a ``parameter:`` that is the same fit by
+another name; a simpler catalogue effect nested in a richer one (coulomb_friction inside
+asymmetric_friction) first, unless the richer one's score is higher by more than MIN_SCORE (the
+same criterion: its extra parameters must pay for themselves). A richer effect that a
+combination of simpler ones can mimic (``Effect.mimicked_by``: asymmetric_friction by
+coulomb_friction + constant_force) is compared with them fitted jointly (:class:`Combo`); the
+combination is named first (verdict, then ``also_missing``) when the richer effect's extra
+parameters do not pay against it, or when it explains at least :data:`EXPLAINED` of the richer
+effect's fall of the log weighted error.
+"""
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim_plant.effects import CATALOGUE
+from hil.plant_config import candidate, default_parameters
+
+from hil.ident.evidence import evidence
+from hil.ident.fit import Candidate, evaluate
+from hil.ident.parallel import evaluate_many
+from hil.ident.replay import Replay
+from hil.ident.scores import MIN_SCORE, bic_score
+
+__all__ = ["diagnose", "candidate_names", "Combo", "pair_score", "EXPLAINED"]
+
+EXPLAINED = 0.8          # a combination of simpler effects explaining this share of a richer one's gain goes first
+
+
+def candidate_names(cfg, plant, include_parameters: bool = True) -> list[str]:
+    """The default candidates: the catalogue effects that apply to the plant, and the
+    ``parameter:<key>`` candidates of the config (sim_plant.effects.default_parameters)."""
+    names = [n for n, e in CATALOGUE.items() if e.applicable(plant)]
+    if include_parameters:
+        names += default_parameters(cfg)
+    return names
+
+
+def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_nfev: int = 30,
+             jobs: int | None = None, screen_nfev: int = 6, refine: int = 3) -> dict:
+    """Try every candidate; returns {"candidates": [...ranked Candidate], "verdict": name | "none",
+    "noise_floor": {...}, "error_before": {...}}.
+
+    Every candidate is first fitted briefly (``screen_nfev`` evaluations), then the ``refine``
+    best are fitted fully (``max_nfev``); ``jobs`` processes share the work (default: the CPUs)."""
+    cfg = replay.cfg
+    res0 = replay.residuals(cfg)
+    names = names or candidate_names(cfg, replay.plant)
+    jobs = jobs or os.cpu_count() or 1
+    # the costly candidates first, so that the processes finish together
+    names = sorted(names, key=lambda n: -_cost_hint(n, cfg))
+    out = [c for c in evaluate_many(replay, [(n, screen_nfev, None, 1) for n in names], res0, jobs, progress)
+           if c is not None]
+    ranked = sorted(out, key=lambda c: -c.score)
+    top = [c.effect for c in ranked[:refine]]
+    # and the simpler effects nested in those, so that the ranking compares refined fits
+    for c in list(top):
+        top += [n for n in getattr(CATALOGUE.get(c), "nests", ()) if n in names and n not in top]
+    by_name = {c.effect: c for c in out}
+    if top and max_nfev > screen_nfev:
+        work = [(n, max_nfev, by_name[n].params, 1) for n in top]
+        better = {c.effect: c for c in evaluate_many(replay, work, res0, jobs, progress) if c is not None}
+        out = [better.get(c.effect, c) if better.get(c.effect, c).score >= c.score else c for c in out]
+    combos = _combinations(replay, out, res0, jobs, progress, max_nfev, refine)
+    ranked, lead = _rank(out, combos, replay.noise)
+    also = []
+    if lead is not None:
+        verdict = lead.leader if lead.significant else "none"
+        also = [m for m in lead.members if m["effect"] != lead.leader and m["significant"]] if lead.significant else []
+    else:
+        verdict = ranked[0].effect if ranked and ranked[0].significant else "none"
+    return {"candidates": ranked, "verdict": verdict, "also_missing": also,
+            "combinations": [c.as_json() for c in combos], "noise_floor": dict(replay.noise),
+            "error_before": {c: float(np.sqrt(np.mean(res0[c] ** 2))) for c in replay.objective.weights}}
+
+
+def _cost_hint(name, cfg) -> float:
+    try:
+        eff = candidate(name, cfg)
+    except KeyError:
+        return 0.0
+    return (1 + len(eff.params)) * (3 if (eff.periodic or name == "compliant_mode") else 1)
+
+
+@dataclass
+class Combo:
+    """A combination of simpler catalogue effects fitted jointly against the richer effect it can
+    mimic (``Effect.mimicked_by``): its candidate (scored like any other), the richer one, and per
+    member its marginal score (the BIC score of the joint fit against the fit without that member)."""
+    cand: Candidate
+    rich: Candidate
+    members: list            # [{"effect", "params", "score" (marginal), "significant", "evidence"}]
+    leader: str = ""
+    preferred: bool = False
+    pair: float = math.nan   # BIC score of the richer effect against the combination
+    explained: float = math.nan   # the combination's share of the richer effect's fall of the log error
+
+    @property
+    def score(self):
+        return self.cand.score
+
+    @property
+    def effect(self):
+        return self.cand.effect
+
+    @property
+    def significant(self):
+        return self.cand.significant
+
+    def as_json(self) -> dict:
+        return {"effects": [m["effect"] for m in self.members], "explains": self.rich.effect,
+                "preferred": bool(self.preferred), "score": float(self.cand.score),
+                "rich_against_combination": float(self.pair), "explained": float(self.explained),
+                "rich_score": float(self.rich.score), "params": {k: float(v) for k, v in self.cand.params.items()},
+                "channel": self.cand.channel, "error_before": float(self.cand.error_before),
+                "error_after": float(self.cand.error_after), "evidence": self.cand.evidence,
+                "members": [{k: (float(v) if isinstance(v, float) else v) for k, v in m.items()} for m in self.members]}
+
+
+def _combinations(replay, out, res0, jobs, progress, max_nfev, refine) -> list[Combo]:
+    """Fit jointly the combinations of simpler effects that can mimic a significant richer effect
+    among the best ``refine``, when every member was a candidate; their members' single fits give the
+    starting values and the fits without each member (for the marginal scores)."""
+    by_name = {c.effect: c for c in out}
+    work, rich_of = [], {}
+    for c in sorted(out, key=lambda c: -c.score)[:max(refine, 1)]:
+        if not c.significant:
+            continue
+        for combo in getattr(CATALOGUE.get(c.effect), "mimicked_by", ()):
+            if not all(m in by_name for m in combo):
+                continue
+            name = "+".join(combo)
+            if name in rich_of:
+                continue
+            start = {f"{m}.{k}": v for m in combo for k, v in by_name[m].params.items()}
+            rich_of[name] = c
+            work.append((name, max_nfev, start, 1))
+    if not work:
+        return []
+    fits = [c for c in evaluate_many(replay, work, res0, jobs, progress) if c is not None]
+    chans = list(replay.objective.weights)
+    combos = []
+    for fc in fits:
+        eff = candidate(fc.effect, replay.cfg)
+        res1 = replay.residuals(fc.cfg)
+        members = []
+        for m, vals in zip(eff.members, eff.split(fc.params)):
+            others = [o.name for o in eff.members if o is not m]
+            if len(others) == 1:
+                without = by_name[others[0]]
+            else:
+                without = evaluate(replay, "+".join(others), res0, max_nfev,
+                                   start={k: v for k, v in fc.params.items() if not k.startswith(m.name + ".")})
+            sc = bic_score(replay.residuals(without.cfg), res1, chans, len(m.params), replay.noise)
+            members.append({"effect": m.name, "params": vals, "score": float(sc), "significant": sc > MIN_SCORE,
+                            "evidence": evidence(m.name, vals, replay, res0, fc.channel, fc.error_before,
+                                                  fc.error_after, [])})
+        lead = max(members, key=lambda d: d["score"])["effect"]
+        combos.append(Combo(fc, rich_of[fc.effect], members, lead))
+    return combos
+
+
+def _rank(cands: list[Candidate], combos: list | None = None, floor=None):
+    """The candidates best first, and the combination that leads the ranking (or None).
+
+    A combination of simpler effects is preferred over the richer effect it mimics when its score is
+    not lower by more than :data:`MIN_SCORE` (the richer effect's extra parameters do not pay for
+    themselves) or it leaves no more error (:func:`_close`); a preferred combination takes the
+    richer effect's place if that is higher, and stands in the ranking for its leading member (the
+    one whose removal costs the most)."""
+    entries = _rank_single(list(cands) + [c for c in combos or () if _prefer(c, floor=floor)])
+    out, lead = [], None
+    for e in entries:
+        if isinstance(e, Combo):
+            if lead is None and not out:
+                lead = e
+            single = next((c for c in cands if c.effect == e.leader), None)
+            if single is not None and single not in out:
+                rest = [m["effect"] for m in e.members if m["effect"] != e.leader]
+                single.evidence += (f"; with {' and '.join(rest)} it explains {100 * e.explained:.0f} % of the gain of "
+                                    f"{e.rich.effect} (whose remainder scores {e.pair:.1f}: judged once these are fitted)")
+                out.append(single)
+        elif e not in out:
+            out.append(e)
+    return out, lead
+
+
+def _rank_single(cands: list) -> list:
+    # best score first; the same fit twice (mass_change is parameter:plant.m<table> by another name)
+    # puts the catalogue effect, which names the physics, before the parameter
+    cands = sorted(cands, key=lambda c: -c.score)
+    for i in range(len(cands) - 1):
+        a, b = cands[i], cands[i + 1]
+        if a.effect.startswith("parameter:") and not b.effect.startswith("parameter:") \
+                and abs(a.score - b.score) <= 1e-4 * abs(a.score) + 0.05:
+            cands[i], cands[i + 1] = b, a
+    # a preferred combination before the richer effect it mimics
+    for c in [c for c in cands if isinstance(c, Combo)]:
+        i, j = cands.index(c.rich), cands.index(c)
+        if j > i:
+            cands.insert(i, cands.pop(j))
+    # a simpler nested effect first when it explains most of the richer one's gain
+    changed = True
+    while changed:
+        changed = False
+        for i in range(len(cands)):
+            for j in range(i + 1, len(cands)):
+                rich, simple = cands[i], cands[j]
+                if isinstance(rich, Combo) or isinstance(simple, Combo):
+                    continue
+                eff = CATALOGUE.get(rich.effect)
+                if eff and simple.effect in getattr(eff, "nests", ()) and simple.significant \
+                        and (rich.score - simple.score < MIN_SCORE or _close(simple, rich)):
+                    cands.insert(i, cands.pop(j))
+                    changed = True
+                    break
+            if changed:
+                break
+    return cands
+
+
+def _prefer(combo, chans=None, floor=None) -> bool:
+    """Whether the combination of simpler effects is named before the richer effect it mimics.
+
+    Marginality (lower-order terms first, as in hierarchical regression): asymmetric friction is
+    Coulomb friction and an offset plus a direction-dependent remainder; the remainder is only judged
+    once the lower-order terms are in the model. So a significant combination is named first when
+    the richer effect's extra parameters do not pay against it (their BIC score against the
+    combination, :func:`pair_score`, at most :data:`MIN_SCORE`), or when it accounts for at least
+    :data:`EXPLAINED` of the richer effect's fall of the log weighted error; the richer effect's
+    score against the combination is reported, and the next diagnosis (with the combination fitted)
+    judges the remainder by the same criterion."""
+    combo.explained = _log_fall(combo.cand) / _log_fall(combo.rich) if _log_fall(combo.rich) > 0 else 1.0
+    if combo.cand.res is not None and combo.rich.res is not None:
+        combo.pair = pair_score(combo.cand, combo.rich, chans or list(combo.cand.res), floor)
+        pays = combo.pair > MIN_SCORE
+    else:
+        pays = combo.rich.score - combo.score > MIN_SCORE
+    combo.preferred = bool(combo.significant and (not pays or combo.explained >= EXPLAINED
+                                                  or _close(combo.cand, combo.rich)))
+    return combo.preferred
+
+
+def pair_score(simple: Candidate, rich: Candidate, chans, floor=None) -> float:
+    """The same BIC score between two fits: the richer model against the simpler one (its residual
+    as "before", the extra parameters as the penalty). Each candidate's own score counts the
+    effective samples of its own residual; comparing two scores would reward a whiter residual
+    twice."""
+    k = len(candidate(rich.effect).params) - len(candidate(simple.effect).params)
+    return bic_score(simple.res, rich.res, chans, max(k, 0), floor)
+
+
+def _log_fall(c: Candidate) -> float:
+    """ln(weighted error before / after) of a fit."""
+    return math.log(max(1.0 / max(1.0 - c.gain, 1e-300), 1.0))
+
+
+def _close(simple: Candidate, rich: Candidate, tol: float = 0.05) -> bool:
+    """The simpler fit leaves no more than ``tol`` more RMS error than the richer one in every
+    channel: the richer one's BIC lead is then the fits' convergence (stick-slip makes the cost
+    rough), not the data."""
+    return bool(simple.errors_after) and all(
+        simple.errors_after[c] <= (1 + tol) * rich.errors_after.get(c, 0.0) for c in simple.errors_after)

@@ -1,0 +1,236 @@
+"""The EMPS benchmark end to end (``hil emps``), against its published reference model.
+
+Reads DATA_EMPS.mat (mapping t, qg -> x_cmd, qm -> x_motor, vir*gtau -> force), starts from
+config/emps.toml (the published M and Fv, no Coulomb friction, no offset), diagnoses, adds
+coulomb_friction and constant_force (the verdict and the effect also missing), refits them
+together, diagnoses again and fits the next verdict (asymmetric_friction); then the published
+method, the inverse model on the force channel (IDIM-LS, hil.ident.inverse), refitted by output
+error (M, Fv, Fc and the offset jointly, simulation in the loop), and asymmetric friction from its
+inverse model. Errors are relative 2-norm errors in %, 100 ||y - y_sim|| / ||y||, of the position
+qm, of the velocity the controller sees (backward difference of the two-tap filtered position)
+and of the force gtau*vir. Published: Janot et al. 2019.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hil.plant_config import candidate
+
+from hil.config import load
+from hil.ident.diagnosis import diagnose
+from hil.ident.fit import evaluate, fit_effects, joint_refit
+from hil.ident.inverse import idim_ls
+from hil.ident.replay import Replay
+from hil.ident.scores import relative_error
+from hil.io.importers import read_mat
+
+__all__ = ["PUBLISHED", "MAPPING", "DIAGNOSE_CANDIDATES", "EmpsResult", "run_emps", "velocity", "errors",
+           "params_of", "with_rigid", "check_published", "table_markdown", "diagnosis_markdown"]
+
+PUBLISHED = {"M": 95.1089, "Fv": 203.5034, "Fc": 20.3935, "offset": -3.1648,
+             "errors": {"position": 0.0138, "velocity": 0.229, "force": 5.85}}
+MAPPING = {"t": "t", "qg": "x_cmd", "qm": "x_motor", "vir*gtau": "force"}     # source = channel
+DIAGNOSE_CANDIDATES = ["coulomb_friction", "stribeck_friction", "asymmetric_friction", "constant_force",
+                       "viscous_friction", "time_delay", "mass_change", "parameter:actuator.gain"]
+
+
+@dataclass
+class EmpsResult:
+    """What the chain gives: the replay of the record, one row per step (its label, ``params`` in the
+    benchmark's names, the errors % of position, velocity and force, and for the inverse-model steps
+    ``inverse_force``), the configs ``start``, ``fitted`` (output error from IDIM-LS) and
+    ``asymmetric``, and the diagnoses (verdict, ranking, also missing, combinations)."""
+    replay: Replay
+    rows: list
+    configs: dict
+    diagnoses: list
+
+    @property
+    def check(self) -> dict:
+        return check_published(self.rows)
+
+
+def velocity(q, dt):
+    """The velocity the EMPS controller sees: the backward difference of the two-tap filtered
+    position (m/s)."""
+    qf = np.r_[q[0], 0.5 * q[1:] + 0.5 * q[:-1]]
+    return np.r_[0.0, np.diff(qf)] / dt
+
+
+def errors(replay: Replay, cfg) -> dict:
+    """Relative 2-norm errors % of the position qm, of the velocity the controller sees and of the
+    force, of ``cfg`` replayed against the record."""
+    m = replay.meas
+    sim = replay.simulated(cfg)
+    dt = replay.sample_period
+    return {"position": relative_error(m["x_motor"], sim["x_motor"]),
+            "velocity": relative_error(velocity(m["x_motor"], dt), velocity(sim["x_motor"], dt)),
+            "force": relative_error(m["force"], sim["force"])}
+
+
+def params_of(cfg) -> dict:
+    """The rigid model's parameters M, Fv, Fc and offset of a config (and the asymmetric levels when
+    it has them), in the benchmark's names and signs."""
+    out = {"M": cfg["plant.m1"], "Fv": cfg.get("friction.viscous", 0.0),
+           "Fc": cfg.get("effects.coulomb_friction.level", 0.0),
+           "offset": -cfg.get("effects.constant_force.force", 0.0)}
+    if "effects.asymmetric_friction.level_pos" in cfg:
+        out.update({k: cfg[f"effects.asymmetric_friction.{k}"] for k in
+                    ("level_pos", "level_neg", "viscous_pos", "viscous_neg")})
+    return {k: float(v) for k, v in out.items()}
+
+
+def with_rigid(cfg, p: dict):
+    """``cfg`` with the rigid model's M, Fv, Fc and offset of ``p`` (the benchmark's names and signs)."""
+    return cfg.with_values({"plant.m1": p["M"], "friction.viscous": p["Fv"],
+                            "effects.coulomb_friction.level": p["Fc"],
+                            "effects.constant_force.force": -p["offset"]})
+
+
+def _ranking(d, n=4):
+    return [{"effect": c.effect, "score": round(c.score, 1), "significant": c.significant,
+             "evidence": c.evidence} for c in d["candidates"][:n]]
+
+
+def _summary(d):
+    return {"verdict": d["verdict"], "ranking": _ranking(d),
+            "also_missing": [{"effect": m["effect"], "score": round(m["score"], 1), "evidence": m["evidence"]}
+                             for m in d["also_missing"]],
+            "combinations": [{k: c[k] for k in ("effects", "explains", "preferred", "score", "explained",
+                                                "rich_against_combination")} for c in d["combinations"]]}
+
+
+def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: bool = True) -> EmpsResult:
+    """The EMPS chain on a record.
+
+    Parameters
+    ----------
+    data : path
+        DATA_EMPS.mat.
+    config : path
+        The start model (config/emps.toml).
+    quick : bool
+        Fewer iterations and candidates, one process (tests).
+    progress : callable, optional
+        Called with the name of each effect as its fit starts.
+    diagnose_steps : bool
+        Diagnose before and after the first additions (else add coulomb_friction and
+        constant_force directly).
+
+    Returns
+    -------
+    EmpsResult
+    """
+    meas = read_mat(data, MAPPING)
+    cfg0 = load(config)
+    rp = Replay(meas, cfg0)
+    nfev = 15 if quick else 40
+    rows, diags = [], []
+    pub = with_rigid(cfg0, PUBLISHED)
+    rows.append({"step": "published reference (our loop)", "params": params_of(pub), **errors(rp, pub)})
+    rows.append({"step": "start model (M, Fv)", "short": "start model", "params": params_of(cfg0), **errors(rp, cfg0)})
+    jobs = 1 if quick else None
+    cands = DIAGNOSE_CANDIDATES[:4] if quick else DIAGNOSE_CANDIDATES
+    # the diagnosis names what to add: its verdict and the effects also missing beside it
+    add = ["coulomb_friction", "constant_force"]
+    if diagnose_steps:
+        d1 = diagnose(rp, cands, jobs=jobs, max_nfev=nfev)
+        diags.append({"on": "start model", **_summary(d1)})
+        if d1["verdict"] != "none":
+            add = [d1["verdict"]] + [m["effect"] for m in d1["also_missing"]]
+    # hil fit --add ... --add ...: each effect on top of the previous ones, then all jointly
+    cfg2, steps = fit_effects(rp, add, max_nfev=nfev, progress=progress)
+    cur = cfg0
+    for st in steps:
+        if "+" in st.effect:
+            label = f"{' + '.join(st.effect.split('+'))} refitted together"
+        else:
+            label = f"+ {st.effect}"
+            cur = candidate(st.effect, cur).configure(cur, st.params)
+        rows.append({"step": label, "short": "joint refit" if "+" in st.effect else label,
+                     "params": params_of(st.cfg if "+" in st.effect else cur),
+                     **errors(rp, st.cfg if "+" in st.effect else cur)})
+    if diagnose_steps:
+        # the next diagnosis, with the pair in the model: is the asymmetry of the friction significant?
+        rp2 = rp.with_config(cfg2)
+        d2 = diagnose(rp2, cands, jobs=jobs, max_nfev=nfev)
+        diags.append({"on": "+ " + " + ".join(add), **_summary(d2)})
+        if d2["verdict"] != "none":
+            top = d2["candidates"][0]
+            rows.append({"step": f"+ {top.effect} (the next verdict, fitted on top)", "short": f"+ {top.effect}",
+                         "params": params_of(top.cfg), **errors(rp, top.cfg)})
+            # and whatever else the residual still shows
+            d3 = diagnose(rp.with_config(top.cfg), [c for c in cands if c != top.effect], jobs=jobs, max_nfev=nfev)
+            diags.append({"on": f"+ {' + '.join(add)} + {top.effect}", **_summary(d3)})
+    # the published method on the force channel (inverse model), then output error from there
+    inv = idim_ls(meas.t, meas["x_motor"], meas["force"])
+    cfg_inv = with_rigid(cfg0, inv["params"])
+    rows.append({"step": "IDIM-LS on the force (inverse model)", "short": "IDIM-LS", "params": params_of(cfg_inv),
+                 "inverse_force": inv["relative_error"], **errors(rp, cfg_inv)})
+    keys = ["plant.m1", "friction.viscous", "effects.coulomb_friction.level", "effects.constant_force.force"]
+    cfg3 = joint_refit(rp.with_config(cfg_inv), cfg_inv, keys, max_nfev=nfev)
+    rows.append({"step": "output-error refit of M, Fv, Fc, offset", "short": "OE refit M, Fv, Fc, offset", "params": params_of(cfg3), **errors(rp, cfg3)})
+    # asymmetric friction: its inverse model as the start, then output error on top of the fit
+    inv2 = idim_ls(meas.t, meas["x_motor"], meas["force"], asymmetric=True)
+    q = inv2["params"]
+    off = -cfg3["effects.constant_force.force"]     # the fit keeps its offset: take it out of the levels
+    start = {"level_pos": max(q["Fc+"] + off, 0.0), "level_neg": max(q["Fc-"] - off, 0.0),
+             "viscous_pos": q["Fv+"], "viscous_neg": q["Fv-"]}
+    c4 = evaluate(rp.with_config(cfg3), "asymmetric_friction", max_nfev=nfev, start=start)
+    cfg4 = c4.cfg
+    rows.append({"step": "+ asymmetric_friction", "short": "+ asymmetric (IDIM start)", "params": params_of(cfg4), "inverse_force": inv2["relative_error"],
+                 "inverse_params": q, **errors(rp, cfg4)})
+    return EmpsResult(rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}, diags)
+
+
+def check_published(rows) -> dict:
+    """Where the output-error fit lands against the published values (relative % for M, Fv, Fc;
+    N for the offset) and whether its errors match or beat the published simulation errors."""
+    fit = next(r for r in rows if r["step"].startswith("output-error"))
+    p = fit["params"]
+    dev = {k: 100.0 * (p[k] / PUBLISHED[k] - 1.0) for k in ("M", "Fv", "Fc")}
+    dev["offset_N"] = p["offset"] - PUBLISHED["offset"]
+    ok = all(abs(dev[k]) <= 5.0 for k in ("M", "Fv", "Fc")) and abs(dev["offset_N"]) <= 0.5
+    beat = all(fit[k] <= PUBLISHED["errors"][k] for k in ("position", "velocity", "force"))
+    return {"deviation": dev, "within_5_percent_and_0.5_N": ok, "errors_match_or_beat_published": beat}
+
+
+def table_markdown(rows) -> str:
+    lines = ["| step | M kg | Fv N s/m | Fc N | offset N | position % | velocity % | force % | inverse-model force % |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        p = r["params"]
+        inv = f"{r['inverse_force']:.2f}" if "inverse_force" in r else ""
+        if "level_pos" in p:
+            lines.append(f"| {r['step']}: Fc+ {p['level_pos']:.2f} N, Fc- {p['level_neg']:.2f} N, Fv+ "
+                         f"{p['viscous_pos']:.1f}, Fv- {p['viscous_neg']:.1f} N s/m | {p['M']:.3f} | | | "
+                         f"{p['offset']:.3f} | {r['position']:.4f} | {r['velocity']:.3f} | {r['force']:.2f} | {inv} |")
+            continue
+        lines.append(f"| {r['step']} | {p['M']:.3f} | {p['Fv']:.2f} | {p['Fc']:.3f} | {p['offset']:.3f} | "
+                     f"{r['position']:.4f} | {r['velocity']:.3f} | {r['force']:.2f} | {inv} |")
+    e = PUBLISHED["errors"]
+    lines.append(f"| **published** (Janot et al. 2019, IDIM-LS) | {PUBLISHED['M']} | {PUBLISHED['Fv']} | "
+                 f"{PUBLISHED['Fc']} | {PUBLISHED['offset']} | {e['position']} | {e['velocity']} | {e['force']} | 4.08 |")
+    lines.append("| **published**, asymmetric: Fc+ 20.144, Fc- 20.628, Fv+ 166.71, Fv- 240.42 | 95.154 | | | | | | | 3.11 |")
+    return "\n".join(lines)
+
+
+def diagnosis_markdown(diags) -> str:
+    """The verdict chain: per diagnosis the verdict with its evidence, the effects also missing, the
+    combination against the richer effect, and the ranking (score, * significant)."""
+    lines = []
+    for d in diags:
+        top = d["ranking"][0] if d["ranking"] else None
+        ev = f" ({top['evidence']})" if top and top["effect"] == d["verdict"] else ""
+        lines.append(f"- diagnosis on the {d['on']}: **verdict {d['verdict']}**{ev}")
+        for m in d.get("also_missing", []):
+            lines.append(f"  - also missing: **{m['effect']}** (score {m['score']:.1f} beside the verdict; {m['evidence']})")
+        for c in d.get("combinations", []):
+            lines.append(f"  - {' + '.join(c['effects'])} against {c['explains']}: {100 * c['explained']:.0f} % of its "
+                         f"gain; {c['explains']} scores {c['rich_against_combination']:.1f} against the pair -> "
+                         + ("the pair named first" if c["preferred"] else f"{c['explains']} first"))
+        lines.append("  - ranking: " + "; ".join(f"{c['effect']} {c['score']:.1f}{' *' if c['significant'] else ''}"
+                                                   for c in d["ranking"]))
+    return "\n".join(lines)

@@ -1,0 +1,121 @@
+"""The residual as a signal: where in frequency, in position and in the motion it lives.
+
+Definitions (SI units; t in s, positions in m):
+
+* spectrum: the Hann-windowed amplitude spectrum 2 |FFT(r w)| / sum w of the mean-free residual;
+  its peaks above ``fmin``, strongest first;
+* periodic in position: the Lomb-Scargle periodogram of the residual against the position where
+  the axis moves (|v| > 5 % of max|v|), after subtracting a running mean over 25 samples (the slow
+  part, a function of velocity and time); periods from three position steps to a third of the
+  stroke; amplitude and phase of each peak by least squares on sin and cos of 2 pi x / period;
+* motion phases from the commanded velocity v and acceleration a: standstill (|v| < 1 % of
+  max|v|), reversal (within 50 ms of a change of the direction of motion), acceleration
+  (a v > 0), deceleration (a v < 0), constant speed (|a| < 2 % of max|a|);
+* moves: motion between standstills; overshoot: the largest excursion past a move's final target
+  in its direction, up to the start of the next move, floored at 0;
+* cross-correlation of a and b at lag l: sum_n a'[n + l] b'[n] / N of the standardised signals.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.signal import find_peaks, lombscargle
+
+__all__ = ["spectrum_peaks", "periodic_in_position", "motion_phases", "overshoots", "xcorr"]
+
+
+def spectrum_peaks(r, dt: float, n: int = 3, fmin: float = 0.5):
+    """The ``n`` strongest peaks (frequency Hz, amplitude) of the residual's spectrum."""
+    r = np.asarray(r, float) - np.mean(r)
+    if r.size < 16:
+        return []
+    w = np.hanning(r.size)
+    spec = np.abs(np.fft.rfft(r * w)) * 2 / w.sum()
+    f = np.fft.rfftfreq(r.size, dt)
+    sel = f >= fmin
+    idx, _ = find_peaks(np.where(sel, spec, 0.0))
+    idx = idx[np.argsort(spec[idx])[::-1]][:n]
+    return [(float(f[i]), float(spec[i])) for i in idx]
+
+
+def periodic_in_position(x, r, t, n: int = 2):
+    """Peaks of the residual as a function of position while moving (Lomb-Scargle): a list of
+    (period m, amplitude, phase rad) of the ``n`` strongest periods."""
+    x, r, t = (np.asarray(a, float) for a in (x, r, t))
+    v = np.gradient(x, t)
+    moving = np.abs(v) > 0.05 * max(np.max(np.abs(v)), 1e-12)
+    if moving.sum() < 32:
+        return []
+    xs, rs = x[moving], r[moving]
+    # remove the slow part (a function of velocity and time): a running mean over ~25 samples
+    k = 25
+    rs = rs - np.convolve(rs, np.ones(k) / k, mode="same")
+    dx = np.max(np.abs(np.diff(x))) or 1e-9
+    lo, hi = 3 * dx, max((xs.max() - xs.min()) / 3, 4 * dx)
+    periods = np.geomspace(lo, hi, 1500)
+    wn = 2 * np.pi / periods
+    p = lombscargle(xs, rs - rs.mean(), wn)
+    idx, _ = find_peaks(p)
+    idx = idx[np.argsort(p[idx])[::-1]][:n]
+    out = []
+    for i in idx:
+        c, s = np.cos(wn[i] * xs), np.sin(wn[i] * xs)
+        coef, *_ = np.linalg.lstsq(np.column_stack([s, c]), rs, rcond=None)
+        out.append((float(periods[i]), float(math.hypot(*coef)), float(math.atan2(coef[1], coef[0]))))
+    return out
+
+
+def motion_phases(t, x_cmd) -> dict[str, np.ndarray]:
+    """Boolean masks of the motion phases of the command (see the module's definitions)."""
+    t, x = np.asarray(t, float), np.asarray(x_cmd, float)
+    v = np.gradient(x, t)
+    a = np.gradient(v, t)
+    vmax = max(np.max(np.abs(v)), 1e-12)
+    amax = max(np.max(np.abs(a)), 1e-12)
+    still = np.abs(v) < 0.01 * vmax
+    moving_dir = np.where(still, 0, np.sign(v))
+    rev = np.zeros(t.size, bool)
+    nz = np.flatnonzero(moving_dir != 0)
+    dt = float(np.median(np.diff(t)))
+    w = max(1, int(round(0.05 / dt)))
+    for i0, i1 in zip(nz[:-1], nz[1:]):
+        if moving_dir[i0] != moving_dir[i1] and (t[i1] - t[i0]) < 0.2:
+            rev[max(0, i0 - w):i1 + w] = True
+    const = ~still & ~rev & (np.abs(a) < 0.02 * amax)
+    acc = ~still & ~rev & ~const & (a * v > 0)
+    dec = ~still & ~rev & ~const & (a * v < 0)
+    return {"acceleration": acc, "constant speed": const, "deceleration": dec, "standstill": still & ~rev,
+            "reversal": rev}
+
+
+def _moves(t, x_cmd):
+    """(start, end) sample indices of the moves (motion between standstills)."""
+    v = np.gradient(np.asarray(x_cmd, float), t)
+    moving = np.abs(v) > 0.01 * max(np.max(np.abs(v)), 1e-12)
+    edges = np.flatnonzero(np.diff(moving.astype(int)))
+    starts = list(edges[::2] + 1) if not moving[0] else [0] + list(edges[1::2] + 1)
+    ends = list(edges[1::2] + 1) if not moving[0] else list(edges[::2] + 1)
+    return [(s, e) for s, e in zip(starts, ends) if e > s]
+
+
+def overshoots(t, x_cmd, x):
+    out = []
+    moves = _moves(t, x_cmd)
+    for i, (s, e) in enumerate(moves):
+        nxt = moves[i + 1][0] if i + 1 < len(moves) else len(t)
+        target, d = x_cmd[e], np.sign(x_cmd[e] - x_cmd[s])
+        if d == 0:
+            continue
+        out.append(max(0.0, float(np.max((x[s:nxt] - target) * d))))
+    return np.array(out)
+
+
+def xcorr(a, b, maxlag):
+    a = (a - a.mean()) / (a.std() or 1.0)
+    b = (b - b.mean()) / (b.std() or 1.0)
+    n = a.size
+    full = np.correlate(a, b, mode="full") / n
+    mid = n - 1
+    lags = np.arange(-maxlag, maxlag + 1)
+    return lags, full[mid - maxlag:mid + maxlag + 1]

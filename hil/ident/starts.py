@@ -1,0 +1,147 @@
+"""Starting values for the fit of one candidate effect, from the record and its residual before
+the fit (SI units).
+
+* The record's scales: speed, the 90th percentile of |v| of the command; force, the RMS of the
+  force residual in load units, or without a force channel 5 % of the total mass times the RMS
+  commanded acceleration; period, the sample period. The effect's own guess uses them.
+* Friction and force effects: a linear regression of the force residual while moving
+  (|v| > 2 % of max|v|), r = Fc sign(v) + c v + f0, or per direction
+  r = Fc+ [v > 0] - Fc- [v < 0] + c+ v [v > 0] + c- v [v < 0], added to what the model has.
+* Position-periodic effects (pitch_error, torque_ripple): the periods of the residual in
+  position (x_motor - x_table for the lead error) at four phases; the cheapest two kept.
+* compliant_mode: for modal masses of 0.05 to 1.5 times the tip mass, the natural frequency that
+  puts a mode of the coupled chain within 3 % of a peak of the residual spectrum; the cheapest
+  two kept.
+* time_delay: the guess and four times it.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from sim_plant.effects import Combination, Effect
+
+from hil.ident.replay import Replay
+from hil.ident.residual import periodic_in_position, spectrum_peaks
+
+__all__ = ["record_scales", "starting_values"]
+
+
+def record_scales(replay: Replay, res0: dict) -> dict:
+    """Typical magnitudes of the record for starting guesses (SI)."""
+    m = replay.meas
+    v = np.gradient(m["x_cmd"], m.t)
+    sc = {"speed": float(np.percentile(np.abs(v), 90)) or 1e-3, "period": replay.sample_period}
+    fch = replay.force_channel
+    if fch is not None:
+        sc["force"] = max(float(np.sqrt(np.mean(res0[fch] ** 2))) * replay.force_to_load, 1e-6)
+    else:
+        a = np.gradient(v, m.t)
+        sc["force"] = 0.05 * replay.plant.total_mass * float(np.sqrt(np.mean(a * a))) + 1e-6
+    return sc
+
+
+def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -> list[dict]:
+    g = eff.guess(replay.plant, scale)
+    g = {p.name: g.get(p.name, p.guess) for p in eff.params}
+    if eff.name in ("pitch_error", "torque_ripple"):
+        starts = []
+        chan = "x_motor-x_table" if eff.name == "pitch_error" and "x_table" in res0 and "x_motor" in res0 else None
+        r = (res0["x_motor"] - res0["x_table"]) if chan else res0[replay.primary_channel(res0)]
+        found = periodic_in_position(replay.meas["x_cmd"], r, replay.meas.t, n=2)
+        periods = [p for p, _, _ in found] + [g["period"]]
+        for per in periods:
+            for ph in (0.0, math.pi / 2, math.pi, -math.pi / 2):
+                starts.append(dict(g, period=per, phase=ph))
+        return _prefilter(eff, replay, starts, cfg)
+    if eff.name == "compliant_mode":
+        return _prefilter(eff, replay, _mode_starts(eff, replay, res0, g), cfg)
+    if eff.name == "time_delay":
+        return [g, dict(g, delay=4 * g["delay"])]
+    reg = _regression_start(eff, replay, res0)
+    return [reg, g] if reg else [g]
+
+
+def _regression_start(eff: Effect, replay: Replay, res0: dict) -> dict | None:
+    """Starting values of the friction and force effects from a linear regression of the force
+    residual while moving: residual = Fc sign(v) + c v + f0 (or per direction for
+    asymmetric_friction), v the commanded velocity. The replayed axis follows its command closely,
+    so the missing force shows almost unchanged in the force channel; None without one."""
+    fch = replay.force_channel
+    names = [m.name for m in eff.members] if isinstance(eff, Combination) else [eff.name]
+    known = ("coulomb_friction", "constant_force", "asymmetric_friction", "viscous_friction")
+    if fch is None or not all(n in known for n in names):
+        return None
+    m = replay.meas
+    v = np.gradient(m["x_cmd"], m.t)
+    moving = np.abs(v) > 0.02 * max(float(np.max(np.abs(v))), 1e-12)
+    if moving.sum() < 16:
+        return None
+    vm, r = v[moving], res0[fch][moving]
+    pos = (vm > 0).astype(float)
+    X = np.column_stack([pos, -(1 - pos), vm * pos, vm * (1 - pos), np.ones(vm.size)])
+    coef, *_ = np.linalg.lstsq(np.column_stack([np.sign(vm), vm, np.ones(vm.size)]), r, rcond=None)
+    cp, *_ = np.linalg.lstsq(X[:, :4], r, rcond=None)
+    plant, cfg = replay.plant, replay.cfg
+    sp = plant.speed_scale                       # rad/s (rotary) or m/s per m/s of the load
+    c0 = plant.chain.c_ground[0] / (sp * sp)     # the model's viscous coefficient, motor units
+    fp = plant.friction.coulomb_pos / sp         # the model's Coulomb levels, motor units
+    fn = plant.friction.coulomb_neg / sp
+    f0 = float(cfg.get("effects.constant_force.force", 0.0) or 0.0)
+    cv = float(cfg.get("effects.viscous_friction.coefficient", 0.0) or 0.0)
+    # what the model has plus what the residual asks for; the force channel is in motor units
+    # (torque on a rotary axis): a load-side force is that times force_to_load
+    vals = {"coulomb_friction": {"level": max(0.5 * (fp + fn) + float(coef[0]), 0.0)},
+            "constant_force": {"force": f0 - float(coef[2]) * replay.force_to_load},
+            "viscous_friction": {"coefficient": cv + float(coef[1]) / sp},
+            "asymmetric_friction": {"level_pos": max(fp + float(cp[0]), 0.0), "level_neg": max(fn + float(cp[1]), 0.0),
+                                    "viscous_pos": max(c0 + float(cp[2]) / sp, 0.0),
+                                    "viscous_neg": max(c0 + float(cp[3]) / sp, 0.0)}}
+    if isinstance(eff, Combination):
+        return {f"{n}.{k}": v for n in names for k, v in vals[n].items()}
+    return vals[eff.name]
+
+
+def _mode_starts(eff, replay, res0, g) -> list[dict]:
+    """Starts of an added mode. Coupled to the chain, the new mode does not show at its own
+    frequency: the measured resonances move. So for each modal mass on a grid (relative to the
+    tip mass) solve for the natural frequency that puts one of the coupled chain's modes on a
+    peak of the residual spectrum (the strongest channel, weighted), with a low damping."""
+    fmax = 0.45 / replay.sample_period
+    w = replay.objective.weights
+    chan = max((c for c in res0 if c in w), key=lambda c: float(np.mean(res0[c] ** 2)) * w[c] ** 2)
+    peaks = [f for f, _ in spectrum_peaks(res0[chan], replay.sample_period, n=6) if 0.5 < f < fmax]
+    targets = list(dict.fromkeys(round(f, 2) for f in peaks))[:2] or [g["frequency"]]
+    plant = replay.plant
+    m_tip = plant.chain.m[plant.tip]
+    f_grid = np.geomspace(0.5, fmax, 240)
+    starts = []
+    for ratio in (0.05, 0.15, 0.5, 1.5):
+        m = ratio * m_tip
+        for ft in targets:
+            best = None
+            for fn in f_grid:
+                ch = eff.apply(plant, {"mass": m, "frequency": fn, "damping_ratio": 0.0}).chain
+                ev = np.linalg.eigvals(np.linalg.solve(ch.M, ch.K)).real
+                fm = np.sqrt(np.maximum(ev, 0.0)) / (2 * np.pi)
+                d = float(np.min(np.abs(fm - ft))) / ft
+                if best is None or d < best[0]:
+                    best = (d, fn)
+            if best[0] < 0.03:
+                starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01})
+        starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01})
+    return starts
+
+
+def _prefilter(eff, replay, starts, cfg, keep=2):
+    """Keep the few starts with the lowest cost (one simulation each)."""
+    obj = replay.objective
+    costs = []
+    for s in starts:
+        try:
+            costs.append(float(np.sum(obj.vector(obj.residuals(eff.configure(cfg, s))) ** 2)))
+        except ValueError:
+            costs.append(math.inf)
+    order = np.argsort(costs)[:keep]
+    return [starts[i] for i in order]
