@@ -24,6 +24,8 @@ __all__ = ["FrfResult", "measure", "stderr_progress"]
 
 @dataclass
 class FrfResult:
+    """A measurement: the estimated responses (name -> Response), the model's at the same lines,
+    the fitted modes, the discrepancies, the tuning help, the record, warnings."""
     responses: dict
     model: dict
     modes: list
@@ -85,4 +87,5 @@ def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progre
 
 
 def stderr_progress(msg: str) -> None:
+    """The command's progress lines, on stderr (stdout carries the report)."""
     print(f"hil frf: {msg}", file=sys.stderr, flush=True)

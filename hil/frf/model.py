@@ -66,7 +66,6 @@ def model_responses(plant, ctrl, f, tip_measured: bool = True) -> dict[str, np.n
     return out
 
 
-
 def position_hold(f, tp):
     """Sample-and-hold of the position loop seen at the fundamental: delay Tp/2 and sinc."""
     x = np.pi * np.asarray(f) * tp
