@@ -8,6 +8,14 @@ write the setpoint, record (every position tick), let the supervisor check, end 
   deadline and spin the rest (sleep alone is too coarse on a general-purpose OS); it records
   every cycle's lateness and counts overruns (a cycle that starts a whole period late).
 * :class:`SimulatedClock`: no waiting; time is the cycle count times the period.
+
+The loop's hooks: a ``recorder`` (one row per position tick), a ``supervisor`` (checked every
+position tick) and an :class:`Injection` (an excitation added in every cycle to the torque or to
+the speed reference, and one row per cycle of what the loop did with it: hil.frf measures
+frequency responses through it).
+
+Real-time: the methods marked "(real-time)" run inside the cycle, between reading the feedback
+and ending the cycle; they, and the hooks they call, must be short and must not block.
 """
 from __future__ import annotations
 
@@ -24,7 +32,10 @@ from drivers.base import Backend, BackendFault, Feedback, Setpoint
 
 from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
 
-__all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult"]
+__all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]
+
+# what an Injection records every cycle, one column each
+CYCLE_CHANNELS = ("r", "u", "u_ctrl", "e", "w", "w_ref_pos", "w_ref", "x_motor", "x_table", "x_tip")
 
 
 class SimulatedClock:
@@ -41,6 +52,7 @@ class SimulatedClock:
         self.k = 0
 
     def wait(self) -> float:
+        """End of the cycle (real-time)."""
         self.k += 1
         return 0.0
 
@@ -91,7 +103,7 @@ class RealTimeClock:
         self._policy = None
 
     def wait(self) -> float:
-        """Wait for the next deadline; returns how late this wake-up is (s)."""
+        """Wait for the next deadline; returns how late this wake-up is (s) (real-time)."""
         self.k += 1
         deadline = self.t0 + self.k * self.period
         remaining = deadline - time.perf_counter()
@@ -118,6 +130,34 @@ class RealTimeClock:
                 "overruns": self.overruns}
 
 
+class Injection:
+    """The injection hook of :class:`ControlLoop`: an excitation added in every cycle, and a record
+    of every cycle.
+
+    Parameters
+    ----------
+    signal : array_like
+        One value per cycle (velocity period) of the run, from its first cycle; at least as many
+        as the run has cycles.
+    into : {"torque", "velocity"}
+        ``"torque"``: added to the velocity controller's output (output units), the sum limited to
+        the output limit; ``"velocity"``: added to the speed reference of the velocity loop
+        (controller speed units).
+
+    After the run ``data`` holds one row per cycle, columns :data:`CYCLE_CHANNELS`: the excitation
+    ``r``, the output ``u`` (before the computation delay), the controller's output ``u_ctrl`` and
+    input ``e``, the measured speed ``w``, the position loop's speed reference ``w_ref_pos``, the
+    velocity loop's ``w_ref``, the encoders as read (``x_tip`` NaN where the tip is not measured).
+    The host must run the velocity loop (a backend with ``closes == "none"``)."""
+
+    def __init__(self, signal, into: str = "torque"):
+        if into not in ("torque", "velocity"):
+            raise ValueError(f"injection into {into!r}: torque or velocity")
+        self.signal = np.asarray(signal, float)
+        self.into = into
+        self.data = np.zeros((self.signal.size, len(CYCLE_CHANNELS)))
+
+
 @dataclass
 class LoopResult:
     ticks: int
@@ -131,10 +171,16 @@ class ControlLoop:
 
     ``supervisor``: an object with ``check(t, feedback, x_cmd) -> str | None`` (a trip reason);
     a trip or a backend fault ends the run with a controlled stop (``backend.quick_stop()``)
-    commanded in the same cycle."""
+    commanded in the same cycle. ``injection``: an :class:`Injection` (the host must close the
+    velocity loop). ``progress``: called with the fraction of the run done every 1000 position
+    ticks (inside the cycle: keep it short).
+
+    Real-time: :meth:`run`'s cycle and the methods it calls there (``_inject``, ``_record``,
+    ``_stop``, the clock's ``wait``); :meth:`__init__` does the slow preparation before the drive
+    is enabled."""
 
     def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True,
-                 priority: int = 0):
+                 priority: int = 0, injection: Injection | None = None, progress=None):
         self.backend = backend
         self.ctrl = ctrl
         self.p = ctrl.as_array()
@@ -143,6 +189,11 @@ class ControlLoop:
         self.recorder = recorder
         self.supervisor = supervisor
         self.rotary = rotary
+        if injection is not None and backend.closes != "none":
+            raise ValueError(f"backend {backend.name}: an injection needs the host to close the velocity loop "
+                             f"(closes='none'), this one closes {backend.closes!r}")
+        self.injection = injection
+        self.progress = progress
         if backend.closes == "none":
             self.per_tick = ctrl.substeps          # cycles per position tick
         else:
@@ -154,6 +205,7 @@ class ControlLoop:
             gc.freeze()
 
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
+        """One row of the recorder at position tick ``k`` (real-time)."""
         if self.recorder is None:
             return
         tip = fb.x_tip if not math.isnan(fb.x_tip) else fb.x_table
@@ -162,10 +214,26 @@ class ControlLoop:
         row["torque" if self.rotary else "command"] = output
         self.recorder.append(**{n: row[n] for n in self.recorder.names})
 
-    def run(self, x_cmd) -> LoopResult:
+    def _inject(self, i: int, s, w_pos: float, w: float, a_cmd: float, fb: Feedback) -> float:
+        """The velocity-loop step of cycle ``i`` with the excitation added; records the cycle
+        (real-time). Returns the output before the computation delay."""
+        inj = self.injection
+        r = inj.signal[i]
+        w_ref = w_pos + (r if inj.into == "velocity" else 0.0)
+        uc = velocity_law(self.p, s, w_ref, w, a_cmd)
+        lim = self.ctrl.output_limit
+        u = min(max(uc + (r if inj.into == "torque" else 0.0), -lim), lim)
+        inj.data[i] = (r, u, uc, w_ref - w, w, w_pos, w_ref, fb.x_motor, fb.x_table, fb.x_tip)
+        return u
+
+    def run(self, x_cmd, x_after: float | None = None) -> LoopResult:
+        """Run ``len(x_cmd)`` position ticks. ``x_after``: the command at the tick after the last
+        (the last tick's feed-forward moves toward it); default: the last position, held."""
         x_cmd = np.asarray(x_cmd, float)
-        cmd = np.append(x_cmd, x_cmd[-1])
+        cmd = np.append(x_cmd, x_cmd[-1] if x_after is None else x_after)
         K = x_cmd.size
+        if self.injection is not None and self.injection.signal.size < K * self.per_tick:
+            raise ValueError(f"injection: {self.injection.signal.size} values for {K * self.per_tick} cycles")
         b, p = self.backend, self.p
         s = new_velocity_state()
         # no garbage-collection pauses inside the cycle on hardware (collected in __init__,
@@ -199,7 +267,10 @@ class ControlLoop:
                             sp, out = Setpoint(speed=w_ref), fb.output
                         else:
                             w = measured_speed(p, s, fb.v_motor, fb.x_motor)
-                            u = velocity_law(p, s, w_ref, w, a_cmd)
+                            if self.injection is None:
+                                u = velocity_law(p, s, w_ref, w, a_cmd)
+                            else:
+                                u = self._inject(k * self.per_tick + j, s, w_ref, w, a_cmd, fb)
                             self._delay.insert(0, u)
                             u = self._delay.pop()
                             sp, out = Setpoint(output=u), u
@@ -215,6 +286,8 @@ class ControlLoop:
                     b.write_setpoint(sp)
                     b.sync()
                     self.clock.wait()
+                if self.progress is not None and k % 1000 == 0:
+                    self.progress((k + 1) / K)
         except BackendFault as exc:
             _safe_stop(b)
             status, reason = "fault", exc.reason
@@ -238,7 +311,8 @@ class ControlLoop:
         return self._end(K, status, reason)
 
     def _stop(self, backend: Backend) -> None:
-        """The controlled stop the configuration asks for (supervisor.stop: quick_stop or disable)."""
+        """The controlled stop the configuration asks for (supervisor.stop: quick_stop or disable)
+        (real-time)."""
         if getattr(self.supervisor, "stop", "quick_stop") == "disable":
             backend.disable()
         else:

@@ -3,13 +3,14 @@ coherence-based uncertainty, the paper bench's modes, a wrong c2 found, the back
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from drivers.sim import SimulatedPlant
 from hil import frf
+from hil.cli import main
 from hil.config import load
 from hil.control import controller_from_config
 from hil.plant_config import plant_from_config
@@ -115,7 +116,6 @@ def test_velocity_input_measures_closed_velocity_loop_and_position_loop(bench):
 
 
 def test_backend_path_equals_compiled_path(bench):
-    from drivers.sim import SimulatedPlant
     cfg, plant, ctrl = bench
     st = frf.FrfSettings(period=0.25, band=(4.0, 100.0), periods=1, settle=0.25, lead_in=0.1, auto_settle=False)
     fast = frf.run_sim(plant, ctrl, st)
@@ -146,7 +146,6 @@ def test_margins_and_tuning(noisy_result, bench):
 # --- the command -------------------------------------------------------------------------------
 
 def test_cli_json(tmp_path, capsys):
-    from hil.cli import main
     rc = main(["frf", "--config", str(BENCH), "--set", "plant.c2=11.8", "--sim-set", "plant.c2=40",
                "--periods", "2", "--out", str(tmp_path), "--json"])
     assert rc == 0
@@ -162,7 +161,6 @@ def test_cli_json(tmp_path, capsys):
 
 
 def test_cli_user_errors(tmp_path, capsys):
-    from hil.cli import main
     assert main(["frf", "--config", str(BENCH), "--band", "1Hz..9000Hz"]) == 2
     assert "Nyquist" in capsys.readouterr().err
     assert main(["frf", "--config", str(BENCH), "--amplitude", "40 N*m"]) == 2

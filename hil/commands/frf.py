@@ -4,8 +4,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from hil.config import load, parse_assignment
+from hil.errors import BackendError, BackendFault, SupervisorTripped, UnitError, UserError
 from hil.io.jsonout import dumps
-
+from hil.supervisor import Supervisor
+from hil.units import parse
 
 HELP = "measure frequency responses (TF1', TF2, TF3, velocity and position loops) against the model"
 DESCRIPTION = """\
@@ -55,8 +58,6 @@ def add_arguments(p) -> None:
 
 
 def _band(text: str):
-    from hil.errors import UserError
-    from hil.units import parse
     parts = text.replace("...", "..").split("..")
     if len(parts) != 2:
         raise UserError(f"--band {text!r}: expected LOW..HIGH, e.g. 1Hz..200Hz")
@@ -66,9 +67,7 @@ def _band(text: str):
 
 
 def settings_from_args(args, cfg, ctrl):
-    from hil.errors import UserError
     from hil.frf import FrfSettings
-    from hil.units import UnitError, parse
     band = _band(args.band)
     if args.amplitude is None:
         amp = 0.1 * ctrl.output_limit if args.input == "torque" else 0.005 * ctrl.speed_scale
@@ -101,7 +100,6 @@ def settings_from_args(args, cfg, ctrl):
 
 
 def _check_travel(cfg, st, duration: float, x0: float) -> None:
-    from hil.errors import UserError
     lo, hi = cfg.get("limits.travel_min", -math.inf), cfg.get("limits.travel_max", math.inf)
     end = x0 + st.speed * duration
     if not (lo <= min(x0, end) and max(x0, end) <= hi):
@@ -113,9 +111,8 @@ def _check_travel(cfg, st, duration: float, x0: float) -> None:
 
 
 def run(args) -> int:
+    from drivers import open_backend
     from hil import frf
-    from hil.errors import UserError
-    from hil.config import load, parse_assignment
     from hil.control import controller_from_config
     from hil.plant_config import plant_from_config
 
@@ -129,17 +126,14 @@ def run(args) -> int:
     else:
         cfg_true = cfg
     plant_true = plant_from_config(cfg_true)
-    settle = frf._settle_time(plant_model, st)
+    settle = frf.settle_time(plant_model, st)
     duration = st.lead_in + math.ceil(settle / st.period + st.periods) * st.period + 1.0
     _check_travel(cfg, st, duration, 0.0)
     name = args.backend or cfg.get("backend.type", "sim")
     backend = None
     if name != "sim":
-        from drivers import BackendError, open_backend
         if args.sim_set:
             raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
-        from drivers.base import BackendFault
-        from hil.supervisor import Supervisor, SupervisorTripped
         options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
         try:
             backend = open_backend(cfg, name, **options)
@@ -176,8 +170,9 @@ def run(args) -> int:
     report = result.as_dict()
     try:
         out.mkdir(parents=True, exist_ok=True)
-        from hil.plots.frf import bode_measured_vs_model, coherence_figure
         import matplotlib.pyplot as plt
+
+        from hil.plots.frf import bode_measured_vs_model, coherence_figure
         title = f"{cfg.get('meta.name') or cfg.source}: measured ({st.signal}, {st.input}) vs model"
         plant_names = [n for n in ("TF1p", "TF2", "TF3", "tip") if n in result.responses]
         loop_names = [n for n in ("Lv", "Tv", "Lp", "Tp") if n in result.responses]

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from hil.frf import TITLES, UNITS
+
 __all__ = ["bode_measured_vs_model", "coherence_figure"]
 
 
@@ -16,7 +18,6 @@ def bode_measured_vs_model(result, names=None, title: str = ""):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from hil.frf import TITLES, UNITS
 
     names = [n for n in (names or result.responses) if n in result.responses]
     fig, axes = plt.subplots(2, len(names), figsize=(3.6 * len(names), 6.0), squeeze=False)
@@ -59,7 +60,6 @@ def coherence_figure(result, title: str = ""):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from hil.frf import TITLES
 
     fig, ax = plt.subplots(figsize=(7, 3.5))
     for name, r in result.responses.items():

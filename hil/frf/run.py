@@ -1,0 +1,245 @@
+"""The experiment: a working point with a periodic excitation, run and recorded every velocity period.
+
+The axis runs at a slow constant speed (the working point: friction does not change sign) with
+its loops closed; after a lead-in (a sine-square speed ramp) the excitation is added, period
+after period, either to the controller output (``input = "torque"``: a torque disturbance) or to
+the speed reference of the velocity loop (``"velocity"``). The first periods let the response
+settle (:func:`settle_time`), the last ``periods`` are averaged by :mod:`hil.frf.estimation`.
+
+Every velocity period the run records the channels :data:`CH` (hil.loop's cycle record): the
+excitation ``r``, the total output ``u`` and the controller's ``u_ctrl``, its input ``e``, the
+measured speed ``w``, the speed references ``w_ref_pos`` (position loop) and ``w_ref`` (velocity
+loop), the encoders ``x_motor``, ``x_table``, ``x_tip``.
+
+Two ways to run it, with the same numbers on the simulated plant:
+
+* :func:`run_sim`: the compiled closed loop with the excitation (``_frf_kernel``), optional
+  measurement noise;
+* :func:`run_backend`: cycle by cycle through the backend contract (drivers.base), on
+  hil.loop's :class:`~hil.loop.ControlLoop` with an :class:`~hil.loop.Injection`; the host closes
+  both loops, so the backend takes torque (a CiA 402 drive in cyclic torque mode, the
+  simulated plant).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numba import njit
+
+from hil.control import measured_speed, new_velocity_state, position_law, quantize, velocity_law
+from hil.errors import BackendFault, SupervisorTripped
+from hil.frf.excitation import Excitation, make_excitation
+from hil.loop import CYCLE_CHANNELS, ControlLoop, Injection
+from hil.control import loop_terms
+from sim_plant.kernel import plant_step as _plant_step
+
+__all__ = ["CH", "FrfSettings", "FrfRecord", "settle_time", "run_sim", "run_backend"]
+
+# recorded channels, one column each, every velocity period (the compiled run writes the same)
+CH = CYCLE_CHANNELS
+
+
+@njit(cache=True)
+def _frf_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
+                codes, eparams, delay, lag_alpha, exc, mode, noise_w, noise_x, out):
+    """Closed loop with the excitation ``exc`` (one value per velocity period) added to the output
+    (mode 0) or to the speed reference (mode 1). Records every velocity period into ``out``
+    (columns: see CH). Returns the number of saturated velocity periods."""
+    nn = Ad.shape[0]
+    n = nn // 2
+    x = x0.copy()
+    x_new = np.zeros(nn)
+    f = np.zeros(n)
+    s = new_velocity_state()
+    d_int = int(math.floor(delay))
+    d_frac = delay - d_int
+    ubuf = np.zeros(d_int + 2)
+    u_act = 0.0
+    dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
+    K = x_cmd.shape[0] - 1
+    lim = p[6]
+    step = 0
+    sat = 0
+    w_pos = 0.0
+    for k in range(K):
+        xm = quantize(x[0], res_motor) + noise_x[step, 0]
+        xt = quantize(x[table], res_table) + noise_x[step, 1]
+        xfb = xm if fb_motor else xt
+        w_pos = position_law(p, x_cmd[k], x_cmd[k + 1], xfb)
+        for j in range(n_sub):
+            r = exc[step]
+            xm = quantize(x[0], res_motor) + noise_x[step, 0]
+            w_meas = measured_speed(p, s, x[n] + noise_w[step], xm)
+            w_ref = w_pos + (r if mode == 1 else 0.0)
+            uc = velocity_law(p, s, w_ref, w_meas, 0.0)
+            u = uc + (r if mode == 0 else 0.0)
+            if u > lim:
+                u = lim
+                sat += 1
+            elif u < -lim:
+                u = -lim
+                sat += 1
+            out[step, 0] = r
+            out[step, 1] = u
+            out[step, 2] = uc
+            out[step, 3] = w_ref - w_meas
+            out[step, 4] = w_meas
+            out[step, 5] = w_pos
+            out[step, 6] = w_ref
+            out[step, 7] = xm
+            out[step, 8] = quantize(x[table], res_table) + noise_x[step, 1]
+            out[step, 9] = x[tip] + noise_x[step, 2]
+            if delay > 0.0:
+                for i in range(d_int + 1, 0, -1):
+                    ubuf[i] = ubuf[i - 1]
+                ubuf[0] = u
+                u = (1.0 - d_frac) * ubuf[d_int] + d_frac * ubuf[d_int + 1]
+            u_act += lag_alpha * (u - u_act)
+            _plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+            step += 1
+    return sat
+
+
+@dataclass
+class FrfSettings:
+    """What to measure: ``signal`` multisine | chirp | prbs, ``input`` torque | velocity,
+    ``amplitude`` (N m of the output, or controller speed units), ``band`` (Hz), ``periods``
+    averaged after ``settle`` seconds of the excitation, ``period`` (s) of one excitation period,
+    ``speed`` of the working point (m/s), measurement noise (rms) on speed (controller units) and
+    positions (m), seed."""
+    signal: str = "multisine"
+    input: str = "torque"
+    amplitude: float = 3.0
+    band: tuple = (1.0, 200.0)
+    periods: int = 6
+    period: float = 2.0
+    settle: float = 4.0
+    speed: float = 0.01
+    lead_in: float = 0.5
+    noise_speed: float = 0.0
+    noise_position: float = 0.0
+    seed: int = 1
+    auto_settle: bool = True
+
+
+@dataclass
+class FrfRecord:
+    """The recorded run: ``data`` (steps x len(CH)), sample time, the excitation, where the
+    averaged periods start, saturated periods, the tip measured or not."""
+    data: np.ndarray
+    dt: float
+    excitation: Excitation
+    start: int
+    periods: int
+    saturated: int
+    tip_measured: bool
+    input: str
+    backend: str = "sim"
+
+    def channel(self, name: str) -> np.ndarray:
+        return self.data[:, CH.index(name)]
+
+
+def _command(ctrl, st: FrfSettings, n_steps_exc: int, x0: float = 0.0):
+    """Position command on the position clock: rest, ramp to the working speed, constant speed."""
+    tp = ctrl.position_period
+    n_sub = ctrl.substeps
+    K_lead = int(round(st.lead_in / tp))
+    K = K_lead + int(math.ceil(n_steps_exc / n_sub)) + 1
+    t = np.arange(K + 1) * tp
+    t_r = max(st.lead_in, 1e-9)
+    # sine-square speed ramp over the lead-in, then constant speed
+    v = np.where(t < t_r, st.speed * np.sin(0.5 * np.pi * t / t_r) ** 2, st.speed)
+    x = x0 + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * tp)])
+    return x, K_lead
+
+
+def settle_time(plant, st: FrfSettings) -> float:
+    """Seconds of excitation before averaging: at least ``st.settle``, and six time constants of
+    the slowest mode of the (model) plant (a lightly damped mode rings long), at most 15 s."""
+    if plant is None or not st.auto_settle:
+        return st.settle
+    try:
+        wd, zd = plant.chain.damped_modes(include_ground=True)
+        keep = wd > 1e-6 * max(wd.max(), 1.0)
+        tau = max(1.0 / (z * w) for w, z in zip(wd[keep], zd[keep]) if z > 0)
+    except ValueError:
+        tau = 0.0
+    return float(min(max(st.settle, 6.0 * tau), 15.0))
+
+
+def _experiment(plant, ctrl, st: FrfSettings, x0: float):
+    """The schedule of a run: the excitation, the position command (position clock, one sample
+    more than the ticks run), the excitation of every velocity period (zero in the lead-in),
+    where the averaged periods start, the settling periods."""
+    exc = make_excitation(st.signal, ctrl.velocity_period, st.period, st.band, st.amplitude, st.seed)
+    n_settle = int(math.ceil(settle_time(plant, st) / exc.period))
+    n_periods = n_settle + st.periods
+    x_cmd, K_lead = _command(ctrl, st, n_periods * exc.n, x0)
+    n_sub = ctrl.substeps
+    lead = K_lead * n_sub
+    r = np.zeros((x_cmd.size - 1) * n_sub)
+    r[lead:lead + n_periods * exc.n] = np.tile(exc.signal, n_periods)
+    return exc, x_cmd, r, lead + n_settle * exc.n, n_settle
+
+
+def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> FrfRecord:
+    """Run the excitation on the simulated plant through the compiled loop."""
+    tv = ctrl.velocity_period
+    exc, x_cmd, r, start, n_settle = _experiment(plant, ctrl, st, x0)
+    steps = r.size
+    rng = np.random.default_rng(st.seed)
+    nw = rng.standard_normal(steps) * st.noise_speed
+    nx = rng.standard_normal((steps, 3)) * st.noise_position
+    disc = plant.chain.discretize(tv, inputs="all")
+    x0v = np.zeros(2 * plant.n)
+    x0v[:plant.n] = x0
+    terms = loop_terms(plant, ctrl)
+    out = np.zeros((steps, len(CH)))
+    if progress:
+        progress(f"exciting: {st.signal} {st.input} disturbance, {st.band[0]:g}..{st.band[1]:g} Hz, "
+                 f"{n_settle} settling + {st.periods} averaged periods of {exc.period:g} s at "
+                 f"{st.speed * 1e3:g} mm/s ({steps} velocity periods)")
+    sat = _frf_kernel(disc.A, disc.B, x0v, ctrl.as_array(), plant.force_gain, x_cmd, ctrl.substeps, plant.table,
+                      plant.tip, ctrl.position_feedback == "motor", plant.friction.as_array(),
+                      plant.table_resolution, plant.motor_resolution, terms.codes, terms.params, terms.delay,
+                      terms.lag_alpha, r, 0 if st.input == "torque" else 1, nw, nx, out)
+    return FrfRecord(out, tv, exc, start, st.periods, int(sat), plant.tip != plant.table, st.input, "sim")
+
+
+def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, plant=None, clock=None) -> FrfRecord:
+    """The same experiment cycle by cycle through the backend contract (drivers.base), on
+    :class:`hil.loop.ControlLoop` with the excitation as its :class:`~hil.loop.Injection`: the
+    host closes both loops, so the backend must take torque (``closes == "none"``). Works on any
+    such backend (the simulated plant, a CiA 402 drive in cyclic torque mode); slower than
+    :func:`run_sim` on the simulated plant. Paced by ``clock`` (default: hil.loop's simulated
+    clock for a simulated backend, the real-time clock otherwise); ``supervisor.check`` every
+    position tick. ``plant``: the model, for the settling time.
+
+    Raises
+    ------
+    BackendFault
+        The drive faulted or was lost (the loop has commanded a quick stop).
+    SupervisorTripped
+        The supervisor tripped (the loop has commanded its controlled stop).
+    """
+    if backend.closes != "none":
+        raise ValueError(f"backend {backend.name}: frf needs a backend in torque mode (closes='none'), "
+                         f"this one closes {backend.closes!r}")
+    exc, x_cmd, r, start, _ = _experiment(plant, ctrl, st, backend.read_feedback().x_table)
+    injection = Injection(r, st.input)
+    # as the compiled run (_frf_kernel): no acceleration feed-forward on the working point's ramp
+    loop = ControlLoop(backend, replace(ctrl, acc_ff=0.0), clock=clock, supervisor=supervisor,
+                       injection=injection, progress=(lambda done: progress(f"  {done:5.1%}")) if progress else None)
+    result = loop.run(x_cmd[:-1], x_after=x_cmd[-1])
+    if result.status == "fault":
+        raise BackendFault(result.reason)
+    if result.status == "tripped":
+        raise SupervisorTripped(f"supervisor tripped: {result.reason}")
+    data = injection.data
+    saturated = int(np.count_nonzero(np.abs(data[:, CH.index("u")]) >= ctrl.output_limit))
+    tip_measured = not np.isnan(data[:, CH.index("x_tip")]).any()
+    return FrfRecord(data, ctrl.velocity_period, exc, start, st.periods, saturated, tip_measured, st.input,
+                     getattr(backend, "name", "backend"))
