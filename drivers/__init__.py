@@ -8,6 +8,8 @@ import importlib
 from drivers.base import LOOPS, Backend, BackendFault, Feedback, Setpoint
 from hil.errors import BackendError
 
+__all__ = ["BACKENDS", "open_backend", "Backend", "Feedback", "Setpoint", "LOOPS", "BackendFault", "BackendError"]
+
 # backend type -> "module:class"; each class is built as cls(cfg, **options)
 BACKENDS = {
     "sim": "drivers.sim:SimulatedPlant",
@@ -17,7 +19,10 @@ BACKENDS = {
 
 
 def open_backend(cfg, name: str | None = None, **options) -> Backend:
-    """The backend named by ``name`` or by the config's ``backend.type`` (not yet opened)."""
+    """The backend named by ``name`` or by the config's ``backend.type``, built but not yet opened:
+    ``with open_backend(cfg) as b:`` opens it and shuts it down (drivers.base) however the block
+    ends. A configuration mistake raises :class:`hil.errors.ConfigError` here, before anything
+    connects."""
     name = name or cfg.get("backend.type", "sim")
     if name not in BACKENDS:
         raise BackendError(f"unknown backend {name!r} (known: {', '.join(BACKENDS)})")

@@ -16,10 +16,17 @@ frequency responses through it).
 
 Real-time: the methods marked "(real-time)" run inside the cycle, between reading the feedback
 and ending the cycle; they, and the hooks they call, must be short and must not block.
+
+How a run ends follows the fault rule of :mod:`drivers.base`: a ``Feedback.fault`` trips the
+supervisor (at a position tick through its check, between ticks here), a trip commands the
+configured controlled stop in the same cycle and ends the run ``tripped``; a
+:class:`~hil.errors.BackendFault` raised in the cycle ends it ``fault``, Ctrl-C ``aborted``, each
+after the same controlled stop, which never raises (what fails is logged: the link may be gone).
 """
 from __future__ import annotations
 
 import gc
+import logging
 import math
 import os
 import time
@@ -36,6 +43,8 @@ __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Inje
 
 # what an Injection records every cycle, one column each
 CYCLE_CHANNELS = ("r", "u", "u_ctrl", "e", "w", "w_ref_pos", "w_ref", "x_motor", "x_table", "x_tip")
+
+log = logging.getLogger(__name__)
 
 
 class SimulatedClock:
@@ -170,9 +179,9 @@ class ControlLoop:
     """Runs a command (positions on the position clock) on a backend.
 
     ``supervisor``: an object with ``check(t, feedback, x_cmd) -> str | None`` (a trip reason);
-    a trip or a backend fault ends the run with a controlled stop (``backend.quick_stop()``)
-    commanded in the same cycle. ``injection``: an :class:`Injection` (the host must close the
-    velocity loop). ``progress``: called with the fraction of the run done every 1000 position
+    a trip or a backend fault ends the run with the controlled stop (``supervisor.stop``:
+    ``backend.quick_stop()`` or ``backend.disable()``) commanded in the same cycle.
+    ``injection``: an :class:`Injection` (the host must close the velocity loop). ``progress``: called with the fraction of the run done every 1000 position
     ticks (inside the cycle: keep it short).
 
     Real-time: :meth:`run`'s cycle and the methods it calls there (``_inject``, ``_record``,
@@ -253,9 +262,14 @@ class ControlLoop:
                 for j in range(self.per_tick):
                     fb = b.read_feedback()
                     if fb.fault and (self.supervisor is None or j != 0):
-                        if self.supervisor is not None and hasattr(self.supervisor, "trip"):
-                            self.supervisor.trip(k * self.ctrl.position_period, fb.fault, fb)
-                        raise BackendFault(fb.fault)
+                        # the supervisor checks once a tick: a fault between ticks trips it here, the same way
+                        latch = getattr(self.supervisor, "trip", None)
+                        if latch is None:
+                            raise BackendFault(fb.fault)
+                        latch(k * self.ctrl.position_period, fb.fault, fb)
+                        self._stop(b)
+                        status, reason = "tripped", fb.fault
+                        return self._end(k, status, reason)
                     # the setpoint of this cycle (from the loops the backend does not close)
                     if b.closes == "both":
                         sp, out = Setpoint(position=cmd[k + 1]), fb.output
@@ -289,14 +303,14 @@ class ControlLoop:
                 if self.progress is not None and k % 1000 == 0:
                     self.progress((k + 1) / K)
         except BackendFault as exc:
-            _safe_stop(b)
+            self._stop(b)
             status, reason = "fault", exc.reason
         except KeyboardInterrupt:
-            _safe_stop(b)
+            self._stop(b)
             status, reason = "aborted", "interrupted (Ctrl-C)"
             raise
         except Exception as exc:
-            _safe_stop(b)
+            self._stop(b)
             status, reason = "aborted", f"{type(exc).__name__}: {exc}"
             raise
         finally:
@@ -311,12 +325,17 @@ class ControlLoop:
         return self._end(K, status, reason)
 
     def _stop(self, backend: Backend) -> None:
-        """The controlled stop the configuration asks for (supervisor.stop: quick_stop or disable)
+        """The controlled stop the configuration asks for (supervisor.stop: quick_stop or disable);
+        never raises: the link may be gone, and the drive-side guards stop the axis then
         (real-time)."""
-        if getattr(self.supervisor, "stop", "quick_stop") == "disable":
-            backend.disable()
-        else:
-            backend.quick_stop()
+        how = getattr(self.supervisor, "stop", "quick_stop")
+        try:
+            if how == "disable":
+                backend.disable()
+            else:
+                backend.quick_stop()
+        except Exception as exc:
+            log.warning("%s backend: the controlled stop (%s) failed: %s", backend.name, how, exc)
 
     def _end(self, ticks: int, status: str, reason: str) -> LoopResult:
         clock = self.clock.stats() if hasattr(self.clock, "stats") else {}
@@ -330,10 +349,3 @@ def _warm_up(p) -> None:
     position_law(p, 0.0, 0.0, 0.0)
     measured_speed(p, s, 0.0, 0.0)
     velocity_law(p, new_velocity_state(), 0.0, 0.0, 0.0)
-
-
-def _safe_stop(backend: Backend) -> None:
-    try:
-        backend.quick_stop()
-    except Exception:      # the link may be gone; the drive-side guards stop the axis then
-        pass

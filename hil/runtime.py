@@ -79,13 +79,15 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary,
                        priority=cfg.get("runtime.priority", 0))
     try:
-        backend.open()
-        backend.enable()
-        result: LoopResult = loop.run(x_cmd)
+        with backend:                    # opened here; shut down (disabled, closed) however the run ends
+            backend.enable()
+            result: LoopResult = loop.run(x_cmd)
     except BackendFault as exc:          # open or enable failed: nothing moved
         result = LoopResult(0, "fault", exc.reason)
-    finally:
-        _shutdown(backend)
+    except BaseException as exc:         # e.g. an interface not installed, Ctrl-C: the record says why
+        rec.close("aborted", "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else
+                  f"{type(exc).__name__}: {exc}")
+        raise
     rec.close(result.status, result.reason, {"loop": result.clock, "supervisor": getattr(supervisor, "record", {})})
     if isinstance(rec, _MemoryRecorder):
         chans = rec.channels()
@@ -94,16 +96,6 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     else:                  # stopped before it moved (e.g. the drive did not answer at start-up)
         chans = {n: np.zeros(0) for n in names}
     return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock)
-
-
-def _shutdown(backend) -> None:
-    """Disable and close, whatever state the link is in: a failing disable must not hide the
-    run's own outcome (the drive-side guards stop the axis when the link is gone)."""
-    for step in (backend.disable, backend.close):
-        try:
-            step()
-        except Exception:
-            pass
 
 
 def _plant_scales(cfg):

@@ -2,14 +2,14 @@
 
 Start-up (:meth:`CanopenBackend.open`): NMT pre-operational, SDO configuration from config
 (mode, scaling, limits, drive-side guards), PDO mapping, NMT operational. :meth:`enable` walks
-the CiA 402 state machine (drivers.cia402's tables) up to OPERATION ENABLED over SDO. Then one
+the CiA 402 state machine (drivers.canopen.cia402's tables) up to OPERATION ENABLED over SDO. Then one
 exchange per cycle: the host writes RPDO1 (controlword + the target of the mode) and sends the
 SYNC (:meth:`sync`); the drive answers with TPDO1 (statusword, position actual, torque actual)
 and TPDO2 (velocity actual, linear encoder 0x60E4.1), TPDO3 (tool-tip 0x60E4.2) where the
 config says the drive has a tip sensor.
 
 A tool-tip sensor on its own node (``canopen.tip_node_id``; object dictionary
-config/tip_encoder_cia406.eds, a CiA 406-like linear encoder): configured at start-up over SDO
+drivers/canopen/eds/tip_encoder_cia406.eds, a CiA 406-like linear encoder): configured at start-up over SDO
 (profile 406 checked, measuring step 0x6005.1 read, TPDO1 mapped to position value 0x6004 and
 sent on every SYNC), set OPERATIONAL with the drive, and its TPDO is part of each cycle's answer
 (a missing one counts as a missing answer). It has no SYNC counter echo: its TPDO counts when it
@@ -30,25 +30,38 @@ dies: heartbeat consumer 0x1016 (the host produces a heartbeat) with abort-conne
 
 Faults: EMCY messages are decoded and recorded (:attr:`CanopenBackend.emcy_log`), the drive's
 heartbeat is watched (consumer timeout), missing TPDOs are counted; each shows as
-``Feedback.fault``. :meth:`quick_stop`, :meth:`fault_reset`, clean shutdown in :meth:`disable`
-and :meth:`close` (disable, NMT pre-operational).
+``Feedback.fault`` (the fault rule of drivers.base); a bus that refuses the SYNC or the RPDO is a
+:class:`~drivers.base.BackendFault` from :meth:`sync`. :meth:`quick_stop`, :meth:`fault_reset`,
+clean shutdown (drivers.base's ``shutdown``) in :meth:`disable` and :meth:`close` (disable, NMT
+pre-operational), both of which leave a drive this backend did not start (``open``) alone: ``hil
+status`` and ``hil reset`` only connect.
+
+Configuration mistakes are :class:`~hil.errors.ConfigError` naming the key, raised when the
+backend is built (a missing or unreadable object dictionary, an unknown interface, a tip sensor
+on the drive's node id) or when the bus is opened (an interface not installed).
 """
 from __future__ import annotations
 
+import logging
 import math
+import socket
 import struct
+import sys
 import threading
 import time
 
+import can
 import canopen
 
 from hil.config import Field, register_section
+from hil.control import controller_from_config
+from hil.errors import ConfigError
+from hil.plant_config import plant_from_config
 
-from drivers.canopen import cia402
-from drivers.canopen.eds import DEFAULT_EDS, TIP_EDS
 from drivers.base import Backend, BackendFault, Feedback, Setpoint
+from drivers.canopen import cia402, eds as eds_files
 
-__all__ = ["CanopenBackend", "SECTION", "DEFAULT_EDS"]
+__all__ = ["CanopenBackend", "SECTION"]
 
 TIP_PROFILE = 406            # 0x1000 bits 0..15 of the tip sensor node
 TIP_KEY = "tip"              # the tip sensor's position value in the received values
@@ -64,7 +77,7 @@ SECTION = {
     "canopen.port": Field("int", "socketcand server port", default=29536, nonnegative=True),
     "canopen.node_id": Field("int", "the drive's node id", default=1, nonnegative=True),
     "canopen.host_node_id": Field("int", "the node id of the host's heartbeat", default=127, nonnegative=True),
-    "canopen.eds": Field("str", "object dictionary of the drive (EDS); default config/cia402_generic.eds",
+    "canopen.eds": Field("str", "object dictionary of the drive (EDS); default drivers/canopen/eds/cia402_generic.eds",
                          default=""),
     "canopen.mode": Field("str", "mode of operation: csp (the drive closes both loops), csv (velocity), cst "
                           "(torque: the host closes both)", default="csp", choices=("csp", "csv", "cst")),
@@ -80,7 +93,7 @@ SECTION = {
                                  "0x6004 in TPDO1 on every SYNC); 0: none (the tip is the drive's 0x60E4.2 "
                                  "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True),
     "canopen.tip_eds": Field("str", "object dictionary of the tip sensor node; default "
-                             "config/tip_encoder_cia406.eds", default=""),
+                             "drivers/canopen/eds/tip_encoder_cia406.eds", default=""),
     "canopen.heartbeat": Field("time", "drive's heartbeat producer time (0x1017)", default=0.1, positive=True),
     "canopen.heartbeat_timeout": Field("time", "host: the drive's heartbeat is lost after this", default=0.35,
                                        positive=True),
@@ -134,7 +147,8 @@ class CanopenBackend(Backend):
         self.cfg = cfg
         self.mode = mode or cfg.get("canopen.mode", "csp")
         if self.mode not in cia402.MODES:
-            raise ValueError(f"canopen mode must be one of {', '.join(cia402.MODES)}, got {self.mode!r}")
+            raise ConfigError(f"{cfg.source}: canopen.mode: expected one of {', '.join(cia402.MODES)}, "
+                              f"got {self.mode!r}")
         self.closes = cia402.MODE_CLOSES[self.mode]
         tv, tp = cfg["control.velocity_period"], cfg["control.position_period"]
         if self.mode == "cst" and tv > 1e-3 + 1e-12:
@@ -147,24 +161,29 @@ class CanopenBackend(Backend):
         self._bus = bus
         self.interface = interface or cfg.get("canopen.interface", "virtual")
         self.channel = channel or cfg.get("canopen.channel", "hil")
+        if bus is None and self.interface not in can.VALID_INTERFACES:
+            raise ConfigError(f"{cfg.source}: canopen.interface: unknown python-can interface {self.interface!r} "
+                              f"(known: {', '.join(sorted(can.VALID_INTERFACES))})")
         self.node_id = node_id or int(cfg.get("canopen.node_id", 1))
         self.host_id = int(cfg.get("canopen.host_node_id", 127))
         pitch = cfg.get("plant.pitch") or 1.0
         self.counts_per_m = (cfg.get("canopen.counts_per_rev", 1048576) * cfg.get("canopen.gear_motor_revs", 1)
                              / cfg.get("canopen.gear_shaft_revs", 1) / pitch)
         self.rated = float(cfg.get("canopen.rated_torque", 10.0))
-        from hil.plant_config import plant_from_config
-        from hil.control import controller_from_config
         self.speed_scale = controller_from_config(cfg, plant_from_config(cfg)).speed_scale
         self.tip_id = int(cfg.get("canopen.tip_node_id", 0) or 0)
         if self.tip_id and self.tip_id == self.node_id:
-            raise BackendFault(f"canopen.tip_node_id {self.tip_id} is the drive's node id")
+            raise ConfigError(f"{cfg.source}: canopen.tip_node_id: {self.tip_id} is the drive's node id")
+        # the object dictionaries now: a missing or broken file is a mistake named before anything connects
+        self._od = eds_files.load(cfg, "canopen.eds", self.node_id)
+        self._tip_od = eds_files.load(cfg, "canopen.tip_eds", self.tip_id) if self.tip_id else None
         self.tip = bool(cfg.get("canopen.tip_sensor", True)) and not self.tip_id     # the drive's 0x60E4.2
         self.tip_node = None
         self._tip_cob = None
         self._tip_step = 1e-9
         self.network = None
         self.node = None
+        self.started = False         # open() has begun: the drive is this backend's to stop and release
         self.emcy_log: list[dict] = []
         self.events: list[str] = []
         self._rx = {}
@@ -202,10 +221,10 @@ class CanopenBackend(Backend):
         """Full start-up: connect, NMT pre-operational, SDO configuration and PDO mapping, NMT
         operational, the host's heartbeat."""
         cfg = self.cfg
+        self.started = True
         if not self.lockstep:
             # the receive threads (python-can's, canopen's notifier) must get the interpreter soon
             # after a TPDO arrives, not after Python's default 5 ms switch interval: process-wide
-            import sys
             sys.setswitchinterval(min(sys.getswitchinterval(), float(cfg.get("canopen.switch_interval", 1e-4))))
         self.connect()
         self.node.nmt.state = "PRE-OPERATIONAL"
@@ -230,9 +249,8 @@ class CanopenBackend(Backend):
         self.network = canopen.Network(self._bus)
         self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
         if self._bus is None and self.interface == "socketcand":
-            import socket
             host, port = cfg.get("canopen.host", "127.0.0.1"), int(cfg.get("canopen.port", 29536))
-            import logging            # python-can warns of every TCP segment that splits a frame: harmless
+            # python-can warns of every TCP segment that splits a frame: harmless
             logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.ERROR)
             try:                      # python-can would retry for 10 s; say at once that nobody listens
                 socket.create_connection((host, port), timeout=1.0).close()
@@ -246,18 +264,25 @@ class CanopenBackend(Backend):
                           tcp_tune=True)          # TCP_NODELAY: no Nagle delay between RPDO and SYNC
             elif self.interface != "virtual":
                 kw["bitrate"] = cfg.get("canopen.bitrate", 1000000)
-            self.network.connect(**kw)
+            try:
+                self.network.connect(**kw)
+            except can.CanInterfaceNotImplementedError as exc:     # the interface's library is not installed
+                self.network = None
+                raise ConfigError(f"{cfg.source}: canopen.interface: {self.interface} is not available "
+                                  f"({exc})") from None
+            except (can.CanError, OSError) as exc:
+                self.network = None
+                raise BackendFault(f"cannot open the CAN bus {self.interface}:{self.channel} ({exc})") from None
         else:
             self.network.connect()
-        eds = cfg.get("canopen.eds") or DEFAULT_EDS
-        self.node = self.network.add_node(self.node_id, eds)
+        self.node = self.network.add_node(self.node_id, self._od)
         self.node.sdo.RESPONSE_TIMEOUT = cfg.get("canopen.sdo_timeout", 0.5)
         self.node.emcy.add_callback(self._on_emcy)
         self.network.subscribe(0x700 + self.node_id, self._on_heartbeat)
         for n in range(len(TPDO_MAPS)):
             self.network.subscribe(0x180 + 0x100 * n + self.node_id, self._on_tpdo)
         if self.tip_id:
-            self.tip_node = self.network.add_node(self.tip_id, cfg.get("canopen.tip_eds") or TIP_EDS)
+            self.tip_node = self.network.add_node(self.tip_id, self._tip_od)
             self.tip_node.sdo.RESPONSE_TIMEOUT = self.node.sdo.RESPONSE_TIMEOUT
             self._tip_cob = 0x180 + self.tip_id
             self.network.subscribe(self._tip_cob, self._on_tip)
@@ -272,8 +297,8 @@ class CanopenBackend(Backend):
             raise BackendFault(f"tip sensor node {self.tip_id} does not answer SDO on "
                                f"{self.interface}:{self.channel} (canopen.tip_node_id)") from None
         if devtype & 0xFFFF != TIP_PROFILE:
-            raise BackendFault(f"node {self.tip_id} is not an encoder (device type 0x{devtype:08X}, "
-                               f"profile {devtype & 0xFFFF}, expected {TIP_PROFILE})")
+            raise ConfigError(f"{self.cfg.source}: canopen.tip_node_id: node {self.tip_id} is not an encoder "
+                              f"(device type 0x{devtype:08X}, profile {devtype & 0xFFFF}, expected {TIP_PROFILE})")
         self._tip_step = sdo[0x6005][1].raw * 1e-9
         if not self._tip_step > 0:
             raise BackendFault(f"tip sensor node {self.tip_id}: measuring step 0x6005.1 is 0")
@@ -498,7 +523,7 @@ class CanopenBackend(Backend):
 
     def _on_emcy(self, err):
         entry = {"t": self._now(), "code": f"0x{err.code:04X}", "register": err.register,
-                 "text": _emcy_text(err.code), "data": bytes(err.data).hex()}
+                 "text": cia402.emcy_text(err.code), "data": bytes(err.data).hex()}
         self.emcy_log.append(entry)
         self.events.append(f"EMCY {entry['code']} {entry['text']}")
 
@@ -507,7 +532,7 @@ class CanopenBackend(Backend):
             e = self.emcy_log[-1]
             return f"EMCY {e['code']} {e['text']}"
         code = self._rx.get(0x603F, 0)
-        return f"error code 0x{code:04X} {_emcy_text(code)}" if code else "no EMCY"
+        return f"error code 0x{code:04X} {cia402.emcy_text(code)}" if code else "no EMCY"
 
     # -- cycle ---------------------------------------------------------------------------------------
     def read_feedback(self) -> Feedback:
@@ -579,10 +604,10 @@ class CanopenBackend(Backend):
     def _send_rpdo(self) -> None:
         if self._sync_sent:
             self.setpoint_latency.append(time.perf_counter() - self._sync_sent)
-        self.network.send_message(0x200 + self.node_id, struct.pack(self._rpdo_fmt, self._cw, self._target))
+        self._send(0x200 + self.node_id, struct.pack(self._rpdo_fmt, self._cw, self._target))
 
     def _send_host_heartbeat(self) -> None:
-        self.network.send_message(0x700 + self.host_id, [0x05])
+        self._send(0x700 + self.host_id, [0x05])
         self._host_hb_next = self._time + self.cfg.get("canopen.host_heartbeat", 0.1)
 
     def sync(self) -> None:
@@ -592,6 +617,14 @@ class CanopenBackend(Backend):
         self.sync_to_rpdo.append(time.perf_counter() - t0)
         self._send_sync()
 
+    def _send(self, cob_id: int, data) -> None:
+        """One frame; a bus that refuses it (the interface or the server is gone) is a BackendFault:
+        the setpoint could not be delivered (the fault rule of drivers.base)."""
+        try:
+            self.network.send_message(cob_id, data)
+        except (can.CanError, OSError) as exc:
+            raise BackendFault(f"lost communication: the CAN bus refused a frame ({exc})") from None
+
     def _send_sync(self) -> None:
         """The SYNC (with its counter); from here on only the answer to this SYNC is fresh."""
         with self._lock:
@@ -600,7 +633,7 @@ class CanopenBackend(Backend):
             self._pending = {}
             self._event.clear()
             self._sync_sent = time.perf_counter()
-        self.network.send_message(0x80, bytes([self._sync_counter]) if self.echo else b"")
+        self._send(0x80, bytes([self._sync_counter]) if self.echo else b"")
         self.syncs += 1
         if self.lockstep:
             self._time += self.cycle_time
@@ -651,8 +684,9 @@ class CanopenBackend(Backend):
         return st
 
     def disable(self) -> None:
-        """Let a quick stop (or fault reaction) finish, then SHUTDOWN (READY TO SWITCH ON: no torque)."""
-        if self.node is None or self.network is None:
+        """Let a quick stop (or fault reaction) finish, then SHUTDOWN (READY TO SWITCH ON: no torque).
+        Nothing on a drive this backend did not start, or after :meth:`close`."""
+        if not self.started or self.node is None or self.network is None:
             return
         try:
             if self.quick_stop_sync is not None and self._cw != cia402.COMMANDS["ENABLE OPERATION"] or \
@@ -668,21 +702,26 @@ class CanopenBackend(Backend):
         self.enabled = False
 
     def close(self) -> None:
+        """The host's heartbeat stopped, the nodes this backend started put back to NMT
+        pre-operational (their PDOs stop), the bus released. Nothing after the first call."""
         if self.network is None:
             return
         try:
             if self._host_hb_task is not None:
                 self._host_hb_task.stop()
-            self.node.nmt.state = "PRE-OPERATIONAL"
-            if self.tip_node is not None:
-                self.tip_node.nmt.state = "PRE-OPERATIONAL"
-        except Exception:
-            pass
+                self._host_hb_task = None
+            if self.started and self.node is not None:
+                self.node.nmt.state = "PRE-OPERATIONAL"
+                if self.tip_node is not None:
+                    self.tip_node.nmt.state = "PRE-OPERATIONAL"
+        except Exception as exc:        # the link may be gone: the drive-side guards act then
+            self.events.append(f"close: {exc}")
         try:
             self.network.disconnect()
-        except Exception:
-            pass
+        except Exception as exc:
+            self.events.append(f"close: {exc}")
         self.network = None
+        self.started = False
 
     def status(self) -> dict:
         sdo = self.node.sdo
@@ -704,13 +743,3 @@ class CanopenBackend(Backend):
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
                 out["tip_node"], out["tip_m"] = self.tip_id, f"no answer ({exc})"
         return out
-
-
-def _emcy_text(code: int) -> str:
-    from drivers.canopen.drive_sim import EMCY_CODES
-    if code in EMCY_CODES:
-        return EMCY_CODES[code]
-    groups = {0x1: "generic", 0x2: "current", 0x3: "voltage", 0x4: "temperature", 0x5: "device hardware",
-              0x6: "device software", 0x7: "additional modules", 0x8: "monitoring", 0x9: "external error",
-              0xF: "additional functions", 0xFF: "device specific"}
-    return groups.get(code >> 12, "unknown") + " error"

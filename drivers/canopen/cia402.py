@@ -1,16 +1,17 @@
 """CiA 402 (IEC 61800-7-201) device control written as data: the states and how the statusword
 shows them, the controlword commands and how a drive recognises them, the transitions of the
-power state machine, and the host's way up to Operation Enabled.
+power state machine, the host's way up to Operation Enabled, and the emergency (EMCY) error
+codes and how they read.
 
 Both sides read these tables: the host backend (drivers.canopen) to drive a real or simulated
-drive up and down, the simulated drive (drivers.drive_sim) to answer. They agree with
+drive up and down, the simulated drive (drivers.canopen.drive_sim) to answer. They agree with
 ``canopen.profiles.p402.State402`` (checked in tests/test_canopen.py).
 """
 from __future__ import annotations
 
 __all__ = ["STATES", "STATUSWORD", "COMMANDS", "COMMAND_RECOGNITION", "TRANSITIONS", "NEXT_TO_ENABLE",
            "MODES", "MODE_CLOSES", "HOMING_MODE", "state_from_statusword", "command_from_controlword", "next_state",
-           "statusword_for", "SW_BITS", "CW_BITS"]
+           "statusword_for", "SW_BITS", "CW_BITS", "EMCY_CODES", "emcy_text"]
 
 # --- states and the statusword (mask, value) -----------------------------------------------------
 STATUSWORD = {
@@ -123,3 +124,26 @@ def next_state(state: str, cw: int, previous_cw: int = 0) -> str:
         # bit 7 set outside FAULT: the other bits still command
         cmd = command_from_controlword(cw & ~0x80, 0)
     return TRANSITIONS.get((state, cmd), state)
+
+
+# --- emergency (EMCY) error codes (CiA 301 / CiA 402): those the simulated drive sends -------------
+EMCY_CODES = {
+    0x2310: "continuous overcurrent",
+    0x3210: "DC link overvoltage",
+    0x4310: "drive overtemperature",
+    0x7305: "incremental encoder 1 broken",
+    0x8130: "life guard / heartbeat error (host heartbeat lost)",
+    0x8611: "following error (drive-side window 0x6065)",
+    0x8612: "reference limit (software position limit 0x607D)",
+    0x8100: "communication error",
+}
+EMCY_GROUPS = {0x1: "generic", 0x2: "current", 0x3: "voltage", 0x4: "temperature", 0x5: "device hardware",
+               0x6: "device software", 0x7: "additional modules", 0x8: "monitoring", 0x9: "external error",
+               0xF: "additional functions", 0xFF: "device specific"}
+
+
+def emcy_text(code: int) -> str:
+    """What an EMCY error code (or 0x603F) means: the code's own text, else its group's."""
+    if code in EMCY_CODES:
+        return EMCY_CODES[code]
+    return EMCY_GROUPS.get(code >> 12, "unknown") + " error"

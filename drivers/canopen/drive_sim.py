@@ -1,5 +1,5 @@
 """A simulated CiA 402 servo drive on a CAN bus: a ``canopen`` LocalNode with the object dictionary
-of config/cia402_generic.eds, answering SDO (canopen's server), NMT (canopen's NMT slave), SYNC,
+of drivers/canopen/eds/cia402_generic.eds, answering SDO (canopen's server), NMT (canopen's NMT slave), SYNC,
 PDO, heartbeat and EMCY. Its shaft is the sim_plant model (drivers.sim.SimulatedPlant), advanced
 one cycle per SYNC, closing in the drive the loops the mode of operation gives it (CSP: both,
 CSV: velocity, CST: none).
@@ -18,40 +18,31 @@ Fault injection (:meth:`DriveSim.inject`): ``emcy`` (a drive fault: EMCY + FAULT
 ``tip_missing_pdo`` (the tip sensor's TPDO withheld).
 
 A tool-tip sensor on its own node (``tip_node_id``, config ``canopen.tip_node_id``):
-:class:`TipSensorSim`, a CiA 406-like absolute linear encoder (config/tip_encoder_cia406.eds) on
+:class:`TipSensorSim`, a CiA 406-like absolute linear encoder (drivers/canopen/eds/tip_encoder_cia406.eds) on
 the same bus, whose position value 0x6004 is the plant's tip mass, sent in its TPDO1 on every SYNC.
 """
 from __future__ import annotations
 
 import math
+import queue
+import socket
 import struct
 import threading
 import time
 
 import can
 import canopen
-import numpy as np
 
 from hil.control import new_velocity_state, velocity_law
+from hil.errors import ConfigError
 
-from drivers.canopen import cia402
-from drivers.canopen.eds import DEFAULT_EDS, TIP_EDS
+from drivers.base import Setpoint
+from drivers.canopen import cia402, eds as eds_files
 from drivers.sim import SimulatedPlant
 
-__all__ = ["DriveSim", "TipSensorSim", "DEFAULT_EDS", "TIP_EDS", "EMCY_CODES", "FAULTS", "SocketcandServerBus"]
+__all__ = ["DriveSim", "TipSensorSim", "FAULTS", "SocketcandServerBus"]
 
 
-# EMCY codes the simulated drive sends (CiA 301 / CiA 402)
-EMCY_CODES = {
-    0x2310: "continuous overcurrent",
-    0x3210: "DC link overvoltage",
-    0x4310: "drive overtemperature",
-    0x7305: "incremental encoder 1 broken",
-    0x8130: "life guard / heartbeat error (host heartbeat lost)",
-    0x8611: "following error (drive-side window 0x6065)",
-    0x8612: "reference limit (software position limit 0x607D)",
-    0x8100: "communication error",
-}
 FAULTS = ("emcy", "heartbeat_loss", "frozen_encoder", "late_pdo", "missing_pdo", "following_error",
           "tip_missing_pdo")
 
@@ -104,6 +95,7 @@ class DriveSim:
         self.node_id = node_id or int(cfg.get("canopen.node_id", 1))
         self.lockstep = lockstep
         self.lock = threading.RLock()
+        od = eds_files.load(cfg, "canopen.eds", self.node_id, eds)     # a bad file: ConfigError, no bus opened
         self._own_bus = bus is None
         self.network = canopen.Network(bus)
         self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
@@ -112,8 +104,7 @@ class DriveSim:
                                  channel=channel or cfg.get("canopen.channel", "hil"), bitrate=bitrate)
         else:
             self.network.connect()
-        eds = eds or cfg.get("canopen.eds") or DEFAULT_EDS
-        self.node = canopen.LocalNode(self.node_id, canopen.import_od(eds, self.node_id))
+        self.node = canopen.LocalNode(self.node_id, od)
         # heartbeats are produced here (on the SYNC clock in lockstep, else the wall clock)
         self.node._write_callbacks.remove(self.node.nmt.on_write)
         self.node.add_write_callback(self._on_sdo_write)
@@ -365,12 +356,12 @@ class DriveSim:
         tmax = conf["tmax"]
         if self.state == "OPERATION ENABLED":
             if self.mode in ("csp", "hm"):
-                pl.write_setpoint(_sp(position=self.target_position / cpm - self._home_offset))
+                pl.write_setpoint(Setpoint(position=self.target_position / cpm - self._home_offset))
             elif self.mode == "csv":
-                pl.write_setpoint(_sp(speed=self.target_velocity / cpm * pl.ctrl.speed_scale))
+                pl.write_setpoint(Setpoint(speed=self.target_velocity / cpm * pl.ctrl.speed_scale))
             else:
                 u = self.target_torque * 1e-3 * rated
-                pl.write_setpoint(_sp(output=max(-tmax, min(tmax, u))))
+                pl.write_setpoint(Setpoint(output=max(-tmax, min(tmax, u))))
             pl.sync()
         elif self.state in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE"):
             self._quick_stop_step(tmax)
@@ -417,7 +408,7 @@ class DriveSim:
 
     def _actual(self, cpm: float, rated: float) -> dict:
         pl = self.plant
-        n, p = pl.plant.n, pl.plant
+        n = pl.plant.n
         fb = pl.read_feedback()
         x_motor, x_table, x_tip = fb.x_motor, fb.x_table, fb.x_tip
         if math.isnan(x_tip):
@@ -556,7 +547,7 @@ class DriveSim:
 
 class TipSensorSim:
     """A tool-tip sensor on its own CANopen node: a CiA 406-like absolute linear encoder
-    (config/tip_encoder_cia406.eds) on the drive's bus. Position value 0x6004 = the plant's tip mass
+    (drivers/canopen/eds/tip_encoder_cia406.eds) on the drive's bus. Position value 0x6004 = the plant's tip mass
     in steps of 0x6005.1 nm, plus the preset 0x6003 (written at homing: the value the sensor
     shows there); TPDO1 (0x6004) on every SYNC while OPERATIONAL, sent before the drive's TPDOs in
     the same SYNC (in lockstep, the host's SDO barrier covers it too). It answers SDO and NMT
@@ -564,10 +555,10 @@ class TipSensorSim:
 
     def __init__(self, drive: DriveSim, node_id: int, eds: str | None = None):
         if node_id == drive.node_id:
-            raise ValueError(f"tip sensor node id {node_id} is the drive's")
+            raise ConfigError(f"{drive.cfg.source}: canopen.tip_node_id: {node_id} is the drive's node id")
         self.drive = drive
         self.node_id = node_id
-        self.node = canopen.LocalNode(node_id, canopen.import_od(eds or TIP_EDS, node_id))
+        self.node = canopen.LocalNode(node_id, eds_files.load(drive.cfg, "canopen.tip_eds", node_id, eds))
         self.node.add_write_callback(self._on_sdo_write)
         drive.network.add_node(self.node)
         self._plan = None            # (step m, COB-ID or None, mapping), cached until an SDO write
@@ -606,11 +597,6 @@ class TipSensorSim:
         self.drive.network.send_message(cob, data)
 
 
-def _sp(position=0.0, speed=0.0, output=0.0):
-    from drivers.base import Setpoint
-    return Setpoint(position=position, speed=speed, output=output)
-
-
 # -- the separate-process transport: a socketcand-protocol server on the loopback address ------------
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
@@ -625,8 +611,6 @@ class SocketcandServerBus(can.BusABC):
     def __init__(self, host: str = "127.0.0.1", port: int = 29536, channel: str = "can0", **kwargs):
         if host not in LOOPBACK:
             raise ValueError(f"the simulated drive serves 127.0.0.1 only, not {host!r}")
-        import queue
-        import socket
         self._queue: "queue.Queue[can.Message]" = queue.Queue()
         self._clients: list = []
         self._clients_lock = threading.Lock()
@@ -643,7 +627,6 @@ class SocketcandServerBus(can.BusABC):
         super().__init__(channel=channel, **kwargs)
 
     def _accept(self):
-        import socket
         while not self._closed:
             try:
                 conn, _ = self._sock.accept()
@@ -704,7 +687,6 @@ class SocketcandServerBus(can.BusABC):
         self._broadcast(msg)
 
     def _recv_internal(self, timeout):
-        import queue
         try:
             return self._queue.get(timeout=timeout), False
         except queue.Empty:

@@ -1,6 +1,6 @@
 """Servo drives with an ASCII command interface over RS-232 / RS-485 (pyserial).
 
-The command set is configuration (``[serial]``, see :mod:`drivers.serial_protocol`,
+The command set is configuration (``[serial]``, see :mod:`drivers.serial.protocol`,
 ``config/serial_ascii_example.toml`` and the README (Serial drives)); a user adapts the backend to a drive
 without writing code.
 
@@ -12,18 +12,34 @@ Robustness. Every command must be confirmed by its reply; a setpoint counts only
 echoes it. A missing reply (timeout), a partial or garbled line, a checksum error, an unexpected
 reply or the drive's error reply is retried, at most ``serial.retries`` times and only while the
 transaction's time budget lasts (``serial.budget``, default: half the cycle); a port that vanished
-is reopened within the same budget. Then :class:`~drivers.base.BackendFault` is raised, with the
-reason, and the loop stops the axis. Retrying is safe because every cyclic command is absolute
+is reopened within the same budget. Then the transaction has failed, with the reason; following
+the fault rule of drivers.base, a failed ``read`` in the cycle is reported as ``Feedback.fault``
+(the supervisor trips on it), a setpoint the drive did not confirm raises
+:class:`~drivers.base.BackendFault` (the loop stops the axis), and so does anything that fails
+outside the cycle (``open``, ``enable``). Retrying is safe because every cyclic command is absolute
 (a target, not an increment): executing it twice is executing it once. The drive's own watchdog is
 armed at :meth:`open` where the command set has one (``watchdog``), so that the drive stops when
 the host falls silent.
+
+Configuration mistakes (no port, a port name pyserial does not know, a command template or reply
+pattern that cannot work, a missing command) are :class:`~hil.errors.ConfigError` naming the key
+and the configuration file, raised when the backend is built; a port that does not open (absent,
+busy) is a BackendFault at :meth:`open`.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import select
 import time
+
+import serial
+
+from hil.config import Field, register_section
+from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, velocity_law
+from hil.errors import BackendError, ConfigError
+from hil.plant_config import plant_from_config
 
 from drivers.base import Backend, BackendFault, Feedback, Setpoint
 from drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError
@@ -33,7 +49,6 @@ __all__ = ["SerialBackend", "SerialStats"]
 
 # -- the configuration section ------------------------------------------------------------------------
 def _section_lookup(key: str):
-    from hil.config import Field
     fixed = {
         "serial.port": Field("str", "serial port (/dev/ttyUSB0, COM3, /dev/pts/N of hil serial-sim, or a pyserial URL)",
                              default=""),
@@ -74,21 +89,13 @@ def _section_lookup(key: str):
     return None
 
 
-def _register_config():
-    from hil.config import register_section
-    register_section("serial", _section_lookup)
-
-
-_register_config()
+register_section("serial", _section_lookup)
 
 
 def _warm_up_host_loop(cfg) -> None:
     """Compile the host loop's laws now: their first call (hundreds of ms of JIT loading) must not
     fall between enabling the drive and the first cycle, or the drive's watchdog trips."""
     try:
-        from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, \
-            velocity_law
-        from hil.plant_config import plant_from_config
         p = controller_from_config(cfg, plant_from_config(cfg)).as_array()
         s = new_velocity_state()
         position_law(p, 0.0, 0.0, 0.0)
@@ -149,10 +156,9 @@ class SerialBackend(Backend):
         self.closes = "both" if mode == "position" else "velocity"
         tp = cfg.get("control.position_period", 0.004)
         self.cycle_time = float(opt("cycle_time", None) or tp)
-        if abs(self.cycle_time - tp) > 1e-9:
-            from drivers import BackendError     # the loop times its record and commands on control.position_period
-            raise BackendError(f"serial.cycle_time ({self.cycle_time:g} s) must equal control.position_period "
-                               f"({tp:g} s): set the position period instead")
+        if abs(self.cycle_time - tp) > 1e-9:     # the loop times its record and commands on control.position_period
+            raise ConfigError(f"{cfg.source}: serial.cycle_time ({self.cycle_time:g} s) must equal "
+                              f"control.position_period ({tp:g} s): set the position period instead")
         self.timeout = float(opt("timeout", None) or self.cycle_time / 4)
         self.retries = int(opt("retries", 2))
         self.budget = float(opt("budget", None) or self.cycle_time / 2)
@@ -167,28 +173,35 @@ class SerialBackend(Backend):
         self.drive_name = ""
         self.enabled = False
         self._ser = None
+        self._open = False           # between open() and close(): the drive is this backend's to disable
         self._faulted = ""
         self._last_fb: Feedback | None = None
         self._set_op = "set_position" if self.closes == "both" else "set_speed"
+        # configuration mistakes now, as one line naming the key, before anything opens or moves
+        src = cfg.source
         for op in ("enable", "disable", "read", self._set_op):
             if not self.cs.has(op):
-                raise ValueError(f"the serial command set has no {op!r} command (serial.commands.{op})")
+                raise ConfigError(f"{src}: serial.commands.{op}: missing (the serial backend needs the {op} command)")
+        if "x_motor" not in self.cs.groups("read"):
+            raise ConfigError(f"{src}: serial.replies.read: no (?P<x_motor>...) group (the motor position)")
         if not self.port:
-            from drivers import BackendError     # hil move reports it as one line, before anything moves
-            raise BackendError("serial backend: no port; set serial.port in the config or "
-                               "--set serial.port=/dev/ttyUSB0 (hil serial-sim prints the port of the simulated drive)")
+            raise BackendError(f"{src}: serial.port: no port; set it in the config or --set serial.port=/dev/ttyUSB0 "
+                               "(hil serial-sim prints the port of the simulated drive)")
+        try:                         # the name and the settings, checked without opening the port
+            self._port_object(do_not_open=True)
+        except ValueError as exc:
+            raise ConfigError(f"{src}: serial.port {self.port!r}: {exc}") from None
         _warm_up_host_loop(cfg)
 
 
     # -- the port ----------------------------------------------------------------------------------
+    def _port_object(self, do_not_open: bool = False):
+        return serial.serial_for_url(self.port, do_not_open=do_not_open, baudrate=self.baudrate, parity=self.parity,
+                                     stopbits=self.stopbits, timeout=self.timeout, write_timeout=self.setup_timeout)
+
     def _open_port(self):
-        import serial
-        if not self.port:
-            raise BackendFault("no serial port: set serial.port in the config or --set serial.port=/dev/...")
         try:
-            ser = serial.serial_for_url(self.port, do_not_open=True, baudrate=self.baudrate, parity=self.parity,
-                                        stopbits=self.stopbits, timeout=self.timeout, write_timeout=self.setup_timeout)
-            ser.open()
+            ser = self._port_object()
         except (serial.SerialException, OSError, ValueError) as exc:
             raise BackendFault(f"cannot open serial port {self.port}: {exc}") from None
         self._ser = ser
@@ -236,7 +249,6 @@ class SerialBackend(Backend):
     def transact(self, op: str, setup: bool = False, **values) -> dict:
         """Send ``op`` and return the named groups of its confirmed reply; retry within the budget,
         then raise BackendFault."""
-        import serial
         frame = self.cs.encode(op, **values)
         t0 = time.perf_counter()
         attempt_timeout = self.setup_timeout if setup else self.timeout
@@ -277,6 +289,7 @@ class SerialBackend(Backend):
     # -- the contract --------------------------------------------------------------------------------
     def open(self) -> None:
         self._faulted = ""
+        self._open = True
         self._open_port()
         if self.cs.has("identify"):
             self.drive_name = self.transact("identify", setup=True).get("name", "")
@@ -294,11 +307,16 @@ class SerialBackend(Backend):
         self.enabled = True
 
     def read_feedback(self, setup: bool = False) -> Feedback:
-        g = self.transact("read", setup=setup)
+        """The drive's reading. In the cycle a failed read is reported in ``Feedback.fault`` (the
+        positions are the last ones read); with ``setup`` (enable) it raises BackendFault."""
         try:
-            xm = int(g["x_motor"]) / self.k_pos
-        except KeyError:
-            raise BackendFault("serial.replies.read has no x_motor group") from None
+            g = self.transact("read", setup=setup)
+        except BackendFault as exc:
+            if setup:
+                raise
+            last = self._last_fb or Feedback(0.0, 0.0, 0.0)
+            return dataclasses.replace(last, fault=exc.reason)
+        xm = int(g["x_motor"]) / self.k_pos
         xt = int(g["x_table"]) / self.k_pos if "x_table" in g else xm
         v = int(g["v_motor"]) / self.k_pos if "v_motor" in g else math.nan      # counts/s
         out = int(g["output"]) / self.k_out if "output" in g else 0.0
@@ -321,10 +339,10 @@ class SerialBackend(Backend):
 
     def disable(self) -> None:
         """Disable; after a fault (link likely gone) a failure here is recorded, not raised: the
-        drive's watchdog stops it."""
+        drive's watchdog stops it. Nothing before :meth:`open` or after :meth:`close`."""
         was = self.enabled
         self.enabled = False
-        if self._ser is None and self._faulted:
+        if not self._open or self._ser is None and self._faulted:
             return
         try:
             self.transact("disable", setup=True)
@@ -333,4 +351,5 @@ class SerialBackend(Backend):
                 raise
 
     def close(self) -> None:
+        self._open = False
         self._close_port()

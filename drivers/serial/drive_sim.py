@@ -40,7 +40,12 @@ import tty
 
 import numpy as np
 
+from hil.config import load
+from hil.errors import ConfigError
+
+from drivers.base import Setpoint
 from drivers.serial.protocol import CommandSet, ReplyError, command_pattern, render_reply
+from drivers.sim import SimulatedPlant
 
 __all__ = ["SimulatedSerialDrive", "serve", "FAULTS", "parse_fault"]
 
@@ -67,7 +72,6 @@ def parse_fault(text: str) -> dict:
 
 class _Drive:
     def __init__(self, cfg, advance: str = "setpoint", seed: int = 1):
-        from drivers.sim import SimulatedPlant
         self.cs = CommandSet.from_config(cfg)
         mode = cfg.get("serial.mode", "position")
         self.plant = SimulatedPlant(cfg, closes="both" if mode == "position" else "velocity")
@@ -90,11 +94,14 @@ class _Drive:
         self.vanish = False
         self.name = "SIMDRIVE"
         # self-check: every reply can be rendered and parses back
-        self._reply("read", dict(x_motor=0, x_table=0, v_motor=0, output=0, fault=0))
+        try:
+            self._reply("read", dict(x_motor=0, x_table=0, v_motor=0, output=0, fault=0))
+        except ValueError as exc:
+            raise ConfigError(f"{cfg.source}: serial.replies.read: the simulated drive cannot answer with it "
+                              f"({exc})") from None
 
     def _warm_up(self) -> None:
         """Compile the control law before the first command (a first setpoint must not take 100 ms)."""
-        from drivers.base import Setpoint
         pl = self.plant
         pl.enable()
         pl.write_setpoint(Setpoint(position=0.0, speed=0.0))
@@ -222,7 +229,6 @@ class _Drive:
         if op in ("set_position", "set_speed", "set_output"):
             if not self.enabled:
                 return self._error(3)
-            from drivers.base import Setpoint
             v = next(iter(vals.values()))
             if op == "set_position":
                 pl.write_setpoint(Setpoint(position=v / self.k_pos))
@@ -364,6 +370,5 @@ class SimulatedSerialDrive:
         return False
 
 
-if __name__ == "__main__":      # pragma: no cover - python -m drivers.serial_sim CONFIG
-    from hil.config import load
+if __name__ == "__main__":      # pragma: no cover - python -m drivers.serial.drive_sim CONFIG
     serve(load(sys.argv[1]), announce=lambda p: print(p, flush=True))

@@ -25,6 +25,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 
+from hil.errors import ConfigError
+
 __all__ = ["CommandSet", "ReplyError", "ChecksumError", "GarbledReply", "UnexpectedReply", "DriveRefused",
            "OPERATIONS", "checksum", "FEEDBACK_GROUPS"]
 
@@ -114,12 +116,20 @@ class CommandSet:
         replies = cfg.section("serial.replies") if hasattr(cfg, "section") else cfg.get("replies", {})
         commands = {k: v for k, v in commands.items() if v is not None}
         replies = {k: v for k, v in replies.items() if v is not None}
-        return cls(commands, replies, _decode_eol(cfg.get("serial.line_ending", "\r")),
-                   cfg.get("serial.checksum", "none"), cfg.get("serial.checksum_separator", "*"),
-                   int(cfg.get("serial.max_reply", 128)))
+        try:
+            return cls(commands, replies, _decode_eol(cfg.get("serial.line_ending", "\r")),
+                       cfg.get("serial.checksum", "none"), cfg.get("serial.checksum_separator", "*"),
+                       int(cfg.get("serial.max_reply", 128)))
+        except ValueError as exc:        # the message names the key; the error names the file too
+            raise ConfigError(f"{getattr(cfg, 'source', '<config>')}: {exc}") from None
 
     def has(self, op: str) -> bool:
         return op in self.commands
+
+    def groups(self, op: str) -> set[str]:
+        """The names of the groups the reply pattern of ``op`` carries."""
+        pat = self._re.get(op)
+        return set(pat.groupindex) if pat is not None else set()
 
     def body(self, op: str, **values) -> str:
         return self.commands[op].format(**{k: int(v) for k, v in values.items()})

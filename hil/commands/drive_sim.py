@@ -1,4 +1,4 @@
-"""``hil drive-sim``: the simulated CiA 402 drive (drivers.drive_sim) as a separate process, reachable
+"""``hil drive-sim``: the simulated CiA 402 drive (drivers.canopen.drive_sim) as a separate process, reachable
 from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hil.io.jsonout import dumps
 
 HELP = "run the simulated CiA 402 drive on a socketcand server on 127.0.0.1 (for --backend canopen)"
 DESCRIPTION = """Run the simulated CiA 402 servo drive (the config's plant as its shaft, the object
-dictionary of config/cia402_generic.eds) until Ctrl-C, reachable from any other process through
+dictionary of drivers/canopen/eds/cia402_generic.eds) until Ctrl-C, reachable from any other process through
 python-can's socketcand interface: this process is a small socketcand server (raw mode) on
 127.0.0.1 only. Run the host against it in another shell:
 
@@ -27,7 +27,7 @@ Faults to inject (repeatable): KIND[=VALUE]@SECONDS after the start, e.g. --faul
 missing_pdo (count), following_error (metres), tip_missing_pdo (count; with a tip sensor node).
 
 --set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
-CiA 406-like linear encoder (config/tip_encoder_cia406.eds) sending the tip mass's position in
+CiA 406-like linear encoder (drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
 its TPDO1 on every SYNC.
 """
 
@@ -77,7 +77,11 @@ def run(args) -> int:
         bus = SocketcandServerBus(host="127.0.0.1", port=port, channel=args.channel)
     except OSError as exc:
         raise UserError(f"cannot serve on 127.0.0.1:{port} ({exc}); choose another --port") from None
-    sim = DriveSim(cfg, bus=bus, lockstep=False)
+    try:
+        sim = DriveSim(cfg, bus=bus, lockstep=False)      # a mistake in the config (the EDS): ConfigError
+    except BaseException:
+        bus.shutdown()
+        raise
     info = {"interface": "socketcand", "host": "127.0.0.1", "port": bus.port, "channel": args.channel,
             "node_id": sim.node_id, "tip_node_id": sim.tip_sensor.node_id if sim.tip_sensor else None}
     sets = (f"--set canopen.interface=socketcand --set canopen.channel={args.channel} "

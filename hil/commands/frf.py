@@ -161,11 +161,7 @@ def run(args) -> int:
         raise UserError(str(exc)) from None
     finally:
         if backend is not None:
-            for step in (backend.disable, backend.close):
-                try:
-                    step()
-                except Exception:
-                    pass
+            backend.shutdown()
     out = Path(args.out)
     report = result.as_dict()
     try:

@@ -29,12 +29,10 @@ def run(args) -> int:
     offset = parse(args.offset, "length", "--offset")
     be = CanopenBackend(cfg)
     try:
-        be.open()
-        out = be.home(offset=offset, method=args.method)
+        with be:                   # opened (full start-up); shut down (disabled, closed) at the end
+            out = be.home(offset=offset, method=args.method)
     except BackendFault as exc:
         raise UserError(exc.reason) from None
-    finally:
-        be.close()
     print(dumps(out, indent=2) if args.json else
           f"homed (method {out['method']}): position {out['position_m'] * 1e3:.4f} mm")
     return 0

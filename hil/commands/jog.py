@@ -25,15 +25,12 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from drivers.canopen.backend import CanopenBackend
     from hil.errors import UserError
-    from hil.commands.status import connect
+    from hil.commands.status import connected
     from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
     from hil.runtime import run_trajectory
     from hil.supervisor import Supervisor, SupervisorTripped
-    cfg, be = connect(args)
-    try:
+    with connected(args) as (cfg, be):
         start = be.node.sdo[0x6064].raw / be.counts_per_m
-    finally:
-        be.close()
     traj = Trajectory(start=start)
     traj.move(MoveSpec(stroke=parse(args.distance, "length", "--distance"), feed=parse(args.speed, "speed", "--speed"),
                        a_max=parse(args.amax, "acceleration", "--amax")))

@@ -26,13 +26,10 @@ def run(args) -> int:
     out = {"supervisor_was": sup.reason if sup.tripped else "clear"}
     sup.reset()
     if not args.supervisor_only:
-        from hil.commands.status import connect
-        _, be = connect(args)
-        try:
+        from hil.commands.status import connected
+        with connected(args) as (_, be):
             out["error_code"] = f"0x{be.node.sdo[0x603F].raw:04X}"
             out["state"] = be.fault_reset()
-        finally:
-            be.close()
     print(dumps(out, indent=2) if args.json else
           "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in out.items()))
     return 0 if out.get("state", "SWITCH ON DISABLED") != "FAULT" else 1

@@ -1,4 +1,4 @@
-"""``hil serial-sim``: a simulated ASCII serial drive on a pseudo-terminal (drivers.serial_sim)."""
+"""``hil serial-sim``: a simulated ASCII serial drive on a pseudo-terminal (drivers.serial.drive_sim)."""
 from __future__ import annotations
 
 import sys

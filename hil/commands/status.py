@@ -1,8 +1,9 @@
 """``hil status``: the CiA 402 drive's state, position and last faults (no configuration, no motion)."""
 from __future__ import annotations
 
+from contextlib import contextmanager
 
-from hil.errors import UserError
+from hil.errors import ConfigError, UserError
 from hil.io.jsonout import dumps
 
 HELP = "show the CANopen drive's state, position, error code and recent EMCY (no motion)"
@@ -20,30 +21,33 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print as JSON")
 
 
-def connect(args):
+@contextmanager
+def connected(args):
+    """``with connected(args) as (cfg, be):`` the config and the drive's node, connected only (no
+    NMT command, no configuration); shut down (the bus released) when the block ends."""
     from drivers.canopen.backend import CanopenBackend
     from hil.commands.move import load_config
     cfg = load_config(args)
-    be = CanopenBackend(cfg)
+    be = CanopenBackend(cfg)                 # a mistake in the config (e.g. the EDS): ConfigError, exit 2
     try:
         be.connect()
         be.node.sdo[0x1000].raw
+    except ConfigError:                      # an interface not installed
+        be.shutdown()
+        raise
     except Exception as exc:                 # no bus, no server, no answer
-        try:
-            be.close()
-        except Exception:
-            pass
+        be.shutdown()
         raise UserError(f"no CiA 402 drive at node {be.node_id} on {be.interface}:{be.channel} ({exc})") from None
-    return cfg, be
+    try:
+        yield cfg, be
+    finally:
+        be.shutdown()
 
 
 def run(args) -> int:
     from hil.supervisor import Supervisor
-    cfg, be = connect(args)
-    try:
+    with connected(args) as (cfg, be):
         st = be.status()
-    finally:
-        be.close()
     sup = Supervisor(cfg)
     st["supervisor"] = {"tripped": sup.tripped, "reason": sup.reason}
     if args.json:
