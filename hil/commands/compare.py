@@ -3,8 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hil.io.jsonout import dumps
-
 HELP = "model against measurement: errors per channel and motion phase, residual analysis, plots, HTML report"
 DESCRIPTION = """\
 Replays the measured command (x_cmd) through the config's model with the same loops and sets the
@@ -65,6 +63,7 @@ def strip(analysis):
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.ident.replay import analyse
     from hil.config import load
     from hil.plots.compare import comparison_figures

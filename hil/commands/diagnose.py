@@ -4,7 +4,6 @@ from __future__ import annotations
 import sys
 
 from hil.commands.compare import add_common, load_inputs, make_replay
-from hil.io.jsonout import dumps
 
 HELP = "rank the catalogue's effects by how much of the model error each explains"
 DESCRIPTION = """\
@@ -34,6 +33,7 @@ def candidates_json(d):
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.errors import UserError
     from hil.ident.diagnose import diagnose
     from sim_plant.effects import candidate

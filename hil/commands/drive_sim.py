@@ -7,7 +7,6 @@ import threading
 import time
 
 from hil.errors import UserError
-from hil.io.jsonout import dumps
 
 HELP = "run the simulated CiA 402 drive on a socketcand server on 127.0.0.1 (for --backend canopen)"
 DESCRIPTION = """Run the simulated CiA 402 servo drive (the config's plant as its shaft, the object
@@ -64,6 +63,7 @@ def parse_fault(text: str):
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
     from hil.commands.move import load_config
     cfg = load_config(args)

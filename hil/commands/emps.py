@@ -4,10 +4,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from hil.io.jsonout import dumps
-
 HELP = "EMPS record: effects added one by one, fitted parameters and errors beside the published reference"
 DESCRIPTION = """\
 Reads DATA_EMPS.mat (mapping t, qg -> x_cmd, qm -> x_motor, vir*gtau -> force), starts from
@@ -37,6 +33,8 @@ def add_arguments(parser) -> None:
 
 
 def velocity(q, dt):
+    import numpy as np
+
     qf = np.r_[q[0], 0.5 * q[1:] + 0.5 * q[:-1]]
     return np.r_[0.0, np.diff(qf)] / dt
 
@@ -205,6 +203,7 @@ def check_published(rows) -> dict:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.errors import UserError
     from hil.ident.replay import analyse
     from hil.io.measurement import MeasurementError

@@ -5,7 +5,6 @@ import sys
 from pathlib import Path
 
 from hil.commands.compare import add_common, load_inputs, make_replay
-from hil.io.jsonout import dumps
 
 HELP = "fit one or more effects (or parameter:<key>) to a measurement and write the new config"
 DESCRIPTION = """\
@@ -30,6 +29,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.ident.frf_fit import is_frf_file
     if is_frf_file(args.data):
         return _run_frequency(args)
@@ -66,6 +66,7 @@ def run(args) -> int:
 
 def _run_frequency(args) -> int:
     """``hil fit frf.json``: the same effects fitted to measured frequency responses."""
+    from hil.io.jsonout import dumps
     from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.ident.frf_fit import FrfDataError, fit_frf, load_frf

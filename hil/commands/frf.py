@@ -4,9 +4,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from hil.io.jsonout import dumps
-
-
 HELP = "measure frequency responses (TF1', TF2, TF3, velocity and position loops) against the model"
 DESCRIPTION = """\
 Excite the axis around a working point (a slow constant-speed move, so that friction keeps its
@@ -113,6 +110,7 @@ def _check_travel(cfg, st, duration: float, x0: float) -> None:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil import frf
     from hil.errors import UserError
     from hil.config import load, parse_assignment

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 
 from hil.units import parse
-from hil.io.jsonout import dumps
 
 HELP = "home the CANopen drive (homing mode 6; method 37: the present position becomes --offset)"
 DESCRIPTION = """Home the drive: homing mode (6) with the method given (default 37, CiA 402 'homing
@@ -21,6 +20,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from drivers.base import BackendFault
     from hil.errors import UserError
     from hil.commands.move import load_config

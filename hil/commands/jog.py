@@ -3,7 +3,6 @@ from __future__ import annotations
 
 
 from hil.units import parse
-from hil.io.jsonout import dumps
 
 HELP = "jog the axis by a distance from its present position (CANopen backend, supervised)"
 DESCRIPTION = """Move the axis by --distance from where it stands, at --speed with --amax, through the
@@ -23,6 +22,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from drivers.canopen.backend import CanopenBackend
     from hil.errors import UserError
     from hil.commands.status import connect

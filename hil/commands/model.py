@@ -5,10 +5,6 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from hil.io.jsonout import dumps
-
 HELP = "model summary: modes, damping ratios, Bode plots of TF1, TF2, TF3"
 DESCRIPTION = """\
 Print the lumped chain of a configuration: masses, stiffnesses, dampings, the undamped modal
@@ -66,6 +62,8 @@ def model_report(cfg) -> dict:
 
 
 def write_plots(cfg, report: dict, out_dir: Path) -> str:
+    import numpy as np
+
     from sim_plant.chain import Chain
     from sim_plant.plant import plant_from_config
     from sim_plant.transfer import chain_tfs
@@ -110,6 +108,7 @@ def _text(r: dict) -> str:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.errors import UserError
     from hil.config import load, parse_assignment
 

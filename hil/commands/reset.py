@@ -1,9 +1,6 @@
 """``hil reset``: CiA 402 fault reset on the drive and the supervisor's latch cleared."""
 from __future__ import annotations
 
-
-from hil.io.jsonout import dumps
-
 HELP = "reset a drive fault (controlword bit 7) and clear the supervisor's latched trip"
 DESCRIPTION = """Send FAULT RESET (controlword 0x0080, rising edge) to the drive and clear the
 supervisor's latch file (supervisor.latch_file), so that motion is allowed again. Find and fix
@@ -19,6 +16,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.commands.move import load_config
     from hil.supervisor import Supervisor
     cfg = load_config(args)

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 
 from hil.errors import UserError
-from hil.io.jsonout import dumps
 
 HELP = "show the CANopen drive's state, position, error code and recent EMCY (no motion)"
 DESCRIPTION = """Connect to the drive (the config's [canopen] section, or --set canopen.*) without
@@ -38,6 +37,7 @@ def connect(args):
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.supervisor import Supervisor
     cfg, be = connect(args)
     try:

@@ -5,8 +5,6 @@ import csv
 import re
 from pathlib import Path
 
-from hil.io.jsonout import dumps
-
 HELP = "jerk sweep: overshoot vs. jerk, the largest safe jerk for a tolerance, 2-dof vs. 3-dof"
 DESCRIPTION = """\
 Run one sine-square move per jerk value (from rest, plus a dwell that captures the residual
@@ -222,6 +220,7 @@ def _text(r: dict) -> str:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.profiles import LimitError

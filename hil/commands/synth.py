@@ -1,9 +1,6 @@
 """``hil synth``: write a measurement file of a richer plant with a hidden effect."""
 from __future__ import annotations
 
-
-from hil.io.jsonout import dumps
-
 HELP = "synthetic measurement with a hidden effect (0.5 um quantization, noise, 4 ms sampling)"
 DESCRIPTION = """\
   hil synth --config config/paper_bench.toml --effect coulomb_friction --out data.csv
@@ -25,6 +22,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from hil.io.jsonout import dumps
     from hil.errors import UserError
     from hil.config import load, parse_assignment
     from hil.io.measurement import write
