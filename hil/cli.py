@@ -1,6 +1,9 @@
 """The ``hil`` command line: one sub-command per module ``hil/commands/<name>.py``.
 
-Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``.
+Each command module defines ``HELP`` (one line), ``add_arguments(parser)`` and ``run(args) -> int``,
+and imports what it needs inside ``run``: building the parser imports every command module, and
+``hil --help`` must not wait for numpy, scipy, numba or matplotlib
+(``benchmarks/bench_startup.py`` times it).
 Every error the project raises on purpose derives from :class:`hil.errors.HilError`; ``main``
 catches that root and prints one line: exit 2 for what the user can fix (bad config, bad data,
 refused moves), 1 for a drive fault, 130 for an interrupt. Never a traceback.
@@ -12,7 +15,8 @@ import importlib
 import importlib.util
 import sys
 
-from hil.errors import HilError, UserError
+from hil import __version__
+from hil.errors import HilError
 
 # command name -> module (kept in the order `hil --help` lists them). A module not yet present in
 # this checkout is left out of the listing.
@@ -35,13 +39,12 @@ COMMANDS = {
 }
 
 
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hil",
         description="Hardware-in-the-loop runtime and model toolkit for feed drives of compliant machine tools. "
                     "Runs on the embedded simulated plant unless a backend is chosen.")
+    parser.add_argument("--version", action="version", version=f"hil {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, modname in COMMANDS.items():
         if importlib.util.find_spec(modname) is None:

@@ -7,6 +7,10 @@ Values are stored in SI; files may write them with units (``"10 mm"``).
 The schema is data (:data:`SCHEMA`), so that validation, the documentation in
 ``config/SCHEMA.md`` and the command line all read the same table. Backends and plant effects add
 their own sections through :func:`register_section`.
+
+The example configurations of ``config/`` ship in the package (``hil/examples`` in a wheel):
+:func:`load` reads one by name (``paper_bench.toml``, or ``config/paper_bench.toml`` as the README
+writes it) where no such file is in the working directory.
 """
 from __future__ import annotations
 
@@ -24,7 +28,7 @@ from hil.errors import ConfigError
 from hil.units import SI_UNIT, UnitError, parse
 
 __all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section", "field_for",
-           "parse_assignment", "schema_markdown"]
+           "parse_assignment", "schema_markdown", "examples_dir", "example_names"]
 
 
 @dataclass(frozen=True)
@@ -413,13 +417,42 @@ def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None 
     return _validate(raw, source)
 
 
+def examples_dir() -> Path:
+    """The folder of the example configurations and ``SCHEMA.md``: ``hil/examples`` in an installed
+    wheel (pyproject.toml maps ``config/`` there), ``config/`` of a source tree."""
+    here = Path(__file__).resolve().parent
+    shipped = here / "examples"
+    return shipped if shipped.is_dir() else here.parent / "config"
+
+
+def example_names() -> list[str]:
+    """The file names of the shipped example configurations, sorted."""
+    folder = examples_dir()
+    return sorted(p.name for p in folder.glob("*.toml")) if folder.is_dir() else []
+
+
+def _example(path: Path) -> Path | None:
+    """The shipped example that a missing ``path`` names: ``NAME.toml`` or ``config/NAME.toml``."""
+    if path.is_absolute() or path.parent not in (Path("."), Path("config")) or path.suffix != ".toml":
+        return None
+    shipped = examples_dir() / path.name
+    return shipped if shipped.is_file() else None
+
+
 def load(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
-    """Read and validate a TOML configuration file; ``overrides`` are ``--set`` values."""
+    """Read and validate a TOML configuration file; ``overrides`` are ``--set`` values.
+
+    A relative ``NAME.toml`` or ``config/NAME.toml`` that is not a file is read from the shipped
+    examples (:func:`examples_dir`), so that an installed package runs the README's commands.
+    """
     p = Path(path)
+    if not p.exists() and (shipped := _example(p)) is not None:
+        p = path = shipped
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ConfigError(f"{path}: no such configuration file") from None
+        raise ConfigError(f"{path}: no such configuration file (shipped examples, by name: "
+                          f"{', '.join(example_names()) or 'none'})") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:
@@ -441,7 +474,7 @@ def parse_assignment(text: str) -> tuple[str, Any]:
 
 
 def schema_markdown() -> str:
-    """The documentation table of every key (written to config/SCHEMA.md)."""
+    """The documentation table of every key (the end of config/SCHEMA.md, whose prose it keeps)."""
     rows = ["| key | kind (SI unit) | default | meaning |", "|---|---|---|---|"]
     for key, f in SCHEMA.items():
         if callable(f.kind):
@@ -464,5 +497,6 @@ def schema_markdown() -> str:
 
 
 if __name__ == "__main__":      # python -m hil.config > config/SCHEMA.md
-    text = Path(__file__).resolve().parents[1].joinpath("config", "SCHEMA.md").read_text(encoding="utf-8")
+    import sys
+    text = (examples_dir() / "SCHEMA.md").read_text(encoding="utf-8")
     sys.stdout.write(text.split("| key |")[0] + schema_markdown())

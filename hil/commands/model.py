@@ -3,9 +3,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-
-import numpy as np
-
 from hil.io.jsonout import dumps
 
 HELP = "model summary: modes, damping ratios, Bode plots of TF1, TF2, TF3"
@@ -65,6 +62,8 @@ def model_report(cfg) -> dict:
 
 
 def write_plots(cfg, report: dict, out_dir: Path) -> str:
+    import numpy as np
+
     from sim_plant.chain import Chain
     from hil.plant_config import plant_from_config
     from sim_plant.transfer import chain_tfs

@@ -2,14 +2,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hil import config as config_mod
-from hil.analysis import move_figures
-from hil.closed_loop import UnstableLoopError, check_loop_stability
 from hil.errors import UserError
-from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
 from hil.units import parse
 from hil.io.jsonout import dumps
+
+if TYPE_CHECKING:
+    from hil.profiles import Trajectory
 
 HELP = "run a sine-square move on the backend (the simulated plant by default)"
 DESCRIPTION = """Run one jerk-limited sine-square move (Eq. 15-16 of the paper), record it and report
@@ -56,6 +57,8 @@ def add_arguments(p) -> None:
 
 
 def build_trajectory(args, cfg) -> Trajectory:
+    from hil.profiles import MoveSpec, Trajectory
+
     g0 = parse(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
     try:
         spec = MoveSpec(stroke=parse(args.stroke, "length", "--stroke"), feed=parse(args.feed, "speed", "--feed"),
@@ -76,6 +79,9 @@ def build_trajectory(args, cfg) -> Trajectory:
 
 
 def run(args) -> int:
+    from hil.analysis import move_figures
+    from hil.closed_loop import UnstableLoopError, check_loop_stability
+    from hil.profiles import AxisLimits, LimitError, check_limits
     cfg = load_config(args)
     traj = build_trajectory(args, cfg)
     try:

@@ -6,8 +6,6 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
-
 __all__ = ["plain", "dumps"]
 
 
@@ -17,10 +15,8 @@ def plain(x):
         return {str(k): plain(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [plain(v) for v in x]
-    if isinstance(x, np.ndarray):
+    if hasattr(x, "tolist"):        # numpy arrays and scalars (duck-typed: no numpy import at start-up)
         return plain(x.tolist())
-    if isinstance(x, np.generic):
-        return plain(x.item())
     if isinstance(x, float):
         return x if math.isfinite(x) else None
     if isinstance(x, (str, int, bool)) or x is None:

@@ -1,0 +1,135 @@
+"""The package as a user gets it: a wheel built from the tree, installed into a fresh virtual
+environment outside the clone, runs ``hil model`` on a shipped config and the README's CANopen
+walkthrough (``hil drive-sim`` and ``hil move --backend canopen`` against it). And the command
+line starts without importing the numerical stack (the times: benchmarks/bench_startup.py).
+"""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from conftest import CONFIG, ROOT
+
+PACKAGES = ("hil", "drivers", "sim_plant")
+HEAVY = {"numpy", "scipy", "numba", "matplotlib", "pint", "can", "canopen", "serial", "dask", "control",
+         "sim_plant", "drivers"}
+
+
+def clean_env(**extra) -> dict:
+    """The environment without PYTHONPATH, so that no checkout comes before the installed wheel."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    return dict(env, MPLBACKEND="Agg", **extra)
+
+
+def test_help_and_version_import_no_heavy_module(capsys):
+    code = ("import sys; from hil import cli, __version__; cli.build_parser(); "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & set(sys.argv[1:])))")
+    out = subprocess.run([sys.executable, "-c", code, *HEAVY], cwd=ROOT, capture_output=True, text=True,
+                         env=clean_env(PYTHONPATH=str(ROOT)), check=True).stdout
+    assert out.strip() == "[]"
+    from hil import __version__
+    from hil.cli import main
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out == f"hil {__version__}\n"
+
+
+def test_missing_config_lists_the_shipped_examples(tmp_path, monkeypatch):
+    from hil.config import ConfigError, example_names, load
+    assert "paper_bench.toml" in example_names()
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=r"nope.toml: no such configuration file .*paper_bench_canopen.toml"):
+        load("nope.toml")
+    # a shipped name, bare or as the README writes it, where the working directory has no such file
+    for name in ("paper_bench.toml", "config/paper_bench.toml"):
+        assert Path(load(name).source) == CONFIG / "paper_bench.toml"
+    shutil.copy(CONFIG / "paper_bench.toml", tmp_path)
+    assert load("paper_bench.toml").source == "paper_bench.toml"    # a file of the user's comes first
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    """A wheel built from a copy of the tree (the build leaves build/ and *.egg-info behind)."""
+    tmp = tmp_path_factory.mktemp("wheel")
+    src = tmp / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(
+        ".git", "__pycache__", "build", "dist", "*.egg-info", "out", "runs", ".pytest_cache", ".venv"))
+    subprocess.run([sys.executable, "-m", "pip", "wheel", ".", "--no-deps", "--no-build-isolation", "-q",
+                    "-w", str(tmp / "dist")], cwd=src, env=clean_env(), check=True)
+    (whl,) = (tmp / "dist").glob("*.whl")
+    return whl
+
+
+def test_wheel_holds_every_module_eds_file_and_example_config(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for top in PACKAGES:
+        for py in (ROOT / top).rglob("*.py"):
+            if "__pycache__" not in py.parts:
+                assert py.relative_to(ROOT).as_posix() in names, f"{py.relative_to(ROOT)} is not in the wheel " \
+                    "(a new package? add it to [tool.setuptools] packages in pyproject.toml)"
+    assert {"drivers/canopen/eds/cia402_generic.eds", "drivers/canopen/eds/tip_encoder_cia406.eds"} <= names
+    shipped = {f"hil/examples/{p.name}" for p in CONFIG.iterdir() if p.suffix in (".toml", ".md")}
+    assert "hil/examples/paper_bench.toml" in shipped and shipped <= names
+    assert not any(n.startswith(("tests/", "benchmarks/", "config/")) for n in names)
+
+
+def test_wheel_installed_outside_the_clone_runs_the_canopen_walkthrough(wheel, tmp_path):
+    venv = tmp_path / "venv"
+    # the dependencies come from this machine's site-packages (no network); the wheel goes into
+    # the venv even where this project is installed there too (e.g. /work/main, editable)
+    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
+    py, hil = venv / "bin" / "python", venv / "bin" / "hil"
+    subprocess.run([py, "-m", "pip", "install", "-q", "--no-deps", "--ignore-installed", "--no-index", wheel],
+                   env=clean_env(), check=True)
+    work = tmp_path / "work"              # the user's folder: no clone, no config/ in it
+    work.mkdir()
+
+    def run(*argv, cmd=(hil,), **kw):
+        return subprocess.run([*cmd, *argv], cwd=work, env=clean_env(), capture_output=True, text=True,
+                              timeout=300, **kw)
+
+    where = run("-c", "import hil, drivers, sim_plant; print(hil.__file__, drivers.__file__, sim_plant.__file__)",
+                cmd=(py,))
+    site = str(venv / "lib")
+    assert all(p.startswith(site) for p in where.stdout.split()), where.stdout + where.stderr
+    assert run("--version").stdout.strip().startswith("hil ")
+
+    r = run("model", "--config", "paper_bench.toml", "--json", "--out", "out/model")
+    assert r.returncode == 0, r.stderr
+    model = json.loads(r.stdout)
+    assert model["config"].startswith(site) and model["masses_kg"] == [335.57, 392.97, 4.228]
+    assert (work / "out" / "model" / "bode_tf.png").is_file()
+    r = run("model", "--config", "nope.toml")
+    assert r.returncode == 2 and "paper_bench.toml" in r.stderr
+
+    # README, CANopen, "Try it": the drive in one process, the host in another (a free port here)
+    sets = ["--config", "config/paper_bench_canopen.toml", "--set", "canopen.tip_node_id=2"]
+    drive = subprocess.Popen([hil, "drive-sim", *sets, "--port", "0", "--json", "--seconds", "240"], cwd=work,
+                             env=clean_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = drive.stdout.readline()
+        assert line, drive.stderr.read() if drive.poll() is not None else "hil drive-sim printed nothing"
+        info = json.loads(line)
+        assert info["tip_node_id"] == 2
+        r = run("move", *sets, "--set", "canopen.interface=socketcand", "--set", f"canopen.channel={info['channel']}",
+                "--set", f"canopen.port={info['port']}", "--backend", "canopen", "--stroke", "20mm",
+                "--feed", "6000mm/min", "--amax", "2m/s^2", "--dwell", "0.3s", "--back", "--json",
+                "--out", "out/move")
+        assert r.returncode == 0, r.stdout + r.stderr
+        move = json.loads(r.stdout)
+        assert move["status"] == "complete" and move["backend"] == "canopen"
+        assert (work / "out" / "move" / "move.csv").is_file()
+    finally:
+        drive.send_signal(signal.SIGINT)
+        try:
+            drive.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            drive.kill()
+            drive.wait()
+    assert drive.returncode == 0, drive.stderr.read()
