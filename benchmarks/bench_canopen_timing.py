@@ -16,7 +16,6 @@ import os
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +83,7 @@ def main(argv=None):
                 "runtime.priority": args.priority}
         cfg = config.load(ROOT / "config/paper_bench_canopen.toml", over)
         import can
+
         from drivers.canopen.drive_sim import DriveSim
         if "virtual" in transports:
             sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="bench"), lockstep=False)

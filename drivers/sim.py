@@ -12,20 +12,27 @@ the compiled loop: the output delay (in torque mode the host's loop applies the 
 output delay and this backend the plant's transport delay), the current loop's lag and the
 effect table.
 
-For dry runs, :meth:`SimulatedPlant.run` runs a whole command through the compiled loop at once.
+For dry runs the runtime (hil.runtime) sends a whole command through the compiled loop
+(hil.simulate) on this backend's plant and controller, at once.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from hil.control import (controller_from_config, delay_line, loop_terms, measured_speed, new_velocity_state,
-                         position_law, quantize, velocity_law)
-from hil.plant_config import plant_from_config
-from hil.simulate import simulate
-from sim_plant.kernel import plant_step
-
 from drivers.base import LOOPS, Backend, Feedback, Setpoint
+from hil.control import (
+    controller_from_config,
+    delay_line,
+    loop_terms,
+    measured_speed,
+    new_velocity_state,
+    position_law,
+    quantize,
+    velocity_law,
+)
+from hil.plant_config import plant_from_config
+from sim_plant.kernel import plant_step
 
 __all__ = ["SimulatedPlant"]
 
@@ -166,8 +173,3 @@ class SimulatedPlant(Backend):
 
     def close(self) -> None:
         self.enabled = False
-
-    # -- dry runs --------------------------------------------------------------------------------
-    def run(self, x_cmd, record_every: int | None = None):
-        """The whole command through the compiled closed loop (as fast as the computer can)."""
-        return simulate(self.plant, self.ctrl, x_cmd, record_every=record_every)

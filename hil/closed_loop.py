@@ -13,11 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_plant.transfer import chain_tfs
-
 from hil.control import controller_from_config
 from hil.errors import UnstableLoopError
 from hil.plant_config import plant_from_config
+from sim_plant.transfer import chain_tfs
 
 __all__ = ["ClosedLoopResponse", "closed_loop_response", "closed_loop_report", "bandwidth"]
 

@@ -36,7 +36,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.base import Backend, BackendFault, Feedback, Setpoint
-
 from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
 
 __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]

@@ -15,13 +15,13 @@ import numpy as np
 from drivers import open_backend
 from drivers.base import BackendFault
 from drivers.sim import SimulatedPlant
-
 from hil.closed_loop import check_loop_stability
 from hil.control import controller_from_config
-from hil.loop import ControlLoop, LoopResult
 from hil.io.measurement import read as read_measurement
-from hil.profiles import AxisLimits, Trajectory, check_limits
 from hil.io.recorder import Recorder
+from hil.loop import ControlLoop, LoopResult
+from hil.profiles import AxisLimits, Trajectory, check_limits
+from hil.simulate import simulate
 
 __all__ = ["RunRecord", "run_trajectory", "record_channels"]
 
@@ -60,7 +60,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     info.update(meta or {})
     if isinstance(backend, SimulatedPlant) and backend.closes == "none":
         backend.home_at(x_cmd[0])
-        sim = backend.run(x_cmd)
+        # a dry run: the whole command through the compiled closed loop, as fast as the computer can
+        sim = simulate(backend.plant, backend.ctrl, x_cmd)
         ch = sim.channels()
         chans = {n: ch[n] for n in names}
         if out_file is not None:

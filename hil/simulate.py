@@ -15,12 +15,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from hil.control import (
+    ControllerSettings,
+    controller_from_config,
+    delay_line,
+    loop_terms,
+    measured_speed,
+    new_velocity_state,
+    pi_law,
+    position_law,
+    quantize,
+)
+from hil.plant_config import plant_from_config
 from sim_plant.kernel import plant_step
 from sim_plant.plant import Plant
-
-from hil.control import (ControllerSettings, controller_from_config, delay_line, loop_terms, measured_speed,
-                         new_velocity_state, pi_law, position_law, quantize)
-from hil.plant_config import plant_from_config
 
 __all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel"]
 

@@ -10,6 +10,7 @@ import sys
 
 import can
 import pytest
+from canopen_rig import channel, rig
 
 from drivers.base import Backend, Feedback
 from drivers.canopen.backend import CanopenBackend
@@ -20,8 +21,6 @@ from hil.cli import main
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 from hil.supervisor import Supervisor
-
-from canopen_rig import channel, rig
 
 CANOPEN = "config/paper_bench_canopen.toml"
 SERIAL = "config/serial_ascii_example.toml"

@@ -9,16 +9,16 @@ import socket
 import can
 import pytest
 from canopen.profiles.p402 import OperationMode, State402
+from canopen_rig import channel, rig
 
-from drivers.canopen import cia402
 from drivers.base import BackendFault
+from drivers.canopen import cia402
 from drivers.canopen.backend import CanopenBackend
 from drivers.canopen.drive_sim import DriveSim
 from hil import config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 
-from canopen_rig import channel, rig
 
 def _rig(mode="csp", **ov):
     return rig(mode, prefix="co", **ov)
@@ -235,6 +235,7 @@ def test_sweep_on_the_canopen_backend_matches_the_simulated_plant():
 def test_hil_move_and_sweep_commands_on_the_canopen_backend(tmp_path, capsys):
     """The CLI, as a user runs it, against the lockstep drive on the same virtual channel."""
     import json
+
     from hil.cli import main
     cfg, ch, sim = _drive_on_channel()
     sets = ["--set", "canopen.lockstep=true", "--set", "canopen.interface=virtual", "--set", f"canopen.channel={ch}"]

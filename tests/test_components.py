@@ -7,8 +7,17 @@ import pytest
 from hil.config import ConfigError
 from hil.plant_config import components_from_dict, load_components
 from sim_plant.chain import Chain
-from sim_plant.components import (equivalents, k1_equivalent, k_axial, k_flexure, k_nut_table, k_screw_axial,
-                                  k_torsional, m1_equivalent, m2_equivalent)
+from sim_plant.components import (
+    equivalents,
+    k1_equivalent,
+    k_axial,
+    k_flexure,
+    k_nut_table,
+    k_screw_axial,
+    k_torsional,
+    m1_equivalent,
+    m2_equivalent,
+)
 
 BENCH = "config/paper_bench_components.toml"
 R2 = (2 * math.pi / 0.01) ** 2

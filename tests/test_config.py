@@ -2,11 +2,10 @@
 import math
 
 import pytest
+from conftest import CONFIG
 
 from hil import config
 from hil.units import UnitError, parse, parse_list
-
-from conftest import CONFIG
 
 
 @pytest.mark.parametrize("text, kind, si", [

@@ -107,6 +107,7 @@ def test_output_error_fit_lands_on_the_published_values():
 def test_cli_diagnose_json_names_the_pair(capsys):
     # the JSON: candidates ranked, verdict; also_missing beside the verdict
     import json
+
     from hil.cli import main
     rc = main(["diagnose", str(DATA), "--config", "config/emps.toml", "--map", "t=t,qg=x_cmd,qm=x_motor,vir*gtau=force",
                "--candidates", "coulomb_friction,constant_force,asymmetric_friction", "--jobs", "1", "--json"])

@@ -2,12 +2,11 @@
 import json
 
 import pytest
+from conftest import CONFIG
 
 from hil.cli import main
 from hil.config import load
 from hil.ident.frf_fit import FrfDataError, fit_frf, is_frf_file, load_frf
-
-from conftest import CONFIG
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,6 @@ import zipfile
 from pathlib import Path
 
 import pytest
-
 from conftest import CONFIG, ROOT
 
 PACKAGES = ("hil", "drivers", "sim_plant")

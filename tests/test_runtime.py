@@ -5,19 +5,18 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
+from conftest import CONFIG
 
 from drivers.base import Backend, BackendFault, Feedback
 from drivers.sim import SimulatedPlant
 from hil.control import ControllerSettings, new_velocity_state, velocity_law
-from hil.loop import ControlLoop
 from hil.io.measurement import read
+from hil.io.recorder import Recorder
+from hil.loop import ControlLoop
 from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
-from hil.io.recorder import Recorder
 from hil.runtime import record_channels, run_trajectory
 from hil.simulate import simulate_config
-
-from conftest import CONFIG
 
 P = 0.01
 R = 2 * math.pi / P

@@ -13,8 +13,7 @@ import pytest
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 
 from drivers.base import BackendFault, Setpoint  # noqa: E402
-from drivers.serial.protocol import (ChecksumError, CommandSet, GarbledReply, ReplyError,  # noqa: E402
-                                     UnexpectedReply, render_reply)
+from drivers.serial.protocol import ChecksumError, CommandSet, GarbledReply, ReplyError, UnexpectedReply, render_reply  # noqa: E402
 from hil.config import load  # noqa: E402
 
 CONFIG = "config/serial_ascii_example.toml"
@@ -215,8 +214,8 @@ def test_watchdog_stops_drive_when_host_falls_silent(cfg, drive):
 
 
 def test_no_port_is_a_clear_fault(cfg):
-    from drivers.serial.backend import SerialBackend
     from drivers import BackendError
+    from drivers.serial.backend import SerialBackend
     with pytest.raises(BackendError, match="serial.port"):
         SerialBackend(cfg)
     with pytest.raises(BackendFault, match="cannot open"):

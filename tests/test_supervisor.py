@@ -5,14 +5,14 @@ import json
 import math
 
 import pytest
+from canopen_rig import rig
 
 from drivers.base import Setpoint
 from hil.io.measurement import read as read_measurement
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
-
-from canopen_rig import rig
 from hil.supervisor import Supervisor, SupervisorTripped
+
 
 def _rig(mode="csp", **ov):
     return rig(mode, prefix="sup", **ov)

@@ -53,13 +53,13 @@ import time
 import can
 import canopen
 
+from drivers.base import Backend, BackendFault, Feedback, Setpoint
+from drivers.canopen import cia402
+from drivers.canopen import eds as eds_files
 from hil.config import Field, register_section
 from hil.control import controller_from_config
 from hil.errors import ConfigError
 from hil.plant_config import plant_from_config
-
-from drivers.base import Backend, BackendFault, Feedback, Setpoint
-from drivers.canopen import cia402, eds as eds_files
 
 __all__ = ["CanopenBackend", "SECTION"]
 

@@ -33,12 +33,12 @@ import time
 import can
 import canopen
 
+from drivers.base import Setpoint
+from drivers.canopen import cia402
+from drivers.canopen import eds as eds_files
+from drivers.sim import SimulatedPlant
 from hil.control import new_velocity_state, velocity_law
 from hil.errors import ConfigError
-
-from drivers.base import Setpoint
-from drivers.canopen import cia402, eds as eds_files
-from drivers.sim import SimulatedPlant
 
 __all__ = ["DriveSim", "TipSensorSim", "FAULTS", "SocketcandServerBus"]
 

@@ -36,13 +36,12 @@ import time
 
 import serial
 
+from drivers.base import Backend, BackendFault, Feedback, Setpoint
+from drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError
 from hil.config import Field, register_section
 from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, velocity_law
 from hil.errors import BackendError, ConfigError
 from hil.plant_config import plant_from_config
-
-from drivers.base import Backend, BackendFault, Feedback, Setpoint
-from drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError
 
 __all__ = ["SerialBackend", "SerialStats"]
 

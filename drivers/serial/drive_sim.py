@@ -40,12 +40,11 @@ import tty
 
 import numpy as np
 
-from hil.config import load
-from hil.errors import ConfigError
-
 from drivers.base import Setpoint
 from drivers.serial.protocol import CommandSet, ReplyError, command_pattern, render_reply
 from drivers.sim import SimulatedPlant
+from hil.config import load
+from hil.errors import ConfigError
 
 __all__ = ["SimulatedSerialDrive", "serve", "FAULTS", "parse_fault"]
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+
 from hil.io.jsonout import dumps
 
 HELP = "model against measurement: errors per channel and motion phase, residual analysis, plots, HTML report"

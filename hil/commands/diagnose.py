@@ -35,9 +35,8 @@ def candidates_json(d):
 
 
 def run(args) -> int:
-    from hil.plant_config import candidate
-
     from hil.ident.diagnosis import diagnose
+    from hil.plant_config import candidate
     cfg, meas = load_inputs(args)
     rp = make_replay(args, cfg, meas)
     names = args.candidates.split(",") if args.candidates else None

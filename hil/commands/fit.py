@@ -34,9 +34,8 @@ def run(args) -> int:
     from hil.ident.frf_fit import is_frf_file
     if is_frf_file(args.data):
         return _run_frequency(args)
-    from hil.plant_config import candidate
-
     from hil.ident.fit import fit_effects, joint_refit
+    from hil.plant_config import candidate
     cfg, meas = load_inputs(args)
     for n in args.add:
         try:

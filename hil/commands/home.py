@@ -1,9 +1,8 @@
 """``hil home``: CiA 402 homing (mode 6) on the drive."""
 from __future__ import annotations
 
-
-from hil.units import parse
 from hil.io.jsonout import dumps
+from hil.units import parse
 
 HELP = "home the CANopen drive (homing mode 6; method 37: the present position becomes --offset)"
 DESCRIPTION = """Home the drive: homing mode (6) with the method given (default 37, CiA 402 'homing
@@ -22,9 +21,9 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from drivers.base import BackendFault
-    from hil.errors import UserError
-    from hil.commands.move import load_config
     from drivers.canopen.backend import CanopenBackend
+    from hil.commands.move import load_config
+    from hil.errors import UserError
     cfg = load_config(args)
     offset = parse(args.offset, "length", "--offset")
     be = CanopenBackend(cfg)

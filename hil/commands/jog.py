@@ -1,9 +1,8 @@
 """``hil jog``: a short relative move from where the axis is, supervised."""
 from __future__ import annotations
 
-
-from hil.units import parse
 from hil.io.jsonout import dumps
+from hil.units import parse
 
 HELP = "jog the axis by a distance from its present position (CANopen backend, supervised)"
 DESCRIPTION = """Move the axis by --distance from where it stands, at --speed with --amax, through the
@@ -24,8 +23,8 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from drivers.canopen.backend import CanopenBackend
-    from hil.errors import UserError
     from hil.commands.status import connected
+    from hil.errors import UserError
     from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
     from hil.runtime import run_trajectory
     from hil.supervisor import Supervisor, SupervisorTripped

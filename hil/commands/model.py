@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+
 from hil.io.jsonout import dumps
 
 HELP = "model summary: modes, damping ratios, Bode plots of TF1, TF2, TF3"
@@ -30,8 +31,8 @@ def add_arguments(parser) -> None:
 
 def model_report(cfg) -> dict:
     """The numbers ``hil model`` reports, SI units, from a validated config."""
-    from sim_plant.chain import Chain
     from hil.plant_config import plant_from_config
+    from sim_plant.chain import Chain
 
     plant = plant_from_config(cfg)
     ch = plant.chain
@@ -64,10 +65,10 @@ def model_report(cfg) -> dict:
 def write_plots(cfg, report: dict, out_dir: Path) -> str:
     import numpy as np
 
-    from sim_plant.chain import Chain
     from hil.plant_config import plant_from_config
-    from sim_plant.transfer import chain_tfs
     from hil.plots.model import bode_figure
+    from sim_plant.chain import Chain
+    from sim_plant.transfer import chain_tfs
 
     # the mechanical chain, as in Table 1 and Fig. 9: the motor's friction is a disturbance there
     ch = plant_from_config(cfg).chain
@@ -108,8 +109,8 @@ def _text(r: dict) -> str:
 
 
 def run(args) -> int:
-    from hil.errors import UserError
     from hil.config import load, parse_assignment
+    from hil.errors import UserError
 
     overrides = dict(parse_assignment(s) for s in args.set)
     cfg = load(args.config, overrides)

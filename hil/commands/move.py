@@ -6,8 +6,8 @@ from typing import TYPE_CHECKING
 
 from hil import config as config_mod
 from hil.errors import UserError
-from hil.units import parse
 from hil.io.jsonout import dumps
+from hil.units import parse
 
 if TYPE_CHECKING:
     from hil.profiles import Trajectory

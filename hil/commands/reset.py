@@ -1,5 +1,6 @@
 """``hil reset``: CiA 402 fault reset on the drive and the supervisor's latch cleared."""
 from __future__ import annotations
+
 from hil.io.jsonout import dumps
 
 HELP = "reset a drive fault (controlword bit 7) and clear the supervisor's latched trip"

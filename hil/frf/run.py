@@ -28,11 +28,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from hil.control import measured_speed, new_velocity_state, position_law, quantize, velocity_law
+from hil.control import loop_terms, measured_speed, new_velocity_state, position_law, quantize, velocity_law
 from hil.errors import BackendFault, SupervisorTripped
 from hil.frf.excitation import Excitation, make_excitation
 from hil.loop import CYCLE_CHANNELS, ControlLoop, Injection
-from hil.control import loop_terms
 from sim_plant.kernel import plant_step as _plant_step
 
 __all__ = ["CH", "FrfSettings", "FrfRecord", "settle_time", "run_sim", "run_backend"]

@@ -25,14 +25,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_plant.effects import CATALOGUE
-from hil.plant_config import candidate, default_parameters
-
 from hil.ident.evidence import evidence
 from hil.ident.fit import Candidate, evaluate
 from hil.ident.parallel import evaluate_many
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
+from hil.plant_config import candidate, default_parameters
+from sim_plant.effects import CATALOGUE
 
 __all__ = ["diagnose", "candidate_names", "Combo", "pair_score", "EXPLAINED"]
 

@@ -16,8 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.plant_config import candidate
-
 from hil.config import load
 from hil.ident.diagnosis import diagnose
 from hil.ident.fit import evaluate, fit_effects, joint_refit
@@ -25,6 +23,7 @@ from hil.ident.inverse import idim_ls
 from hil.ident.replay import Replay
 from hil.ident.scores import relative_error
 from hil.io.importers import read_mat
+from hil.plant_config import candidate
 
 __all__ = ["PUBLISHED", "MAPPING", "DIAGNOSE_CANDIDATES", "EmpsResult", "run_emps", "velocity", "errors",
            "params_of", "with_rigid", "check_published", "table_markdown", "diagnosis_markdown"]

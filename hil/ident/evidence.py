@@ -18,9 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hil.plant_config import candidate, plant_from_config
-
 from hil.ident.replay import Replay
+from hil.plant_config import candidate, plant_from_config
 
 __all__ = ["evidence", "model_modes"]
 

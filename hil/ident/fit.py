@@ -20,14 +20,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from sim_plant.effects import Effect
-from hil.plant_config import candidate
-
 from hil.ident.evidence import evidence, model_modes
 from hil.ident.objective import Objective
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, SIGNIFICANT_ABOVE_NOISE, bic_score
 from hil.ident.starts import record_scales, starting_values
+from hil.plant_config import candidate
+from sim_plant.effects import Effect
 
 __all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit"]
 

@@ -17,12 +17,11 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from sim_plant.effects import Combination
-from hil.plant_config import candidate, plant_from_config
-
 from hil.control import controller_from_config
 from hil.errors import MeasurementError
 from hil.frf import model_responses
+from hil.plant_config import candidate, plant_from_config
+from sim_plant.effects import Combination
 
 __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RESPONSES"]
 

@@ -10,9 +10,8 @@ from __future__ import annotations
 
 import multiprocessing as mp
 
-from hil.plant_config import candidate
-
 from hil.ident.fit import evaluate
+from hil.plant_config import candidate
 
 __all__ = ["evaluate_many"]
 

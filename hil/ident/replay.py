@@ -20,13 +20,12 @@ import math
 
 import numpy as np
 
-from hil.plant_config import plant_from_config
-
 from hil.control import controller_from_config
 from hil.errors import UserError
 from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
 from hil.ident.scores import noise_floor
+from hil.plant_config import plant_from_config
 from hil.simulate import simulate
 
 __all__ = ["Replay", "POSITION_CHANNELS", "UNITS"]

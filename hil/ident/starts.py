@@ -20,10 +20,9 @@ import math
 
 import numpy as np
 
-from sim_plant.effects import Combination, Effect
-
 from hil.ident.replay import Replay
 from hil.ident.residual import periodic_in_position, spectrum_peaks
+from sim_plant.effects import Combination, Effect
 
 __all__ = ["record_scales", "starting_values"]
 

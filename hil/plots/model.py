@@ -47,8 +47,9 @@ def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
 def closed_loop_figure(r, out_dir) -> Path:
     """The right panels of Fig. 9: closed position loop to the table, with and without the
     feed-forward, alone and followed by TF3."""
-    import matplotlib.pyplot as plt
     from pathlib import Path as _P
+
+    import matplotlib.pyplot as plt
     fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     for h, label, style in ((r.table, "table, with FFV", "-"), (r.table_no_ff, "table, no FFV", "--"),
                             (r.table_tf3, "table x TF3, with FFV", "-"),

@@ -16,8 +16,8 @@ import hashlib
 from dataclasses import replace
 
 from hil.control import controller_from_config
-from sim_plant.chain import Chain
 from hil.plant_config import plant_from_config
+from sim_plant.chain import Chain
 
 __all__ = ["fingerprint", "model_of"]
 
