@@ -5,7 +5,9 @@ The control law is hil.control's (the same functions the real-time loop calls), 
 terms between the law and the plant (delays, current-loop lag, effect table:
 :func:`hil.control.loop_terms`); the plant step and its forces (dry friction, effects) are
 sim_plant.kernel's. :func:`simulate` returns a
-:class:`SimulationResult`, a plain data object (plotting lives in hil.plots).
+:class:`SimulationResult`, a plain data object (plotting lives in hil.plots). The
+frequency-response experiment (hil.frf.run) runs the same compiled loop, :func:`closed_loop_kernel`,
+with its excitation, measurement noise and per-period record, which the simulation leaves out.
 """
 from __future__ import annotations
 
@@ -77,12 +79,22 @@ class SimulationResult:
 @njit(cache=True)
 def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
                        codes, eparams, delay, ubuf, lag_alpha, record_every,
-                       X, V, U, XM, XT, XCMD):
+                       X, V, U, XM, XT, XCMD, exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None):
     """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
     output arrays (positions, velocities, output, measured motor and table, command).
 
     ``delay``: computation delay of the output in velocity periods (float: a transport delay
-    of the plant adds a fraction, interpolated linearly between the held outputs)."""
+    of the plant adds a fraction, interpolated linearly between the held outputs).
+
+    The frequency-response experiment (hil.frf) adds, each None where absent (numba then
+    compiles it away): ``exc``, one excitation value per velocity period, added to the output
+    before its limit (or to the speed reference, ``exc_into_speed``), and then no acceleration
+    feed-forward; measurement noise on the motor speed (``noise_w``, one per velocity period)
+    and on the motor, table and tip positions (``noise_x``, one row per velocity period); ``out``,
+    one row per velocity period with the columns of hil.loop.CYCLE_CHANNELS. ``X`` (and the other
+    records) may be None when ``out`` is given.
+
+    Returns the number of velocity periods in which the excitation drove the output past its limit."""
     nn = Ad.shape[0]
     n = nn // 2
     x = x0.copy()
@@ -102,12 +114,16 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     saturated = False
     countdown = 1                  # velocity steps until the next recorded sample
     rec = 0
+    n_sat = 0
     w_ref = 0.0
     a_cmd = 0.0
     for k in range(K):
         # --- position loop, tick k ---
         xm = quantize(x[0], res_motor)
         xt = quantize(x[table], res_table)
+        if noise_x is not None:
+            xm += noise_x[k * n_sub, 0]
+            xt += noise_x[k * n_sub, 1]
         xfb = xm if fb_motor else xt
         w_ref = position_law(p, x_cmd[k], x_cmd[k + 1], xfb)
         if k > 0:
@@ -115,32 +131,68 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
         else:
             a_cmd = (x_cmd[k + 1] - x_cmd[k]) / (tp * tp)
         ff = acc_ff * a_cmd
+        if exc is not None:
+            ff = 0.0
         for j in range(n_sub):
             # --- velocity loop ---
-            if speed_from_position:
-                w_meas = measured_speed(p, s, x[n], quantize(x[0], res_motor))
+            step = k * n_sub + j
+            r = 0.0
+            w_ref_v = w_ref
+            if exc is not None:
+                r = exc[step]
+                w_ref_v = w_ref + (r if exc_into_speed else 0.0)
+            # the encoders as read this period (the measured speed of the noisy run is always hil.control's)
+            xm = quantize(x[0], res_motor)
+            if noise_x is not None:
+                xm += noise_x[step, 0]
+            if noise_w is not None:
+                w_meas = measured_speed(p, s, x[n] + noise_w[step], xm)
+            elif speed_from_position:
+                w_meas = measured_speed(p, s, x[n], xm)
             else:
                 w_meas = x[n] * speed_scale
-            u, integral, saturated = pi_law(kp, ti, tv, limit, integral, saturated, w_ref, w_meas, ff)
+            u_ctrl, integral, saturated = pi_law(kp, ti, tv, limit, integral, saturated, w_ref_v, w_meas, ff)
+            u = u_ctrl
+            if exc is not None:
+                # a torque excitation is added to the controller's output and limited with it
+                u = u_ctrl + (0.0 if exc_into_speed else r)
+                if u > limit:
+                    u = limit
+                    n_sat += 1
+                elif u < -limit:
+                    u = -limit
+                    n_sat += 1
+            if out is not None:
+                out[step, 0] = r
+                out[step, 1] = u
+                out[step, 2] = u_ctrl
+                out[step, 3] = w_ref_v - w_meas
+                out[step, 4] = w_meas
+                out[step, 5] = w_ref
+                out[step, 6] = w_ref_v
+                out[step, 7] = xm
+                out[step, 8] = quantize(x[table], res_table) + (noise_x[step, 1] if noise_x is not None else 0.0)
+                out[step, 9] = x[tip] + (noise_x[step, 2] if noise_x is not None else 0.0)
             # computation delay, then the current loop (ideal, or a first-order lag)
             if ubuf is not None:       # None (no delay): compiled away
                 u = delay_line(ubuf, u, d_int, d_frac)
             u_act += lag_alpha * (u - u_act)
-            countdown -= 1
-            if countdown == 0:
-                countdown = record_every
-                for i in range(n):
-                    X[rec, i] = x[i]
-                    V[rec, i] = x[n + i]
-                U[rec] = u_act
-                XM[rec] = quantize(x[0], res_motor)
-                XT[rec] = quantize(x[table], res_table)
-                # between ticks the command is interpolated, as the NC's fine interpolation would
-                XCMD[rec] = x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub
-                rec += 1
+            if X is not None:
+                countdown -= 1
+                if countdown == 0:
+                    countdown = record_every
+                    for i in range(n):
+                        X[rec, i] = x[i]
+                        V[rec, i] = x[n + i]
+                    U[rec] = u_act
+                    XM[rec] = quantize(x[0], res_motor)
+                    XT[rec] = quantize(x[table], res_table)
+                    # between ticks the command is interpolated, as the NC's fine interpolation would
+                    XCMD[rec] = x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub
+                    rec += 1
             # --- plant over one Tv ---
             plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-    return rec
+    return n_sat
 
 
 def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int | None = None,

@@ -13,7 +13,7 @@ loop), the encoders ``x_motor``, ``x_table``, ``x_tip``.
 
 Two ways to run it, with the same numbers on the simulated plant:
 
-* :func:`run_sim`: the compiled closed loop with the excitation (``_frf_kernel``), optional
+* :func:`run_sim`: hil.simulate's compiled closed loop with the excitation and optional
   measurement noise;
 * :func:`run_backend`: cycle by cycle through the backend contract (drivers.base), on
   hil.loop's :class:`~hil.loop.ControlLoop` with an :class:`~hil.loop.Injection`; the host closes
@@ -26,79 +26,17 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numba import njit
 
-from hil.control import loop_terms, measured_speed, new_velocity_state, position_law, quantize, velocity_law
+from hil.control import loop_terms
 from hil.errors import BackendFault, SupervisorTripped
 from hil.frf.excitation import Excitation, make_excitation
 from hil.loop import CYCLE_CHANNELS, ControlLoop, Injection
-from sim_plant.kernel import plant_step as _plant_step
+from hil.simulate import closed_loop_kernel
 
 __all__ = ["CH", "FrfSettings", "FrfRecord", "settle_time", "run_sim", "run_backend"]
 
 # recorded channels, one column each, every velocity period (the compiled run writes the same)
 CH = CYCLE_CHANNELS
-
-
-@njit(cache=True)
-def _frf_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
-                codes, eparams, delay, lag_alpha, exc, mode, noise_w, noise_x, out):
-    """Closed loop with the excitation ``exc`` (one value per velocity period) added to the output
-    (mode 0) or to the speed reference (mode 1). Records every velocity period into ``out``
-    (columns: see CH). Returns the number of saturated velocity periods."""
-    nn = Ad.shape[0]
-    n = nn // 2
-    x = x0.copy()
-    x_new = np.zeros(nn)
-    f = np.zeros(n)
-    s = new_velocity_state()
-    d_int = int(math.floor(delay))
-    d_frac = delay - d_int
-    ubuf = np.zeros(d_int + 2)
-    u_act = 0.0
-    dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
-    K = x_cmd.shape[0] - 1
-    lim = p[6]
-    step = 0
-    sat = 0
-    w_pos = 0.0
-    for k in range(K):
-        xm = quantize(x[0], res_motor) + noise_x[step, 0]
-        xt = quantize(x[table], res_table) + noise_x[step, 1]
-        xfb = xm if fb_motor else xt
-        w_pos = position_law(p, x_cmd[k], x_cmd[k + 1], xfb)
-        for j in range(n_sub):
-            r = exc[step]
-            xm = quantize(x[0], res_motor) + noise_x[step, 0]
-            w_meas = measured_speed(p, s, x[n] + noise_w[step], xm)
-            w_ref = w_pos + (r if mode == 1 else 0.0)
-            uc = velocity_law(p, s, w_ref, w_meas, 0.0)
-            u = uc + (r if mode == 0 else 0.0)
-            if u > lim:
-                u = lim
-                sat += 1
-            elif u < -lim:
-                u = -lim
-                sat += 1
-            out[step, 0] = r
-            out[step, 1] = u
-            out[step, 2] = uc
-            out[step, 3] = w_ref - w_meas
-            out[step, 4] = w_meas
-            out[step, 5] = w_pos
-            out[step, 6] = w_ref
-            out[step, 7] = xm
-            out[step, 8] = quantize(x[table], res_table) + noise_x[step, 1]
-            out[step, 9] = x[tip] + noise_x[step, 2]
-            if delay > 0.0:
-                for i in range(d_int + 1, 0, -1):
-                    ubuf[i] = ubuf[i - 1]
-                ubuf[0] = u
-                u = (1.0 - d_frac) * ubuf[d_int] + d_frac * ubuf[d_int + 1]
-            u_act += lag_alpha * (u - u_act)
-            _plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-            step += 1
-    return sat
 
 
 @dataclass
@@ -201,10 +139,11 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
         progress(f"exciting: {st.signal} {st.input} disturbance, {st.band[0]:g}..{st.band[1]:g} Hz, "
                  f"{n_settle} settling + {st.periods} averaged periods of {exc.period:g} s at "
                  f"{st.speed * 1e3:g} mm/s ({steps} velocity periods)")
-    sat = _frf_kernel(disc.A, disc.B, x0v, ctrl.as_array(), plant.force_gain, x_cmd, ctrl.substeps, plant.table,
-                      plant.tip, ctrl.position_feedback == "motor", plant.friction.as_array(),
-                      plant.table_resolution, plant.motor_resolution, terms.codes, terms.params, terms.delay,
-                      terms.lag_alpha, r, 0 if st.input == "torque" else 1, nw, nx, out)
+    sat = closed_loop_kernel(disc.A, disc.B, x0v, ctrl.as_array(), plant.force_gain, x_cmd, ctrl.substeps, plant.table,
+                             plant.tip, ctrl.position_feedback == "motor", plant.friction.as_tuple(),
+                             plant.table_resolution, plant.motor_resolution, terms.codes, terms.params, terms.delay,
+                             terms.delay_buffer(), terms.lag_alpha, 1, None, None, None, None, None, None,
+                             exc=r, exc_into_speed=st.input == "velocity", noise_w=nw, noise_x=nx, out=out)
     return FrfRecord(out, tv, exc, start, st.periods, int(sat), plant.tip != plant.table, st.input, "sim")
 
 
@@ -229,7 +168,7 @@ def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, 
                          f"this one closes {backend.closes!r}")
     exc, x_cmd, r, start, _ = _experiment(plant, ctrl, st, backend.read_feedback().x_table)
     injection = Injection(r, st.input)
-    # as the compiled run (_frf_kernel): no acceleration feed-forward on the working point's ramp
+    # as the compiled run (run_sim): no acceleration feed-forward on the working point's ramp
     loop = ControlLoop(backend, replace(ctrl, acc_ff=0.0), clock=clock, supervisor=supervisor,
                        injection=injection, progress=(lambda done: progress(f"  {done:5.1%}")) if progress else None)
     result = loop.run(x_cmd[:-1], x_after=x_cmd[-1])
