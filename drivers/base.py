@@ -80,6 +80,9 @@ class Feedback:
     output: float = 0.0
     x_tip: float = math.nan
     fault: str = ""
+    # the position the position loop uses where it differs from the recorded one (a simulated scale
+    # read late over a fieldbus); NaN: x_table or x_motor, as the controller's position_feedback says
+    x_feedback: float = math.nan
 
 
 @dataclass

@@ -24,6 +24,8 @@ from drivers.base import LOOPS, Backend, Feedback, Setpoint
 from hil.control import (
     controller_from_config,
     delay_line,
+    history_push,
+    history_read,
     loop_terms,
     measured_speed,
     new_velocity_state,
@@ -39,10 +41,11 @@ __all__ = ["SimulatedPlant"]
 
 @njit(cache=True)
 def drive_steps(Ad, Bd, x, s, p, w_ref, steps, res_motor, ubuf, d_int, d_frac, lag_alpha, u_act, fgain, fric, dry,
-                codes, eparams, f, x_new):
+                codes, eparams, f, x_new, hbuf=None, fb_mass=0, fb_res=0.0):
     """``steps`` velocity-loop steps of a drive that closes the velocity loop itself (the simulated
     plant standing in for a drive in velocity or position mode): returns the current loop's
-    state. The same law, delay line and plant step as the closed-loop kernel."""
+    state. The same law, delay line and plant step as the closed-loop kernel; ``hbuf``: the
+    history of the position loop's feedback (mass ``fb_mass`` read at ``fb_res``), or None."""
     n = Ad.shape[0] // 2
     for _ in range(steps):
         w = measured_speed(p, s, x[n], quantize(x[0], res_motor))
@@ -51,16 +54,22 @@ def drive_steps(Ad, Bd, x, s, p, w_ref, steps, res_motor, ubuf, d_int, d_frac, l
             u = delay_line(ubuf, u, d_int, d_frac)
         u_act += lag_alpha * (u - u_act)
         plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+        if hbuf is not None:
+            history_push(hbuf, quantize(x[fb_mass], fb_res))
     return u_act
 
 
 @njit(cache=True)
-def coast_steps(Ad, Bd, x, steps, lag_alpha, u_act, fgain, fric, dry, codes, eparams, f, x_new):
+def coast_steps(Ad, Bd, x, steps, lag_alpha, u_act, fgain, fric, dry, codes, eparams, f, x_new, hbuf=None,
+                fb_mass=0, fb_res=0.0):
     """``steps`` plant steps with no torque commanded (a disabled drive): the current decays
-    through the current loop's lag, the plant coasts. Returns the current loop's state."""
+    through the current loop's lag, the plant coasts (the feedback history, ``hbuf``, goes on).
+    Returns the current loop's state."""
     for _ in range(steps):
         u_act += lag_alpha * (0.0 - u_act)
         plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+        if hbuf is not None:
+            history_push(hbuf, quantize(x[fb_mass], fb_res))
     return u_act
 
 
@@ -82,6 +91,12 @@ class SimulatedPlant(Backend):
         # in torque mode the host's loop delays its output itself (hil.loop); the plant's transport delay is ours
         self.terms = loop_terms(self.plant, self.ctrl, with_output_delay=closes != "none")
         self._ubuf = self.terms.delay_buffer()
+        # the position loop's feedback history (a feedback delay of the plant), or None
+        motor_fb = self.ctrl.position_feedback == "motor"
+        self._fb_mass = 0 if motor_fb else self.plant.table
+        self._fb_res = self.plant.motor_resolution if motor_fb else self.plant.table_resolution
+        self._hbuf = self.terms.feedback_buffer()
+        self._fparts = self.terms.feedback_parts
         self._fric = self.plant.friction.as_tuple()
         self._dry = self.plant.friction.active
         n = self.plant.n
@@ -94,6 +109,7 @@ class SimulatedPlant(Backend):
         self._enabled = False
         self.time = 0.0
         self._u_act = 0.0
+        self._push_feedback()
 
     # -- contract -------------------------------------------------------------------------------
     def open(self) -> None:
@@ -107,6 +123,16 @@ class SimulatedPlant(Backend):
         self._s = new_velocity_state()
         self._prev_position = position
         self._ubuf = self.terms.delay_buffer()
+        self._hbuf = self.terms.feedback_buffer()
+        self._push_feedback()
+
+    def _push_feedback(self) -> None:
+        if self._hbuf is not None:
+            history_push(self._hbuf, quantize(self.x[self._fb_mass], self._fb_res))
+
+    def _late_feedback(self) -> float:
+        """The position the position loop receives (the feedback delay's history), NaN without one."""
+        return float(history_read(self._hbuf, *self._fparts)) if self._hbuf is not None else float("nan")
 
     @property
     def enabled(self) -> bool:
@@ -126,7 +152,8 @@ class SimulatedPlant(Backend):
         return Feedback(x_motor=float(quantize(self.x[0], pl.motor_resolution)),
                         x_table=float(quantize(self.x[pl.table], pl.table_resolution)),
                         v_motor=float(self.x[n]), output=float(self._u_act),
-                        x_tip=float(self.x[pl.tip]) if pl.tip != pl.table else float("nan"))
+                        x_tip=float(self.x[pl.tip]) if pl.tip != pl.table else float("nan"),
+                        x_feedback=self._late_feedback())
 
     def write_setpoint(self, setpoint: Setpoint) -> None:
         self._set = setpoint
@@ -137,7 +164,8 @@ class SimulatedPlant(Backend):
         if not self.enabled:          # no torque: the plant coasts (friction and effects still act)
             steps = 1 if self.closes == "none" else self.ctrl.substeps
             self._u_act = coast_steps(self._Ad, self._Bd, self.x, steps, terms.lag_alpha, self._u_act, pl.force_gain,
-                                      self._fric, self._dry, terms.codes, terms.params, self._f, self._xn)
+                                      self._fric, self._dry, terms.codes, terms.params, self._f, self._xn,
+                                      self._hbuf, self._fb_mass, self._fb_res)
             self.time += steps * self.ctrl.velocity_period
             return
         if self.closes == "none":
@@ -147,6 +175,8 @@ class SimulatedPlant(Backend):
                 prev = self._prev_position if self._prev_position is not None else self._set.position
                 xfb = quantize(self.x[0], pl.motor_resolution) if self.ctrl.position_feedback == "motor" \
                     else quantize(self.x[pl.table], pl.table_resolution)
+                if self._hbuf is not None:         # the feedback arrives late
+                    xfb = self._late_feedback()
                 # the drive's interpolation: the setpoint is where to be at the next tick
                 w_ref = position_law(self._p, prev, self._set.position, xfb)
                 self._prev_position = self._set.position
@@ -156,7 +186,7 @@ class SimulatedPlant(Backend):
             self._u_act = drive_steps(self._Ad, self._Bd, self.x, self._s, self._p, w_ref, self.ctrl.substeps,
                                       pl.motor_resolution, self._ubuf, d_int, d_frac, terms.lag_alpha, self._u_act,
                                       pl.force_gain, self._fric, self._dry, terms.codes, terms.params, self._f,
-                                      self._xn)
+                                      self._xn, self._hbuf, self._fb_mass, self._fb_res)
             self.time += self.ctrl.position_period
 
     def _step(self, u: float) -> None:
@@ -166,6 +196,7 @@ class SimulatedPlant(Backend):
         self._u_act += terms.lag_alpha * (u - self._u_act)      # current loop: ideal, or a first-order lag
         plant_step(self._Ad, self._Bd, self.x, self._u_act * self.plant.force_gain, self._fric, self._dry,
                    terms.codes, terms.params, self._f, self._xn)
+        self._push_feedback()
         self.time += self.ctrl.velocity_period
 
     def disable(self) -> None:

@@ -13,8 +13,10 @@ Reference order (the project's; see the runtime issue):
 Between the law and the plant sit the loop terms, built once by :func:`loop_terms` for every
 loop that runs the law on the simulated plant: the output delay (the controller's computation
 delay plus the plant's transport delay, in velocity periods, interpolated linearly between held
-outputs when it is not a whole number), the current loop's first-order lag, and the effect table
-of the plant step.
+outputs when it is not a whole number), the delay of the position loop's feedback (in velocity
+periods: the feedback position is sampled every velocity period into a history, and the position
+loop reads it that many periods old, interpolated linearly in the same way), the current loop's
+first-order lag, and the effect table of the plant step.
 
 The controller's settings and state are small float arrays (index constants below) so that the
 same functions run inside compiled loops without Python objects.
@@ -28,11 +30,12 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from sim_plant.kernel import effect_table, time_delay
+from sim_plant.kernel import effect_table, feedback_delay, time_delay
 from sim_plant.plant import Plant
 
 __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
-           "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "LoopTerms", "loop_terms",
+           "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "history_push", "history_read", "LoopTerms",
+           "loop_terms",
            "lag_alpha", "P", "S"]
 
 
@@ -192,6 +195,37 @@ def delay_line(ubuf, u, d_int, d_frac):
     return (1.0 - d_frac) * ubuf[d_int] + d_frac * ubuf[d_int + 1]
 
 
+@njit(cache=True, inline="always")
+def history_push(hbuf, value):
+    """Push ``value`` into the ring buffer ``hbuf`` (its last entry holds the index of the newest
+    sample); the first push fills it (before the start the axis was at rest)."""
+    m = hbuf.shape[0] - 1
+    h = int(hbuf[m])
+    if h < 0:
+        for i in range(m):
+            hbuf[i] = value
+        hbuf[m] = 0.0
+        return
+    h += 1
+    if h >= m:
+        h = 0
+    hbuf[h] = value
+    hbuf[m] = h
+
+
+@njit(cache=True, inline="always")
+def history_read(hbuf, d_int, d_frac):
+    """The value ``d_int + d_frac`` pushes old (0: the newest), linear between the samples."""
+    m = hbuf.shape[0] - 1
+    i0 = int(hbuf[m]) - d_int
+    if i0 < 0:
+        i0 += m
+    i1 = i0 - 1
+    if i1 < 0:
+        i1 += m
+    return (1.0 - d_frac) * hbuf[i0] + d_frac * hbuf[i1]
+
+
 def lag_alpha(plant: Plant, ctrl: ControllerSettings) -> float:
     """The current loop's first-order lag as a step factor over one velocity period (1: ideal)."""
     tc = plant.current_loop_time_constant
@@ -204,11 +238,28 @@ class LoopTerms:
 
     ``codes``, ``params``: the effect table (:func:`sim_plant.kernel.effect_table`; ``codes`` is
     None without effects, which the compiled loops leave out). ``delay``: velocity periods from
-    the law's output to the current loop. ``lag_alpha``: the current loop's step factor."""
+    the law's output to the current loop. ``lag_alpha``: the current loop's step factor.
+    ``feedback_delay``: velocity periods by which the position loop's feedback is late."""
     codes: np.ndarray | None
     params: np.ndarray
     delay: float
     lag_alpha: float
+    feedback_delay: float = 0.0
+
+    @property
+    def feedback_parts(self) -> tuple[int, float]:
+        """The feedback delay as whole velocity periods and the fraction beyond them."""
+        d_int = int(math.floor(self.feedback_delay))
+        return d_int, self.feedback_delay - d_int
+
+    def feedback_buffer(self) -> np.ndarray | None:
+        """A fresh history of the feedback position for :func:`history_push` /
+        :func:`history_read`, or None without a feedback delay (the loops then leave it out)."""
+        if self.feedback_delay <= 0.0:
+            return None
+        h = np.zeros(self.feedback_parts[0] + 3)
+        h[-1] = -1.0          # empty: the first push fills it
+        return h
 
     @property
     def delay_parts(self) -> tuple[int, float]:
@@ -229,7 +280,8 @@ def loop_terms(plant: Plant, ctrl: ControllerSettings, with_output_delay: bool =
     Parameters
     ----------
     plant : sim_plant.plant.Plant
-        The plant: its effect rows (transport delays included) and current-loop time constant.
+        The plant: its effect rows (transport and feedback delays included) and current-loop time
+        constant.
     ctrl : ControllerSettings
         The controller: velocity period and output delay.
     with_output_delay : bool
@@ -245,4 +297,4 @@ def loop_terms(plant: Plant, ctrl: ControllerSettings, with_output_delay: bool =
     delay = time_delay(plant) / ctrl.velocity_period
     if with_output_delay:
         delay = float(ctrl.output_delay) + delay
-    return LoopTerms(codes, params, delay, lag_alpha(plant, ctrl))
+    return LoopTerms(codes, params, delay, lag_alpha(plant, ctrl), feedback_delay(plant) / ctrl.velocity_period)

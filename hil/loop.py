@@ -275,6 +275,8 @@ class ControlLoop:
                     else:
                         if j == 0:
                             xfb = fb.x_motor if self.ctrl.position_feedback == "motor" else fb.x_table
+                            if not math.isnan(fb.x_feedback):      # the feedback arrives late
+                                xfb = fb.x_feedback
                             w_ref = position_law(p, cmd[k], cmd[k + 1], xfb)
                         if b.closes == "velocity":
                             sp, out = Setpoint(speed=w_ref), fb.output

@@ -26,10 +26,10 @@ from hil.errors import ConfigError, UnitError
 from hil.units import parse
 from sim_plant.chain import Chain
 from sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
-from sim_plant.effects import CATALOGUE, Combination, Effect, Param, effect
+from sim_plant.effects import ALIASES, CATALOGUE, Combination, Effect, Param, RecordEffect, effect
 from sim_plant.plant import Friction, Plant
 
-__all__ = ["plant_from_config", "apply_effects", "ParameterEffect", "candidate", "default_parameters",
+__all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "default_parameters",
            "load_components", "components_from_dict"]
 
 
@@ -76,9 +76,9 @@ def plant_from_config(cfg: Config) -> Plant:
 def _effects_field(key: str) -> Field | None:
     """Config fields of the ``effects.<name>.<param>`` keys: the catalogue's parameters."""
     parts = key.split(".")
-    if len(parts) != 3 or parts[1] not in CATALOGUE:
+    if len(parts) != 3 or ALIASES.get(parts[1], parts[1]) not in CATALOGUE:
         return None
-    eff = CATALOGUE[parts[1]]
+    eff = effect(parts[1])
     for p in eff.params:
         if p.name == parts[2]:
             return Field(p.kind, f"{eff.name}: {p.doc}", default=None, required=False)
@@ -88,14 +88,16 @@ def _effects_field(key: str) -> Field | None:
 register_section("effects", _effects_field)
 
 
-def apply_effects(plant: Plant, cfg: Config) -> Plant:
-    """The plant with every effect the config switches on (sections ``[effects.<name>]``)."""
+def _configured_effects(cfg: Config):
+    """(section name, effect, values) of every ``[effects.<name>]`` section of the config, checked
+    against the parameters' ranges (an old name, e.g. ``time_delay``, gives its catalogue effect)."""
     names = []
     for key in cfg.keys():
         if key.startswith("effects.") and cfg.values[key] is not None:
             name = key.split(".")[1]
             if name not in names:
                 names.append(name)
+    out = []
     for name in names:
         eff = effect(name)
         sect = cfg.section(f"effects.{name}")
@@ -105,6 +107,19 @@ def apply_effects(plant: Plant, cfg: Config) -> Plant:
             if not (p.lower <= v <= p.upper) or (isinstance(v, float) and math.isnan(v)):
                 raise ConfigError(f"{cfg.source}: effects.{name}.{p.name}: expected {p.lower:g} .. {p.upper:g}, "
                                   f"got {v:g}")
+        out.append((name, eff, values))
+    return out
+
+
+def record_effects(cfg: Config) -> list[tuple[RecordEffect, dict]]:
+    """The artefacts of the recording the config switches on (``channel_skew``, ``tip_skew``):
+    (effect, values) each, for the replay and the synthesized records to apply to the channels."""
+    return [(eff, values) for _, eff, values in _configured_effects(cfg) if isinstance(eff, RecordEffect)]
+
+
+def apply_effects(plant: Plant, cfg: Config) -> Plant:
+    """The plant with every effect the config switches on (sections ``[effects.<name>]``)."""
+    for name, eff, values in _configured_effects(cfg):
         try:
             plant = eff.apply(plant, values)
         except ValueError as exc:        # the physics names the effect; the key says it here

@@ -21,6 +21,8 @@ from hil.control import (
     ControllerSettings,
     controller_from_config,
     delay_line,
+    history_push,
+    history_read,
     loop_terms,
     measured_speed,
     new_velocity_state,
@@ -79,7 +81,8 @@ class SimulationResult:
 @njit(cache=True)
 def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
                        codes, eparams, delay, ubuf, lag_alpha, record_every,
-                       X, V, U, XM, XT, XCMD, exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None):
+                       X, V, U, XM, XT, XCMD, exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None,
+                       hbuf=None, fb_delay=0.0):
     """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
     output arrays (positions, velocities, output, measured motor and table, command).
 
@@ -93,6 +96,11 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     and on the motor, table and tip positions (``noise_x``, one row per velocity period); ``out``,
     one row per velocity period with the columns of hil.loop.CYCLE_CHANNELS. ``X`` (and the other
     records) may be None when ``out`` is given.
+
+    ``hbuf``, ``fb_delay``: the history of the position loop's feedback and its delay in velocity
+    periods (hil.control.LoopTerms.feedback_buffer; None: no feedback delay, compiled away). The
+    feedback position is pushed after every plant step and read ``fb_delay`` periods old at each
+    position tick; the recorded positions are the true ones.
 
     Returns the number of velocity periods in which the excitation drove the output past its limit."""
     nn = Ad.shape[0]
@@ -117,6 +125,10 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     n_sat = 0
     w_ref = 0.0
     a_cmd = 0.0
+    fd_int = int(math.floor(fb_delay))
+    fd_frac = fb_delay - fd_int
+    if hbuf is not None:           # the axis was at rest before the start
+        history_push(hbuf, quantize(x[0], res_motor) if fb_motor else quantize(x[table], res_table))
     for k in range(K):
         # --- position loop, tick k ---
         xm = quantize(x[0], res_motor)
@@ -125,6 +137,10 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
             xm += noise_x[k * n_sub, 0]
             xt += noise_x[k * n_sub, 1]
         xfb = xm if fb_motor else xt
+        if hbuf is not None:       # the feedback as it arrives, fb_delay velocity periods late
+            xfb = history_read(hbuf, fd_int, fd_frac)
+            if noise_x is not None:
+                xfb += noise_x[k * n_sub, 0 if fb_motor else 1]
         w_ref = position_law(p, x_cmd[k], x_cmd[k + 1], xfb)
         if k > 0:
             a_cmd = (x_cmd[k + 1] - 2.0 * x_cmd[k] + x_cmd[k - 1]) / (tp * tp)
@@ -192,6 +208,8 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                     rec += 1
             # --- plant over one Tv ---
             plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+            if hbuf is not None:
+                history_push(hbuf, quantize(x[0], res_motor) if fb_motor else quantize(x[table], res_table))
     return n_sat
 
 
@@ -225,7 +243,7 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
                        plant.table, plant.tip, ctrl.position_feedback == "motor",
                        plant.friction.as_tuple(), plant.table_resolution, plant.motor_resolution,
                        terms.codes, terms.params, terms.delay, terms.delay_buffer(), terms.lag_alpha, record_every,
-                       X, V, U, XM, XT, XC)
+                       X, V, U, XM, XT, XC, hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command

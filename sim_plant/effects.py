@@ -26,7 +26,7 @@ from sim_plant import kernel
 from sim_plant.chain import Chain
 from sim_plant.plant import Friction, Plant
 
-__all__ = ["Param", "Effect", "CATALOGUE", "register", "effect", "Combination"]
+__all__ = ["Param", "Effect", "CATALOGUE", "ALIASES", "register", "effect", "Combination", "RecordEffect"]
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,7 @@ class Param:
     upper: float
     guess: float
     doc: str
+    fit: bool = True       # False: a setting of the effect (a place, not a strength), held during a fit
 
 
 class Effect(ABC):
@@ -58,6 +59,11 @@ class Effect(ABC):
     mimicked_by: tuple = ()
     periodic: bool = False     # parameters include a period along the travel
 
+    @property
+    def fitted_params(self) -> tuple[Param, ...]:
+        """The parameters a fit moves (the others are settings: where, not how strong)."""
+        return tuple(p for p in self.params if p.fit)
+
     def applicable(self, plant: Plant) -> bool:
         """Whether the effect can act on this plant (e.g. backlash needs a transmission link)."""
         return True
@@ -66,6 +72,13 @@ class Effect(ABC):
         """Starting values for a fit; ``scale`` gives typical magnitudes of the record (force N,
         speed m/s, period s)."""
         return {p.name: p.guess for p in self.params}
+
+    def grid(self, plant: Plant, ctrl, scale: dict) -> list[dict[str, float]]:
+        """Starting values on a grid over the physically possible range, for parameters in which
+        the error is not convex (a delay): the fitter simulates each point once and refines from
+        the best (hil.ident.starts). Empty: the effect's guess and its regressions suffice.
+        ``ctrl``: the controller settings (hil.control.ControllerSettings: its periods)."""
+        return []
 
     def configure(self, cfg, values: dict[str, float]):
         """A new config with this effect switched on with ``values`` (the section [effects.<name>])."""
@@ -83,6 +96,8 @@ class Effect(ABC):
 
 
 CATALOGUE: dict[str, Effect] = {}
+# old names that keep working (config sections, command line, candidate lists): name -> catalogue name
+ALIASES: dict[str, str] = {"time_delay": "actuator_delay"}
 
 
 def register(cls):
@@ -94,7 +109,7 @@ def register(cls):
 
 def effect(name: str) -> Effect:
     try:
-        return CATALOGUE[name]
+        return CATALOGUE[ALIASES.get(name, name)]
     except KeyError:
         raise KeyError(f"unknown effect {name!r} (known: {', '.join(sorted(CATALOGUE))})") from None
 
@@ -228,18 +243,156 @@ class Backlash(Effect):
             (kernel.BACKLASH, (0.0, 0.5 * values["gap"], plant.chain.k[0], plant.chain.c[0])),))
 
 
+def _delay_grid(lo: float, hi: float, step: float) -> list[float]:
+    """Delays from ``lo`` to ``hi``: whole ``step``s up to 4, then about 1.4 times apart (the error
+    is not convex in a delay: a grid finds its basin, a local fit refines it)."""
+    out, d = [], lo
+    while d < hi * (1 + 1e-9):
+        out.append(d)
+        d = d + step if d < 4 * step - 1e-15 else d * 1.4
+    if out[-1] < hi * (1 - 1e-9):
+        out.append(hi)
+    return out
+
+
 @register
-class TimeDelay(Effect):
-    name = "time_delay"
-    description = ("a transport delay in the loop (feedback or drive), modelled as a delay of the force "
-                   "command reaching the plant")
-    params = (Param("delay", "time", 0.0, 0.05, 5e-4, "transport delay"),)
+class ActuatorDelay(Effect):
+    """The drive's computation and transport: the torque (force) command reaches the motor late.
+    Also known by its old name ``time_delay`` (config section ``[effects.time_delay]``)."""
+    name = "actuator_delay"
+    description = ("the torque (force) command reaches the motor late: a drive's computation and transport "
+                   "delay, from one velocity-loop period upward")
+    params = (Param("delay", "time", 0.0, 0.05, 5e-4, "delay of the command reaching the motor"),)
+    MAX = 0.02           # the grid's upper end, s: a drive delays by a few velocity periods, a fieldbus by ms
 
     def apply(self, plant, values):
         return dataclasses.replace(plant, effects=plant.effects + ((kernel.TIME_DELAY, (values["delay"],)),))
 
     def guess(self, plant, scale):
         return {"delay": 0.25 * scale.get("period", 2e-3)}
+
+    def grid(self, plant, ctrl, scale):
+        tv = ctrl.velocity_period
+        return [{"delay": d} for d in _delay_grid(tv, self.MAX, tv)]
+
+
+@register
+class FeedbackDelay(Effect):
+    """The position the position loop uses (table or motor, as the config says) is late: a linear
+    scale read over a fieldbus. Only the loop's feedback: the recorded positions are the true ones."""
+    name = "feedback_delay"
+    description = ("the position the position loop uses is late (a scale read over a fieldbus): from a "
+                   "fraction of a position period to several; the recorded positions are the true ones")
+    params = (Param("delay", "time", 0.0, 0.05, 1e-3, "delay of the position loop's feedback"),)
+    MAX_PERIODS = 5      # the grid's upper end, position periods
+
+    def apply(self, plant, values):
+        return dataclasses.replace(plant, effects=plant.effects + ((kernel.FEEDBACK_DELAY, (values["delay"],)),))
+
+    def guess(self, plant, scale):
+        return {"delay": 0.25 * scale.get("period", 4e-3)}
+
+    def grid(self, plant, ctrl, scale):
+        tp = ctrl.position_period
+        return [{"delay": d} for d in _delay_grid(tp / 8, min(self.MAX_PERIODS * tp, 0.05), tp / 8)]
+
+
+class RecordEffect(Effect):
+    """An artefact of the recording, not of the plant: it acts on the channels as recorded
+    (hil.ident.replay applies it to the simulated channels read back, hil.ident.synth to the
+    record it writes), never on the loop."""
+    channels: tuple = ()
+
+    def apply(self, plant, values):
+        return plant
+
+    @abstractmethod
+    def apply_record(self, t, channels: dict, values: dict[str, float]) -> dict:
+        """The recorded channels (SI, on the times ``t``) with the artefact: a new dict."""
+
+
+def _skewed(t, y, skew):
+    """``y`` recorded ``skew`` seconds late: y(t - skew), linear between samples, held at the ends."""
+    import numpy as np
+    return np.interp(t - skew, t, y)
+
+
+@register
+class ChannelSkew(RecordEffect):
+    """The force channel (torque, force or command) is logged out of step with the positions."""
+    name = "channel_skew"
+    description = ("a logging artefact, not physics: the force (torque) channel is recorded out of step with "
+                   "the positions, by a signed skew (+: recorded late)")
+    params = (Param("skew", "time", -0.2, 0.2, 0.0, "time skew of the force channel against the positions"),)
+    channels = ("torque", "force", "command")
+    MAX_SAMPLES = 12     # the grid's range, samples either way
+
+    def apply_record(self, t, channels, values):
+        out = dict(channels)
+        for c in self.channels:
+            if c in out:
+                out[c] = _skewed(t, out[c], values["skew"])
+        return out
+
+    def guess(self, plant, scale):
+        return {"skew": 0.0}
+
+    def grid(self, plant, ctrl, scale):
+        ts = scale.get("period", ctrl.position_period)
+        n = self.MAX_SAMPLES
+        return [{"skew": 0.5 * i * ts} for i in range(-2 * n, 2 * n + 1)]
+
+
+@register
+class TipSkew(ChannelSkew):
+    """The tool-tip channel is logged by another instrument (an interferometer with its own clock)."""
+    name = "tip_skew"
+    description = ("a logging artefact, not physics: the tool-tip channel (another instrument) is recorded out "
+                   "of step with the drive's channels, by a signed skew (+: recorded late)")
+    params = (Param("skew", "time", -0.2, 0.2, 0.0, "time skew of the x_tip channel against the others"),)
+    channels = ("x_tip",)
+
+    def applicable(self, plant):
+        return plant.tip != plant.table
+
+
+@register
+class StiffnessAlongTravel(Effect):
+    """The transmission stiffness k1 changes with the nut position: the screw's axial compliance
+    grows with the length of screw between the fixed bearing and the nut (EA/L, Eq. 20, for a
+    screw held at one end), in series with the compliances that do not move (motor shaft,
+    coupling, bearings, nut, nut-table link; Eq. 21). Its compliance 1/k1 is then linear in the
+    nut position: the effect is fitted as k1 at the two ends of a stretch of travel
+    (``x_start``, ``x_end``: settings, by default the stroke the record covers), and the kernel
+    evaluates k1(x_nut) = 1 / (1/k_start + (x - x_start)/(x_end - x_start) (1/k_end - 1/k_start))
+    every step (sim_plant.components.k1_along_travel)."""
+    name = "stiffness_along_travel"
+    description = ("the transmission stiffness k1 changes with the nut position (screw held at one end: EA/L "
+                   "in series with the fixed compliances), given at both ends of the travel")
+    params = (Param("k_start", "stiffness", 1e3, 1e12, 5e7, "k1 with the nut at x_start"),
+              Param("k_end", "stiffness", 1e3, 1e12, 5e7, "k1 with the nut at x_end"),
+              Param("x_start", "length", -1e3, 1e3, 0.0, "one end of the travel (a setting, not fitted)", fit=False),
+              Param("x_end", "length", -1e3, 1e3, 0.1, "the other end of the travel (a setting, not fitted)",
+                    fit=False))
+
+    def applicable(self, plant):
+        return plant.n >= 2
+
+    def apply(self, plant, values):
+        self._need_link(plant)
+        x0, x1 = values["x_start"], values["x_end"]
+        if not x1 > x0:
+            raise ValueError(f"{self.name}: x_end must lie beyond x_start (got {x0:g} .. {x1:g} m)")
+        c0, c1 = 1.0 / values["k_start"], 1.0 / values["k_end"]
+        return dataclasses.replace(plant, effects=plant.effects + (
+            (kernel.STIFFNESS_ALONG_TRAVEL, (0.0, plant.chain.k[0], x0, x1, c0, 0.5 * (c0 + c1), c1)),))
+
+    def guess(self, plant, scale):
+        k = plant.chain.k[0] if plant.n >= 2 else 5e7
+        lo, hi = scale.get("x_min", 0.0), scale.get("x_max", 0.1)
+        if not hi > lo:
+            hi = lo + 1e-3
+        return {"k_start": k, "k_end": k, "x_start": lo, "x_end": hi}
 
 
 @register

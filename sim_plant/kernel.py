@@ -17,8 +17,8 @@ from numba import njit
 from sim_plant.plant import Plant
 
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
-           "TIME_DELAY", "empty_effects", "effect_table", "time_delay", "effect_forces", "friction_force",
-           "plant_step"]
+           "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "empty_effects", "effect_table", "time_delay",
+           "feedback_delay", "link_compliance", "effect_forces", "friction_force", "plant_step"]
 
 N_EFFECT_PARAMS = 8
 
@@ -28,7 +28,11 @@ BACKLASH = 2             # [link i (between mass i and i+1), half gap m, stiffne
 PITCH_ERROR = 3          # [link, amplitude m, period m, phase rad, stiffness N/m]: lead error x1 -> nut
 TORQUE_RIPPLE = 4        # [amplitude N, period m (of x1), phase rad]: cogging on mass 1
 VISCOUS_ASYMMETRIC = 5   # [mass, extra damping for v>0 N s/m, extra for v<0 N s/m]
-TIME_DELAY = 6           # [delay s]: a delay of the loop (hil.control.loop_terms), no force here
+TIME_DELAY = 6           # [delay s]: the command reaches the motor late (hil.control.loop_terms), no force here
+FEEDBACK_DELAY = 7       # [delay s]: the position loop's feedback is late (hil.control.loop_terms), no force here
+# [link, its stiffness in the chain N/m, x_start m, x_end m, compliance at x_start, midway, at x_end m/N]:
+# the link's stiffness as a function of the position of mass link+1 (the nut), link_compliance()
+STIFFNESS_ALONG_TRAVEL = 8
 
 
 def empty_effects():
@@ -51,6 +55,23 @@ def effect_table(plant: Plant):
 def time_delay(plant: Plant) -> float:
     """The plant's transport delay (s): the sum of its ``TIME_DELAY`` rows."""
     return float(sum(q[0] for c, q in plant.effects if c == TIME_DELAY))
+
+
+def feedback_delay(plant: Plant) -> float:
+    """The delay of the position loop's feedback (s): the sum of the plant's ``FEEDBACK_DELAY`` rows."""
+    return float(sum(q[0] for c, q in plant.effects if c == FEEDBACK_DELAY))
+
+
+@njit(cache=True, inline="always")
+def link_compliance(q, x_nut):
+    """Compliance (m/N) of a ``STIFFNESS_ALONG_TRAVEL`` row with the nut at ``x_nut``: the quadratic
+    through the compliances at x_start, midway and x_end (linear when the midway value is their mean:
+    a screw held at one end, Eq. 20 EA/L in series with fixed compliances). Outside that stretch it
+    is extrapolated, never below a tenth of the smaller end value."""
+    s = (x_nut - q[2]) / (q[3] - q[2])
+    comp = q[4] * (2.0 * s - 1.0) * (s - 1.0) + q[5] * 4.0 * s * (1.0 - s) + q[6] * s * (2.0 * s - 1.0)
+    floor = 0.1 * min(q[4], q[6])
+    return comp if comp > floor else floor
 
 
 @njit(cache=True)     # not inlined: a large body that most runs never enter
@@ -87,6 +108,12 @@ def effect_forces(codes, params, x, v, f):
             f[i + 1] += q[4] * e
         elif c == TORQUE_RIPPLE:
             f[0] += q[0] * math.sin(2.0 * math.pi * x[0] / q[1] + q[2])
+        elif c == STIFFNESS_ALONG_TRAVEL:
+            # the chain applies k (x_i - x_i+1) with its constant k; the link's k(x_nut) adds the difference
+            i = int(q[0])
+            corr = (1.0 / link_compliance(q, x[i + 1]) - q[1]) * (x[i] - x[i + 1])
+            f[i] -= corr
+            f[i + 1] += corr
         elif c == VISCOUS_ASYMMETRIC:
             i = int(q[0])
             if v[i] > 0.0:

@@ -132,8 +132,16 @@ def test_stiction_holds_and_slips(bench):
 
 @pytest.mark.parametrize("changes", [{"control.acc_ff": 0.0}, {"control.acc_ff": 1.0},
                                      {"effects.time_delay.delay": "2 ms"},
-                                     {"effects.time_delay.delay": "2 ms", "control.output_delay": 3}],
-                         ids=["0.0", "1.0", "time_delay", "time_delay+output_delay"])
+                                     {"effects.time_delay.delay": "2 ms", "control.output_delay": 3},
+                                     {"effects.actuator_delay.delay": "0.25 ms"},
+                                     {"effects.feedback_delay.delay": "1.3 ms"},
+                                     {"effects.feedback_delay.delay": "9 ms", "control.position_feedback": "motor"},
+                                     {"effects.stiffness_along_travel.k_start": "6e7 N/m",
+                                      "effects.stiffness_along_travel.k_end": "4e7 N/m",
+                                      "effects.stiffness_along_travel.x_start": "0 mm",
+                                      "effects.stiffness_along_travel.x_end": "20 mm"}],
+                         ids=["0.0", "1.0", "time_delay", "time_delay+output_delay", "actuator_delay",
+                              "feedback_delay", "feedback_delay_motor", "stiffness_along_travel"])
 def test_stepwise_loop_equals_compiled_kernel(bench, changes):
     """The real-time loop's path (ControlLoop + per-cycle backend) and the compiled simulator run
     the same law: identical records (with and without the acceleration feed-forward, with a
@@ -158,13 +166,16 @@ def test_stepwise_loop_equals_compiled_kernel(bench, changes):
     loop.run(x_cmd)
     rows = np.array(rows)
     n_sub = ctrl.substeps
-    transport = round(bench.get("effects.time_delay.delay", 0.0) / ctrl.velocity_period)
+    transport = round((bench.get("effects.time_delay.delay", 0.0) + bench.get("effects.actuator_delay.delay", 0.0))
+                      / ctrl.velocity_period)
     assert np.max(np.abs(rows[:, 0] - fast.x_table[::n_sub])) < 1e-12
     assert np.max(np.abs(rows[:, 1] - fast.x_tip[::n_sub])) < 1e-12
     assert np.max(np.abs(rows[:, 2] - fast.u[transport::n_sub])) < 1e-9
 
 
-def test_velocity_and_position_mode_backends_run_the_same_law(bench):
+@pytest.mark.parametrize("changes", [{}, {"effects.feedback_delay.delay": "2.1 ms"}], ids=["plain", "feedback_delay"])
+def test_velocity_and_position_mode_backends_run_the_same_law(bench, changes):
+    bench = bench.with_values(changes)
     traj = Trajectory()
     traj.move(MoveSpec(0.005, 0.1, a_max=3.0))
     _, x_cmd = traj.sample(0.004, 0.05)

@@ -143,7 +143,8 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
                              plant.tip, ctrl.position_feedback == "motor", plant.friction.as_tuple(),
                              plant.table_resolution, plant.motor_resolution, terms.codes, terms.params, terms.delay,
                              terms.delay_buffer(), terms.lag_alpha, 1, None, None, None, None, None, None,
-                             exc=r, exc_into_speed=st.input == "velocity", noise_w=nw, noise_x=nx, out=out)
+                             exc=r, exc_into_speed=st.input == "velocity", noise_w=nw, noise_x=nx, out=out,
+                             hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay)
     return FrfRecord(out, tv, exc, start, st.periods, int(sat), plant.tip != plant.table, st.input, "sim")
 
 

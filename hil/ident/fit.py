@@ -67,15 +67,17 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
     """Least squares from each start; returns (values, cfg, residuals, nfev) of the best."""
     best = None
     total = 0
-    names = [p.name for p in eff.params]
+    fitted = eff.fitted_params
+    names = [p.name for p in fitted]
     for start in starts:
-        scale = np.array([_param_scale(p, start[p.name]) for p in eff.params])
-        lo = np.array([p.lower for p in eff.params]) / scale
-        hi = np.array([p.upper for p in eff.params]) / scale
+        held = {p.name: start[p.name] for p in eff.params if not p.fit}    # settings, not fitted
+        scale = np.array([_param_scale(p, start[p.name]) for p in fitted])
+        lo = np.array([p.lower for p in fitted]) / scale
+        hi = np.array([p.upper for p in fitted]) / scale
         z0 = np.clip(np.array([start[n] for n in names]) / scale, lo + 1e-12 * abs(lo), hi - 1e-12 * abs(hi))
 
-        def fun(z):
-            vals = dict(zip(names, z * scale))
+        def fun(z, held=held):
+            vals = dict(held, **dict(zip(names, z * scale)))
             try:
                 cfg = eff.configure(base_cfg, vals)
                 return obj.vector(obj.residuals(cfg))
@@ -89,7 +91,7 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
         total += sol.nfev * (1 + len(names))
         cost = float(sol.cost)
         if best is None or cost < best[0]:
-            best = (cost, dict(zip(names, (sol.x * scale).tolist())))
+            best = (cost, dict(held, **dict(zip(names, (sol.x * scale).tolist()))))
     if best is None:
         raise ValueError(f"{eff.name}: no start could be fitted")
     vals = best[1]
@@ -111,7 +113,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     starts = [dict(start)] if start else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)]
     vals, cfg1, res1, nfev = _fit_one(obj, cfg, eff, starts, max_nfev=max_nfev)
     chans = list(obj.weights)
-    score = bic_score(res0, res1, chans, len(eff.params), replay.noise)
+    score = bic_score(res0, res1, chans, len(eff.fitted_params), replay.noise)
     e0 = float(np.sum(obj.vector(res0) ** 2))
     e1 = float(np.sum(obj.vector(res1) ** 2))
     gain = 1.0 - e1 / e0 if e0 > 0 else 0.0

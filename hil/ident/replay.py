@@ -13,6 +13,10 @@ axis: torque (N m) on a rotary axis, force (N) or command (V) on a linear one.
 cross-correlation of its derivative with the simulated one, found once on the replay's config.
 ``objective`` holds the channels' weights (hil.ident.objective) and ``noise`` their noise floors
 (hil.ident.scores), both from the residual under the replay's config.
+
+Artefacts of the recording (``channel_skew``, ``tip_skew``: sim_plant.effects.RecordEffect) act on
+the simulated channels read back, not in the loop; the last simulation is kept, so that fitting
+such an artefact costs no simulation.
 """
 from __future__ import annotations
 
@@ -25,7 +29,7 @@ from hil.errors import UserError
 from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
 from hil.ident.scores import noise_floor
-from hil.plant_config import plant_from_config
+from hil.plant_config import plant_from_config, record_effects
 from hil.simulate import simulate
 
 __all__ = ["Replay", "POSITION_CHANNELS", "UNITS"]
@@ -75,6 +79,7 @@ class Replay:
         fb = "x_motor" if cfg.get("control.position_feedback") == "motor" else "x_table"
         first_pos = [c for c in (fb,) + POSITION_CHANNELS if c in meas]
         self.x0 = float(meas[first_pos[0]][0]) if first_pos else float(meas["x_cmd"][0])
+        self._last = (None, None)        # (key of the loop's config, its simulated channels)
         res0 = self.residuals(cfg, first=True)
         rms = {c: float(np.sqrt(np.mean(res0[c] ** 2))) for c in self.channels}
         self.noise = {c: noise_floor(res0[c]) for c in self.channels}
@@ -91,13 +96,21 @@ class Replay:
         return simulate(plant, controller_from_config(cfg, plant), self.x_cmd_sim, x0=self.x0)
 
     def simulated(self, cfg=None) -> dict[str, np.ndarray]:
-        """Simulated channels on the measurement's sample times."""
-        ch = self.simulate(cfg).channels()
+        """Simulated channels on the measurement's sample times, with the recording's artefacts."""
+        cfg = cfg or self.cfg
+        key = _loop_key(cfg)
+        if self._last[0] == key:
+            ch = self._last[1]
+        else:
+            ch = self.simulate(cfg).channels()
+            self._last = (key, ch)
         out = {}
         for c in self.channels + ["x_motor", "x_table", "x_tip"]:
             if c in ch:
                 y = ch[c]
                 out[c] = y[:self.meas.t.size].copy() if self.one_to_one else np.interp(self.meas.t, self.t_sim, y)
+        for eff, vals in record_effects(cfg):
+            out = eff.apply_record(self.meas.t, out, vals)
         return out
 
     def residuals(self, cfg=None, first: bool = False) -> dict[str, np.ndarray]:
@@ -116,6 +129,18 @@ class Replay:
 
     def primary_channel(self, res) -> str:
         return self.force_channel or max(self.channels, key=lambda c: float(np.mean(res[c] ** 2) * self.objective.weights[c] ** 2))
+
+
+def _loop_key(cfg):
+    """What the simulation depends on: the config's values less the recording's artefacts."""
+    from sim_plant.effects import CATALOGUE, RecordEffect
+    items = []
+    for k, v in cfg.values.items():
+        parts = k.split(".")
+        if len(parts) == 3 and parts[0] == "effects" and isinstance(CATALOGUE.get(parts[1]), RecordEffect):
+            continue
+        items.append((k, repr(v)))
+    return tuple(sorted(items))
 
 
 def _shifted(y, s):

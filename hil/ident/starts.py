@@ -12,7 +12,10 @@ the fit (SI units).
 * compliant_mode: for modal masses of 0.05 to 1.5 times the tip mass, the natural frequency that
   puts a mode of the coupled chain within 3 % of a peak of the residual spectrum; the cheapest
   two kept.
-* time_delay: the guess and four times it.
+* Effects with a grid (:meth:`sim_plant.effects.Effect.grid`: the delays, the channel skews; the
+  error is not convex in a delay): one simulation per grid point over the physically possible
+  range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
+  cheapest two are the starts of the local fit.
 """
 from __future__ import annotations
 
@@ -20,6 +23,7 @@ import math
 
 import numpy as np
 
+from hil.control import controller_from_config
 from hil.ident.replay import Replay
 from hil.ident.residual import periodic_in_position, spectrum_peaks
 from sim_plant.effects import Combination, Effect
@@ -31,7 +35,8 @@ def record_scales(replay: Replay, res0: dict) -> dict:
     """Typical magnitudes of the record for starting guesses (SI)."""
     m = replay.meas
     v = np.gradient(m["x_cmd"], m.t)
-    sc = {"speed": float(np.percentile(np.abs(v), 90)) or 1e-3, "period": replay.sample_period}
+    sc = {"speed": float(np.percentile(np.abs(v), 90)) or 1e-3, "period": replay.sample_period,
+          "x_min": float(np.min(m["x_cmd"])), "x_max": float(np.max(m["x_cmd"]))}
     fch = replay.force_channel
     if fch is not None:
         sc["force"] = max(float(np.sqrt(np.mean(res0[fch] ** 2))) * replay.force_to_load, 1e-6)
@@ -56,8 +61,9 @@ def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -
         return _prefilter(eff, replay, starts, cfg)
     if eff.name == "compliant_mode":
         return _prefilter(eff, replay, _mode_starts(eff, replay, res0, g), cfg)
-    if eff.name == "time_delay":
-        return [g, dict(g, delay=4 * g["delay"])]
+    grid = eff.grid(replay.plant, controller_from_config(cfg, replay.plant), scale)
+    if grid:
+        return _grid_starts(eff, replay, [dict(g, **pt) for pt in grid], cfg)
     reg = _regression_start(eff, replay, res0)
     return [reg, g] if reg else [g]
 
@@ -133,8 +139,7 @@ def _mode_starts(eff, replay, res0, g) -> list[dict]:
     return starts
 
 
-def _prefilter(eff, replay, starts, cfg, keep=2):
-    """Keep the few starts with the lowest cost (one simulation each)."""
+def _costs(eff, replay, starts, cfg) -> list[float]:
     obj = replay.objective
     costs = []
     for s in starts:
@@ -142,5 +147,33 @@ def _prefilter(eff, replay, starts, cfg, keep=2):
             costs.append(float(np.sum(obj.vector(obj.residuals(eff.configure(cfg, s))) ** 2)))
         except ValueError:
             costs.append(math.inf)
+    return costs
+
+
+def _prefilter(eff, replay, starts, cfg, keep=2):
+    """Keep the few starts with the lowest cost (one simulation each)."""
+    costs = _costs(eff, replay, starts, cfg)
     order = np.argsort(costs)[:keep]
     return [starts[i] for i in order]
+
+
+def _grid_starts(eff, replay, grid, cfg, keep=2, fine=6) -> list[dict]:
+    """The cheapest ``keep`` points of the grid; along a one-parameter grid, first a finer scan
+    (``fine`` points) on each side of the best point, up to its neighbours."""
+    costs = _costs(eff, replay, grid, cfg)
+    moved = [n for n in grid[0] if len({pt[n] for pt in grid}) > 1]
+    if len(moved) == 1 and len(grid) > 2:
+        name = moved[0]
+        order = sorted(range(len(grid)), key=lambda i: grid[i][name])
+        pos = order.index(int(np.argmin(costs)))
+        best = grid[order[pos]]
+        extra = []
+        for nb in (order[pos - 1] if pos > 0 else None, order[pos + 1] if pos + 1 < len(order) else None):
+            if nb is None:
+                continue
+            a, b = best[name], grid[nb][name]
+            extra += [dict(best, **{name: a + (b - a) * j / (fine + 1)}) for j in range(1, fine + 1)]
+        grid = grid + extra
+        costs = costs + _costs(eff, replay, extra, cfg)
+    order = np.argsort(costs)[:keep]
+    return [grid[i] for i in order]

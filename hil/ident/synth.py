@@ -6,7 +6,9 @@ short and long strokes, direct reversals and long dwells, sine-square velocity r
 recorded imitates a real bench: positions read through a 0.5 um linear encoder (quantization
 after a small Gaussian sensor noise), torque or force with Gaussian noise, 4 ms sampling.
 The quantization is applied to the record, not inside the loop, so that the clean record of a
-config replays through that config to within the sensor noise.
+config replays through that config to within the sensor noise. Artefacts of the recording
+(``channel_skew``, ``tip_skew``) act on the recorded channels before the sensor noise, as the
+replay applies them (hil.ident.replay).
 """
 from __future__ import annotations
 
@@ -14,8 +16,9 @@ import math
 
 import numpy as np
 
-from hil.plant_config import candidate
+from hil.plant_config import candidate, record_effects
 from hil.simulate import simulate_config
+from sim_plant.effects import ALIASES
 
 __all__ = ["move_sequence", "synthesize", "HIDDEN_DEFAULTS"]
 
@@ -27,7 +30,11 @@ HIDDEN_DEFAULTS = {
     "asymmetric_friction": {"level_pos": 1.2, "level_neg": 3.0, "viscous_pos": 0.0076, "viscous_neg": 0.02},
     "constant_force": {"force": 400.0},
     "backlash": {"gap": 20e-6},
-    "time_delay": {"delay": 2e-3},
+    "actuator_delay": {"delay": 2e-3},      # also under its old name, time_delay
+    "feedback_delay": {"delay": 2e-3},
+    "channel_skew": {"skew": 8e-3},
+    "tip_skew": {"skew": 8e-3},
+    "stiffness_along_travel": {"k_start": 1.2 * 5.362e7, "k_end": 0.8 * 5.362e7, "x_start": 0.0, "x_end": 0.08},
     "pitch_error": {"amplitude": 4e-6, "period": 0.01, "phase": 0.5},
     "torque_ripple": {"amplitude": 0.6, "period": 0.005, "phase": 0.3},
     "compliant_mode": {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02},
@@ -82,9 +89,10 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
     rich = cfg
     if effect:
         eff = candidate(effect, cfg)
-        vals = dict(HIDDEN_DEFAULTS.get(effect, {})) if values is None else dict(values)
-        if not vals:
-            vals = {p.name: p.guess for p in eff.params}
+        defaults = HIDDEN_DEFAULTS.get(effect) or HIDDEN_DEFAULTS.get(ALIASES.get(effect, effect)) or \
+            next((v for k, v in HIDDEN_DEFAULTS.items() if ALIASES.get(k) == effect), {})
+        vals = dict(defaults) if values is None else dict(values)
+        vals = {p.name: vals.get(p.name, p.guess) for p in eff.params}
         rich = eff.configure(cfg, vals)
     else:
         vals = {}
@@ -96,14 +104,16 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
     if x_cmd is None:
         x_cmd = move_sequence(duration, tp, seed)
     res = simulate_config(rich, x_cmd)
-    ch = res.channels()
+    ch = {c: y[::k] for c, y in res.channels().items()}
+    for eff, v in record_effects(rich):          # the recording's artefacts (a skewed channel)
+        ch = eff.apply_record(ch["t"], ch, v)
     rng = np.random.default_rng(seed + 1000)
-    out = {"t": ch["t"][::k].copy(), "x_cmd": ch["x_cmd"][::k].copy()}
+    out = {"t": ch["t"].copy(), "x_cmd": ch["x_cmd"].copy()}
     for c in ("x_motor", "x_table", "x_tip"):
-        y = ch[c][::k] + rng.normal(0.0, position_noise, ch[c][::k].size)
+        y = ch[c] + rng.normal(0.0, position_noise, ch[c].size)
         out[c] = resolution * np.floor(y / resolution + 0.5) if resolution > 0 else y
     fch = "torque" if cfg.rotary else "force"
-    y = ch[fch][::k]
+    y = ch[fch]
     if force_noise is None:
         force_noise = 0.01 * float(np.sqrt(np.mean(y * y))) + 1e-9
     out[fch] = y + rng.normal(0.0, force_noise, y.size)
