@@ -12,7 +12,8 @@ import math
 from dataclasses import dataclass, field
 
 __all__ = ["k_torsional", "k_axial", "k_flexure", "k_screw_axial", "k_nut_table", "k1_equivalent",
-           "m1_equivalent", "m2_equivalent", "Equivalents", "equivalents"]
+           "m1_equivalent", "m2_equivalent", "Equivalents", "equivalents", "k_screw_fixed_free",
+           "k_screw_fixed_fixed", "k1_along_travel"]
 
 
 # --- Eq. (20): elements ------------------------------------------------------------------------
@@ -54,6 +55,31 @@ def k1_equivalent(pitch, k_em, k_AF, k_Ht, k_Ha, k_T, k_M) -> float:
     and axial stiffness act in parallel."""
     r2 = (2.0 * math.pi / pitch) ** 2
     return _series(k_em * r2, k_AF * r2, k_Ht * r2 + k_Ha, k_T, k_M)
+
+
+# --- the screw's axial stiffness with the nut at a distance from the bearings (Eq. 13, 20) ------------
+
+def k_screw_fixed_free(E: float, A: float, L: float) -> float:
+    """A screw held axially at one end only (fixed-free): the nut at a distance ``L`` from the fixed
+    bearing sees the screw length L in tension or compression, E A / L (Eq. 20), N/m."""
+    return k_axial(E, A, L)
+
+
+def k_screw_fixed_fixed(E: float, A: float, L: float, a: float) -> float:
+    """A screw held axially at both ends (fixed-fixed), bearings ``L`` apart, the nut at ``a``
+    from one of them: the two lengths act in parallel on the nut (Eq. 13 with rigid bearings),
+    E A / a + E A / (L - a) = E A L / (a (L - a)), N/m; least, 4 E A / L, in the middle."""
+    if not 0.0 < a < L:
+        raise ValueError(f"k_screw_fixed_fixed: the nut must lie between the bearings (0 < a < L), got a={a:g}, "
+                         f"L={L:g}")
+    return E * A * L / (a * (L - a))
+
+
+def k1_along_travel(k_screw: float, k_rest: float) -> float:
+    """The transmission stiffness with the screw's axial term ``k_screw`` in series with the
+    compliances that do not move with the nut (motor shaft, coupling, bearings, nut, nut-table
+    link: Eq. 21 with the screw's torsion left in ``k_rest``), N/m."""
+    return _series(k_screw, k_rest)
 
 
 def m1_equivalent(pitch, J_m) -> float:

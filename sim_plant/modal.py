@@ -10,7 +10,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["omega_2dof", "Frequencies3", "frequencies_3dof", "modal_matrix_2dof", "modal_matrix_3dof"]
+__all__ = ["omega_2dof", "Frequencies3", "frequencies_3dof", "modal_matrix_2dof", "modal_matrix_3dof",
+           "transmission_mode"]
 
 
 def omega_2dof(m1: float, m2: float, k: float) -> float:
@@ -71,3 +72,22 @@ def modal_matrix_3dof(m1: float, m2: float, m3: float, k1: float, k2: float):
 def _normalize(shape: np.ndarray, m: np.ndarray) -> np.ndarray:
     norms = np.sqrt(np.einsum("ij,i,ij->j", shape, m, shape))
     return shape / norms
+
+
+def transmission_mode(chain, link: int = 0) -> float:
+    """Natural frequency (Hz) of the chain's transmission mode: the elastic mode that strains
+    ``link`` (0: motor to table, k1) the most, by its share of the mode's strain energy
+    k_link (phi_i - phi_i+1)^2 / (phi^T K phi). On the 3-dof bench this is omega_3 of Eq. (5)
+    (87 Hz); with a heavier or extra tip mode it stays the k1 mode however the modes are ordered."""
+    w, phi = chain.modes()
+    K = chain.K
+    best, share = 0.0, -1.0
+    for j in range(1, len(w)):
+        v = phi[:, j]
+        total = float(v @ K @ v)
+        if total <= 0.0:
+            continue
+        e = chain.k[link] * (v[link] - v[link + 1]) ** 2 / total
+        if e > share:
+            best, share = float(w[j]), e
+    return best / (2.0 * math.pi)

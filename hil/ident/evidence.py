@@ -9,17 +9,29 @@ max|v|):
 * position-periodic effects: the fitted period (x_motor - x_table for a lead error);
 * an added mode: its frequency, against the model's modes (the chain's undamped natural
   frequencies sqrt(eig(M^-1 K)) / 2 pi);
-* backlash, time delay, mass change and ``parameter:<key>``: the fitted value;
+* backlash, mass change and ``parameter:<key>``: the fitted value;
+* the delays (actuator_delay, alias time_delay; feedback_delay): the fitted delay in the loop's
+  periods, and where it sits;
+* channel_skew, tip_skew: the skew in samples, said to be a logging artefact, not physics;
+* stiffness_along_travel: k1 and the transmission mode's frequency (sim_plant.modal) at both ends
+  of the stretch, and whether the record can see the variation at all: a constant k1 (the best of
+  the two end values and their middle) scored against the fit (BIC, hil.ident.scores); when it
+  does as well, the variation cannot be seen over the stroke the record covers;
 * a combination: each member's evidence, then the fall of the joint fit.
 
 It ends with "RMS <channel> error <before> -> <after> <unit> (<fall> % less)".
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from hil.ident.replay import Replay
+from hil.ident.scores import MIN_SCORE, bic_score
 from hil.plant_config import candidate, plant_from_config
+from sim_plant.effects import ALIASES
+from sim_plant.modal import transmission_mode
 
 __all__ = ["evidence", "model_modes"]
 
@@ -67,8 +79,25 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
         return f"residual peak at {f:.1f} Hz in {chan}, {tail}; " + fall
     if eff_name == "backlash":
         return (f"x_motor - x_table jumps by about {vals.get('gap', 0) * 1e6:.3g} um at reversals; " + fall)
-    if eff_name == "time_delay":
-        return f"residual correlates with the command shifted by {vals.get('delay', 0) * 1e3:.3g} ms; " + fall
+    name = ALIASES.get(eff_name, eff_name)
+    if name == "actuator_delay":
+        d, tv = vals.get("delay", 0.0), replay.cfg["control.velocity_period"]
+        return (f"the {fch or 'force'} command reaches the motor {d * 1e3:.3g} ms late ({d / tv:.1f} velocity periods "
+                f"of {tv * 1e6:.3g} us): a drive's computation and transport delay; " + fall)
+    if name == "feedback_delay":
+        d, tp = vals.get("delay", 0.0), replay.cfg["control.position_period"]
+        fb = "motor" if replay.cfg.get("control.position_feedback") == "motor" else "table"
+        return (f"the {fb} position the position loop uses arrives {d * 1e3:.3g} ms late ({d / tp:.2f} position "
+                f"periods of {tp * 1e3:.3g} ms; a scale read over a fieldbus); the recorded positions are the true "
+                f"ones; " + fall)
+    if name in ("channel_skew", "tip_skew"):
+        sk = vals.get("skew", 0.0)
+        which = "x_tip" if name == "tip_skew" else (fch or "force")
+        return (f"a logging artefact, not physics: the {which} channel is recorded {abs(sk) * 1e3:.3g} ms "
+                f"({abs(sk) / replay.sample_period:.2f} samples) {'late' if sk >= 0 else 'early'} against the "
+                f"others; the model of the axis needs no change; " + fall)
+    if name == "stiffness_along_travel":
+        return _stiffness_evidence(name, vals, replay, res0) + fall
     if eff_name == "mass_change":
         return f"{chan} residual follows the acceleration: {vals.get('mass', 0):+.3g} kg on the table; " + fall
     if eff_name.startswith("parameter:"):
@@ -76,6 +105,44 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
         old = replay.cfg.get(key)
         return f"{key} {old:.4g} -> {vals.get('value', 0):.4g} explains the {chan} residual; " + fall
     return fall
+
+
+def _stiffness_evidence(name, vals, replay, res0) -> str:
+    """k1 and the transmission mode at both ends of the stretch; whether the record sees the change."""
+    eff = candidate(name)
+    cfg = replay.cfg
+    x0, x1, k0, k1 = vals["x_start"], vals["x_end"], vals["k_start"], vals["k_end"]
+    chain = replay.plant.chain
+
+    def mode(k):
+        return transmission_mode(type(chain)(chain.m, (k,) + tuple(chain.k[1:]), chain.c, chain.c_ground))
+    kmean = 2.0 / (1.0 / k0 + 1.0 / k1)
+    change = 100.0 * (k1 - k0) / kmean
+    text = (f"k1 {k0:.4g} N/m with the nut at {x0 * 1e3:.4g} mm, {k1:.4g} N/m at {x1 * 1e3:.4g} mm ({change:+.0f} % "
+            f"along the travel); the transmission mode at {mode(k0):.1f} Hz and {mode(k1):.1f} Hz there; the "
+            f"compliance 1/k1 linear in the nut position, as EA/L of a screw held at one end in series with the "
+            f"fixed compliances; ")
+    xs = replay.meas["x_cmd"]
+    lo, hi = float(np.min(xs)), float(np.max(xs))
+    if hi - lo < 0.5 * (x1 - x0):
+        text += f"the record covers {lo * 1e3:.4g} .. {hi * 1e3:.4g} mm only; "
+    # can the record see the change? a constant k1 against the fit
+    chans = list(replay.objective.weights)
+    try:
+        res1 = replay.residuals(eff.configure(cfg, vals))
+        best = None
+        for k in (k0, kmean, k1):
+            r = replay.residuals(eff.configure(cfg, dict(vals, k_start=k, k_end=k)))
+            cost = float(np.sum(replay.objective.vector(r) ** 2))
+            if best is None or cost < best[0]:
+                best = (cost, r)
+        seen = bic_score(best[1], res1, chans, 1, replay.noise) > MIN_SCORE
+    except ValueError:
+        seen = True
+    if not seen or not math.isfinite(change):
+        text += (f"the variation cannot be seen over the stroke this record covers ({lo * 1e3:.4g} .. {hi * 1e3:.4g} "
+                 f"mm): a constant k1 fits as well; ")
+    return text
 
 
 def model_modes(cfg):
