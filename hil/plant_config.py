@@ -161,7 +161,9 @@ def candidate(name: str, cfg: Config | None = None) -> Effect:
     """The effect of a catalogue name or ``parameter:<dotted name>``, or several joined by ``+``
     (a :class:`~sim_plant.effects.Combination`, fitted together)."""
     if "+" in name:
-        return Combination([candidate(n, cfg) for n in name.split("+")])
+        names = name.split("+")
+        return Combination([candidate(n, cfg) for n in names], [candidate(n, cfg).name if n.startswith("parameter:")
+                                                                else n for n in names])
     if name.startswith("parameter:"):
         key = name.split(":", 1)[1]
         if cfg is not None and key not in cfg and "." not in key:

@@ -475,15 +475,18 @@ class Combination(Effect):
     """Several effects fitted together: parameters named ``<effect>.<param>``; the name is the
     members' names joined by ``+`` (``coulomb_friction+constant_force``)."""
 
-    def __init__(self, members):
+    def __init__(self, members, names=None):
         self.members = tuple(members)
-        self.name = "+".join(m.name for m in self.members)
+        # the names as the user wrote them (an old name such as time_delay keeps its parameters' prefix)
+        self.names = tuple(names) if names else tuple(m.name for m in self.members)
+        self.name = "+".join(self.names)
         self.description = " and ".join(m.description for m in self.members)
-        self.params = tuple(dataclasses.replace(p, name=f"{m.name}.{p.name}") for m in self.members for p in m.params)
+        self.params = tuple(dataclasses.replace(p, name=f"{n}.{p.name}") for n, m in zip(self.names, self.members)
+                            for p in m.params)
         self.periodic = any(m.periodic for m in self.members)
 
     def split(self, values: dict) -> list[dict]:
-        return [{p.name: values[f"{m.name}.{p.name}"] for p in m.params} for m in self.members]
+        return [{p.name: values[f"{n}.{p.name}"] for p in m.params} for n, m in zip(self.names, self.members)]
 
     def applicable(self, plant):
         return all(m.applicable(plant) for m in self.members)
@@ -499,5 +502,5 @@ class Combination(Effect):
         return cfg
 
     def guess(self, plant, scale):
-        return {f"{m.name}.{k}": v for m in self.members for k, v in m.guess(plant, scale).items()}
+        return {f"{n}.{k}": v for n, m in zip(self.names, self.members) for k, v in m.guess(plant, scale).items()}
 
