@@ -396,6 +396,39 @@ class StiffnessAlongTravel(Effect):
 
 
 @register
+class StiffnessFixedFixed(StiffnessAlongTravel):
+    """k1 along the travel of a screw held axially at both ends (fixed-fixed): the nut at ``a`` from
+    one bearing of ``L`` sees the two screw lengths in parallel, E A L / (a (L - a)) (Eq. 13 with
+    rigid bearings, sim_plant.components.k_screw_fixed_fixed), least in the middle. Its compliance
+    a (L - a) / (E A L), in series with the fixed ones, is quadratic in the nut position: fitted as
+    k1 at both ends of the stretch and midway, wherever the bearings sit. A screw held at one end
+    is the special case of a compliance linear along the travel (``stiffness_along_travel``)."""
+    name = "stiffness_along_travel_fixed_fixed"
+    description = ("the transmission stiffness k1 changes with the nut position as for a screw held at both ends "
+                   "(softest between the bearings), given at both ends of the travel and midway")
+    params = (Param("k_start", "stiffness", 1e3, 1e12, 5e7, "k1 with the nut at x_start"),
+              Param("k_middle", "stiffness", 1e3, 1e12, 5e7, "k1 with the nut midway between x_start and x_end"),
+              Param("k_end", "stiffness", 1e3, 1e12, 5e7, "k1 with the nut at x_end"),
+              Param("x_start", "length", -1e3, 1e3, 0.0, "one end of the travel (a setting, not fitted)", fit=False),
+              Param("x_end", "length", -1e3, 1e3, 0.1, "the other end of the travel (a setting, not fitted)",
+                    fit=False))
+    nests = ("stiffness_along_travel",)
+
+    def apply(self, plant, values):
+        self._need_link(plant)
+        x0, x1 = values["x_start"], values["x_end"]
+        if not x1 > x0:
+            raise ValueError(f"{self.name}: x_end must lie beyond x_start (got {x0:g} .. {x1:g} m)")
+        return dataclasses.replace(plant, effects=plant.effects + (
+            (kernel.STIFFNESS_ALONG_TRAVEL, (0.0, plant.chain.k[0], x0, x1, 1.0 / values["k_start"],
+                                             1.0 / values["k_middle"], 1.0 / values["k_end"])),))
+
+    def guess(self, plant, scale):
+        g = super().guess(plant, scale)
+        return dict(g, k_middle=g["k_start"])
+
+
+@register
 class PitchError(Effect):
     name = "pitch_error"
     description = ("periodic lead error of the screw: the nut sits at x1 + a sin(2 pi x1 / period + phase), "

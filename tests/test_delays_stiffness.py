@@ -29,7 +29,7 @@ K1 = CFG["plant.k1"]
 # the parameters the issue saw named instead (k1 for an actuator delay and a varying stiffness,
 # m1 for a feedback delay)
 CANDIDATES = ["actuator_delay", "feedback_delay", "channel_skew", "tip_skew", "stiffness_along_travel",
-              "parameter:plant.k1", "parameter:plant.m1", "parameter:plant.c1", "mass_change"]
+              "stiffness_along_travel_fixed_fixed", "parameter:plant.k1", "parameter:plant.m1", "parameter:plant.c1", "mass_change"]
 
 
 def _replay(cfg, effect, values, duration=6.0, seed=3):
@@ -233,6 +233,42 @@ def test_stiffness_along_travel_fitted(change):
     want = _k_at(truth, hi) - _k_at(truth, lo)
     assert p["k_end"] - p["k_start"] == pytest.approx(want, rel=0.1)
     assert "transmission mode" in c.evidence and "cannot be seen" not in c.evidence
+
+
+# a thin screw held at both ends, bearings at -20 mm and +100 mm, in series with 7e7 N/m that does not
+# move: k1 5.86e7 N/m at 0 and 80 mm, 5.19e7 N/m midway (by hand: EA L/(a(L-a)) = 3.6e8 and 2.0e8 N/m)
+EA, BEARINGS, K_REST = 6e6, (-0.02, 0.10), 7e7
+
+
+def _k_fixed_fixed(x):
+    a0, b0 = BEARINGS
+    return k1_along_travel(k_screw_fixed_fixed(EA, 1.0, b0 - a0, x - a0), K_REST)
+
+
+FIXED_FIXED = {"k_start": _k_fixed_fixed(0.0), "k_middle": _k_fixed_fixed(0.04), "k_end": _k_fixed_fixed(0.08),
+               "x_start": 0.0, "x_end": 0.08}
+
+
+def test_fixed_fixed_kernel_and_closed_form():
+    assert k_screw_fixed_fixed(EA, 1.0, 0.12, 0.02) == pytest.approx(3.6e8, rel=1e-12)
+    assert k_screw_fixed_fixed(EA, 1.0, 0.12, 0.06) == pytest.approx(2.0e8, rel=1e-12)
+    (code, row), = CATALOGUE["stiffness_along_travel_fixed_fixed"].apply(plant_from_config(CFG), FIXED_FIXED).effects
+    q = np.zeros(kernel.N_EFFECT_PARAMS)
+    q[:len(row)] = row
+    for x in (0.0, 0.013, 0.04, 0.07, 0.08):        # the compliance of a fixed-fixed screw is quadratic: exact
+        assert 1 / kernel.link_compliance(q, x) == pytest.approx(_k_fixed_fixed(x), rel=1e-10)
+
+
+def test_fixed_fixed_fitted_and_named():
+    rp, _ = _replay(CFG, "stiffness_along_travel_fixed_fixed", FIXED_FIXED)
+    d = diagnose(rp, CANDIDATES, jobs=1)
+    assert d["verdict"] == "stiffness_along_travel_fixed_fixed"
+    p = d["candidates"][0].params
+    for x in (p["x_start"], 0.5 * (p["x_start"] + p["x_end"]), p["x_end"]):
+        s = (x - p["x_start"]) / (p["x_end"] - p["x_start"])
+        c = (2 * s - 1) * (s - 1) / p["k_start"] + 4 * s * (1 - s) / p["k_middle"] + s * (2 * s - 1) / p["k_end"]
+        assert 1 / c == pytest.approx(_k_fixed_fixed(x), rel=0.1)
+    assert "held at both ends" in d["candidates"][0].evidence
 
 
 def test_stiffness_variation_over_a_short_stroke_cannot_be_seen():

@@ -96,7 +96,7 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
         return (f"a logging artefact, not physics: the {which} channel is recorded {abs(sk) * 1e3:.3g} ms "
                 f"({abs(sk) / replay.sample_period:.2f} samples) {'late' if sk >= 0 else 'early'} against the "
                 f"others; the model of the axis needs no change; " + fall)
-    if name == "stiffness_along_travel":
+    if name in ("stiffness_along_travel", "stiffness_along_travel_fixed_fixed"):
         return _stiffness_evidence(name, vals, replay, res0) + fall
     if eff_name == "mass_change":
         return f"{chan} residual follows the acceleration: {vals.get('mass', 0):+.3g} kg on the table; " + fall
@@ -108,7 +108,8 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
 
 
 def _stiffness_evidence(name, vals, replay, res0) -> str:
-    """k1 and the transmission mode at both ends of the stretch; whether the record sees the change."""
+    """k1 and the transmission mode at both ends of the stretch (and midway, for a screw held at
+    both ends); whether the record sees the change at all."""
     eff = candidate(name)
     cfg = replay.cfg
     x0, x1, k0, k1 = vals["x_start"], vals["x_end"], vals["k_start"], vals["k_end"]
@@ -119,24 +120,39 @@ def _stiffness_evidence(name, vals, replay, res0) -> str:
     kmean = 2.0 / (1.0 / k0 + 1.0 / k1)
     change = 100.0 * (k1 - k0) / kmean
     text = (f"k1 {k0:.4g} N/m with the nut at {x0 * 1e3:.4g} mm, {k1:.4g} N/m at {x1 * 1e3:.4g} mm ({change:+.0f} % "
-            f"along the travel); the transmission mode at {mode(k0):.1f} Hz and {mode(k1):.1f} Hz there; the "
-            f"compliance 1/k1 linear in the nut position, as EA/L of a screw held at one end in series with the "
-            f"fixed compliances; ")
+            f"along the travel); the transmission mode at {mode(k0):.1f} Hz and {mode(k1):.1f} Hz there; ")
+    if "k_middle" in vals:
+        km = vals["k_middle"]
+        # the compliance c(s) = c0 (2s-1)(s-1) + 4 cm s(1-s) + c1 s(2s-1) on s in [0, 1]: its vertex
+        c0, cm, c1 = 1 / k0, 1 / km, 1 / k1
+        curv = 2 * (c0 + c1) - 4 * cm           # c(s) = curv s^2 + ..., softest inside where curv < 0
+        slope = 4 * cm - 3 * c0 - c1
+        s_v = -slope / (2 * curv) if curv != 0 else math.nan
+        text += f"{km:.4g} N/m midway ({mode(km):.1f} Hz); "
+        if curv < 0 and 0.0 < s_v < 1.0:
+            text += (f"softest with the nut at {(x0 + s_v * (x1 - x0)) * 1e3:.4g} mm, between the bearings of a "
+                     f"screw held at both ends (EA L/(a (L - a)) in series with the fixed compliances); ")
+        else:
+            text += "no softest point inside the travel: a screw held at one end does as well; "
+    else:
+        text += ("the compliance 1/k1 linear in the nut position, as EA/L of a screw held at one end in series "
+                 "with the fixed compliances; ")
     xs = replay.meas["x_cmd"]
     lo, hi = float(np.min(xs)), float(np.max(xs))
     if hi - lo < 0.5 * (x1 - x0):
         text += f"the record covers {lo * 1e3:.4g} .. {hi * 1e3:.4g} mm only; "
-    # can the record see the change? a constant k1 against the fit
+    # can the record see the change? a constant k1 (the best of the ends' values and their mean) against the fit
     chans = list(replay.objective.weights)
+    ks = [k for n, k in vals.items() if n.startswith("k_")]
     try:
         res1 = replay.residuals(eff.configure(cfg, vals))
         best = None
         for k in (k0, kmean, k1):
-            r = replay.residuals(eff.configure(cfg, dict(vals, k_start=k, k_end=k)))
+            r = replay.residuals(eff.configure(cfg, dict(vals, **{n: k for n in vals if n.startswith("k_")})))
             cost = float(np.sum(replay.objective.vector(r) ** 2))
             if best is None or cost < best[0]:
                 best = (cost, r)
-        seen = bic_score(best[1], res1, chans, 1, replay.noise) > MIN_SCORE
+        seen = bic_score(best[1], res1, chans, len(ks) - 1, replay.noise) > MIN_SCORE
     except ValueError:
         seen = True
     if not seen or not math.isfinite(change):

@@ -131,11 +131,12 @@ def fit_frf(cfg, data: FrfData, names: list[str], min_coherence: float = 0.8, ma
         start.update(eff.guess(plant, {}))
     except Exception:       # an effect whose guess needs a time record: keep the catalogue's guess
         pass
-    params = list(eff.params)
+    params = list(eff.fitted_params)
+    held = {p.name: start[p.name] for p in eff.params if not p.fit}     # settings of the effect, not fitted
     logs = [p.lower >= 0 and start[p.name] > 0 for p in params]
 
     def to_values(z):
-        return {p.name: (math.exp(v) if lg else v) for p, lg, v in zip(params, logs, z)}
+        return dict(held, **{p.name: (math.exp(v) if lg else v) for p, lg, v in zip(params, logs, z)})
 
     def f(z):
         try:

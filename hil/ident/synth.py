@@ -35,6 +35,9 @@ HIDDEN_DEFAULTS = {
     "channel_skew": {"skew": 8e-3},
     "tip_skew": {"skew": 8e-3},
     "stiffness_along_travel": {"k_start": 1.2 * 5.362e7, "k_end": 0.8 * 5.362e7, "x_start": 0.0, "x_end": 0.08},
+    # a screw held at both ends: k1 30 % lower with the nut midway than at both ends of the travel
+    "stiffness_along_travel_fixed_fixed": {"k_start": 5.362e7, "k_middle": 0.7 * 5.362e7, "k_end": 5.362e7,
+                                           "x_start": 0.0, "x_end": 0.08},
     "pitch_error": {"amplitude": 4e-6, "period": 0.01, "phase": 0.5},
     "torque_ripple": {"amplitude": 0.6, "period": 0.005, "phase": 0.3},
     "compliant_mode": {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02},
