@@ -349,3 +349,14 @@ def test_hil_synth_writes_records_with_the_new_effects(tmp_path, capsys, effect,
     assert info["effect"] == effect and {k: info["params"][k] for k in want} == want
     m = read(str(out))
     assert m.t.size == info["samples"] == 500
+
+
+def test_stiffness_and_actuator_delay_without_a_tip_mass():
+    cfg = load("config/paper_bench_2dof.toml")
+    truth = {"k_start": 1.15 * K1, "k_end": 0.85 * K1, "x_start": 0.0, "x_end": 0.08}
+    rp, _ = _replay(cfg, "stiffness_along_travel", truth)
+    p = evaluate(rp, "stiffness_along_travel").params
+    for x in (p["x_start"], p["x_end"]):
+        assert _k_at(p, x) == pytest.approx(_k_at(truth, x), rel=0.1)
+    rp, _ = _replay(cfg, "actuator_delay", {"delay": 0.375e-3})
+    assert abs(evaluate(rp, "actuator_delay").params["delay"] - 0.375e-3) < TV
