@@ -12,7 +12,12 @@ A configuration switches an effect on by giving its section, e.g.::
     force = "-3.2 N"
 
 (read by hil.plant_config, which also holds the ``parameter:<key>`` effects that re-identify a
-config value). The physics here knows no configuration: a parameter it cannot take raises
+config value). Some parameters are settings, not strengths (``Param.fit`` False: where a
+stiffness is given along the travel): a fit holds them. An effect whose error is not convex in
+its parameter (a delay) gives a grid of starting values over the physically possible range
+(:meth:`Effect.grid`). A :class:`RecordEffect` is an artefact of the recording (a channel's time
+skew): it leaves the plant alone and acts on the recorded channels. Old names keep working
+(:data:`ALIASES`: ``time_delay`` is ``actuator_delay``). The physics here knows no configuration: a parameter it cannot take raises
 ValueError, which the config layer reports as a configuration error naming the key.
 """
 from __future__ import annotations
