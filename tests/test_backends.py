@@ -188,7 +188,9 @@ def test_in_cycle_faults_end_the_same_way_on_canopen_and_serial(tmp_path, capsys
                                                                  words):
     """A fault the drive reports, or a link that stops answering, in the middle of a move: on either
     backend it reaches the loop as Feedback.fault, the supervisor trips on it, the axis is stopped,
-    the record is closed ``tripped`` with the fault as its reason, and hil move exits 1."""
+    the record is closed ``tripped`` with the fault as its reason, the trip is latched, and hil move
+    exits with the code of the kind of stop: 1 for a drive fault, 4 for lost communication (issue 16:
+    the exit codes tell them apart; before, both exited 1)."""
     ends = []
     for name, run, fault, word in (("canopen", _canopen_move, canopen_fault, words[0]),
                                    ("serial", _serial_move, serial_fault, words[1])):
@@ -196,7 +198,13 @@ def test_in_cycle_faults_end_the_same_way_on_canopen_and_serial(tmp_path, capsys
         assert word in summary["reason"], (name, summary["reason"])
         assert record["reason"] == summary["reason"] and record["rows"] > 20
         ends.append((rc, summary["status"], record["status"]))
-    assert ends[0] == ends[1] == (1, "tripped", "tripped")
+        # latched: the next motion command is refused until hil reset
+        assert main(["status", "--config", CANOPEN, "--backend", "sim"]) == 0
+        assert "TRIPPED" in capsys.readouterr().out
+        assert main(["reset", "--config", CANOPEN, "--supervisor-only"]) == 0
+        capsys.readouterr()
+    code = 1 if canopen_fault[0] == "emcy" else 4
+    assert ends[0] == ends[1] == (code, "tripped", "tripped")
 
 
 class _FaultBetweenTicks(Backend):
