@@ -1,0 +1,108 @@
+"""A real axis is never surprised (issue 16): a move starts where the axis stands, a trip stays
+latched until ``hil reset``, and a move planned from elsewhere is refused, never run as a jump.
+
+The simulated CiA 402 drive in lockstep on a private virtual bus; the host through the command
+line (``hil move``, ``hil status``, ``hil reset``) as a user runs it, each command a new backend
+(its own start-up and shutdown) against the same drive, whose shaft stays where it stopped."""
+import json
+
+import can
+import pytest
+from canopen_rig import channel
+
+from drivers.canopen.drive_sim import DriveSim
+from hil import config
+from hil.cli import main
+from hil.io.measurement import read as read_measurement
+
+CANOPEN = "config/paper_bench_canopen.toml"
+
+
+def _arm(sim: DriveSim, after: int, fault: str, value=None) -> None:
+    """``fault`` injected ``after`` SYNCs from now (the next command's cycle ``after``)."""
+    cycle, at_sync = sim._cycle, sim.syncs + after
+
+    def hooked(from_sync):
+        cycle(from_sync)
+        if sim.syncs == at_sync:
+            sim.inject(fault, value)
+            sim._cycle = cycle
+    sim._cycle = hooked
+
+
+@pytest.fixture
+def axis():
+    ch = channel("start")
+    sets = ["--set", "canopen.lockstep=true", "--set", "canopen.interface=virtual", "--set", f"canopen.channel={ch}"]
+    cfg = config.load(CANOPEN, {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch})
+    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    try:
+        yield sim, ["--config", CANOPEN, *sets]
+    finally:
+        sim.close()
+
+
+def _move(capsys, common, out, *args):
+    rc = main(["move", *common, "--backend", "canopen", "--feed", "6000mm/min", "--amax", "2m/s^2", "--dwell", "0.2s",
+               "--out", str(out), "--json", *args])
+    cap = capsys.readouterr()
+    return rc, (json.loads(cap.out[cap.out.index("{"):]) if "{" in cap.out else None), cap.err.strip()
+
+
+def test_after_a_trip_and_reset_the_next_move_starts_where_the_axis_stands(axis, capsys, tmp_path):
+    sim, common = axis
+    # 1. to 4.8 mm, and a drive fault in the dwell after it: a trip with the axis at 4.8 mm
+    _arm(sim, 70, "emcy", 0x2310)
+    rc, s, _ = _move(capsys, common, tmp_path / "a", "--stroke", "4.8mm")
+    assert (rc, s["status"], s["stop"]) == (1, "tripped", "drive_fault") and s["start_m"] == 0.0
+    assert s["stopped_at_s"] > 0.2                      # the move was done, the dwell not
+    assert "overshoot_table_um" not in s and "settling_time_table" not in s      # no figures of an incomplete move
+    # 3. latched: every motion command refused, with the trip, its time and how to clear it
+    rc, s, err = _move(capsys, common, tmp_path / "c", "--stroke", "20mm")
+    assert rc == 2 and s is None and err.count("\n") == 0
+    assert "supervisor tripped at " in err and "EMCY 0x2310" in err and "hil reset" in err
+    assert main(["status", *common, "--json"]) == 0
+    st = json.loads(capsys.readouterr().out)
+    assert st["supervisor"]["tripped"] and "EMCY 0x2310" in st["supervisor"]["reason"] and st["state"] == "FAULT"
+    x_stood = st["position_m"]
+    assert x_stood == pytest.approx(4.8e-3, abs=20e-6)
+    # 4. reset: the drive's fault and the latch
+    assert main(["reset", *common]) == 0
+    assert "supervisor was: tripped at" in capsys.readouterr().out
+    # 5. planned from 0 mm (--start): refused, one line naming both positions; nothing moved
+    rc, s, err = _move(capsys, common, tmp_path / "d", "--stroke", "20mm", "--start", "0mm")
+    assert rc == 2 and s is None and err.count("\n") == 0
+    assert f"stands at {x_stood * 1e3:.3f} mm" in err and "planned from 0.000 mm" in err
+    # 6. the next move starts where the axis stands, never at 0
+    rc, s, _ = _move(capsys, common, tmp_path / "e", "--stroke", "20mm")
+    assert rc == 0 and s["status"] == "complete"
+    m = read_measurement(tmp_path / "e" / "move.csv")
+    assert m["x_cmd"][0] == pytest.approx(x_stood, abs=1e-6) and s["start_m"] == pytest.approx(x_stood, abs=1e-6)
+    assert abs(m["e_table"][0]) < 1e-6                  # no snap back: the first command is where it stands
+    assert abs(m["e_table"]).max() < 0.2e-3             # the move's own following error, no 4.8 mm step
+    assert m["x_cmd"][-1] == pytest.approx(x_stood + 20e-3, abs=1e-9)
+    assert abs(m["torque"][:10]).max() < 5.0                # nowhere near the 30 N m of a 4.8 mm jump
+
+
+def test_start_within_the_window_runs_from_the_measured_position(axis, capsys, tmp_path):
+    sim, common = axis
+    sim.home_at(0.05e-3)                         # 0.05 mm off: inside limits.start_window (0.1 mm)
+    sim.advance(1)                               # one drive cycle: its position objects show it
+    rc, s, _ = _move(capsys, common, tmp_path / "a", "--stroke", "2mm", "--start", "0mm")
+    assert rc == 0
+    m = read_measurement(tmp_path / "a" / "move.csv")
+    assert m["x_cmd"][0] == pytest.approx(0.05e-3, abs=1e-6)
+    rc, s, err = _move(capsys, common, tmp_path / "b", "--stroke", "2mm", "--start", "0mm",
+                       "--set", "limits.start_window=1um")
+    assert rc == 2 and "limits.start_window 0.001 mm" in err
+
+
+def test_negative_quantities_on_the_command_line(axis, capsys, tmp_path):
+    sim, common = axis
+    rc, s, _ = _move(capsys, common, tmp_path / "a", "--stroke", "-0.002m")
+    assert rc == 0 and s["status"] == "complete"
+    assert read_measurement(tmp_path / "a" / "move.csv")["x_cmd"][-1] == pytest.approx(-2e-3, abs=1e-9)
+    rc = main(["jog", *common, "--distance", "-1mm", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["start_m"] == pytest.approx(-2e-3, abs=20e-6)
+    assert out["end_m"] == pytest.approx(-3e-3, abs=50e-6)
