@@ -1,0 +1,221 @@
+"""The fault matrix (issue 16): every fault the simulated drives can inject, on each backend, ends
+the same way: the configured controlled stop, the record closed with its status and reason (valid
+and complete up to the fault), the trip latched, and the exit code of its kind
+(hil.errors.STOP_EXIT_CODES).
+
+Each case is a ``hil move`` on the command line, as a user runs it, with the fault given in the
+words of ``hil drive-sim --fault`` / ``hil serial-sim --fault``; the README's documented
+examples are cases of this matrix (``test_the_readme_fault_examples_are_in_the_matrix``).
+
+* CANopen: the simulated CiA 402 drive in lockstep on a private virtual bus (the drive's clock is
+  the SYNC count: deterministic, whatever the machine's load); faults scheduled as ``hil
+  drive-sim`` schedules them (hil.commands.drive_sim.FaultSchedule: seconds after the drive was
+  enabled).
+* Serial: the simulated ASCII drive in its own process on a pseudo-terminal (its plant advances
+  one cycle per setpoint), the host on the real-time clock with the example's timeouts; faults
+  counted in commands, as ``hil serial-sim`` counts them.
+
+Reaction time: CANopen, from the cycle in which the drive injects the fault to the cycle in
+which the host commands the stop (position cycles of 4 ms); serial, measured by the drive, wall
+clock, from the command that got the fault to the host's stop command arriving.
+
+``python tests/test_faults.py`` runs the matrix and prints the README's reaction-time table.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import can
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from canopen_rig import channel  # noqa: E402
+
+from drivers.canopen.drive_sim import DriveSim  # noqa: E402
+from hil import config  # noqa: E402
+from hil.cli import main  # noqa: E402
+from hil.commands.drive_sim import FaultSchedule, parse_fault  # noqa: E402
+from hil.errors import STOP_EXIT_CODES  # noqa: E402
+from hil.io.measurement import read as read_measurement  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+CANOPEN = str(ROOT / "config" / "paper_bench_canopen.toml")
+SERIAL = str(ROOT / "config" / "serial_ascii_example.toml")
+linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
+
+# (label, --fault, the kind of stop expected, words of the reason)
+CANOPEN_CASES = [
+    ("drive killed", "kill@0.12", "link", "lost communication: no TPDO from the drive"),
+    ("drive frozen 0.5 s", "freeze=0.5@0.12", "link", "lost communication: no TPDO from the drive"),
+    ("EMCY (drive fault)", "emcy=0x2310@0.12", "drive_fault", "drive fault: EMCY 0x2310"),
+    ("heartbeat loss", "heartbeat_loss@0.12", "link", "lost communication: drive heartbeat lost"),
+    ("frozen encoder", "frozen_encoder@0.12", "trip", "position feedback frozen"),
+    ("late answers", "late_pdo=0.006@0.12", "link", "lost communication: no TPDO from the drive"),
+    ("missing answers", "missing_pdo=5@0.12", "link", "lost communication: no TPDO from the drive"),
+]
+SERIAL_CASES = [
+    ("drive killed (port vanishes)", "vanish@20", "link", "port lost"),
+    ("drive frozen 0.5 s (50 commands unanswered)", "timeout@20x50", "link", "timeout"),
+    ("drive fault", "drive_fault@20:read", "drive_fault", "drive fault 2"),
+    ("frozen encoder", "frozen_encoder@10", "trip", "position feedback frozen"),
+    ("late answers (50 ms)", "late@20x5", "link", "lost communication: serial"),
+    ("garbled answers", "garbled@20x5", "link", "lost communication: serial"),
+    ("serial timeout", "timeout@20x5", "link", "timeout"),
+]
+# recovered by the retries: the move completes
+SERIAL_RECOVERED = ["garbled@20x1", "checksum@20x1"]
+
+MOVE = ["--feed", "6000mm/min", "--amax", "2m/s^2", "--json"]
+T = 0.004
+
+
+def _move(argv, out) -> tuple[int, dict, dict]:
+    """``hil move`` -> exit code, its JSON summary, the record's status file."""
+    import contextlib
+    import io
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(io.StringIO()):
+        rc = main(["move", *argv, "--out", str(out)])
+    text = buf.getvalue()
+    summary = json.loads(text[text.index("{"):]) if "{" in text else {}
+    status = json.loads((Path(out) / "move.json").read_text())
+    return rc, summary, status
+
+
+def _latch() -> dict:
+    p = Path(os.environ["HIL_STATE_DIR"]) / "latch.json"
+    return json.loads(p.read_text()) if p.exists() else {}
+
+
+def run_canopen_case(fault: str, out: Path) -> dict:
+    """One CANopen case; returns what happened (the figures the matrix asserts and reports)."""
+    ch = channel("fm")
+    sets = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch,
+            "canopen.pdo_timeout": "50 ms", "canopen.sdo_timeout": "50 ms"}
+    cfg = config.load(CANOPEN, sets)
+    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    schedule = FaultSchedule([parse_fault(fault)])
+    cycle = sim._cycle
+
+    def hooked(from_sync):
+        cycle(from_sync)
+        schedule.poll(sim)
+    sim._cycle = hooked
+    argv = ["--config", CANOPEN, "--backend", "canopen", "--stroke", "20mm", "--dwell", "0.5s", *MOVE]
+    for k, v in sets.items():
+        argv += ["--set", f"{k}={str(v).lower() if isinstance(v, bool) else v}"]
+    try:
+        rc, summary, status = _move(argv, out)
+    finally:
+        sim.close()
+    m = read_measurement(out / "move.csv")
+    fired_at = schedule.fired[0][1] if schedule.fired else math.nan
+    trip_tick = len(m["t"]) - 1
+    return {"rc": rc, "summary": summary, "status": status, "record": m, "latch": _latch(),
+            "fire_tick": round(fired_at / T), "trip_tick": trip_tick,
+            "reaction_cycles": trip_tick - round(fired_at / T),
+            "drive_state": sim.state, "drive_speed": float(sim.plant.x[sim.plant.plant.n]),
+            "killed": fault.startswith("kill")}
+
+
+def run_serial_case(fault: str, out: Path) -> dict:
+    from drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.serial.drive_sim import parse_fault as parse_serial_fault
+    cfg = config.load(SERIAL)
+    with SimulatedSerialDrive(cfg, faults=[parse_serial_fault(fault)]) as drive:
+        rc, summary, status = _move(["--config", SERIAL, "--backend", "serial", "--set",
+                                     f'serial.port="{drive.port}"', "--stroke", "10mm", "--feed", "7000mm/min",
+                                     "--tacc", "200ms", "--dwell", "0.3s", "--json"], out)
+        st = drive.state() if drive.alive else {}
+    m = read_measurement(out / "move.csv")
+    fired, stopped = (st.get("fired") or [None])[0], st.get("stopped")
+    return {"rc": rc, "summary": summary, "status": status, "record": m, "latch": _latch(), "drive": st,
+            "reaction_ms": (stopped["t"] - fired["t"]) * 1e3 if fired and stopped else math.nan,
+            "reaction_commands": stopped["command"] - fired["command"] if fired and stopped else None,
+            "killed": fault.startswith("vanish")}
+
+
+def _check_common(r: dict, kind: str, words: str) -> None:
+    s, st, m = r["summary"], r["status"], r["record"]
+    assert r["rc"] == STOP_EXIT_CODES[kind], (r["rc"], s.get("reason"))
+    assert s["stop"] == kind and words in s["reason"], s["reason"]
+    assert "overshoot_table_um" not in s                         # no figures of an incomplete move
+    # the record: closed with the status and reason, readable, complete and finite up to the stop
+    assert st["status"] == s["status"] in ("tripped", "fault") and st["reason"] == s["reason"]
+    assert st["rows"] == len(m["t"]) > 5
+    assert all(math.isfinite(v) for v in m["x_table"]) and all(math.isfinite(v) for v in m["x_cmd"])
+    dt = m["t"][1:] - m["t"][:-1]
+    assert abs(dt - dt[0]).max() < 1e-12                         # no row lost
+    # latched: the reason and the time, until hil reset
+    assert r["latch"].get("reason") == s["reason"] and r["latch"].get("time")
+
+
+@pytest.mark.parametrize("label,fault,kind,words", CANOPEN_CASES, ids=[c[0] for c in CANOPEN_CASES])
+def test_canopen_fault_matrix(tmp_path, label, fault, kind, words):
+    r = run_canopen_case(fault, tmp_path)
+    _check_common(r, kind, words)
+    assert r["fire_tick"] == 30 and r["trip_tick"] > r["fire_tick"]      # recorded up to the fault and past it
+    if not r["killed"]:
+        # the controlled stop: the drive left OPERATION ENABLED and its shaft is at rest
+        assert r["drive_state"] != "OPERATION ENABLED" and abs(r["drive_speed"]) < 1e-3, r["drive_state"]
+
+
+@linux
+@pytest.mark.parametrize("label,fault,kind,words", SERIAL_CASES, ids=[c[0] for c in SERIAL_CASES])
+def test_serial_fault_matrix(tmp_path, label, fault, kind, words):
+    r = run_serial_case(fault, tmp_path)
+    _check_common(r, kind, words)
+    if not r["killed"]:
+        # the controlled stop reached the drive: it is disabled and its shaft at rest
+        assert r["drive"]["stopped"] is not None and not r["drive"]["enabled"]
+        assert r["reaction_ms"] < 500, r["reaction_ms"]
+
+
+@linux
+@pytest.mark.parametrize("fault", SERIAL_RECOVERED)
+def test_serial_single_faults_are_recovered_by_a_retry(tmp_path, fault):
+    r = run_serial_case(fault, tmp_path)
+    assert r["rc"] == 0 and r["summary"]["status"] == "complete" and not r["latch"]
+    assert r["drive"]["fired"], "the documented fault must fire on the documented move"
+
+
+def test_the_readme_fault_examples_are_in_the_matrix():
+    """Every --fault example of the README is a case of this matrix (so each one fires on the move
+    the README runs, and ends as the matrix says)."""
+    import re
+    readme = (ROOT / "README.md").read_text()
+    examples = set(re.findall(r"--fault ([A-Za-z_]+[^\s`]*)", readme))
+    known = {c[1] for c in CANOPEN_CASES + SERIAL_CASES} | set(SERIAL_RECOVERED)
+    assert examples and examples <= known, sorted(examples - known)
+
+
+def reaction_table() -> str:
+    """The README's table: every case run, the reaction measured."""
+    rows = ["| backend | fault (`--fault`) | reason (first words) | exit | reaction: fault -> stop command |",
+            "|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory() as d:
+        os.environ["HIL_STATE_DIR"] = d
+        for label, fault, kind, words in CANOPEN_CASES:
+            Path(d, "latch.json").unlink(missing_ok=True)
+            with tempfile.TemporaryDirectory() as out:
+                r = run_canopen_case(fault, Path(out))
+            rows.append(f"| canopen | {label} (`{fault}`) | {r['summary']['reason'][:48]} | {r['rc']} | "
+                        f"{r['reaction_cycles']} cycles ({r['reaction_cycles'] * T * 1e3:.0f} ms) |")
+        for label, fault, kind, words in SERIAL_CASES:
+            Path(d, "latch.json").unlink(missing_ok=True)
+            with tempfile.TemporaryDirectory() as out:
+                r = run_serial_case(fault, Path(out))
+            reaction = ("the drive is gone: its watchdog" if r["killed"] else
+                        f"{r['reaction_ms']:.1f} ms ({r['reaction_commands']} commands)")
+            rows.append(f"| serial | {label} (`{fault}`) | {r['summary']['reason'][:48]} | {r['rc']} | {reaction} |")
+    return "\n".join(rows)
+
+
+if __name__ == "__main__":      # pragma: no cover
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    print(reaction_table())
