@@ -230,3 +230,95 @@ def reaction_table() -> str:
 if __name__ == "__main__":      # pragma: no cover
     os.environ.setdefault("MPLBACKEND", "Agg")
     print(reaction_table())
+
+
+# -- the rest of the fault rule: the latch on every backend, a loop overrun, Ctrl-C -------------------
+BENCH = str(ROOT / "config" / "paper_bench.toml")
+
+
+def test_a_latched_trip_refuses_every_motion_command_on_every_backend(capsys, tmp_path):
+    from hil.supervisor import Supervisor
+    Supervisor(config.load(CANOPEN)).trip(1.25, "drive fault: EMCY 0x2310 continuous overcurrent")
+    commands = [
+        ["move", "--config", BENCH, "--stroke", "1mm", "--feed", "1m/min", "--amax", "1m/s^2", "--out", str(tmp_path)],
+        ["jog", "--config", BENCH, "--backend", "sim", "--distance", "-1mm"],
+        ["sweep", "--config", BENCH, "--stroke", "1mm", "--feed", "1m/min", "--jmax", "50,100", "--out",
+         str(tmp_path / "sw"), "--no-progress", "--no-plot"],
+        ["frf", "--config", BENCH, "--out", str(tmp_path / "frf")],
+        ["move", "--config", SERIAL, "--backend", "serial", "--set", "serial.port=/dev/null", "--stroke", "1mm",
+         "--feed", "1m/min", "--amax", "1m/s^2", "--out", str(tmp_path)],
+    ]
+    for argv in commands:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "supervisor tripped at " in err and "EMCY 0x2310" in err, err
+        assert "'hil reset --config" in err
+    assert main(["status", "--config", BENCH, "--json"]) == 0
+    st = json.loads(capsys.readouterr().out)["supervisor"]
+    assert st["tripped"] and st["reason"].startswith("drive fault: EMCY") and st["time"].endswith("UTC")
+    assert main(["reset", "--config", BENCH]) == 0
+    assert "supervisor was: tripped at" in capsys.readouterr().out
+    assert main(commands[0]) == 0                      # motion allowed again
+
+
+class _Stalls:
+    """The embedded plant as an axis on the real-time clock (closes both loops: one exchange per
+    position tick) whose feedback stalls once for 5 periods at a tick: a loop overrun."""
+
+    def _init(self, at: int, stall: float, ctrl_c: bool = False):
+        self.simulated, self.at, self.n, self.stall, self.ctrl_c, self.stopped = False, at, 0, stall, ctrl_c, False
+
+    def read_feedback(self):
+        self.n += 1
+        if self.n == self.at:
+            if self.ctrl_c:
+                raise KeyboardInterrupt
+            import time
+            time.sleep(self.stall)
+        return super().read_feedback()
+
+    def quick_stop(self):
+        self.stopped = True
+        super().quick_stop()
+
+
+def _stalling_backend(cfg, at=30, stall=0.02, ctrl_c=False):
+    from drivers.sim import SimulatedPlant
+
+    class Stalling(_Stalls, SimulatedPlant):
+        name = "stalling"
+    b = Stalling(cfg, closes="both")
+    b._init(at, stall, ctrl_c)
+    return b
+
+
+def test_a_loop_overrun_ends_the_same_way(tmp_path):
+    from hil.errors import stop_exit_code
+    from hil.profiles import MoveSpec, Trajectory
+    from hil.runtime import run_trajectory
+    cfg = config.load(BENCH)
+    traj = Trajectory()
+    traj.move(MoveSpec(0.01, 0.1, a_max=2.0))
+    b = _stalling_backend(cfg, at=30, stall=5 * cfg["control.position_period"])
+    rec = run_trajectory(cfg, traj, backend=b, out_file=tmp_path / "run.csv", settle=0.1)
+    assert rec.status == "tripped" and rec.reason.startswith("loop overrun"), rec.reason
+    assert stop_exit_code(rec.status, rec.reason) == 5 and b.stopped
+    status = json.loads((tmp_path / "run.json").read_text())
+    assert status["status"] == "tripped" and status["reason"] == rec.reason
+    assert _latch()["reason"] == rec.reason
+
+
+def test_ctrl_c_ends_in_the_controlled_stop_and_a_closed_record(tmp_path):
+    from hil.profiles import MoveSpec, Trajectory
+    from hil.runtime import run_trajectory
+    cfg = config.load(BENCH)
+    traj = Trajectory()
+    traj.move(MoveSpec(0.01, 0.1, a_max=2.0))
+    b = _stalling_backend(cfg, at=20, ctrl_c=True)
+    with pytest.raises(KeyboardInterrupt):
+        run_trajectory(cfg, traj, backend=b, out_file=tmp_path / "run.csv", settle=0.1)
+    assert b.stopped
+    status = json.loads((tmp_path / "run.json").read_text())
+    assert (status["status"], status["reason"], status["rows"]) == ("aborted", "interrupted (Ctrl-C)", 19)
+    assert read_measurement(tmp_path / "run.csv")["t"].size == 19
+    assert not _latch()                       # an operator's interrupt is no fault: nothing latched

@@ -358,8 +358,8 @@ class SerialBackend(Backend):
         drive's watchdog stops it. Nothing before :meth:`open` or after :meth:`close`."""
         was = self.enabled
         self.enabled = False
-        if not self._open or self._ser is None and self._faulted:
-            return
+        if not self._open or not self._open_once or self._ser is None and self._faulted:
+            return                   # nothing opened, or the link is gone: nothing to tell the drive
         try:
             self.transact("disable", setup=True)
         except BackendFault:

@@ -30,7 +30,7 @@ import numpy as np
 
 from drivers import open_backend
 from hil.analysis import move_figures
-from hil.errors import RunStopped
+from hil.errors import RunStopped, UserError
 from hil.profiles import MoveSpec, Trajectory, plan_move
 from hil.runtime import run_trajectory
 from hil.simulate import simulate
@@ -174,6 +174,9 @@ def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float 
     traj, move = backend_trajectory(spec, 0.0 if start is None else start)
     rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend), out_file=None, settle=0.0,
                          start="follow" if start is None else "check")
+    if len(rec.channels["t"]) < 2:       # the backend could not be opened or enabled: nothing moved
+        raise UserError(f"the run at j_max {move.j_max:.4g} m/s^3 did not start on {backend}: {rec.status}: "
+                        f"{rec.reason}")
     if getattr(rec, "status", "complete") != "complete":
         raise RunStopped(f"run at j_max {move.j_max:.4g} m/s^3 stopped: {rec.status}: {rec.reason}; the runs "
                          f"finished before it are kept and the sweep resumes from there", rec.status, rec.reason)
