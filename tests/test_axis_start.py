@@ -106,3 +106,25 @@ def test_negative_quantities_on_the_command_line(axis, capsys, tmp_path):
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["start_m"] == pytest.approx(-2e-3, abs=20e-6)
     assert out["end_m"] == pytest.approx(-3e-3, abs=50e-6)
+
+
+def test_a_sweep_starts_where_the_axis_stands_and_finds_it_back_before_each_run(axis):
+    """The first run starts where the axis stands (3 mm here); each run's return move brings it back
+    there, and the next run is refused unless it is found back there (limits.start_window)."""
+    from hil.errors import UserError
+    from hil.sweep.executors import BackendExecutor
+    from hil.sweep.run import RunSpec
+    sim, common = axis
+    cfg = sim.cfg                                      # the drive's channel: every backend opened reaches it
+    sim.home_at(3e-3)
+    sim.advance(1)
+    ex = BackendExecutor("canopen", None)
+    specs = [RunSpec("mechatronic", 0.005, 0.1, None, None, j, 0.2, 1) for j in (100.0, 300.0, 1000.0)]
+    _, fig = ex.one(cfg, "a", specs[0])
+    assert ex.start == pytest.approx(3e-3, abs=1e-6) and fig["start_m"] == ex.start
+    _, fig = ex.one(cfg, "b", specs[1])                 # back at the start: runs from there
+    assert fig["start_m"] == pytest.approx(3e-3, abs=20e-6)
+    sim.home_at(4e-3)                                  # someone moved the axis between the runs
+    sim.advance(1)
+    with pytest.raises(UserError, match=r"stands at 4\.000 mm, the run was planned from 3\.000 mm"):
+        ex.one(cfg, "c", specs[2])
