@@ -322,3 +322,32 @@ def test_ctrl_c_ends_in_the_controlled_stop_and_a_closed_record(tmp_path):
     assert (status["status"], status["reason"], status["rows"]) == ("aborted", "interrupted (Ctrl-C)", 19)
     assert read_measurement(tmp_path / "run.csv")["t"].size == 19
     assert not _latch()                       # an operator's interrupt is no fault: nothing latched
+
+
+# -- mistakes named as mistakes: one line, exit 2, no traceback, never a drive fault ------------------
+@pytest.mark.parametrize("argv,words", [
+    (["drive-sim", "--config", CANOPEN, "--set", "canopen.eds=/nonexistent.eds", "--seconds", "1"],
+     "canopen.eds: cannot read"),
+    (["drive-sim", "--config", CANOPEN, "--fault", "tip_missing_pdo=5@0.1", "--seconds", "1"],
+     "has no tip sensor node"),
+    (["drive-sim", "--config", CANOPEN, "--fault", "melt@1"], "unknown kind 'melt'"),
+    (["drive-sim", "--config", "nope.toml"], "nope.toml: no such configuration file"),
+    (["sweep", "--config", BENCH, "--stroke", "20mm", "--feed", "6000mm/min", "--jmax", "50,200",
+      "--scheduler", "127.0.0.1:35697x"], "--scheduler 127.0.0.1:35697x: expected [tcp://]HOST:PORT"),
+    (["move", "--config", CANOPEN, "--backend", "canopen", "--set", "canopen.interface=socketcand",
+      "--set", "canopen.port=1", "--stroke", "1mm", "--feed", "1m/min", "--amax", "1m/s^2"],
+     "did not start on canopen: fault: no socketcand server at 127.0.0.1:1"),
+    (["move", "--config", SERIAL, "--backend", "serial", "--set", "serial.port=/dev/nonexistent-tty",
+      "--stroke", "1mm", "--feed", "1m/min", "--amax", "1m/s^2"], "serial.port: no device /dev/nonexistent-tty"),
+    (["move", "--config", CANOPEN, "--set", "control.velocity_period=2ms", "--backend", "canopen",
+      "--set", "canopen.mode=cst", "--stroke", "1mm", "--feed", "1m/min", "--amax", "1m/s^2"],
+     "canopen.mode cst: the host's velocity loop must run at 1 ms or faster"),
+])
+def test_mistakes_are_one_line_and_exit_2(capsys, tmp_path, argv, words):
+    import time
+    t0 = time.perf_counter()
+    rc = main([*argv, *(["--out", str(tmp_path)] if argv[0] in ("move", "sweep") else [])])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.count("\n") == 0 and words in err, err
+    assert "Traceback" not in err and "drive fault" not in err
+    assert time.perf_counter() - t0 < 10                   # no hang
