@@ -49,6 +49,11 @@ def run(args) -> int:
         raise UserError(f"the jog did not start on {backend.name}: {rec.status}: {rec.reason}")
     start = rec.start
     out = {"start_m": start, "end_m": float(rec["x_table"][-1]), "status": rec.status, "reason": rec.reason}
-    print(dumps(out, indent=2) if args.json else
-          f"jog {start * 1e3:.3f} -> {out['end_m'] * 1e3:.3f} mm: {rec.status} {rec.reason}".rstrip())
+    if args.json:
+        print(dumps(out, indent=2))
+    elif rec.status == "complete":
+        print(f"jog {start * 1e3:.3f} -> {out['end_m'] * 1e3:.3f} mm: complete")
+    else:
+        print(f"jog DID NOT COMPLETE: {rec.status}: {rec.reason}; the axis stopped at {out['end_m'] * 1e3:.3f} mm "
+              f"(from {start * 1e3:.3f} mm); 'hil status' shows the trip, 'hil reset' clears it")
     return stop_exit_code(rec.status, rec.reason)
