@@ -128,3 +128,27 @@ def test_a_sweep_starts_where_the_axis_stands_and_finds_it_back_before_each_run(
     sim.advance(1)
     with pytest.raises(UserError, match=r"stands at 4\.000 mm, the run was planned from 3\.000 mm"):
         ex.one(cfg, "c", specs[2])
+
+
+@pytest.mark.skipif(not __import__("sys").platform.startswith("linux"), reason="pseudo-terminals: Linux")
+def test_a_serial_move_starts_where_the_last_one_left_the_axis(capsys, tmp_path):
+    """The serial backend reads the position (one ``read``) before it enables the drive: a second
+    10 mm move starts at 10 mm, and a move planned from 0 mm is refused."""
+    from drivers.serial.drive_sim import SimulatedSerialDrive
+    serial_cfg = "config/serial_ascii_example.toml"
+    with SimulatedSerialDrive(config.load(serial_cfg)) as drive:
+        common = ["--config", serial_cfg, "--set", f'serial.port="{drive.port}"', "--set",
+                  "supervisor.overrun_cycles=25", "--backend", "serial", "--feed", "7000mm/min", "--tacc", "200ms",
+                  "--dwell", "0.3s", "--json"]
+        ends = []
+        for k in range(2):
+            assert main(["move", *common, "--stroke", "10mm", "--out", str(tmp_path / str(k))]) == 0
+            s = json.loads(capsys.readouterr().out)
+            m = read_measurement(tmp_path / str(k) / "move.csv")
+            ends.append((s["start_m"], m["x_cmd"][0], m["x_motor"][-1]))
+        assert ends[0][:2] == (0.0, 0.0)
+        # where the first move left the motor (the drive closes its loops on it), to the count
+        assert ends[1][0] == pytest.approx(ends[0][2], abs=5e-6) and ends[1][1] == pytest.approx(ends[1][0], abs=1e-9)
+        assert ends[1][2] == pytest.approx(20e-3, abs=0.1e-3)
+        assert main(["move", *common, "--stroke", "10mm", "--start", "0mm", "--out", str(tmp_path / "x")]) == 2
+        assert "planned from 0.000 mm" in capsys.readouterr().err
