@@ -156,6 +156,7 @@ def _check_common(r: dict, kind: str, words: str) -> None:
     assert r["rc"] == STOP_EXIT_CODES[kind], (r["rc"], s.get("reason"))
     assert s["stop"] == kind and words in s["reason"], s["reason"]
     assert "overshoot_table_um" not in s                         # no figures of an incomplete move
+    assert Path(s["plot"]).stat().st_size > 10000                # its plot, the stop marked
     # the record: closed with the status and reason, readable, complete and finite up to the stop
     assert st["status"] == s["status"] in ("tripped", "fault") and st["reason"] == s["reason"]
     assert st["rows"] == len(m["t"]) > 5
