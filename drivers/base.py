@@ -28,7 +28,7 @@ beyond the transport's own answer) and which do not:
 =========================================  ===================================================
 real-time (every cycle, in the loop)        ``read_feedback``, ``write_setpoint``, ``sync``;
                                             ``quick_stop`` in the cycle of a trip or fault
-not real-time (before or after the cycle)   ``__init__``, ``open``, ``enable``, ``disable``,
+not real-time (before or after the cycle)   ``__init__``, ``open``, ``read_position``, ``enable``, ``disable``,
                                             ``close``, ``shutdown``, and a backend's own
                                             services (homing, status, fault reset)
 =========================================  ===================================================
@@ -38,15 +38,22 @@ command template, an unknown interface) raise :class:`hil.errors.ConfigError` na
 the file, when the backend is built where possible; :class:`BackendFault` is a drive that does
 not answer, is lost, or reports a fault. The one fault rule of the cycle:
 
+Every fault's reason starts with the words that say its kind (hil.errors.stop_kind, the exit
+code): ``drive fault`` (the drive's own fault, its refusal, a drive that left the enabled state)
+or ``lost communication`` (answers missing, late or garbled beyond the retries, a lost heartbeat
+or port); the supervisor's own trips and ``loop overrun`` have theirs.
+
 * ``read_feedback()`` never raises for the drive: everything wrong that it learns (the drive's own
   fault, an answer missing, late or garbled beyond the retries, a lost heartbeat, a lost port) is
   reported as :attr:`Feedback.fault`, one line saying what. The supervisor's first check trips on
   it: the configured controlled stop in the same cycle, the run ends ``tripped`` with that line as
-  its reason, the trip is latched like any other, and ``hil move`` exits 1. Between position ticks
+  its reason, the trip is latched like any other, and ``hil move`` exits with the code of its kind
+  (hil.errors.STOP_EXIT_CODES: 1 drive fault, 4 lost communication). Between position ticks
   (a backend in torque mode) the loop trips the supervisor itself, the same way.
 * ``write_setpoint()`` and ``sync()`` raise :class:`BackendFault` only where the setpoint could not
   be delivered (a transport that confirms every setpoint got no confirmation; a bus that refuses
-  the frame): the loop commands the stop and the run ends ``fault`` (exit 1).
+  the frame): the loop commands the stop, latches the fault like a trip and the run ends
+  ``fault`` (the exit code of its kind, as above).
 * Outside the cycle (``open``, ``enable``, homing) a drive that does not answer or is in fault
   raises :class:`BackendFault`.
 """
@@ -108,6 +115,15 @@ class Backend(ABC):
     @abstractmethod
     def open(self) -> None:
         """Connect and configure the drive; raises ConfigError or BackendFault."""
+
+    def read_position(self) -> Feedback | None:
+        """Where the axis stands, read from the drive (not real-time: after :meth:`open`, before
+        :meth:`enable`): the positions of a :class:`Feedback`. The runtime plans every move from
+        here (or refuses one planned from elsewhere) before it enables the drive. ``None``: this
+        backend puts the axis where the run starts itself (a simulated stand-in); every backend of
+        ``drivers.BACKENDS`` that drives an axis answers. Raises BackendFault where the drive does
+        not answer."""
+        return None
 
     @abstractmethod
     def enable(self) -> None:

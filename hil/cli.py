@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import importlib.util
+import re
 import sys
 
 from hil import __version__
@@ -39,8 +40,21 @@ COMMANDS = {
 }
 
 
+class HilArgumentParser(argparse.ArgumentParser):
+    """argparse, with negative quantities as values: argparse takes an argument that starts with
+    '-' for an option unless it looks like a plain negative number (``-5``, ``-.5``); a quantity
+    with its unit (``--distance -5mm``, ``--stroke -0.1m``, ``--set plant.x0=-2mm``) does not. Here
+    anything that starts with '-' and a digit or '.digit' is a value (no option of hil looks like
+    that); the sub-command parsers are built of this class too (``add_subparsers`` takes the
+    parent's class)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(r"^-\.?\d")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = HilArgumentParser(
         prog="hil",
         description="Hardware-in-the-loop runtime and model toolkit for feed drives of compliant machine tools. "
                     "Runs on the embedded simulated plant unless a backend is chosen.")
@@ -70,7 +84,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args._run(args) or 0)
     except HilError as exc:
-        # one line, and the exit code of the error's kind (2: fix and retry; 1: drive fault)
+        # one line, and the exit code of the error's kind (2: fix and retry; 1: drive fault;
+        # a run stopped early: how it stopped, hil.errors.STOP_EXIT_CODES)
         print(f"hil {args.command}: {exc.label}: {exc}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:

@@ -141,6 +141,8 @@ SCHEMA: dict[str, Field] = {
                                           positive=True),
     "limits.following_error_tip": Field("length", "following-error window at the tool tip (where measured)",
                                         default=None, positive=True),
+    "limits.start_window": Field("length", "hardware backends: a move planned from a given start (--start) runs "
+                                 "only if the axis stands within this of it", default=1e-4, positive=True),
     # --- NC ------------------------------------------------------------------------------------
     "nc.g0": Field("speed", "rapid (G00) speed, the reference for the acceleration time t_acc", default=None,
                    positive=True),

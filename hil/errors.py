@@ -5,9 +5,23 @@ Everything the project raises on purpose derives from :class:`HilError`; the com
 catches that root, prints one line and exits with the error's ``exit_code``:
 
 - 2, a mistake the user can fix before anything moves (a configuration, a unit, a limit, a
-  measurement file, an unstable loop, a refused request, a latched trip);
-- 1, a drive that was lost or faulted (:class:`BackendFault`);
+  measurement file, an unstable loop, a refused request, a latched trip, a backend that cannot
+  be opened);
+- 1, a drive that was lost or faulted outside the cycle (:class:`BackendFault`);
 - 130, an interrupt (Ctrl-C; a ``KeyboardInterrupt``, not a HilError).
+
+A run that moved and did not complete ends with the exit code of *how* it stopped,
+:data:`STOP_EXIT_CODES` (one fault rule for every backend: each of these ends in the configured
+controlled stop and a record closed with its status and reason; :func:`stop_kind` reads which
+from the reason's first words, which the backends and the supervisor write that way)::
+
+    0    complete
+    1    drive_fault   the drive reported a fault (EMCY / FAULT state, a fault code, a refusal)
+    3    trip          the supervisor tripped (limits, following error, frozen feedback)
+    4    link          lost communication (answers missing, late or garbled beyond the retries,
+                       heartbeat lost, port lost)
+    5    overrun       the real-time loop overran its watchdog
+    130  interrupt     Ctrl-C
 
 Tree::
 
@@ -21,6 +35,7 @@ Tree::
     +-- UserError                a request that cannot be carried out as asked
     +-- SupervisorTripped        motion refused: a trip is latched until ``hil reset``
     +-- BackendFault             the drive was lost or reported a fault (exit 1)
+    +-- RunStopped               a run that moved ended early (exit code: how, STOP_EXIT_CODES)
 
 The library never raises the CLI's errors and the CLI adds no classes of its own. The physics
 (``sim_plant``) sits below this module and raises plain ``ValueError``; the layer that reads
@@ -29,7 +44,42 @@ a configuration into it turns those into :class:`ConfigError` naming the key.
 from __future__ import annotations
 
 __all__ = ["HilError", "ConfigError", "BackendError", "UnitError", "LimitError", "MeasurementError",
-           "UnstableLoopError", "UserError", "SupervisorTripped", "BackendFault"]
+           "UnstableLoopError", "UserError", "SupervisorTripped", "BackendFault", "RunStopped",
+           "STOP_EXIT_CODES", "stop_kind", "stop_exit_code"]
+
+# how a run that moved ended -> the command's exit code (README, Safety: the exit codes)
+STOP_EXIT_CODES = {
+    "complete": 0,
+    "drive_fault": 1,
+    "trip": 3,
+    "link": 4,
+    "overrun": 5,
+    "interrupt": 130,
+}
+
+# the first words of a stop reason, as the backends (drivers.base's fault rule), the loop and the
+# supervisor write them -> the kind of stop
+_REASON_KINDS = (("drive fault", "drive_fault"), ("lost communication", "link"), ("loop overrun", "overrun"),
+                 ("interrupted", "interrupt"))
+
+
+def stop_kind(status: str, reason: str = "") -> str:
+    """The kind of stop (a key of :data:`STOP_EXIT_CODES`) of a run that ended with ``status``
+    (complete, tripped, fault, aborted) and ``reason``."""
+    if status == "complete":
+        return "complete"
+    low = (reason or "").lower()
+    for words, kind in _REASON_KINDS:
+        if low.startswith(words):
+            return kind
+    if status == "fault":            # a setpoint not delivered, without a more precise reason
+        return "link"
+    return "trip"
+
+
+def stop_exit_code(status: str, reason: str = "") -> int:
+    """The exit code of a run that ended with ``status`` and ``reason`` (:data:`STOP_EXIT_CODES`)."""
+    return STOP_EXIT_CODES[stop_kind(status, reason)]
 
 
 class HilError(Exception):
@@ -78,3 +128,14 @@ class BackendFault(HilError, RuntimeError):
     def __init__(self, reason: str):
         super().__init__(reason)
         self.reason = reason
+
+
+class RunStopped(HilError):
+    """A run that moved and did not complete (a sweep's run, a jog): the exit code says how it
+    stopped (:data:`STOP_EXIT_CODES`)."""
+    label = "stopped"
+
+    def __init__(self, message: str, status: str, reason: str):
+        super().__init__(message)
+        self.status, self.reason = status, reason
+        self.exit_code = stop_exit_code(status, reason)

@@ -20,8 +20,10 @@ and ending the cycle; they, and the hooks they call, must be short and must not 
 How a run ends follows the fault rule of :mod:`drivers.base`: a ``Feedback.fault`` trips the
 supervisor (at a position tick through its check, between ticks here), a trip commands the
 configured controlled stop in the same cycle and ends the run ``tripped``; a
-:class:`~hil.errors.BackendFault` raised in the cycle ends it ``fault``, Ctrl-C ``aborted``, each
-after the same controlled stop, which never raises (what fails is logged: the link may be gone).
+:class:`~hil.errors.BackendFault` raised in the cycle ends it ``fault`` (latched in the supervisor
+like a trip), Ctrl-C ``aborted``, each after the same controlled stop, which never raises (what
+fails is logged: the link may be gone). The reason's first words say the kind of stop, and so the
+command's exit code (hil.errors.stop_kind, STOP_EXIT_CODES).
 """
 from __future__ import annotations
 
@@ -306,6 +308,9 @@ class ControlLoop:
         except BackendFault as exc:
             self._stop(b)
             status, reason = "fault", exc.reason
+            latch = getattr(self.supervisor, "trip", None)
+            if latch is not None:        # latched like a trip: motion refused until 'hil reset'
+                latch(k * self.ctrl.position_period, reason)
         except KeyboardInterrupt:
             self._stop(b)
             status, reason = "aborted", "interrupted (Ctrl-C)"

@@ -12,7 +12,7 @@ the peak speed.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -201,6 +201,11 @@ class Trajectory:
                     out = np.where(after, seg.end, out)
             t0 += seg.duration
         return out
+
+    def shifted(self, offset: float) -> "Trajectory":
+        """The same moves and dwells from ``start + offset`` (every position moved by ``offset``)."""
+        segs = [replace(s, start=s.start + offset) if isinstance(s, SineSquareMove) else s for s in self.segments]
+        return Trajectory(self.start + offset, segs)
 
     def position(self, t):
         return self._evaluate(t, "position")

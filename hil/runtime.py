@@ -4,6 +4,22 @@ On the embedded simulated plant the whole command goes through the compiled loop
 run); on any other backend it goes through :class:`hil.loop.ControlLoop`, cycle by cycle, on the
 real-time clock, with the supervisor watching. Either way the record is written in the
 measurement format as it goes.
+
+Every run first checks the supervisor's latch (a trip not yet reset refuses it, on every
+backend). Where the run starts: the simulated plant is put at the planned start (a dry run starts
+where it is told). A backend that drives an axis (``Backend.read_position`` answers) is asked
+where the axis stands after it is opened and before it is enabled, and ``start`` says what
+then:
+
+* ``"follow"``: the trajectory is moved to start there (its strokes are relative: ``hil move``
+  without ``--start``, ``hil jog``, the first run of a sweep) and checked against the limits
+  again, before anything moves;
+* ``"check"``: the trajectory's start is where the axis must be; beyond ``limits.start_window``
+  (default 0.1 mm) the run is refused with one line naming both positions (``hil move --start``,
+  a sweep's later runs, which must find the axis back at the sweep's start); within it the
+  trajectory starts at the measured position, so that the first command is no step.
+
+Never does a run command a jump from where the axis is to where the plan assumed it to be.
 """
 from __future__ import annotations
 
@@ -17,11 +33,13 @@ from drivers.base import BackendFault
 from drivers.sim import SimulatedPlant
 from hil.closed_loop import check_loop_stability
 from hil.control import controller_from_config
+from hil.errors import HilError, UserError
 from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop, LoopResult
 from hil.profiles import AxisLimits, Trajectory, check_limits
 from hil.simulate import simulate
+from hil.supervisor import refuse_if_tripped
 
 __all__ = ["RunRecord", "run_trajectory", "record_channels"]
 
@@ -39,15 +57,47 @@ class RunRecord:
     reason: str = ""
     path: Path | None = None
     loop: dict = field(default_factory=dict)
+    start: float | None = None          # where the run started (m; on an axis: as measured)
 
     def __getitem__(self, name):
         return self.channels[name]
 
 
+def start_position(cfg, backend, fb) -> float:
+    """The position a run starts from, of the measured ``fb``: the reading the position loop closes
+    on (the drive's own, the motor's, where the backend closes both loops)."""
+    if backend.closes == "both" or cfg.get("control.position_feedback", "motor") == "motor":
+        return float(fb.x_motor)
+    return float(fb.x_table)
+
+
+def plan_from_measured(cfg, traj: Trajectory, measured: float, start: str) -> Trajectory:
+    """``traj`` moved to start at the ``measured`` position (see the module docstring: ``start`` is
+    ``"follow"`` or ``"check"``), checked against the limits; raises UserError (one line, both
+    positions) where a ``"check"`` start is beyond ``limits.start_window``."""
+    if start not in ("follow", "check"):
+        raise ValueError(f"start: follow or check, not {start!r}")
+    window = float(cfg.get("limits.start_window", 1e-4))
+    off = measured - traj.start
+    if start == "check" and abs(off) > window:
+        raise UserError(f"motion refused: the axis stands at {measured * 1e3:.3f} mm, the run was planned from "
+                        f"{traj.start * 1e3:.3f} mm ({abs(off) * 1e3:.3f} mm apart, limits.start_window "
+                        f"{window * 1e3:g} mm); move it there first (hil jog) or plan from where it is")
+    moved = traj.shifted(off) if off else traj
+    check_limits(moved, AxisLimits.from_config(cfg))
+    return moved
+
+
 def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | None = None, settle: float = 1.0,
-                   supervisor=None, meta: dict | None = None, check: bool = True) -> RunRecord:
+                   supervisor=None, meta: dict | None = None, check: bool = True, start: str = "check") -> RunRecord:
     """Check ``traj`` against the axis limits, run it (plus ``settle`` seconds standing at the end)
-    and record every position tick."""
+    and record every position tick.
+
+    ``start``: on a backend that drives an axis, ``"follow"`` plans the run from where the axis
+    stands, ``"check"`` (default) refuses it unless the axis stands at ``traj.start`` (within
+    ``limits.start_window``); see the module docstring. A latched trip refuses the run."""
+    if supervisor is None or not hasattr(supervisor, "arm"):
+        refuse_if_tripped(cfg)           # a trip not reset refuses motion on every backend
     if check:
         check_limits(traj, AxisLimits.from_config(cfg))
         check_loop_stability(cfg)
@@ -67,7 +117,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         if out_file is not None:
             with Recorder(out_file, names, info) as rec:
                 rec.extend(chans)
-        return RunRecord(chans, "complete", "", Path(out_file) if out_file else None)
+        return RunRecord(chans, "complete", "", Path(out_file) if out_file else None, start=float(x_cmd[0]))
     # cycle by cycle, on the backend's clock
     ctrl = controller_from_config(cfg, getattr(backend, "plant", None) or _plant_scales(cfg))
     rec = Recorder(out_file, names, info) if out_file is not None else _MemoryRecorder(names)
@@ -79,24 +129,34 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         supervisor.arm()           # refuses motion while an earlier trip is not reset
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary,
                        priority=cfg.get("runtime.priority", 0))
+    started = {"planned_m": float(traj.start), "mode": start}
     try:
         with backend:                    # opened here; shut down (disabled, closed) however the run ends
+            fb = backend.read_position()
+            if fb is not None:           # an axis: the run starts where it stands, or not at all
+                started["measured_m"] = measured = start_position(cfg, backend, fb)
+                x_cmd = plan_from_measured(cfg, traj, measured, start).sample(tp, settle)[1]
             backend.enable()
             result: LoopResult = loop.run(x_cmd)
-    except BackendFault as exc:          # open or enable failed: nothing moved
+    except BackendFault as exc:          # open, read_position or enable failed: nothing moved
         result = LoopResult(0, "fault", exc.reason)
+    except HilError as exc:              # refused before motion (the start, the limits): one line, exit 2
+        rec.close("refused", str(exc), {"start": started})
+        raise
     except BaseException as exc:         # e.g. an interface not installed, Ctrl-C: the record says why
         rec.close("aborted", "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else
                   f"{type(exc).__name__}: {exc}")
         raise
-    rec.close(result.status, result.reason, {"loop": result.clock, "supervisor": getattr(supervisor, "record", {})})
+    rec.close(result.status, result.reason, {"loop": result.clock, "supervisor": getattr(supervisor, "record", {}),
+                                             "start": started})
     if isinstance(rec, _MemoryRecorder):
         chans = rec.channels()
     elif rec.rows >= 2:
         chans = read_measurement(out_file).channels
     else:                  # stopped before it moved (e.g. the drive did not answer at start-up)
         chans = {n: np.zeros(0) for n in names}
-    return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock)
+    return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock,
+                     start=float(x_cmd[0]))
 
 
 def _plant_scales(cfg):

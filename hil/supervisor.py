@@ -6,8 +6,12 @@ the command's differences), measured speed, torque, following-error windows at t
 (where measured) the tool tip, a frozen position feedback, and a loop-overrun watchdog (real-time
 clocks). A trip returns the reason; hil.loop.ControlLoop commands the controlled stop
 (``backend.quick_stop()``) in the same cycle. The supervisor records the reason and the last
-cycles, and refuses motion (:meth:`Supervisor.arm`) until :meth:`reset` - across processes too
-when it has a latch file.
+cycles, and refuses motion (:meth:`Supervisor.arm`) until :meth:`reset`, across processes: the
+trip is written to a latch file, by default ``latch.json`` in the user's state directory
+(:func:`state_dir`: ``$HIL_STATE_DIR``, else ``$XDG_STATE_HOME/compliant-axis-hil``, else
+``~/.local/state/compliant-axis-hil``), or ``supervisor.latch_file`` where given. Every motion
+command on every backend checks it first (:func:`refuse_if_tripped`); ``hil status`` shows it,
+``hil reset`` clears it.
 
 This monitoring is no substitute for the drive's certified safety functions (STO, SS1).
 """
@@ -15,14 +19,41 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
 from collections import deque
+from datetime import datetime, timezone
 from pathlib import Path
 
 from hil.config import Field, register_section
 from hil.errors import SupervisorTripped
 
-__all__ = ["Supervisor", "SupervisorTripped", "SECTION"]
+__all__ = ["Supervisor", "SupervisorTripped", "SECTION", "state_dir", "latch_path", "refuse_if_tripped"]
+
+APP = "compliant-axis-hil"
+
+
+def state_dir() -> Path:
+    """The user's state directory of this tool: ``$HIL_STATE_DIR`` (tests point it at a temporary
+    folder), else ``$XDG_STATE_HOME/compliant-axis-hil``, else ``~/.local/state/compliant-axis-hil``."""
+    d = os.environ.get("HIL_STATE_DIR")
+    if d:
+        return Path(d)
+    base = os.environ.get("XDG_STATE_HOME") or os.path.join(os.path.expanduser("~"), ".local", "state")
+    return Path(base) / APP
+
+
+def latch_path(cfg=None) -> Path:
+    """The latch file: ``supervisor.latch_file`` where the configuration gives one, else
+    ``latch.json`` in :func:`state_dir`."""
+    lf = cfg.get("supervisor.latch_file", "") if cfg is not None else ""
+    return Path(lf).expanduser() if lf else state_dir() / "latch.json"
+
+
+def refuse_if_tripped(cfg) -> None:
+    """Raise :class:`SupervisorTripped` (one line: the trip, its time, how to clear it) while a trip
+    is latched; every motion command calls it before anything moves, on every backend."""
+    Supervisor(cfg).arm()
 
 SECTION = {
     "supervisor.stop": Field("str", "controlled stop on a trip: quick_stop (CiA 402 quick stop) or disable",
@@ -34,8 +65,9 @@ SECTION = {
     "supervisor.frozen_cycles": Field("int", "position reading unchanged this many ticks while commanded to move",
                                       default=10, positive=True),
     "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True),
-    "supervisor.latch_file": Field("str", "file that keeps a trip across processes until 'hil reset'",
-                                   default=""),
+    "supervisor.latch_file": Field("str", "file that keeps a trip across processes until 'hil reset'; default "
+                                   "latch.json in $HIL_STATE_DIR, $XDG_STATE_HOME/compliant-axis-hil or "
+                                   "~/.local/state/compliant-axis-hil", default=""),
 }
 register_section("supervisor", lambda key: SECTION.get(key))
 
@@ -50,10 +82,10 @@ class Supervisor:
         self.overrun = float(cfg.get("supervisor.overrun_cycles", 2.0))
         self.frozen_n = int(cfg.get("supervisor.frozen_cycles", 10))
         self.history = deque(maxlen=int(cfg.get("supervisor.history", 50)))
-        lf = latch_file if latch_file is not None else cfg.get("supervisor.latch_file", "")
-        self.latch_file = Path(lf) if lf else None
+        self.latch_file = Path(latch_file) if latch_file else latch_path(cfg)
         self.tripped = False
         self.reason = ""
+        self.tripped_at = ""          # wall-clock time of the trip (UTC, ISO 8601)
         self.trip_cycle: int | None = None
         self.trip_time: float | None = None
         self.record: dict = {}
@@ -73,11 +105,14 @@ class Supervisor:
         """Refuse motion while tripped."""
         self._load_latch()
         if self.tripped:
-            raise SupervisorTripped(f"supervisor tripped ({self.reason}); run 'hil reset' first")
+            when = f" at {self.tripped_at}" if self.tripped_at else ""
+            raise SupervisorTripped(f"motion refused: the supervisor tripped{when} ({self.reason}); find the cause, "
+                                    f"then 'hil reset --config {self.cfg.source}' clears it (latch {self.latch_file})")
         self.start()
 
     def reset(self) -> None:
         self.tripped, self.reason, self.trip_cycle, self.trip_time, self.record = False, "", None, None, {}
+        self.tripped_at = ""
         if self.latch_file is not None and self.latch_file.exists():
             self.latch_file.unlink()
 
@@ -86,18 +121,29 @@ class Supervisor:
             try:
                 info = json.loads(self.latch_file.read_text())
                 self.tripped, self.reason = True, info.get("reason", "tripped")
-            except (OSError, ValueError):
+                self.tripped_at = info.get("time", "")
+            except (OSError, ValueError, AttributeError):
                 self.tripped, self.reason = True, "unreadable latch file"
 
     def trip(self, t: float, reason: str, fb=None) -> str:
         if not self.tripped:
             self.tripped, self.reason, self.trip_cycle, self.trip_time = True, reason, max(self.k - 1, 0), t
-            self.record = {"reason": reason, "cycle": max(self.k - 1, 0), "t": t, "stop": self.stop,
-                           "last_cycles": list(self.history)}
-            if self.latch_file is not None:
-                self.latch_file.parent.mkdir(parents=True, exist_ok=True)
-                self.latch_file.write_text(json.dumps(self.record, indent=1))
+            self.tripped_at = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+            self.record = {"reason": reason, "time": self.tripped_at, "config": str(self.cfg.source),
+                           "cycle": max(self.k - 1, 0), "t": t, "stop": self.stop, "last_cycles": list(self.history)}
+            self._write_latch()
         return reason
+
+    def _write_latch(self) -> None:
+        """The trip to the latch file (not real-time: once, in the cycle of the trip; a file that
+        cannot be written does not stop the stop: the trip is then latched in this process only)."""
+        try:
+            self.latch_file.parent.mkdir(parents=True, exist_ok=True)
+            tmp = self.latch_file.with_suffix(".tmp")
+            tmp.write_text(json.dumps(self.record, indent=1, default=float))
+            os.replace(tmp, self.latch_file)
+        except OSError as exc:
+            self.record["latch_error"] = str(exc)
 
     # -- the check, every position tick --------------------------------------------------------------------
     def check(self, t: float, fb, x_cmd: float) -> str | None:

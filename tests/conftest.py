@@ -15,3 +15,12 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 def bench():
     from hil import config
     return config.load(CONFIG / "paper_bench.toml")
+
+
+@pytest.fixture(autouse=True)
+def state_dir(tmp_path_factory, monkeypatch):
+    """Every test its own state directory (the supervisor's latch): a test never touches the real
+    home, and a trip in one test never refuses the motion of another. Subprocesses inherit it."""
+    d = tmp_path_factory.mktemp("state")
+    monkeypatch.setenv("HIL_STATE_DIR", str(d))
+    return d

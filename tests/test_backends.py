@@ -11,6 +11,7 @@ import sys
 import can
 import pytest
 from canopen_rig import channel, rig
+from fault_backends import FaultyPlant
 
 from drivers.base import Backend, Feedback
 from drivers.canopen.backend import CanopenBackend
@@ -188,7 +189,9 @@ def test_in_cycle_faults_end_the_same_way_on_canopen_and_serial(tmp_path, capsys
                                                                  words):
     """A fault the drive reports, or a link that stops answering, in the middle of a move: on either
     backend it reaches the loop as Feedback.fault, the supervisor trips on it, the axis is stopped,
-    the record is closed ``tripped`` with the fault as its reason, and hil move exits 1."""
+    the record is closed ``tripped`` with the fault as its reason, the trip is latched, and hil move
+    exits with the code of the kind of stop: 1 for a drive fault, 4 for lost communication (issue 16:
+    the exit codes tell them apart; before, both exited 1)."""
     ends = []
     for name, run, fault, word in (("canopen", _canopen_move, canopen_fault, words[0]),
                                    ("serial", _serial_move, serial_fault, words[1])):
@@ -196,56 +199,20 @@ def test_in_cycle_faults_end_the_same_way_on_canopen_and_serial(tmp_path, capsys
         assert word in summary["reason"], (name, summary["reason"])
         assert record["reason"] == summary["reason"] and record["rows"] > 20
         ends.append((rc, summary["status"], record["status"]))
-    assert ends[0] == ends[1] == (1, "tripped", "tripped")
-
-
-class _FaultBetweenTicks(Backend):
-    """The simulated plant in torque mode whose feedback reports a fault at one velocity cycle that
-    is not a position tick (the supervisor checks only at ticks)."""
-    name = "between"
-    closes = "none"
-    simulated = True
-
-    def __init__(self, cfg, at: int):
-        self.sim = SimulatedPlant(cfg, closes="none")
-        self.cycle_time = self.sim.cycle_time
-        self.at, self.n, self.stopped = at, 0, False
-
-    def open(self):
-        self.sim.home_at(0.0)
-
-    def enable(self):
-        self.sim.enable()
-
-    def read_feedback(self):
-        self.n += 1
-        fb = self.sim.read_feedback()
-        if self.n >= self.at:
-            fb.fault = "drive fault: overcurrent"
-        return fb
-
-    def write_setpoint(self, sp):
-        self.sim.write_setpoint(sp)
-
-    def sync(self):
-        self.sim.sync()
-
-    def quick_stop(self):
-        self.stopped = True
-        self.sim.disable()
-
-    def disable(self):
-        self.sim.disable()
-
-    def close(self):
-        pass
+        # latched: the next motion command is refused until hil reset
+        assert main(["status", "--config", CANOPEN, "--backend", "sim"]) == 0
+        assert "TRIPPED" in capsys.readouterr().out
+        assert main(["reset", "--config", CANOPEN, "--supervisor-only"]) == 0
+        capsys.readouterr()
+    code = 1 if canopen_fault[0] == "emcy" else 4
+    assert ends[0] == ends[1] == (code, "tripped", "tripped")
 
 
 def test_a_fault_between_position_ticks_trips_the_same_way(bench, tmp_path):
     traj = Trajectory()
     traj.move(MoveSpec(0.01, 0.1, a_max=3.0))
     sup = Supervisor(bench)
-    be = _FaultBetweenTicks(bench, at=64 * 20 + 5)          # a velocity cycle inside tick 20
+    be = FaultyPlant(bench, at=64 * 20 + 5)                 # a velocity cycle inside tick 20
     rec = run_trajectory(bench, traj, backend=be, out_file=tmp_path / "run.csv", settle=0.1, supervisor=sup)
     assert (rec.status, rec.reason) == ("tripped", "drive fault: overcurrent") and be.stopped
     assert sup.tripped and sup.reason == rec.reason

@@ -16,6 +16,7 @@ from drivers.canopen import cia402
 from drivers.canopen.backend import CanopenBackend
 from drivers.canopen.drive_sim import DriveSim
 from hil import config
+from hil.errors import ConfigError
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 
@@ -113,8 +114,9 @@ def test_move_in_each_mode(mode, closes, tmp_path):
 
 
 def test_cst_refuses_a_slow_velocity_loop():
+    # a configuration mistake (issue 16: named as one, exit 2; it was a BackendFault)
     cfg = config.load("config/paper_bench_canopen.toml", {"control.velocity_period": "2 ms"})
-    with pytest.raises(BackendFault, match="1 ms or faster"):
+    with pytest.raises(ConfigError, match="canopen.mode cst: .* 1 ms or faster"):
         CanopenBackend(cfg, mode="cst")
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.linalg
 from conftest import CONFIG
+from fault_backends import FaultyPlant
 
-from drivers.base import Backend, BackendFault, Feedback
 from drivers.sim import SimulatedPlant
 from hil.control import ControllerSettings, new_velocity_state, velocity_law
 from hil.io.measurement import read
@@ -208,52 +208,11 @@ def test_agreement_with_python_control_peer(bench):
     assert np.max(np.abs(res.x - X)) < 1e-9
 
 
-class _FailingBackend(Backend):
-    """A drive (the simulated plant inside) that reports a fault after a number of cycles."""
-    name = "failing"
-    closes = "none"
-
-    def __init__(self, cfg, fail_after):
-        self.sim = SimulatedPlant(cfg, closes="none")
-        self.cycle_time = self.sim.cycle_time
-        self.simulated = True
-        self.fail_after = fail_after
-        self.cycles = 0
-        self.stopped = False
-
-    def open(self):
-        self.sim.home_at(0.0)
-
-    def enable(self):
-        self.sim.enable()
-
-    def read_feedback(self) -> Feedback:
-        self.cycles += 1
-        if self.cycles > self.fail_after:
-            raise BackendFault("drive fault 0x2310 (over-current)")
-        return self.sim.read_feedback()
-
-    def write_setpoint(self, sp):
-        self.sim.write_setpoint(sp)
-
-    def sync(self):
-        self.sim.sync()
-
-    def quick_stop(self):
-        self.stopped = True
-        self.sim.disable()
-
-    def disable(self):
-        self.sim.disable()
-
-    def close(self):
-        pass
-
-
 def test_recording_survives_a_fault(bench, tmp_path):
     traj = Trajectory()
     traj.move(MoveSpec(0.01, 0.1, a_max=3.0))
-    backend = _FailingBackend(bench, fail_after=64 * 20 + 5)
+    # a backend that raises instead of reporting (against the fault rule): still a clean end
+    backend = FaultyPlant(bench, at=64 * 20 + 6, reason="drive fault 0x2310 (over-current)", raises=True)
     rec = run_trajectory(bench, traj, backend=backend, out_file=tmp_path / "run.csv", settle=0.1)
     assert rec.status == "fault" and "0x2310" in rec.reason
     assert backend.stopped

@@ -15,6 +15,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="ps
 from drivers.base import BackendFault, Setpoint  # noqa: E402
 from drivers.serial.protocol import ChecksumError, CommandSet, GarbledReply, ReplyError, UnexpectedReply, render_reply  # noqa: E402
 from hil.config import load  # noqa: E402
+from hil.errors import ConfigError, stop_kind  # noqa: E402
 
 CONFIG = "config/serial_ascii_example.toml"
 # generous per-attempt timeouts: a shared 2-core test machine delays a pty reply by several ms
@@ -192,7 +193,9 @@ def test_vanished_port(cfg, drive):
     b = SerialBackend(cfg, port=drive.port, **FAST)
     t0 = time.perf_counter()
     rec = run_trajectory(cfg, traj, backend=b, settle=0.2)
-    assert rec.status == "fault" and "port lost" in rec.reason, rec.reason
+    # lost communication, whether the port vanished on a read (tripped) or on a setpoint (fault)
+    # (issue 16: the run now reads the position before it enables the drive, one command more)
+    assert stop_kind(rec.status, rec.reason) == "link" and "port lost" in rec.reason, rec.reason
     assert time.perf_counter() - t0 < 5
     drive.proc.join(5)
     assert not drive.alive
@@ -218,7 +221,8 @@ def test_no_port_is_a_clear_fault(cfg):
     from drivers.serial.backend import SerialBackend
     with pytest.raises(BackendError, match="serial.port"):
         SerialBackend(cfg)
-    with pytest.raises(BackendFault, match="cannot open"):
+    # a device that does not exist is a configuration mistake (issue 16: exit 2; it was a BackendFault)
+    with pytest.raises(ConfigError, match="serial.port: no device /dev/does-not-exist"):
         SerialBackend(cfg, port="/dev/does-not-exist").open()
 
 

@@ -152,9 +152,9 @@ class CanopenBackend(Backend):
         self.closes = cia402.MODE_CLOSES[self.mode]
         tv, tp = cfg["control.velocity_period"], cfg["control.position_period"]
         if self.mode == "cst" and tv > 1e-3 + 1e-12:
-            raise BackendFault(f"canopen mode cst: the host's velocity loop must run at 1 ms or faster with its "
-                               f"own gains (control.velocity_period is {tv * 1e3:g} ms): the velocity PI sampled "
-                               f"at the position period is unstable")
+            raise ConfigError(f"{cfg.source}: canopen.mode cst: the host's velocity loop must run at 1 ms or "
+                              f"faster with its own gains (control.velocity_period is {tv * 1e3:g} ms): the "
+                              f"velocity PI sampled at the position period is unstable")
         self.cycle_time = tv if self.mode == "cst" else tp
         self.lockstep = bool(cfg.get("canopen.lockstep", False) if lockstep is None else lockstep)
         self.simulated = self.lockstep
@@ -417,6 +417,23 @@ class CanopenBackend(Backend):
         if self.tip_node is not None:
             self._rx[TIP_KEY] = self.tip_node.sdo[0x6004].raw
 
+    def read_position(self) -> Feedback:
+        """Where the axis stands, over SDO (not real-time; after :meth:`open`, before :meth:`enable`):
+        position actual 0x6064, the linear encoder 0x60E4.1, the tip (its node's 0x6004, or
+        0x60E4.2)."""
+        sdo = self.node.sdo
+        try:
+            x_motor = sdo[0x6064].raw / self.counts_per_m
+            x_table = sdo[0x60E4][1].raw * 1e-9
+            if self.tip_node is not None:
+                x_tip = self.tip_node.sdo[0x6004].raw * self._tip_step
+            else:
+                x_tip = sdo[0x60E4][2].raw * 1e-9 if self.tip else math.nan
+        except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
+            raise BackendFault(f"lost communication: drive {self.node_id} does not answer SDO (position: {exc})") \
+                from None
+        return Feedback(x_motor=x_motor, x_table=x_table, v_motor=0.0, x_tip=x_tip)
+
     def home(self, offset: float = 0.0, method: int = 37, timeout: float = 5.0) -> dict:
         """Homing mode (6), method 37 (or 35): the present position becomes ``offset`` (m, 0x607C).
         Enables the drive, starts homing (controlword bit 4), waits for homing attained (statusword
@@ -568,7 +585,7 @@ class CanopenBackend(Backend):
             if st in ("FAULT", "FAULT REACTION ACTIVE"):
                 fault = f"drive fault: {self._fault_text()}"
             elif self.enabled and st != "OPERATION ENABLED":
-                fault = f"drive left OPERATION ENABLED ({st})"
+                fault = f"drive fault: the drive left OPERATION ENABLED ({st})"
             elif self._hb_last is not None and self._now() - self._hb_last > self.cfg.get(
                     "canopen.heartbeat_timeout", 0.35):
                 fault = f"lost communication: drive heartbeat lost ({(self._now() - self._hb_last) * 1e3:.0f} ms)"

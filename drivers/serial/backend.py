@@ -23,8 +23,11 @@ the host falls silent.
 
 Configuration mistakes (no port, a port name pyserial does not know, a command template or reply
 pattern that cannot work, a missing command) are :class:`~hil.errors.ConfigError` naming the key
-and the configuration file, raised when the backend is built; a port that does not open (absent,
-busy) is a BackendFault at :meth:`open`.
+and the configuration file, raised when the backend is built, and so is a device name that does
+not exist when :meth:`open` first opens it; a port that exists but does not open (busy, no
+permission) is a BackendFault at :meth:`open`. Every fault's reason starts with ``drive fault``
+(the drive's fault code or its refusal) or ``lost communication`` (no, late or garbled answer
+beyond the retries, the port lost), the same words as the other backends' (hil.errors.stop_kind).
 """
 from __future__ import annotations
 
@@ -173,6 +176,7 @@ class SerialBackend(Backend):
         self.enabled = False
         self._ser = None
         self._open = False           # between open() and close(): the drive is this backend's to disable
+        self._open_once = False      # the port opened once: a port that vanishes later is the link's fault
         self._faulted = ""
         self._last_fb: Feedback | None = None
         self._set_op = "set_position" if self.closes == "both" else "set_speed"
@@ -199,10 +203,15 @@ class SerialBackend(Backend):
                                      stopbits=self.stopbits, timeout=self.timeout, write_timeout=self.setup_timeout)
 
     def _open_port(self):
+        if "://" not in self.port and not os.path.exists(self.port) and not self._open_once:
+            # a device name that does not exist: a mistake in the configuration, not a drive fault
+            raise ConfigError(f"{self.cfg.source}: serial.port: no device {self.port} (check the cable and the "
+                              "name; hil serial-sim prints the port of the simulated drive)")
         try:
             ser = self._port_object()
         except (serial.SerialException, OSError, ValueError) as exc:
             raise BackendFault(f"cannot open serial port {self.port}: {exc}") from None
+        self._open_once = True
         self._ser = ser
 
     def _close_port(self):
@@ -281,7 +290,11 @@ class SerialBackend(Backend):
                 last = f"port lost: {exc.reason}"
             if attempt < self.retries:
                 self.stats.note(last)
-        reason = f"serial {op}: {last} (after {attempt + 1} attempt(s), {(time.perf_counter() - t0) * 1e3:.1f} ms)"
+        # the first words say the kind of stop (hil.errors.stop_kind), as on every backend: the
+        # drive's refusal is the drive's doing, everything else is the link's
+        kind = "drive fault" if last.startswith("refused") else "lost communication"
+        reason = (f"{kind}: serial {op}: {last} (after {attempt + 1} attempt(s), "
+                  f"{(time.perf_counter() - t0) * 1e3:.1f} ms)")
         self._faulted = reason
         raise BackendFault(reason)
 
@@ -294,6 +307,10 @@ class SerialBackend(Backend):
             self.drive_name = self.transact("identify", setup=True).get("name", "")
         if self.cs.has("watchdog") and self.watchdog > 0:
             self.transact("watchdog", setup=True, ms=max(1, round(self.watchdog * 1e3)))
+
+    def read_position(self) -> Feedback:
+        """Where the axis is (not real-time; after :meth:`open`, before :meth:`enable`): one ``read``."""
+        return self.read_feedback(setup=True)
 
     def enable(self) -> None:
         fb = self.read_feedback(setup=True)
@@ -341,8 +358,8 @@ class SerialBackend(Backend):
         drive's watchdog stops it. Nothing before :meth:`open` or after :meth:`close`."""
         was = self.enabled
         self.enabled = False
-        if not self._open or self._ser is None and self._faulted:
-            return
+        if not self._open or not self._open_once or self._ser is None and self._faulted:
+            return                   # nothing opened, or the link is gone: nothing to tell the drive
         try:
             self.transact("disable", setup=True)
         except BackendFault:

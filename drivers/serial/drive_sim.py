@@ -25,7 +25,13 @@ of their execution and reply:
 ``refuse``      the error reply (code 9)
 ``drive_fault`` the drive faults (code 2, disabled): executes, and reports it in ``read``
 ``vanish``      the port disappears (the process closes the pseudo-terminal and ends)
+``late``        the reply, 50 ms late (a drive that no longer keeps up)
+``frozen_encoder`` executes; from then on every ``read`` reports the positions of this moment
 =============  ==============================================================================
+
+The drive notes what fired and when (command count, wall clock), and when the host's stop
+(``quick_stop`` or ``disable``) arrived after it: :meth:`SimulatedSerialDrive.state` gives both,
+for the reaction times of the fault matrix (tests/test_faults.py).
 
 Fault codes in ``read``: 0 none, 1 watchdog, 2 drive fault (injected), 3 command while disabled.
 """
@@ -48,7 +54,9 @@ from hil.errors import ConfigError
 
 __all__ = ["SimulatedSerialDrive", "serve", "FAULTS", "parse_fault"]
 
-FAULTS = ("timeout", "partial", "garbled", "checksum", "unexpected", "refuse", "drive_fault", "vanish")
+FAULTS = ("timeout", "partial", "garbled", "checksum", "unexpected", "refuse", "drive_fault", "vanish", "late",
+          "frozen_encoder")
+LATE = 0.05          # s: how late a ``late`` reply comes
 
 
 def parse_fault(text: str) -> dict:
@@ -91,6 +99,9 @@ class _Drive:
         self.rng = np.random.default_rng(seed)
         self.commands = 0
         self.vanish = False
+        self.frozen: dict | None = None
+        self.fired: list[dict] = []           # what fired: kind, command count, wall clock
+        self.stopped: dict | None = None      # the host's first stop after a fault fired
         self.name = "SIMDRIVE"
         # self-check: every reply can be rendered and parses back
         try:
@@ -123,6 +134,8 @@ class _Drive:
         return self.cs.frame("?")
 
     def _feedback(self) -> dict:
+        if self.frozen is not None:
+            return dict(self.frozen, fault=self.fault)
         fb = self.plant.read_feedback()
         return dict(x_motor=round(fb.x_motor * self.k_pos), x_table=round(fb.x_table * self.k_pos),
                     v_motor=round(fb.v_motor * self.k_pos), output=round(fb.output * self.k_out),
@@ -142,8 +155,13 @@ class _Drive:
         else:
             return self._error(1)
         vals = {k: int(v) for k, v in m.groupdict().items()}
+        if op in ("quick_stop", "disable") and self.fired and self.stopped is None:
+            self.stopped = {"op": op, "command": self.commands, "t": time.perf_counter()}
         f = self._due(op)
         if f is not None:
+            if not f.get("noted"):
+                f["noted"] = True
+                self.fired.append({"kind": f["kind"], "command": self.commands, "t": time.perf_counter()})
             return self._inject(f, op, vals)
         self.last_valid = time.perf_counter()
         return self.execute(op, vals)
@@ -174,6 +192,15 @@ class _Drive:
             return self.execute(op, vals)
         if kind == "refuse":
             return self._error(9)
+        if kind == "late":
+            reply = self.execute(op, vals)
+            time.sleep(LATE)
+            return reply
+        if kind == "frozen_encoder":
+            if self.frozen is None:
+                self.frozen = {k: v for k, v in self._feedback().items() if k != "fault"}
+            self.last_valid = time.perf_counter()
+            return self.execute(op, vals)
         if kind == "unexpected":
             return self.cs.frame("HELLO")
         good = self._render_for(op, vals)
@@ -285,7 +312,8 @@ def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None) -
                     drive.faults.append(dict(msg[1]))
                 if msg[0] == "state":
                     conn.send({"enabled": drive.enabled, "fault": drive.fault, "commands": drive.commands,
-                               "x": float(drive.plant.x[0])})
+                               "x": float(drive.plant.x[0]), "v": float(drive.plant.x[drive.plant.plant.n]),
+                               "fired": list(drive.fired), "stopped": drive.stopped})
             if master in r:
                 try:
                     data = os.read(master, 4096)

@@ -3,7 +3,6 @@ from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
 import sys
-import threading
 import time
 
 from hil.errors import UserError
@@ -22,9 +21,12 @@ python-can's socketcand interface: this process is a small socketcand server (ra
 
 The drive runs on the wall clock: one cycle per SYNC, and on its own clock when the SYNCs stop
 (the drive-side guards, heartbeat consumer 0x1016 with 0x6007, stop the axis then).
-Faults to inject (repeatable): KIND[=VALUE]@SECONDS after the start, e.g. --fault emcy=0x2310@20,
---fault heartbeat_loss@30. Kinds: emcy, heartbeat_loss, frozen_encoder, late_pdo (seconds),
-missing_pdo (count), following_error (metres), tip_missing_pdo (count; with a tip sensor node).
+Faults to inject (repeatable): KIND[=VALUE]@SECONDS, SECONDS of the drive's clock after it is
+first enabled (OPERATION ENABLED: the host's move has begun), e.g. --fault emcy=0x2310@0.2 fires
+0.2 s into the first move. Kinds: emcy, heartbeat_loss, frozen_encoder, late_pdo (seconds),
+missing_pdo (count), following_error (metres), tip_missing_pdo (count; with a tip sensor node),
+freeze (seconds: the drive stops answering, 0.5 by default), kill (the drive is gone: no answer,
+no heartbeat, ever).
 
 --set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
 CiA 406-like linear encoder (drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
@@ -49,18 +51,80 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print the connection settings as one JSON line")
 
 
+FAULT_KINDS = ("emcy", "heartbeat_loss", "frozen_encoder", "late_pdo", "missing_pdo", "following_error",
+               "tip_missing_pdo", "freeze", "kill")
+
+
 def parse_fault(text: str):
-    from drivers.canopen.drive_sim import FAULTS
+    """``KIND[=VALUE]@SECONDS`` -> (kind, value, seconds)."""
     kind, _, at = text.partition("@")
     kind, _, value = kind.partition("=")
-    if kind not in FAULTS:
-        raise UserError(f"--fault {text!r}: unknown kind {kind!r} (known: {', '.join(FAULTS)})")
+    if kind not in FAULT_KINDS:
+        raise UserError(f"--fault {text!r}: unknown kind {kind!r} (known: {', '.join(FAULT_KINDS)})")
     try:
         t = float(at) if at else 0.0
         v = (int(value, 0) if kind in ("emcy", "missing_pdo", "tip_missing_pdo") else float(value)) if value else None
     except ValueError:
         raise UserError(f"--fault {text!r}: expected KIND[=VALUE]@SECONDS") from None
+    if t < 0:
+        raise UserError(f"--fault {text!r}: SECONDS must be >= 0")
     return kind, v, t
+
+
+class FaultSchedule:
+    """The faults of ``--fault``, each injected once, SECONDS of the drive's clock (``sim.time``:
+    one period per cycle, SYNC or not) after the drive first reached OPERATION ENABLED, so that
+    ``@0.2`` fires 0.2 s into the first move whenever it is started. :meth:`poll` is called every
+    drive cycle or so (a thread in ``hil drive-sim``; the tests call it from the drive's cycle).
+
+    Two faults are the simulated drive's as a whole: ``freeze`` (VALUE seconds, default 0.5: it
+    answers nothing, no TPDO, no heartbeat, as a drive whose processor stalls, then carries on) and
+    ``kill`` (it is gone: nothing, ever; the host's lost answers and the drive-side guards act)."""
+
+    def __init__(self, faults):
+        self.pending = sorted(faults, key=lambda f: f[2])
+        self.enabled_at: float | None = None
+        self.fired: list[tuple[str, float]] = []
+        self._thaw: float | None = None
+
+    def poll(self, sim) -> None:
+        if self.enabled_at is None:
+            if sim.state != "OPERATION ENABLED":
+                return
+            self.enabled_at = sim.time
+        now = sim.time - self.enabled_at
+        if self._thaw is not None and now >= self._thaw:
+            sim.clear_injections()
+            self._thaw = None
+        while self.pending and now + 1e-9 >= self.pending[0][2]:
+            kind, value, _ = self.pending.pop(0)
+            self.fired.append((kind, now))
+            if kind == "freeze":
+                # no answer for a while: every TPDO withheld, the heartbeat stopped
+                sim.inject("missing_pdo", 10 ** 9)
+                sim.inject("heartbeat_loss")
+                self._thaw = now + (0.5 if value is None else float(value))
+            elif kind == "kill":
+                self.kill(sim)
+            else:
+                sim.inject(kind, value)
+
+    @staticmethod
+    def kill(sim) -> None:
+        """The drive is gone: it hears nothing (SYNC, RPDO, SDO, the host's heartbeat) and sends
+        nothing (TPDO, heartbeat, SDO answers) from now on."""
+        sim.inject("heartbeat_loss")
+        sim._stop.set()                         # its own clock (wall-clock mode) stops too
+        n = sim.node_id
+        ids = [0x80, 0x600 + n, 0x700 + int(sim.cfg.get("canopen.host_node_id", 127))]
+        ids += [0x200 + 0x100 * k + n for k in range(4)]
+        for cob in ids:
+            if cob in sim.network.subscribers:
+                sim.network.unsubscribe(cob)
+
+    @property
+    def done(self) -> bool:
+        return not self.pending and self._thaw is None
 
 
 def run(args) -> int:
@@ -70,6 +134,11 @@ def run(args) -> int:
     if args.interface == "slcan":
         raise UserError("--interface slcan is not built in this version; use --interface socketcand")
     faults = [parse_fault(f) for f in args.fault]
+    if any(k == "tip_missing_pdo" for k, _, _ in faults) and not int(cfg.get("canopen.tip_node_id", 0) or 0):
+        raise UserError("--fault tip_missing_pdo: the simulated drive has no tip sensor node "
+                        "(--set canopen.tip_node_id=2)")
+    if args.seconds < 0:
+        raise UserError(f"--seconds: must be >= 0, got {args.seconds:g}")
     if args.switch_interval and args.switch_interval > 0:
         sys.setswitchinterval(args.switch_interval)
     port = args.port if args.port is not None else int(cfg.get("canopen.port", 29536))
@@ -94,14 +163,28 @@ def run(args) -> int:
               f"channel {args.channel}", flush=True)
         print(f"host: hil move --config {cfg.source} --backend canopen {sets} ...; Ctrl-C to stop",
               file=sys.stderr, flush=True)
+    schedule = FaultSchedule(faults)
     t0 = time.monotonic()
-    for kind, value, at in faults:
-        threading.Timer(at, sim.inject, args=(kind, value)).start()
     try:
         while not args.seconds or time.monotonic() - t0 < args.seconds:
-            time.sleep(0.1)
+            if schedule.done:
+                time.sleep(0.1)
+                continue
+            with sim.lock:
+                before = len(schedule.fired)
+                schedule.poll(sim)
+            for kind, at in schedule.fired[before:]:
+                print(f"drive-sim: {kind} injected {at:.3f} s after the drive was enabled", file=sys.stderr,
+                      flush=True)
+            time.sleep(min(0.002, sim.period))
     except KeyboardInterrupt:
         pass
+    except OSError as exc:            # the server's socket failed under it: one line, not a traceback
+        raise UserError(f"drive-sim: the socketcand server failed ({exc})") from None
     finally:
-        sim.close()
+        try:
+            sim.close()
+        except Exception:
+            pass
+        bus.shutdown()
     return 0

@@ -5,9 +5,9 @@ import math
 from pathlib import Path
 
 from hil.config import load, parse_assignment
-from hil.errors import BackendError, BackendFault, SupervisorTripped, UnitError, UserError
+from hil.errors import BackendError, BackendFault, RunStopped, UnitError, UserError
 from hil.io.jsonout import dumps
-from hil.supervisor import Supervisor
+from hil.supervisor import Supervisor, refuse_if_tripped
 from hil.units import parse
 
 HELP = "measure frequency responses (TF1', TF2, TF3, velocity and position loops) against the model"
@@ -142,21 +142,30 @@ def run(args) -> int:
         if backend.closes != "none":
             raise UserError(f"backend {name}: frf closes both loops on the host and needs the drive in torque mode")
         supervisor = Supervisor(cfg)
-        try:
-            supervisor.arm()
-        except SupervisorTripped as exc:
-            raise UserError(str(exc)) from None
+        supervisor.arm()          # a latched trip refuses motion: one line, exit 2
         try:
             backend.open()
+            # where the axis stands, before the drive is enabled: the experiment starts there, and
+            # its travel is checked from there
+            fb = backend.read_position()
+            if fb is not None:
+                _check_travel(cfg, st, duration, fb.x_table)
             backend.enable()
         except BackendFault as exc:
+            backend.shutdown()
             raise UserError(f"backend {name}: {exc.reason}") from None
+        except BaseException:
+            backend.shutdown()
+            raise
     else:
+        refuse_if_tripped(cfg)
         supervisor = None
     progress = frf.stderr_progress
     try:
         result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
                              pm_min=args.pm, gm_min_db=args.gm, supervisor=supervisor)
+    except RunStopped:
+        raise                     # stopped in the middle: the exit code of how (hil.errors.STOP_EXIT_CODES)
     except (ValueError, RuntimeError) as exc:
         raise UserError(str(exc)) from None
     finally:

@@ -24,7 +24,9 @@ def run(args) -> int:
     from drivers.canopen.backend import CanopenBackend
     from hil.commands.move import load_config
     from hil.errors import UserError
+    from hil.supervisor import refuse_if_tripped
     cfg = load_config(args)
+    refuse_if_tripped(cfg)            # homing may move the axis: a latched trip refuses it too
     offset = parse(args.offset, "length", "--offset")
     be = CanopenBackend(cfg)
     try:

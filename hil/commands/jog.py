@@ -4,9 +4,10 @@ from __future__ import annotations
 from hil.io.jsonout import dumps
 from hil.units import parse
 
-HELP = "jog the axis by a distance from its present position (CANopen backend, supervised)"
+HELP = "jog the axis by a distance from its present position (CANopen backend by default, supervised)"
 DESCRIPTION = """Move the axis by --distance from where it stands, at --speed with --amax, through the
-runtime (limits checked before motion, the supervisor watching every cycle).
+runtime (the position read from the drive before it is enabled, limits checked from there before
+motion, the supervisor watching every cycle). A latched trip refuses it until 'hil reset'.
 
   hil jog --config config/paper_bench_canopen.toml --distance 5mm --speed 600mm/min
 """
@@ -15,6 +16,7 @@ runtime (limits checked before motion, the supervisor watching every cycle).
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
     add_common(p, backend=False)
+    p.add_argument("--backend", default="canopen", help="canopen (default), serial or sim")
     p.add_argument("--distance", required=True, help="signed distance, e.g. 5mm or -2mm")
     p.add_argument("--speed", default="600mm/min", help="jog speed (default 600mm/min)")
     p.add_argument("--amax", default="0.5m/s^2", help="acceleration (default 0.5m/s^2)")
@@ -22,29 +24,36 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from drivers.canopen.backend import CanopenBackend
-    from hil.commands.status import connected
-    from hil.errors import UserError
-    from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
+    from drivers import BackendError, open_backend
+    from hil.commands.move import load_config
+    from hil.errors import UserError, stop_exit_code
+    from hil.profiles import LimitError, MoveSpec, Trajectory
     from hil.runtime import run_trajectory
-    from hil.supervisor import Supervisor, SupervisorTripped
-    with connected(args) as (cfg, be):
-        start = be.node.sdo[0x6064].raw / be.counts_per_m
-    traj = Trajectory(start=start)
-    traj.move(MoveSpec(stroke=parse(args.distance, "length", "--distance"), feed=parse(args.speed, "speed", "--speed"),
-                       a_max=parse(args.amax, "acceleration", "--amax")))
+    from hil.supervisor import refuse_if_tripped
+    cfg = load_config(args)
+    refuse_if_tripped(cfg)                 # before anything connects
+    traj = Trajectory(start=0.0)           # a relative move: the runtime plans it from where the axis stands
+    try:
+        traj.move(MoveSpec(stroke=parse(args.distance, "length", "--distance"),
+                           feed=parse(args.speed, "speed", "--speed"), a_max=parse(args.amax, "acceleration", "--amax")))
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
     traj.dwell(0.1)
     try:
-        check_limits(traj, AxisLimits.from_config(cfg))
-    except LimitError as exc:
+        backend = open_backend(cfg, args.backend)
+        # the simulated plant starts at 0: checked here; an axis: checked from where it stands (runtime)
+        rec = run_trajectory(cfg, traj, backend=backend, settle=0.0, check=args.backend == "sim", start="follow")
+    except (LimitError, BackendError) as exc:
         raise UserError(str(exc)) from None
-    sup = Supervisor(cfg, real_time=True)
-    try:
-        sup.arm()
-    except SupervisorTripped as exc:
-        raise UserError(str(exc)) from None
-    rec = run_trajectory(cfg, traj, backend=CanopenBackend(cfg), settle=0.0, supervisor=sup, check=False)
+    if len(rec["t"]) < 1:
+        raise UserError(f"the jog did not start on {backend.name}: {rec.status}: {rec.reason}")
+    start = rec.start
     out = {"start_m": start, "end_m": float(rec["x_table"][-1]), "status": rec.status, "reason": rec.reason}
-    print(dumps(out, indent=2) if args.json else
-          f"jog {start * 1e3:.3f} -> {out['end_m'] * 1e3:.3f} mm: {rec.status} {rec.reason}".rstrip())
-    return 0 if rec.status == "complete" else 1
+    if args.json:
+        print(dumps(out, indent=2))
+    elif rec.status == "complete":
+        print(f"jog {start * 1e3:.3f} -> {out['end_m'] * 1e3:.3f} mm: complete")
+    else:
+        print(f"jog DID NOT COMPLETE: {rec.status}: {rec.reason}; the axis stopped at {out['end_m'] * 1e3:.3f} mm "
+              f"(from {start * 1e3:.3f} mm); 'hil status' shows the trip, 'hil reset' clears it")
+    return stop_exit_code(rec.status, rec.reason)

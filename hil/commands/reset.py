@@ -5,7 +5,8 @@ from hil.io.jsonout import dumps
 
 HELP = "reset a drive fault (controlword bit 7) and clear the supervisor's latched trip"
 DESCRIPTION = """Send FAULT RESET (controlword 0x0080, rising edge) to the drive and clear the
-supervisor's latch file (supervisor.latch_file), so that motion is allowed again. Find and fix
+supervisor's latch (latch.json in the state directory, $HIL_STATE_DIR or
+$XDG_STATE_HOME/compliant-axis-hil, or supervisor.latch_file), so that motion is allowed again. Find and fix
 the cause first: 'hil status' shows the error code and the trip reason.
 """
 
@@ -13,6 +14,8 @@ the cause first: 'hil status' shows the error code and the trip reason.
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
     add_common(p, backend=False)
+    p.add_argument("--backend", help="the drive to reset (canopen); default: the config's backend.type (others: "
+                   "the supervisor's latch only)")
     p.add_argument("--supervisor-only", action="store_true", help="only clear the supervisor's latch")
     p.add_argument("--json", action="store_true", help="print as JSON")
 
@@ -22,13 +25,15 @@ def run(args) -> int:
     from hil.supervisor import Supervisor
     cfg = load_config(args)
     sup = Supervisor(cfg)
-    out = {"supervisor_was": sup.reason if sup.tripped else "clear"}
-    sup.reset()
-    if not args.supervisor_only:
+    out = {"supervisor_was": (f"tripped at {sup.tripped_at or 'an unknown time'}: {sup.reason}" if sup.tripped
+                              else "clear")}
+    backend = args.backend or cfg.get("backend.type", "sim")
+    if not args.supervisor_only and backend == "canopen":
         from hil.commands.status import connected
         with connected(args) as (_, be):
             out["error_code"] = f"0x{be.node.sdo[0x603F].raw:04X}"
             out["state"] = be.fault_reset()
+    sup.reset()                  # the latch last: a drive that could not be reached keeps it
     print(dumps(out, indent=2) if args.json else
           "; ".join(f"{k.replace('_', ' ')}: {v}" for k, v in out.items()))
     return 0 if out.get("state", "SWITCH ON DISABLED") != "FAULT" else 1

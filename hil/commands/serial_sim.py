@@ -14,9 +14,10 @@ pseudo-terminal, with the sim_plant model as its shaft, until Ctrl-C. It prints 
   hil move --config config/serial_ascii_example.toml --backend serial --set serial.port=/dev/pts/N \\
       --stroke 10mm --feed 7000mm/min --tacc 200ms --dwell 0.3s
 
-Faults to inject (repeatable): KIND[@AFTER][xCOUNT][:OP], e.g. --fault timeout@200x3:set_position
-(after 200 more commands, the next 3 set_position commands get no reply). Kinds: timeout, partial,
-garbled, checksum, unexpected, refuse, drive_fault, vanish.
+Faults to inject (repeatable): KIND[@AFTER][xCOUNT][:OP], e.g. --fault timeout@20x3:set_position
+(after 20 more commands, the next 3 set_position commands get no reply; the move above is about
+97 commands, 7 at start-up and 2 a cycle). Kinds: timeout, partial, garbled, checksum,
+unexpected, refuse, drive_fault, vanish, late (the reply 50 ms late), frozen_encoder.
 """
 
 

@@ -6,10 +6,11 @@ from contextlib import contextmanager
 from hil.errors import ConfigError, UserError
 from hil.io.jsonout import dumps
 
-HELP = "show the CANopen drive's state, position, error code and recent EMCY (no motion)"
+HELP = "show the supervisor's latched trip and the CANopen drive's state, position, error code (no motion)"
 DESCRIPTION = """Connect to the drive (the config's [canopen] section, or --set canopen.*) without
 configuring it, and print its NMT state, CiA 402 state, statusword, mode, positions, error code
-0x603F, and the supervisor's latched trip, if any.
+0x603F, and the supervisor's latched trip, if any (its reason, time and latch file; on any
+backend).
 
   hil status --config config/paper_bench_canopen.toml --set canopen.interface=socketcand --set canopen.channel=can0
 """
@@ -18,6 +19,8 @@ configuring it, and print its NMT state, CiA 402 state, statusword, mode, positi
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
     add_common(p, backend=False)
+    p.add_argument("--backend", help="the drive to ask (canopen); default: the config's backend.type (others: "
+                   "the supervisor's latch only)")
     p.add_argument("--json", action="store_true", help="print as JSON")
 
 
@@ -44,20 +47,32 @@ def connected(args):
         be.shutdown()
 
 
-def run(args) -> int:
+def latch_state(cfg) -> dict:
+    """The supervisor's latch: tripped or not, the reason, when, and the file."""
     from hil.supervisor import Supervisor
-    with connected(args) as (cfg, be):
-        st = be.status()
     sup = Supervisor(cfg)
-    st["supervisor"] = {"tripped": sup.tripped, "reason": sup.reason}
+    return {"tripped": sup.tripped, "reason": sup.reason, "time": sup.tripped_at, "latch_file": str(sup.latch_file)}
+
+
+def run(args) -> int:
+    from hil.commands.move import load_config
+    cfg = load_config(args)
+    backend = args.backend or cfg.get("backend.type", "sim")
+    st = {}
+    if backend == "canopen":
+        with connected(args) as (cfg, be):
+            st = be.status()
+    st["supervisor"] = latch = latch_state(cfg)
     if args.json:
         print(dumps(st, indent=2))
-    else:
+        return 0
+    if backend == "canopen":
         print(f"node {st['node']} ({st['nmt']}): {st['state']} (statusword {st['statusword']}), mode {st['mode']}")
         print(f"  position {st['position_m'] * 1e3:.4f} mm (motor), table {st['table_m'] * 1e3:.4f} mm, "
               f"error code {st['error_code']}")
         if "tip_node" in st:
             tip = st["tip_m"]
             print(f"  tip sensor node {st['tip_node']}: " + (f"{tip * 1e3:.4f} mm" if isinstance(tip, float) else tip))
-        print(f"  supervisor: {'TRIPPED: ' + sup.reason if sup.tripped else 'clear'}")
+    print("  supervisor: " + (f"TRIPPED at {latch['time'] or 'an unknown time'}: {latch['reason']} (motion refused "
+                              f"until 'hil reset'; latch {latch['latch_file']})" if latch["tripped"] else "clear"))
     return 0

@@ -216,6 +216,16 @@ def _text(r: dict) -> str:
     return "\n".join(lines)
 
 
+def check_scheduler_address(address: str) -> None:
+    """A Dask scheduler address, ``[protocol://]host:port`` with a port 1..65535: checked before
+    anything connects (a bad one is a mistake: one line, exit 2; Dask itself would fail late)."""
+    rest = address.split("://", 1)[1] if "://" in address else address
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise UserError(f"--scheduler {address}: expected [tcp://]HOST:PORT with a port 1..65535, "
+                        "e.g. tcp://127.0.0.1:8786")
+
+
 def run(args) -> int:
     from hil.config import load, parse_assignment
     from hil.sweep import run_sweep
@@ -228,6 +238,10 @@ def run(args) -> int:
         shared = {k: v for k, v in overrides.items() if k in cmp_cfg.keys()}   # e.g. control gains
         cmp_cfg = load(args.compare, shared) if shared else cmp_cfg
     s = settings_from_args(args, cfg)
+    if args.scheduler:
+        check_scheduler_address(args.scheduler)
+    from hil.supervisor import refuse_if_tripped
+    refuse_if_tripped(cfg)             # a trip not reset refuses motion on every backend
     if s.analysis != "mechatronic" and cfg.n_masses < 2:
         raise UserError(f"--analysis {s.analysis}: the transmission analysis needs a chain of at least 2 masses")
     if args.jobs is not None and args.jobs < 1:

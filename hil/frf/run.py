@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hil.control import loop_terms
-from hil.errors import BackendFault, SupervisorTripped
+from hil.errors import RunStopped
 from hil.frf.excitation import Excitation, make_excitation
 from hil.loop import CYCLE_CHANNELS, ControlLoop, Injection
 from hil.simulate import closed_loop_kernel
@@ -159,10 +159,9 @@ def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, 
 
     Raises
     ------
-    BackendFault
-        The drive faulted or was lost (the loop has commanded a quick stop).
-    SupervisorTripped
-        The supervisor tripped (the loop has commanded its controlled stop).
+    RunStopped
+        The drive faulted or was lost, or the supervisor tripped (the loop has commanded the
+        controlled stop); its ``status``, ``reason`` and ``exit_code`` say how.
     """
     if backend.closes != "none":
         raise ValueError(f"backend {backend.name}: frf needs a backend in torque mode (closes='none'), "
@@ -173,10 +172,8 @@ def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, 
     loop = ControlLoop(backend, replace(ctrl, acc_ff=0.0), clock=clock, supervisor=supervisor,
                        injection=injection, progress=(lambda done: progress(f"  {done:5.1%}")) if progress else None)
     result = loop.run(x_cmd[:-1], x_after=x_cmd[-1])
-    if result.status == "fault":
-        raise BackendFault(result.reason)
-    if result.status == "tripped":
-        raise SupervisorTripped(f"supervisor tripped: {result.reason}")
+    if result.status != "complete":      # stopped (the loop commanded the controlled stop): how, in the exit code
+        raise RunStopped(f"frf did not complete: {result.status}: {result.reason}", result.status, result.reason)
     data = injection.data
     saturated = int(np.count_nonzero(np.abs(data[:, CH.index("u")]) >= ctrl.output_limit))
     tip_measured = not np.isnan(data[:, CH.index("x_tip")]).any()

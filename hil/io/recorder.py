@@ -73,7 +73,12 @@ class Recorder:
         self._pending = 0
 
     def close(self, status: str = "complete", reason: str = "", extra: dict | None = None) -> None:
+        """Close the record with its status and reason. Once closed, a later call changes neither
+        (the first to close a run that stopped is the one that knows why: the cycle loop), but
+        its ``extra`` (loop statistics, the trip record, where the run started) is added."""
         if self._fh.closed:
+            if extra:
+                self._write_status(extra)
             return
         self.flush()
         os.fsync(self._fh.fileno())

@@ -11,8 +11,12 @@ import matplotlib.pyplot as plt  # noqa: E402
 __all__ = ["plot_move"]
 
 
-def plot_move(channels: dict, path: str | Path, title: str = "", target: float | None = None) -> Path:
-    """Like the paper's Fig. 10: position (top) and following error (bottom) at table and tool tip."""
+def plot_move(channels: dict, path: str | Path, title: str = "", target: float | None = None,
+              stopped: tuple[str, str] | None = None) -> Path:
+    """Like the paper's Fig. 10: position (top) and following error (bottom) at table and tool tip.
+
+    ``stopped``: (status, reason) of a run that did not complete: a red line where the record ends
+    (the stop) on both axes, and the status and reason written above the figure."""
     t = channels["t"]
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
     ax1.plot(t, channels["x_cmd"] * 1e3, "k--", lw=1, label="command")
@@ -29,6 +33,13 @@ def plot_move(channels: dict, path: str | Path, title: str = "", target: float |
     ax2.grid(True, alpha=0.3)
     if title:
         ax1.set_title(title)
+    if stopped is not None and len(t):
+        status, reason = stopped
+        for ax in (ax1, ax2):
+            ax.axvline(t[-1], color="red", lw=1.5)
+        ax1.annotate(f"{status.upper()} at t = {t[-1]:.3f} s", (t[-1], ax1.get_ylim()[1]), color="red",
+                     ha="right", va="top", fontsize=9)
+        fig.suptitle(f"run did not complete: {status}: {reason}", color="red", fontsize=9)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

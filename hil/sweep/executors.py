@@ -73,7 +73,8 @@ class DaskExecutor:
         if isinstance(scheduler, Client):
             self.client, self.own = scheduler, False
         else:
-            self.client, self.own = Client(scheduler, set_as_default=False), True
+            # a scheduler that does not answer: a clear error after 10 s, not dask's 60 s
+            self.client, self.own = Client(scheduler, set_as_default=False, timeout=10), True
 
     def map(self, cfg, tasks):
         from distributed import as_completed as das_completed
@@ -99,10 +100,13 @@ class DaskExecutor:
 
 
 class BackendExecutor:
-    """A real axis: one run after the other."""
+    """A real axis: one run after the other. The first run starts where the axis stands; every run
+    returns to that start (its return move), and the next one is refused unless the axis is found
+    back there (``limits.start_window``)."""
 
     def __init__(self, backend, out_dir):
         self.backend, self.out_dir = backend, out_dir
+        self.start: float | None = None          # the sweep's start, as measured before the first run
 
     def map(self, cfg, tasks):
         for key, spec in tasks:
@@ -111,7 +115,10 @@ class BackendExecutor:
     def one(self, cfg, key, spec):
         if spec.analysis == "transmission":      # a model analysis: the axis is not needed
             return run_task(cfg, key, spec)
-        return key, run_on_backend(cfg, spec, self.backend, self.out_dir)
+        fig = run_on_backend(cfg, spec, self.backend, self.out_dir, start=self.start)
+        if self.start is None:
+            self.start = fig.get("start_m")
+        return key, fig
 
     def close(self):
         pass

@@ -30,7 +30,7 @@ import numpy as np
 
 from drivers import open_backend
 from hil.analysis import move_figures
-from hil.errors import UserError
+from hil.errors import RunStopped, UserError
 from hil.profiles import MoveSpec, Trajectory, plan_move
 from hil.runtime import run_trajectory
 from hil.simulate import simulate
@@ -164,16 +164,28 @@ def backend_trajectory(spec: RunSpec, start: float = 0.0) -> tuple[Trajectory, o
     return traj, move
 
 
-def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None) -> dict:
+def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float | None = None) -> dict:
     """One run on a runtime backend (``hil.runtime.run_trajectory``): the move, a dwell, the
-    return move and a dwell, so the axis ends where it started. Limits are checked first."""
-    traj, move = backend_trajectory(spec)
-    rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend), out_file=None, settle=0.0)
+    return move and a dwell, so the axis ends where it started. Limits are checked first.
+
+    ``start``: the sweep's start, where the axis must stand (within ``limits.start_window``) before
+    this run, else it is refused; ``None`` (the first run): the run starts where the axis stands.
+    The figures carry ``start_m``, where the run started."""
+    traj, move = backend_trajectory(spec, 0.0 if start is None else start)
+    rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend), out_file=None, settle=0.0,
+                         start="follow" if start is None else "check")
+    if len(rec.channels["t"]) < 2:       # the backend could not be opened or enabled: nothing moved
+        raise UserError(f"the run at j_max {move.j_max:.4g} m/s^3 did not start on {backend}: {rec.status}: "
+                        f"{rec.reason}")
     if getattr(rec, "status", "complete") != "complete":
-        raise UserError(f"run at j_max {move.j_max:.4g} m/s^3 stopped: {rec.status}: {rec.reason}; the runs "
-                        f"finished before it are kept and the sweep resumes from there")
+        raise RunStopped(f"run at j_max {move.j_max:.4g} m/s^3 stopped: {rec.status}: {rec.reason}; the runs "
+                         f"finished before it are kept and the sweep resumes from there", rec.status, rec.reason)
+    if rec.start is not None and rec.start != traj.start:     # planned from where the axis stood
+        move = traj.shifted(rec.start - traj.start).moves[0]
     ch = rec.channels
     t = np.asarray(ch["t"], float)
     u = ch.get("torque", ch.get("command", np.zeros(0)))
     tip = ch.get("x_tip", ch["x_table"])
-    return _figures(t, ch["x_cmd"], ch["x_table"], tip, u, move, spec, t_end=move.duration + spec.dwell)
+    out = _figures(t, ch["x_cmd"], ch["x_table"], tip, u, move, spec, t_end=move.duration + spec.dwell)
+    out["start_m"] = rec.start
+    return out

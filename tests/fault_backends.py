@@ -1,0 +1,53 @@
+"""The test doubles of a drive that goes wrong, shared by the runtime and backend tests: the
+embedded plant in torque mode (the host closes both loops, one exchange per velocity cycle) whose
+feedback goes wrong from one velocity cycle on, either as the fault rule of drivers.base asks
+(reported in ``Feedback.fault``) or by raising :class:`BackendFault` from ``read_feedback`` (a
+backend that breaks the rule: the loop still ends the run ``fault``)."""
+from drivers.base import Backend, BackendFault
+from drivers.sim import SimulatedPlant
+
+
+class FaultyPlant(Backend):
+    """``at``: the first velocity cycle (1-based count of ``read_feedback`` calls) that goes wrong;
+    ``reason``: what it says; ``raises``: raise BackendFault instead of reporting it. ``stopped``:
+    the controlled stop was commanded."""
+    name = "faulty"
+    closes = "none"
+    simulated = True
+
+    def __init__(self, cfg, at: int, reason: str = "drive fault: overcurrent", raises: bool = False):
+        self.sim = SimulatedPlant(cfg, closes="none")
+        self.cycle_time = self.sim.cycle_time
+        self.at, self.reason, self.raises = at, reason, raises
+        self.cycles, self.stopped = 0, False
+
+    def open(self):
+        self.sim.home_at(0.0)
+
+    def enable(self):
+        self.sim.enable()
+
+    def read_feedback(self):
+        self.cycles += 1
+        fb = self.sim.read_feedback()
+        if self.cycles >= self.at:
+            if self.raises:
+                raise BackendFault(self.reason)
+            fb.fault = self.reason
+        return fb
+
+    def write_setpoint(self, sp):
+        self.sim.write_setpoint(sp)
+
+    def sync(self):
+        self.sim.sync()
+
+    def quick_stop(self):
+        self.stopped = True
+        self.sim.disable()
+
+    def disable(self):
+        self.sim.disable()
+
+    def close(self):
+        pass
