@@ -19,7 +19,7 @@ import numpy as np
 from hil.errors import LimitError
 
 __all__ = ["MoveSpec", "SineSquareMove", "Dwell", "Trajectory", "LimitError", "AxisLimits",
-           "plan_move", "check_limits"]
+           "plan_move", "check_limits", "check_sampled", "is_null_stroke"]
 
 
 @dataclass(frozen=True)
@@ -137,7 +137,8 @@ def plan_move(spec: MoveSpec, start: float = 0.0) -> SineSquareMove:
         tr = math.pi * math.sqrt(V / (2.0 * spec.j_max))
     reduced = False
     if D == 0.0:
-        return SineSquareMove(start, 0.0, V, tr, 0.0, spec, False)
+        # no distance: a standstill (a peak speed here would ramp away and jump back at the end)
+        return SineSquareMove(start, 0.0, 0.0, tr, 0.0, spec, False)
     if V * tr > D:                               # the two ramps alone would overshoot the stroke
         reduced = True
         if spec.j_max is not None:
@@ -286,3 +287,46 @@ def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
                                 f"by {(value / limit - 1) * 100:.1f} %; {_fit_hint(seg, which, lim)}")
     if problems:
         raise LimitError("move refused before motion: " + "; ".join(problems))
+
+
+def is_null_stroke(stroke: float, resolution: float = 0.0) -> bool:
+    """Whether a stroke is no move: zero, or smaller than the axis can resolve (the encoder
+    quantum ``resolution``; 1 nm at least)."""
+    return abs(stroke) < max(resolution, 1e-9)
+
+
+def check_sampled(x_cmd, period: float, lim: AxisLimits, what: str = "the command") -> None:
+    """Refuse a command sequence, as it will be sent, whose samples break a limit: every sample
+    within the travel and finite, and the speed, acceleration and jerk of the sampled command
+    (its first, second and third backward differences over ``period``, the command standing at
+    its first sample before and at its last sample after) within the axis limits.
+
+    The sampled differences of a planned sine-square move are weighted means of its continuous
+    speed, acceleration and jerk, so a plan that keeps the limits keeps them sample by sample;
+    what this catches is a sequence that does not match its plan (a jump, a planning error)."""
+    x = np.asarray(x_cmd, float)
+    if x.ndim != 1 or x.size == 0:
+        raise LimitError(f"{what}: no samples to send")
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        raise LimitError(f"{what}: sample {bad[0]} is not a finite position; nothing was sent")
+    out = np.flatnonzero((x > lim.travel_max + 1e-12) | (x < lim.travel_min - 1e-12))
+    if out.size:
+        i = out[0]
+        raise LimitError(f"{what}: sample {i} (t = {i * period:.4f} s) at {x[i] * 1e3:.3f} mm is outside the travel "
+                         f"[{lim.travel_min * 1e3:g}, {lim.travel_max * 1e3:g}] mm; nothing was sent")
+    xp = np.concatenate([np.full(3, x[0]), x, x[-1:]])
+    d = np.diff(xp)
+    # (name, sampled value, limit, unit, absolute slack for rounding)
+    # (name, sampled value, limit, unit, absolute slack for rounding); value i of the difference of
+    # order n ends at padded sample i + n, that is at command sample i + n - 3
+    rows = ((1, "speed", np.abs(d) / period, lim.speed, "m/s", 1e-9),
+            (2, "acceleration", np.abs(np.diff(d)) / period ** 2, lim.acceleration, "m/s^2", 1e-6),
+            (3, "jerk", np.abs(np.diff(d, 2)) / period ** 3, lim.jerk, "m/s^3", 1e-3))
+    for order, name, v, limit, unit, slack in rows:
+        over = np.flatnonzero(v > limit * (1.0 + 1e-9) + slack)
+        if over.size:
+            i = over[0]
+            k = min(max(i + order - 3, 0), x.size - 1)
+            raise LimitError(f"{what}: the sampled {name} {v[i]:.4g} {unit} at sample {k} (t = {k * period:.4f} s) "
+                             f"exceeds limits.{name} {limit:g} {unit}; nothing was sent")

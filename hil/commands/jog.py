@@ -28,6 +28,9 @@ def run(args) -> int:
     from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
     from hil.runtime import run_trajectory
     from hil.supervisor import Supervisor, SupervisorTripped
+    from hil.commands.move import _no_move, load_config
+    if _no_move(load_config(args), parse(args.distance, "length", "--distance"), "--distance", args.json):
+        return 0
     with connected(args) as (cfg, be):
         start = be.node.sdo[0x6064].raw / be.counts_per_m
     traj = Trajectory(start=start)

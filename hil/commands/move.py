@@ -78,11 +78,25 @@ def build_trajectory(args, cfg) -> Trajectory:
     return traj
 
 
+def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:
+    """A zero or sub-resolution stroke is no move: say so in one line (nothing is sent)."""
+    from hil.profiles import is_null_stroke
+    res = max(cfg.get("sensors.table_resolution", 0.0) or 0.0, cfg.get("sensors.motor_resolution", 0.0) or 0.0)
+    if not is_null_stroke(stroke, res):
+        return False
+    msg = (f"no move: {option} {stroke * 1e3:g} mm is below the axis resolution "
+           f"({max(res, 1e-9) * 1e3:g} mm); nothing was sent")
+    print(dumps({"ok": True, "moved": False, "reason": msg}, indent=2) if as_json else msg)
+    return True
+
+
 def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
     from hil.profiles import AxisLimits, LimitError, check_limits
     cfg = load_config(args)
+    if _no_move(cfg, parse(args.stroke, "length", "--stroke"), "--stroke", args.json):
+        return 0
     traj = build_trajectory(args, cfg)
     try:
         check_limits(traj, AxisLimits.from_config(cfg))
