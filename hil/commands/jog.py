@@ -23,12 +23,12 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from drivers.canopen.backend import CanopenBackend
+    from hil.commands.move import _no_move, load_config
     from hil.commands.status import connected
     from hil.errors import UserError
     from hil.profiles import AxisLimits, LimitError, MoveSpec, Trajectory, check_limits
     from hil.runtime import run_trajectory
     from hil.supervisor import Supervisor, SupervisorTripped
-    from hil.commands.move import _no_move, load_config
     if _no_move(load_config(args), parse(args.distance, "length", "--distance"), "--distance", args.json):
         return 0
     with connected(args) as (cfg, be):
