@@ -34,8 +34,10 @@ SECTION = {
     "supervisor.overrun_cycles": Field("dimensionless", "watchdog: a cycle that starts this many periods late "
                                        "trips (real-time clock only)", default=2.0, positive=True),
     "supervisor.frozen_cycles": Field("int", "position reading unchanged this many ticks while commanded to move",
+                                      maximum=1_000_000,
                                       default=10, positive=True),
-    "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True),
+    "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True,
+                                maximum=1_000_000),
     "supervisor.latch_file": Field("str", "file that keeps a trip across processes until 'hil reset'",
                                    default=""),
 }
