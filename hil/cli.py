@@ -73,6 +73,12 @@ def main(argv: list[str] | None = None) -> int:
         # one line, and the exit code of the error's kind (2: fix and retry; 1: drive fault)
         print(f"hil {args.command}: {exc.label}: {exc}", file=sys.stderr)
         return exc.exit_code
+    except (FileExistsError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as exc:
+        # a path the user gave that cannot be read or written as asked (e.g. --out naming a file)
+        if exc.filename is None:
+            raise
+        print(f"hil {args.command}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"hil {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -22,6 +22,12 @@ __all__ = ["MoveSpec", "SineSquareMove", "Dwell", "Trajectory", "LimitError", "A
            "plan_move", "check_limits", "check_sampled", "is_null_stroke"]
 
 
+# the longest trajectory run or sampled (s), and the most samples of one: beyond them a typo
+# (a feed in mm/min read as m/min the other way, a dwell of 1e12 s), never a test move
+MAX_DURATION = 3600.0
+MAX_SAMPLES = 20_000_000
+
+
 @dataclass(frozen=True)
 class MoveSpec:
     """What the user asks for (SI): a signed stroke, a feed, and one of t_acc (with g0), a_max, j_max."""
@@ -33,16 +39,19 @@ class MoveSpec:
     j_max: float | None = None
 
     def __post_init__(self):
+        # LimitError (a ValueError): the command line reports it in one line
         given = [n for n in ("t_acc", "a_max", "j_max") if getattr(self, n) is not None]
         if len(given) != 1:
-            raise ValueError(f"give exactly one of t_acc, a_max, j_max (got {', '.join(given) or 'none'})")
+            raise LimitError(f"give exactly one of t_acc, a_max, j_max (got {', '.join(given) or 'none'})")
         if self.t_acc is not None and self.g0 is None:
-            raise ValueError("t_acc needs the rapid speed g0 (nc.g0 in the config, or --g0)")
-        if not self.feed > 0:
-            raise ValueError(f"feed must be positive, got {self.feed:g} m/s")
+            raise LimitError("t_acc needs the rapid speed g0 (nc.g0 in the config, or --g0)")
+        if not math.isfinite(self.stroke):
+            raise LimitError(f"stroke must be a finite length, got {self.stroke:g} m")
+        if not self.feed > 0 or not math.isfinite(self.feed):
+            raise LimitError(f"feed must be positive and finite, got {self.feed:g} m/s")
         for n in given + (["g0"] if self.g0 is not None else []):
-            if not getattr(self, n) > 0:
-                raise ValueError(f"{n} must be positive, got {getattr(self, n):g}")
+            if not getattr(self, n) > 0 or not math.isfinite(getattr(self, n)):
+                raise LimitError(f"{n} must be positive and finite, got {getattr(self, n):g}")
 
     @property
     def keeps(self) -> str:
@@ -176,8 +185,8 @@ class Trajectory:
         return m
 
     def dwell(self, duration: float) -> None:
-        if duration < 0:
-            raise ValueError(f"dwell must be >= 0 s, got {duration:g}")
+        if not 0 <= duration <= MAX_DURATION:
+            raise LimitError(f"dwell must be between 0 and {MAX_DURATION:g} s, got {duration:g} s")
         if duration > 0:
             self.segments.append(Dwell(duration))
 
@@ -218,7 +227,11 @@ class Trajectory:
     def sample(self, period: float, settle: float = 0.0):
         """Times t_k = k period and the commanded positions x_cmd[k], covering the whole trajectory
         plus ``settle`` seconds standing at the end."""
-        n = int(math.ceil((self.duration + settle) / period - 1e-9)) + 1
+        total = self.duration + settle
+        if not total <= MAX_DURATION + settle or not period > 0 or total / period > MAX_SAMPLES:
+            raise LimitError(f"the trajectory lasts {total:g} s: at most {MAX_DURATION:g} s and {MAX_SAMPLES} "
+                             f"samples of {period:g} s are run")
+        n = int(math.ceil(total / period - 1e-9)) + 1
         t = np.arange(n) * period
         return t, self.position(t)
 
@@ -264,6 +277,9 @@ def _fit_hint(move: SineSquareMove, which: str, lim: AxisLimits) -> str:
 def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
     """Refuse a trajectory that would break a limit of the axis, before any motion."""
     problems = []
+    if not traj.duration <= MAX_DURATION:
+        problems.append(f"the trajectory lasts {traj.duration:.4g} s, more than {MAX_DURATION:g} s (a feed or an "
+                        f"acceleration far too small?)")
     for i, seg in enumerate(traj.segments):
         if not isinstance(seg, SineSquareMove):
             continue

@@ -41,8 +41,13 @@ def load_inputs(args):
     """The config (``--config`` with ``--set``) and the record (``data`` with ``--map``)."""
     from hil.config import load, parse_assignment
     from hil.io.importers import parse_mapping, read_any
+    from hil.io.measurement import check_usable
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
-    return cfg, read_any(args.data, parse_mapping(args.map) or None)
+    meas = read_any(args.data, parse_mapping(args.map) or None)
+    # degenerate records are refused, never diagnosed
+    check_usable(meas, (cfg["limits.travel_min"], cfg["limits.travel_max"]), cfg["control.position_period"],
+                 cfg["control.velocity_period"])
+    return cfg, meas
 
 
 def make_replay(args, cfg, meas):

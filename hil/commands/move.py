@@ -94,7 +94,9 @@ def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
     from hil.profiles import AxisLimits, LimitError, check_limits
+    from hil.units import parse_bounded
     cfg = load_config(args)
+    band = parse_bounded(args.band, "length", "--band", positive=True, maximum=1.0)   # before anything moves
     if _no_move(cfg, parse(args.stroke, "length", "--stroke"), "--stroke", args.json):
         return 0
     traj = build_trajectory(args, cfg)
@@ -123,7 +125,6 @@ def run(args) -> int:
     ch = rec.channels
     if len(ch["t"]) < 2:
         raise UserError(f"the move did not start on {backend.name}: {rec.status}: {rec.reason}")
-    band = parse(args.band, "length", "--band")
     t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
         traj.segments[1], "stroke") else 0.0)
     fig = move_figures(ch["t"], ch["x_cmd"], ch["x_table"], ch["x_tip"], ch.get("torque", ch.get("command")),

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import csv
+import math
 import re
 from pathlib import Path
 
@@ -74,6 +75,9 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
 
 
+# the most runs one sweep asks for (each is a whole closed-loop run; 10^8 grew to 6.9 GB)
+MAX_POINTS = 10_000
+
 _RANGE = re.compile(r"^\s*(.+?)\s*\.\.\s*(.+?)\s*$")
 
 
@@ -93,13 +97,17 @@ def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
         if unit and re.fullmatch(r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?", lo_t):
             lo_t = f"{lo_t} {unit}"
         lo, hi = parse(lo_t, kind, what), parse(hi_t, kind, what)
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise UserError(f"{what} {text!r}: the range must be finite")
         try:
             return jerk_grid(lo, hi, points)
         except ValueError as exc:
             raise UserError(f"{what} {text!r}: {exc}") from None
     vals = parse_list(text, kind, what)
-    if any(not v > 0 for v in vals):
-        raise UserError(f"{what}: every value must be positive, got {text!r}")
+    if any(not v > 0 or not math.isfinite(v) for v in vals):
+        raise UserError(f"{what}: every value must be positive and finite, got {text!r}")
+    if len(vals) > MAX_POINTS:
+        raise UserError(f"{what}: {len(vals)} values, at most {MAX_POINTS}")
     return sorted(set(vals))
 
 
@@ -130,8 +138,8 @@ def settings_from_args(args, cfg):
     if not feed > 0:
         raise UserError(f"--feed: must be positive, got {args.feed!r}")
     g0 = parse(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
-    if args.points < 2:
-        raise UserError(f"--points: need at least 2, got {args.points}")
+    if not 2 <= args.points <= MAX_POINTS:
+        raise UserError(f"--points: expected 2 .. {MAX_POINTS}, got {args.points}")
     if args.tacc:
         if not g0:
             raise UserError("--tacc needs the rapid speed G0: give --g0 or nc.g0 in the config")
