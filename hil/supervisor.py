@@ -24,7 +24,12 @@ import numpy as np
 from hil.config import Field, register_section
 from hil.errors import SupervisorTripped
 
-__all__ = ["Supervisor", "SupervisorTripped", "SECTION", "check_record"]
+__all__ = ["Supervisor", "SupervisorTripped", "SECTION", "check_record", "is_latch", "remove_latch"]
+
+# the keys every latch file written by Supervisor.trip holds, and the largest one it writes
+# (a history of at most supervisor.history cycles of about ten numbers)
+LATCH_KEYS = ("reason", "cycle", "t")
+LATCH_MAX_BYTES = 64 * 1024 * 1024
 
 SECTION = {
     "supervisor.stop": Field("str", "controlled stop on a trip: quick_stop (CiA 402 quick stop) or disable",
@@ -81,9 +86,9 @@ class Supervisor:
         self.start()
 
     def reset(self) -> None:
+        if self.latch_file is not None:
+            remove_latch(self.latch_file)        # refuses (before clearing) a file that is no latch
         self.tripped, self.reason, self.trip_cycle, self.trip_time, self.record = False, "", None, None, {}
-        if self.latch_file is not None and self.latch_file.exists():
-            self.latch_file.unlink()
 
     def _load_latch(self) -> None:
         if self.latch_file is not None and self.latch_file.exists():
@@ -99,8 +104,9 @@ class Supervisor:
             self.record = {"reason": reason, "cycle": max(self.k - 1, 0), "t": t, "stop": self.stop,
                            "last_cycles": list(self.history)}
             if self.latch_file is not None:
-                self.latch_file.parent.mkdir(parents=True, exist_ok=True)
-                self.latch_file.write_text(json.dumps(self.record, indent=1))
+                # at once, never through a link planted at its name (hil.io.safe_write)
+                from hil.io.safe_write import write_atomic
+                write_atomic(self.latch_file, json.dumps(self.record, indent=1))
         return reason
 
     # -- the check, every position tick --------------------------------------------------------------------
@@ -165,6 +171,34 @@ class Supervisor:
             self._same = 0
         self._last_x = (fb.x_table, fb.x_motor)
         return None
+
+
+def is_latch(path: str | Path) -> bool:
+    """Whether ``path`` is a latch file as :meth:`Supervisor.trip` writes it: a regular file (not
+    a symbolic link), UTF-8 JSON, an object with exactly the trip record's keys."""
+    p = Path(path)
+    try:
+        if p.is_symlink() or not p.is_file() or p.stat().st_size > LATCH_MAX_BYTES:
+            return False
+        info = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and set(LATCH_KEYS) <= set(info) and isinstance(info["reason"], str)
+
+
+def remove_latch(path: str | Path) -> bool:
+    """Delete the latch file at ``path`` if it is one (:func:`is_latch`); False where there is
+    none. Anything else at that name (a configuration, a link, a folder) is left alone and refused
+    with a ConfigError: ``supervisor.latch_file`` names no latch."""
+    from hil.errors import ConfigError
+    p = Path(path)
+    if not p.exists() and not p.is_symlink():
+        return False
+    if not is_latch(p):
+        raise ConfigError(f"supervisor.latch_file {p}: not a latch file written by the supervisor (a link, a "
+                          f"folder or another file); not deleted")
+    p.unlink()
+    return True
 
 
 def _command_rule(cfg, tol: float, T: float, c, travel: str | None) -> str | None:
