@@ -133,3 +133,9 @@ def test_other_commands(capsys, tmp_path):
     _one_line(capsys, ["synth", "--config", BENCH, "--out", BENCH], "is an input")
     _one_line(capsys, ["sweep", "--config", BENCH, "--stroke", "590mm", "--feed", "15m/min", "--jmax", "1..2000",
                        "--points", "100000000", "--out", str(tmp_path / "sw")], "--points")
+
+
+def test_sweep_refuses_an_unstable_loop(capsys, tmp_path):
+    _one_line(capsys, ["sweep", "--config", BENCH, "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500",
+                       "--points", "3", "--set", "control.output_delay=40", "--out", str(tmp_path / "sw"),
+                       "--no-plot", "--no-progress"], "unstable")

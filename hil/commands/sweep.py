@@ -236,6 +236,11 @@ def run(args) -> int:
         shared = {k: v for k, v in overrides.items() if k in cmp_cfg.keys()}   # e.g. control gains
         cmp_cfg = load(args.compare, shared) if shared else cmp_cfg
     s = settings_from_args(args, cfg)
+    # an unstable loop has no overshoot to report (issue 18): refused, for the compared model too
+    from hil.closed_loop import check_loop_stability
+    for c in (cfg, cmp_cfg):
+        if c is not None and s.analysis != "transmission":
+            check_loop_stability(c)
     if s.analysis != "mechatronic" and cfg.n_masses < 2:
         raise UserError(f"--analysis {s.analysis}: the transmission analysis needs a chain of at least 2 masses")
     if args.jobs is not None and args.jobs < 1:
