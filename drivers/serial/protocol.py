@@ -60,8 +60,8 @@ def _check_template(op: str, tpl) -> None:
         if name is None:
             continue
         if name not in FIELDS:
-            raise ValueError(f"serial.commands.{op}: field {{{name}}} is not allowed (only {{position}}, "
-                             f"{{speed}}, {{output}}, {{ms}}, without attribute or index access)")
+            raise ValueError(f"serial.commands.{op}: unknown field {{{name}}} (known: position, speed, output, "
+                             f"ms; no attribute or index access)")
         if conversion is not None or not _SPEC.match(spec or ""):
             raise ValueError(f"serial.commands.{op}: field {{{name}}} with "
                              f"{'!' + conversion if conversion else ':' + spec!s}: only a decimal format spec "
