@@ -19,8 +19,6 @@ import time
 from collections import deque
 from pathlib import Path
 
-import numpy as np
-
 from hil.config import Field, register_section
 from hil.errors import SupervisorTripped
 
@@ -233,6 +231,7 @@ def check_record(cfg, ch: dict, v_motor=None, period: float | None = None) -> tu
     the same ticks, where known. Per tick the order is :meth:`Supervisor.check`'s and then
     :meth:`Supervisor.check_setpoint`'s (the next command); the real-time watchdog does not apply
     to a simulated clock. The messages are the supervisor's."""
+    import numpy as np  # here: the command line imports this module without numpy
     T = float(period or cfg["control.position_period"])
     tol = 1.0 + float(cfg.get("supervisor.tolerance", 0.05))
     x = np.asarray(ch["x_cmd"], float)

@@ -7,7 +7,6 @@ from pathlib import Path
 from hil.commands.compare import add_common, load_inputs, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import dumps
-from hil.io.safe_write import write_atomic
 
 HELP = "fit one or more effects (or parameter:<key>) to a measurement and write the new config"
 DESCRIPTION = """\
@@ -78,6 +77,7 @@ def run(args) -> int:
         new = joint_refit(rp, new, refit)
     res = rp.residuals(new)
     after = {c: float((res[c] ** 2).mean() ** 0.5) for c in rp.channels}
+    from hil.io.safe_write import write_atomic
     write_atomic(args.out, f"# fitted by hil fit on {meas.source}: {', '.join(args.add)}\n" + new.to_toml(),
                  inputs=(args.config, args.data, args.after if hasattr(args, "after") else None))
     out = {"config": args.out, "steps": [s.as_json() for s in steps], "error_before": before, "error_after": after}
@@ -103,6 +103,7 @@ def _run_frequency(args) -> int:
         fit = fit_frf(cfg, data, args.add)
     except (FrfDataError, KeyError) as exc:
         raise UserError(str(exc).strip("'\"")) from None
+    from hil.io.safe_write import write_atomic
     write_atomic(args.out, f"# fitted by hil fit on {args.data} (frequency responses): {', '.join(args.add)}\n"
                  + fit.config.to_toml(), inputs=(args.config, args.data))
     out = {"config": args.out, "domain": "frequency", "effect": fit.effect, "params": fit.params,
