@@ -140,3 +140,27 @@ def test_config_errors_name_the_key(tmp_path):
     cfg = config.load(p)
     with pytest.raises(ConfigError, match="serial.commands.set_position"):
         CommandSet.from_config(cfg)
+
+
+def test_move_outputs_never_follow_planted_links(tmp_path, capsys):
+    """hil move --out DIR with links planted at the record's, its status file's and the plot's names:
+    the links are replaced or refused, their targets never written."""
+    from hil.cli import main
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    out = tmp_path / "m"
+    out.mkdir()
+    for name in ("move.json", "move.json.tmp", "move.png"):
+        (out / name).symlink_to(victim)
+    rc = main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed", "7000mm/min",
+               "--tacc", "200ms", "--out", str(out)])
+    assert rc == 0 and victim.read_text() == "precious"
+    assert not (out / "move.png").is_symlink() and (out / "move.png").stat().st_size > 1000
+    (out / "move.csv").unlink()
+    (out / "move.csv").symlink_to(victim)
+    capsys.readouterr()
+    rc = main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed", "7000mm/min",
+               "--tacc", "200ms", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "symbolic link" in err and err.count("\n") == 1
+    assert victim.read_text() == "precious"

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hil.errors import LimitError, UserError
 from hil.io.jsonout import dumps
+from hil.io.safe_write import save_figure, write_atomic
 from hil.units import SI_UNIT, parse, parse_list
 
 HELP = "jerk sweep: overshoot vs. jerk, the largest safe jerk for a tolerance, 2-dof vs. 3-dof"
@@ -161,7 +162,8 @@ def settings_from_args(args, cfg):
 
 
 def write_csv(report: dict, path: Path) -> None:
-    with open(path, "w", newline="") as fh:
+    import io
+    with io.StringIO(newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=CSV_FIELDS, extrasaction="ignore")
         w.writeheader()
         an = "transmission" if report["analysis"] == "transmission" else "mechatronic"
@@ -170,6 +172,7 @@ def write_csv(report: dict, path: Path) -> None:
                               ("compare", "compare_runs_transmission", "transmission")):
             for r in report.get(key) or []:
                 w.writerow({**r, "model": model, "analysis": a, "grid": not r.get("refine")})
+        write_atomic(path, fh.getvalue())
 
 
 def _text(r: dict) -> str:
@@ -272,12 +275,12 @@ def run(args) -> int:
     if not args.no_plot:
         from hil.plots.sweep import sweep_figure
         fig = sweep_figure(report)
-        fig.savefig(out / "sweep.png", dpi=110)
+        save_figure(fig, out / "sweep.png", dpi=110)
         import matplotlib.pyplot as plt
         plt.close(fig)
         files["plot"] = str(out / "sweep.png")
     report["files"] = files
-    (out / "sweep.json").write_text(dumps(report, indent=2))
+    write_atomic(out / "sweep.json", dumps(report, indent=2))
     if args.json:
         print(dumps(report, indent=2))
     else:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from hil.errors import UserError
 
-__all__ = ["open_new", "write_atomic", "refuse_inputs"]
+__all__ = ["open_new", "write_atomic", "refuse_inputs", "save_figure"]
 
 
 def refuse_inputs(path: str | Path, inputs=()) -> None:
@@ -78,3 +78,12 @@ def write_atomic(path: str | Path, data: str | bytes, inputs=(), encoding: str =
             pass
         raise
     return path
+
+
+def save_figure(fig, path: str | Path, inputs=(), **kw) -> Path:
+    """A matplotlib figure saved as :func:`write_atomic` writes (the format from the suffix)."""
+    import io
+    path = Path(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lstrip(".") or "png", **kw)
+    return write_atomic(path, buf.getvalue(), inputs)
