@@ -93,7 +93,7 @@ def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:
 def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
-    from hil.profiles import AxisLimits, LimitError, check_limits
+    from hil.profiles import AxisLimits, LimitError, check_limits, check_sampled
     from hil.units import parse_bounded
     cfg = load_config(args)
     band = parse_bounded(args.band, "length", "--band", positive=True, maximum=1.0)   # before anything moves
@@ -102,6 +102,9 @@ def run(args) -> int:
     traj = build_trajectory(args, cfg)
     try:
         check_limits(traj, AxisLimits.from_config(cfg))
+        # and the command as it will be sent, sample by sample (--check included)
+        tp = cfg["control.position_period"]
+        check_sampled(traj.sample(tp)[1], tp, AxisLimits.from_config(cfg))
         check_loop_stability(cfg)
     except (LimitError, UnstableLoopError) as exc:
         raise UserError(str(exc)) from None
