@@ -78,6 +78,9 @@ def closed_loop_response(cfg, f_hz=None, ffv: float | None = None) -> ClosedLoop
     c_fb[plant.table if ctrl.position_feedback == "table" else 0] = 1.0
     A = Phi - np.outer(Gam * R * Kv, c_fb)
     rho = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if _extra_terms(cfg):
+        # the response above leaves them out; stability is judged on the whole loop (lifted_loop)
+        rho = loop_stability(cfg)[1]
     c_table = np.zeros(ns)
     c_table[plant.table] = 1.0
     c_tip = np.zeros(ns)
@@ -224,6 +227,21 @@ def lifted_loop(plant, ctrl):
     index = {"plant": slice(0, 2 * n), "integral": i_I, "history": slice(h0, h0 + nh),
              "qf": i_qf if taps.size else None, "delay": slice(b0, b0 + nd), "lag": i_lag}
     return Phi, Gam, Gff, index
+
+
+def _extra_terms(cfg) -> list[str]:
+    """The loop terms the frequency response of :func:`closed_loop_response` leaves out."""
+    out = []
+    if cfg.get("control.output_delay", 0):
+        out.append("control.output_delay")
+    if cfg.get("control.velocity_feedback", "motor_speed") != "motor_speed":
+        out.append("control.velocity_feedback")
+    if cfg.get("actuator.current_loop_time_constant", 0.0):
+        out.append("actuator.current_loop_time_constant")
+    from sim_plant.kernel import time_delay
+    if time_delay(plant_from_config(cfg)) > 0:
+        out.append("the plant's transport delay")
+    return out
 
 
 def closed_loop_matrix(plant, ctrl) -> np.ndarray:

@@ -117,3 +117,11 @@ def test_schema_bounds(bench, key, value, word):
     from hil import config
     with pytest.raises(ConfigError, match=word):
         config.load(CONFIG / "paper_bench.toml", {key: value})
+
+
+def test_model_report_judges_the_whole_loop(bench):
+    """closed_loop_response (hil model --closed-loop) reports the whole loop's radius where its
+    frequency response leaves terms out, the former one otherwise."""
+    cfg = bench.with_values({"control.output_delay": 40})
+    r = closed_loop_response(cfg, [1.0])
+    assert r.stable is False and r.spectral_radius == loop_stability(cfg)[1]
