@@ -88,6 +88,12 @@ def main(argv: list[str] | None = None) -> int:
         # a run stopped early: how it stopped, hil.errors.STOP_EXIT_CODES)
         print(f"hil {args.command}: {exc.label}: {exc}", file=sys.stderr)
         return exc.exit_code
+    except (FileExistsError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as exc:
+        # a path the user gave that cannot be read or written as asked (e.g. --out naming a file)
+        if exc.filename is None:
+            raise
+        print(f"hil {args.command}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print(f"hil {args.command}: interrupted", file=sys.stderr)
         return 130

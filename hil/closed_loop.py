@@ -78,6 +78,9 @@ def closed_loop_response(cfg, f_hz=None, ffv: float | None = None) -> ClosedLoop
     c_fb[plant.table if ctrl.position_feedback == "table" else 0] = 1.0
     A = Phi - np.outer(Gam * R * Kv, c_fb)
     rho = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if _extra_terms(cfg):
+        # the response above leaves them out; stability is judged on the whole loop (lifted_loop)
+        rho = loop_stability(cfg)[1]
     c_table = np.zeros(ns)
     c_table[plant.table] = 1.0
     c_tip = np.zeros(ns)
@@ -126,14 +129,154 @@ def closed_loop_report(r: ClosedLoopResponse) -> dict:
                             (("table_ff", r.table), ("tip_ff", r.tip), ("table_ff_tf3", r.table_tf3))}}
 
 
+def lifted_loop(plant, ctrl):
+    """The whole sampled loop as a linear map over one position period, every term the
+    configuration describes included: s[k+1] = Phi s[k] + Gam w_ref[k] + Gff ff[k], with the
+    speed reference w_ref and the torque feed-forward ff held over the period.
+
+    The state, at the start of a velocity step (the compiled kernel's order, hil.simulate):
+    the plant's positions and velocities (2n), the PI integral, for a speed estimated from
+    position (``velocity_feedback = "position_difference"``) the motor positions of the last
+    ``len(taps) - 1`` steps and the last filtered position, the outputs held in the delay line
+    (``loop_terms(...).delay`` velocity periods: the computation delay and the plant's transport
+    delay, interpolated linearly when fractional), and the current loop's lagged output. One
+    velocity step::
+
+        w = R v1                         or  (sum_i taps_i q_(j-i) - qf_(j-1)) R / Tv
+        e = w_ref - w;  I+ = I + Tv e;   u = Kp (e + I+ / Ti) + ff
+        u_d = (1 - f) u_(j-d) + f u_(j-d-1)          (the delay line)
+        u_a+ = u_a + alpha (u_d - u_a)                (the current loop)
+        x+ = Ad x + b u_a+
+
+    Linear between ticks: friction, saturation, quantization and the plant's nonlinear effects
+    are left out (the small-signal loop).
+
+    Returns
+    -------
+    Phi, Gam, Gff : ndarray
+        The maps over one position period.
+    index : dict
+        Where the terms sit in the state: ``"plant"``, ``"integral"``, ``"history"``,
+        ``"qf"``, ``"delay"``, ``"lag"`` (slices or indices).
+    """
+    from hil.control import loop_terms
+    n = plant.n
+    disc = plant.chain.discretize(ctrl.velocity_period)
+    Ad, b = disc.A, disc.B[:, 0] * plant.force_gain
+    Tv, Kp, Ti, R = ctrl.velocity_period, ctrl.kp, ctrl.ti, ctrl.speed_scale
+    inv_ti = 0.0 if math.isinf(Ti) else 1.0 / Ti
+    taps = np.asarray(ctrl.velocity_filter if ctrl.velocity_feedback == "position_difference" else (), float)
+    terms = loop_terms(plant, ctrl)
+    d_int, d_frac = terms.delay_parts
+    nd = d_int + 1 if terms.delay > 0.0 else 0
+    nh = max(taps.size - 1, 0)
+    i_I = 2 * n
+    h0 = i_I + 1
+    i_qf = h0 + nh
+    b0 = i_qf + (1 if taps.size else 0)
+    i_lag = b0 + nd
+    ns = i_lag + 1
+    # each velocity step as affine rows in (state, w_ref, ff): value = row_s @ s + row_w w_ref + row_f ff
+    w_s = np.zeros(ns)
+    if taps.size:
+        qf_s = np.zeros(ns)
+        qf_s[0] = taps[0]
+        qf_s[h0:h0 + nh] = taps[1:]
+        w_s = (qf_s - np.eye(ns)[i_qf]) * R / Tv
+    else:
+        w_s[n] = R
+    e_s, e_w = -w_s, 1.0
+    Ip_s, Ip_w = np.eye(ns)[i_I] + Tv * e_s, Tv * e_w
+    u_s, u_w, u_f = Kp * (e_s + inv_ti * Ip_s), Kp * (e_w + inv_ti * Ip_w), 1.0
+    F = np.zeros((ns, ns))
+    G = np.zeros(ns)
+    Gf = np.zeros(ns)
+    F[i_I], G[i_I] = Ip_s, Ip_w
+    if taps.size:
+        F[i_qf] = qf_s
+        if nh:
+            F[h0, 0] = 1.0
+            for i in range(1, nh):
+                F[h0 + i, h0 + i - 1] = 1.0
+    # the delay line: b'_0 = u, b'_i = b_(i-1); u_d = (1 - f) b'_d + f b'_(d+1)
+    if nd:
+        F[b0], G[b0], Gf[b0] = u_s, u_w, u_f
+        for i in range(1, nd):
+            F[b0 + i, b0 + i - 1] = 1.0
+
+        def bprime(i):
+            if i == 0:
+                return u_s, u_w, u_f
+            return np.eye(ns)[b0 + i - 1], 0.0, 0.0
+        a_s, a_w, a_f = bprime(d_int)
+        c_s, c_w, c_f = (np.eye(ns)[b0 + d_int], 0.0, 0.0)
+        ud_s, ud_w, ud_f = ((1 - d_frac) * a_s + d_frac * c_s, (1 - d_frac) * a_w + d_frac * c_w,
+                            (1 - d_frac) * a_f + d_frac * c_f)
+    else:
+        ud_s, ud_w, ud_f = u_s, u_w, u_f
+    al = terms.lag_alpha
+    ua_s = (1 - al) * np.eye(ns)[i_lag] + al * ud_s
+    ua_w, ua_f = al * ud_w, al * ud_f
+    F[i_lag], G[i_lag], Gf[i_lag] = ua_s, ua_w, ua_f
+    F[:2 * n, :] = np.outer(b, ua_s)
+    F[:2 * n, :2 * n] += Ad
+    G[:2 * n], Gf[:2 * n] = b * ua_w, b * ua_f
+    Phi, Gam, Gff = np.eye(ns), np.zeros(ns), np.zeros(ns)
+    for _ in range(ctrl.substeps):
+        Phi, Gam, Gff = F @ Phi, F @ Gam + G, F @ Gff + Gf
+    index = {"plant": slice(0, 2 * n), "integral": i_I, "history": slice(h0, h0 + nh),
+             "qf": i_qf if taps.size else None, "delay": slice(b0, b0 + nd), "lag": i_lag}
+    return Phi, Gam, Gff, index
+
+
+def _extra_terms(cfg) -> list[str]:
+    """The loop terms the frequency response of :func:`closed_loop_response` leaves out."""
+    out = []
+    if cfg.get("control.output_delay", 0):
+        out.append("control.output_delay")
+    if cfg.get("control.velocity_feedback", "motor_speed") != "motor_speed":
+        out.append("control.velocity_feedback")
+    if cfg.get("actuator.current_loop_time_constant", 0.0):
+        out.append("actuator.current_loop_time_constant")
+    from sim_plant.kernel import time_delay
+    if time_delay(plant_from_config(cfg)) > 0:
+        out.append("the plant's transport delay")
+    return out
+
+
+def closed_loop_matrix(plant, ctrl) -> np.ndarray:
+    """The closed position loop over one position period (command held at zero): the state
+    matrix whose eigenvalues decide stability (:func:`lifted_loop`'s state)."""
+    Phi, Gam, _, _ = lifted_loop(plant, ctrl)
+    c_fb = np.zeros(Phi.shape[0])
+    c_fb[plant.table if ctrl.position_feedback == "table" else 0] = 1.0
+    return Phi - np.outer(Gam * ctrl.speed_scale * ctrl.kv, c_fb)
+
+
+# state sizes the eigenvalue check is asked to handle (the schema bounds the delay below this)
+MAX_LIFTED_STATES = 2000
+
+
 def loop_stability(cfg) -> tuple[bool, float] | None:
     """(stable, spectral radius) of the configured cascade on the model, lifted exactly to the
-    position period; None where the lifted model does not cover the configuration (a speed
-    estimated from position, or a computation delay)."""
-    if cfg.get("control.velocity_feedback", "motor_speed") != "motor_speed" or cfg.get("control.output_delay", 0):
-        return None
-    r = closed_loop_response(cfg, [1.0])
-    return r.stable, r.spectral_radius
+    position period with every linear term the configuration describes (:func:`lifted_loop`:
+    the computation and transport delays, the speed estimated from filtered positions, the
+    current loop's lag)."""
+    plant = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant)
+    from hil.control import loop_terms
+    size = 2 * plant.n + 3 + len(ctrl.velocity_filter) + int(loop_terms(plant, ctrl).delay)
+    if size > MAX_LIFTED_STATES:
+        raise UnstableLoopError(f"loop configuration refused: its delay ({size} states) is too long to judge the "
+                                f"loop's stability (at most {MAX_LIFTED_STATES}); shorten control.output_delay or "
+                                f"the plant's transport delay")
+    with np.errstate(over="ignore", invalid="ignore"):
+        A = closed_loop_matrix(plant, ctrl)
+    if not np.all(np.isfinite(A)):
+        # the loop grows beyond the floating-point range within one position period
+        return False, math.inf
+    rho = float(np.max(np.abs(np.linalg.eigvals(A))))
+    return rho < 1.0, rho
 
 
 def check_loop_stability(cfg) -> None:
@@ -142,9 +285,16 @@ def check_loop_stability(cfg) -> None:
     if res is None or res[0]:
         return
     tv, tp = cfg["control.velocity_period"], cfg["control.position_period"]
+    terms = []
+    if cfg.get("control.output_delay", 0):
+        terms.append(f"control.output_delay {cfg['control.output_delay']}")
+    if cfg.get("control.velocity_feedback", "motor_speed") != "motor_speed":
+        terms.append(f"control.velocity_feedback {cfg['control.velocity_feedback']}")
+    if cfg.get("actuator.current_loop_time_constant", 0.0):
+        terms.append(f"actuator.current_loop_time_constant {cfg['actuator.current_loop_time_constant'] * 1e3:g} ms")
     raise UnstableLoopError(
         f"loop configuration refused: the model's closed loop is unstable (spectral radius {res[1]:.3g} > 1 "
-        f"per position period) with control.velocity_period {tv * 1e3:g} ms, control.position_period "
+        f"per position period) with {''.join(t + ', ' for t in terms)}control.velocity_period {tv * 1e3:g} ms, control.position_period "
         f"{tp * 1e3:g} ms, control.kp {cfg['control.kp']:g}, control.ti {cfg['control.ti']:g} s, control.kv "
         f"{cfg['control.kv']:g} 1/s; a shorter velocity period or lower gains would fit ('hil model "
         f"--closed-loop' shows the loop)")

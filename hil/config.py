@@ -47,6 +47,8 @@ class Field:
     positive: bool = False          # strictly > 0
     nonnegative: bool = False       # >= 0
     allow_inf: bool = False         # "inf" accepted (an integral time that switches the integral off)
+    maximum: float | None = None    # largest accepted value (SI); every number is also within MAX_MAGNITUDE
+    max_items: int = 64             # "floats": the longest list accepted
 
     def kind_for(self, values: dict) -> str:
         return self.kind(values) if callable(self.kind) else self.kind
@@ -71,6 +73,10 @@ def _output_kind(values):
 def _velocity_gain_kind(values):
     return "rot_damping" if _rotary(values) else "volt_per_speed"
 
+
+# Every number of a configuration, whatever its key, lies within +-MAX_MAGNITUDE (SI): a value
+# beyond it is a typo or an attack, never an axis (issue 18: a 1e300 gain, a 10^8-sample delay).
+MAX_MAGNITUDE = 1e12
 
 # Keys of the chain that are numbered: plant.m1..mN, plant.k1..k(N-1), plant.c1..c(N-1).
 _NUMBERED = {"m": ("mass", "mass {i} of the chain (1: motor reflected to the load side)"),
@@ -104,11 +110,11 @@ SCHEMA: dict[str, Field] = {
     "actuator.gain": Field("force_per_volt", "linear actuator: force per unit of controller output (N/V)",
                            default=None, positive=True),
     "actuator.current_loop_time_constant": Field("time", "first-order lag of the current loop; 0 = ideal",
-                                                 default=0.0, nonnegative=True),
+                                                 default=0.0, nonnegative=True, maximum=1.0),
     # --- control -----------------------------------------------------------------------------
-    "control.position_period": Field("time", "position-loop period Tp", required=True, positive=True),
+    "control.position_period": Field("time", "position-loop period Tp", required=True, positive=True, maximum=1.0),
     "control.velocity_period": Field("time", "velocity-loop period Tv (Tp must be a whole multiple)",
-                                     required=True, positive=True),
+                                     required=True, positive=True, maximum=1.0),
     "control.kv": Field("frequency", "position-loop P gain Kv (1/s)", required=True, nonnegative=True),
     "control.ffv": Field("dimensionless", "velocity feed-forward, fraction of the interpolator velocity",
                          default=1.0, nonnegative=True),
@@ -122,9 +128,9 @@ SCHEMA: dict[str, Field] = {
                                        "difference of the filtered motor position", default="motor_speed",
                                        choices=("motor_speed", "position_difference")),
     "control.velocity_filter": Field("floats", "FIR taps on the motor position before the difference "
-                                     "(position_difference only), newest first", default=[1.0]),
+                                     "(position_difference only), newest first", default=[1.0], max_items=8),
     "control.output_delay": Field("int", "computation delay of the velocity-loop output, in velocity periods",
-                                  default=0, nonnegative=True),
+                                  default=0, nonnegative=True, maximum=1000),
     "control.output_limit": Field(_output_kind, "saturation of the velocity-loop output (torque for a rotary "
                                   "actuator, command for a linear one)", required=True, positive=True),
     "control.acc_ff": Field("dimensionless", "acceleration (torque) feed-forward, fraction of the total "
@@ -153,7 +159,8 @@ SCHEMA: dict[str, Field] = {
                                       nonnegative=True),
     # --- runtime -------------------------------------------------------------------------------
     "runtime.priority": Field("int", "real-time (SCHED_FIFO) priority of the loop's thread on hardware, 1..99 "
-                              "(Linux, needs CAP_SYS_NICE); 0 = normal scheduling", default=0, nonnegative=True),
+                              "(Linux, needs CAP_SYS_NICE); 0 = normal scheduling", default=0, nonnegative=True,
+                              maximum=99),
     # --- backend -------------------------------------------------------------------------------
     "backend.type": Field("str", "sim (embedded plant model), canopen, serial", default="sim"),
     "meta.name": Field("str", "a name for the axis", default=""),
@@ -225,11 +232,19 @@ def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
             raise ConfigError(f"{what}: expected a whole number, got {raw!r}")
         if f.nonnegative and raw < 0:
             raise ConfigError(f"{what}: expected a whole number >= 0, got {raw!r}")
+        if f.positive and raw <= 0:
+            raise ConfigError(f"{what}: expected a whole number >= 1, got {raw!r}")
+        top = f.maximum if f.maximum is not None else MAX_MAGNITUDE
+        if raw > top or raw < -MAX_MAGNITUDE:
+            raise ConfigError(f"{what}: expected a whole number of at most {top:g}, got {raw!r}")
         return raw
     if kind == "floats":
         if not isinstance(raw, list) or not raw or not all(
-                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in raw):
-            raise ConfigError(f"{what}: expected a non-empty list of numbers, got {raw!r}")
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+                and abs(x) <= MAX_MAGNITUDE for x in raw):
+            raise ConfigError(f"{what}: expected a non-empty list of numbers, got {_short(raw)}")
+        if len(raw) > f.max_items:
+            raise ConfigError(f"{what}: expected at most {f.max_items} numbers, got {len(raw)}")
         return [float(x) for x in raw]
     try:
         value = parse(raw, kind, what)
@@ -242,7 +257,17 @@ def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
         raise ConfigError(f"{what}: expected a positive {kind} ({unit}), got {raw!r}")
     if f.nonnegative and not value >= 0:
         raise ConfigError(f"{what}: expected a {kind} >= 0 ({unit}), got {raw!r}")
+    if not math.isinf(value):
+        top = f.maximum if f.maximum is not None else MAX_MAGNITUDE
+        if value > top or value < -MAX_MAGNITUDE:
+            raise ConfigError(f"{what}: expected a {kind} of at most {top:g} {unit}, got {_short(raw)}")
     return value
+
+
+def _short(raw: Any, n: int = 60) -> str:
+    """A value as written, cut for a one-line message."""
+    r = repr(raw)
+    return r if len(r) <= n else r[:n] + "..."
 
 
 class Config:

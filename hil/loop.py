@@ -296,6 +296,10 @@ class ControlLoop:
                         # checked before the setpoint goes out: a trip stops the axis in this cycle
                         if self.supervisor is not None:
                             trip = self.supervisor.check(k * self.ctrl.position_period, fb, cmd[k])
+                            # and the setpoint about to go out (cmd[k + 1] on a position-mode drive)
+                            check_next = getattr(self.supervisor, "check_setpoint", None)
+                            if not trip and check_next is not None:
+                                trip = check_next(k * self.ctrl.position_period, cmd[k + 1])
                             if trip:
                                 self._stop(b)
                                 status, reason = "tripped", trip

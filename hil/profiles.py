@@ -19,7 +19,13 @@ import numpy as np
 from hil.errors import LimitError
 
 __all__ = ["MoveSpec", "SineSquareMove", "Dwell", "Trajectory", "LimitError", "AxisLimits",
-           "plan_move", "check_limits"]
+           "plan_move", "check_limits", "check_sampled", "is_null_stroke"]
+
+
+# the longest trajectory run or sampled (s), and the most samples of one: beyond them a typo
+# (a feed in mm/min read as m/min the other way, a dwell of 1e12 s), never a test move
+MAX_DURATION = 3600.0
+MAX_SAMPLES = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -33,16 +39,19 @@ class MoveSpec:
     j_max: float | None = None
 
     def __post_init__(self):
+        # LimitError (a ValueError): the command line reports it in one line
         given = [n for n in ("t_acc", "a_max", "j_max") if getattr(self, n) is not None]
         if len(given) != 1:
-            raise ValueError(f"give exactly one of t_acc, a_max, j_max (got {', '.join(given) or 'none'})")
+            raise LimitError(f"give exactly one of t_acc, a_max, j_max (got {', '.join(given) or 'none'})")
         if self.t_acc is not None and self.g0 is None:
-            raise ValueError("t_acc needs the rapid speed g0 (nc.g0 in the config, or --g0)")
-        if not self.feed > 0:
-            raise ValueError(f"feed must be positive, got {self.feed:g} m/s")
+            raise LimitError("t_acc needs the rapid speed g0 (nc.g0 in the config, or --g0)")
+        if not math.isfinite(self.stroke):
+            raise LimitError(f"stroke must be a finite length, got {self.stroke:g} m")
+        if not self.feed > 0 or not math.isfinite(self.feed):
+            raise LimitError(f"feed must be positive and finite, got {self.feed:g} m/s")
         for n in given + (["g0"] if self.g0 is not None else []):
-            if not getattr(self, n) > 0:
-                raise ValueError(f"{n} must be positive, got {getattr(self, n):g}")
+            if not getattr(self, n) > 0 or not math.isfinite(getattr(self, n)):
+                raise LimitError(f"{n} must be positive and finite, got {getattr(self, n):g}")
 
     @property
     def keeps(self) -> str:
@@ -137,7 +146,8 @@ def plan_move(spec: MoveSpec, start: float = 0.0) -> SineSquareMove:
         tr = math.pi * math.sqrt(V / (2.0 * spec.j_max))
     reduced = False
     if D == 0.0:
-        return SineSquareMove(start, 0.0, V, tr, 0.0, spec, False)
+        # no distance: a standstill (a peak speed here would ramp away and jump back at the end)
+        return SineSquareMove(start, 0.0, 0.0, tr, 0.0, spec, False)
     if V * tr > D:                               # the two ramps alone would overshoot the stroke
         reduced = True
         if spec.j_max is not None:
@@ -175,8 +185,8 @@ class Trajectory:
         return m
 
     def dwell(self, duration: float) -> None:
-        if duration < 0:
-            raise ValueError(f"dwell must be >= 0 s, got {duration:g}")
+        if not 0 <= duration <= MAX_DURATION:
+            raise LimitError(f"dwell must be between 0 and {MAX_DURATION:g} s, got {duration:g} s")
         if duration > 0:
             self.segments.append(Dwell(duration))
 
@@ -222,7 +232,11 @@ class Trajectory:
     def sample(self, period: float, settle: float = 0.0):
         """Times t_k = k period and the commanded positions x_cmd[k], covering the whole trajectory
         plus ``settle`` seconds standing at the end."""
-        n = int(math.ceil((self.duration + settle) / period - 1e-9)) + 1
+        total = self.duration + settle
+        if not total <= MAX_DURATION + settle or not period > 0 or total / period > MAX_SAMPLES:
+            raise LimitError(f"the trajectory lasts {total:g} s: at most {MAX_DURATION:g} s and {MAX_SAMPLES} "
+                             f"samples of {period:g} s are run")
+        n = int(math.ceil(total / period - 1e-9)) + 1
         t = np.arange(n) * period
         return t, self.position(t)
 
@@ -268,6 +282,9 @@ def _fit_hint(move: SineSquareMove, which: str, lim: AxisLimits) -> str:
 def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
     """Refuse a trajectory that would break a limit of the axis, before any motion."""
     problems = []
+    if not traj.duration <= MAX_DURATION:
+        problems.append(f"the trajectory lasts {traj.duration:.4g} s, more than {MAX_DURATION:g} s (a feed or an "
+                        f"acceleration far too small?)")
     for i, seg in enumerate(traj.segments):
         if not isinstance(seg, SineSquareMove):
             continue
@@ -291,3 +308,46 @@ def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
                                 f"by {(value / limit - 1) * 100:.1f} %; {_fit_hint(seg, which, lim)}")
     if problems:
         raise LimitError("move refused before motion: " + "; ".join(problems))
+
+
+def is_null_stroke(stroke: float, resolution: float = 0.0) -> bool:
+    """Whether a stroke is no move: zero, or smaller than the axis can resolve (the encoder
+    quantum ``resolution``; 1 nm at least)."""
+    return abs(stroke) < max(resolution, 1e-9)
+
+
+def check_sampled(x_cmd, period: float, lim: AxisLimits, what: str = "the command") -> None:
+    """Refuse a command sequence, as it will be sent, whose samples break a limit: every sample
+    within the travel and finite, and the speed, acceleration and jerk of the sampled command
+    (its first, second and third backward differences over ``period``, the command standing at
+    its first sample before and at its last sample after) within the axis limits.
+
+    The sampled differences of a planned sine-square move are weighted means of its continuous
+    speed, acceleration and jerk, so a plan that keeps the limits keeps them sample by sample;
+    what this catches is a sequence that does not match its plan (a jump, a planning error)."""
+    x = np.asarray(x_cmd, float)
+    if x.ndim != 1 or x.size == 0:
+        raise LimitError(f"{what}: no samples to send")
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        raise LimitError(f"{what}: sample {bad[0]} is not a finite position; nothing was sent")
+    out = np.flatnonzero((x > lim.travel_max + 1e-12) | (x < lim.travel_min - 1e-12))
+    if out.size:
+        i = out[0]
+        raise LimitError(f"{what}: sample {i} (t = {i * period:.4f} s) at {x[i] * 1e3:.3f} mm is outside the travel "
+                         f"[{lim.travel_min * 1e3:g}, {lim.travel_max * 1e3:g}] mm; nothing was sent")
+    xp = np.concatenate([np.full(3, x[0]), x, x[-1:]])
+    d = np.diff(xp)
+    # (name, sampled value, limit, unit, absolute slack for rounding)
+    # (name, sampled value, limit, unit, absolute slack for rounding); value i of the difference of
+    # order n ends at padded sample i + n, that is at command sample i + n - 3
+    rows = ((1, "speed", np.abs(d) / period, lim.speed, "m/s", 1e-9),
+            (2, "acceleration", np.abs(np.diff(d)) / period ** 2, lim.acceleration, "m/s^2", 1e-6),
+            (3, "jerk", np.abs(np.diff(d, 2)) / period ** 3, lim.jerk, "m/s^3", 1e-3))
+    for order, name, v, limit, unit, slack in rows:
+        over = np.flatnonzero(v > limit * (1.0 + 1e-9) + slack)
+        if over.size:
+            i = over[0]
+            k = min(max(i + order - 3, 0), x.size - 1)
+            raise LimitError(f"{what}: the sampled {name} {v[i]:.4g} {unit} at sample {k} (t = {k * period:.4f} s) "
+                             f"exceeds limits.{name} {limit:g} {unit}; nothing was sent")

@@ -37,9 +37,9 @@ from hil.errors import HilError, UserError
 from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop, LoopResult
-from hil.profiles import AxisLimits, Trajectory, check_limits
+from hil.profiles import AxisLimits, Trajectory, check_limits, check_sampled
 from hil.simulate import simulate
-from hil.supervisor import refuse_if_tripped
+from hil.supervisor import check_record, refuse_if_tripped
 
 __all__ = ["RunRecord", "run_trajectory", "record_channels"]
 
@@ -103,6 +103,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         check_loop_stability(cfg)
     tp = cfg["control.position_period"]
     t, x_cmd = traj.sample(tp, settle)
+    # the sequence as it will be sent, sample by sample, before the first setpoint (always)
+    check_sampled(x_cmd, tp, AxisLimits.from_config(cfg))
     backend = backend if backend is not None else open_backend(cfg)
     rotary = cfg.rotary
     names = record_channels(rotary)
@@ -114,10 +116,18 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         sim = simulate(backend.plant, backend.ctrl, x_cmd)
         ch = sim.channels()
         chans = {n: ch[n] for n in names}
+        # the supervisor's rules on the record: the run ends where the axis would have tripped
+        status, reason = "complete", ""
+        trip = check_record(cfg, chans, v_motor=sim.v[:, 0], period=tp)
+        if trip is not None:
+            k, reason = trip
+            status = "tripped"
+            chans = {n: v[:k + 1] for n, v in chans.items()}
         if out_file is not None:
             with Recorder(out_file, names, info) as rec:
                 rec.extend(chans)
-        return RunRecord(chans, "complete", "", Path(out_file) if out_file else None, start=float(x_cmd[0]))
+                rec.close(status, reason)
+        return RunRecord(chans, status, reason, Path(out_file) if out_file else None, start=float(x_cmd[0]))
     # cycle by cycle, on the backend's clock
     ctrl = controller_from_config(cfg, getattr(backend, "plant", None) or _plant_scales(cfg))
     rec = Recorder(out_file, names, info) if out_file is not None else _MemoryRecorder(names)

@@ -26,11 +26,17 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from hil.config import Field, register_section
-from hil.errors import SupervisorTripped
+from hil.errors import SupervisorTripped, UserError
 
-__all__ = ["Supervisor", "SupervisorTripped", "SECTION", "state_dir", "latch_path", "refuse_if_tripped"]
+__all__ = ["Supervisor", "SupervisorTripped", "SECTION", "state_dir", "latch_path", "refuse_if_tripped",
+           "check_record", "is_latch", "remove_latch"]
 
 APP = "compliant-axis-hil"
+
+# the keys every latch file written by Supervisor.trip holds, and the largest one it writes
+# (a history of at most supervisor.history cycles of about ten numbers)
+LATCH_KEYS = ("reason", "cycle", "t")
+LATCH_MAX_BYTES = 64 * 1024 * 1024
 
 
 def state_dir() -> Path:
@@ -55,6 +61,7 @@ def refuse_if_tripped(cfg) -> None:
     is latched; every motion command calls it before anything moves, on every backend."""
     Supervisor(cfg).arm()
 
+
 SECTION = {
     "supervisor.stop": Field("str", "controlled stop on a trip: quick_stop (CiA 402 quick stop) or disable",
                              default="quick_stop", choices=("quick_stop", "disable")),
@@ -63,8 +70,10 @@ SECTION = {
     "supervisor.overrun_cycles": Field("dimensionless", "watchdog: a cycle that starts this many periods late "
                                        "trips (real-time clock only)", default=2.0, positive=True),
     "supervisor.frozen_cycles": Field("int", "position reading unchanged this many ticks while commanded to move",
+                                      maximum=1_000_000,
                                       default=10, positive=True),
-    "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True),
+    "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True,
+                                maximum=1_000_000),
     "supervisor.latch_file": Field("str", "file that keeps a trip across processes until 'hil reset'; default "
                                    "latch.json in $HIL_STATE_DIR, $XDG_STATE_HOME/compliant-axis-hil or "
                                    "~/.local/state/compliant-axis-hil", default=""),
@@ -111,10 +120,10 @@ class Supervisor:
         self.start()
 
     def reset(self) -> None:
+        if self.latch_file is not None:
+            remove_latch(self.latch_file)        # refuses (before clearing) a file that is no latch
         self.tripped, self.reason, self.trip_cycle, self.trip_time, self.record = False, "", None, None, {}
         self.tripped_at = ""
-        if self.latch_file is not None and self.latch_file.exists():
-            self.latch_file.unlink()
 
     def _load_latch(self) -> None:
         if self.latch_file is not None and self.latch_file.exists():
@@ -139,10 +148,10 @@ class Supervisor:
         cannot be written does not stop the stop: the trip is then latched in this process only)."""
         try:
             self.latch_file.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.latch_file.with_suffix(".tmp")
-            tmp.write_text(json.dumps(self.record, indent=1, default=float))
-            os.replace(tmp, self.latch_file)
-        except OSError as exc:
+            # at once, never through a link planted at its name (hil.io.safe_write)
+            from hil.io.safe_write import write_atomic
+            write_atomic(self.latch_file, json.dumps(self.record, indent=1, default=float))
+        except (OSError, UserError) as exc:
             self.record["latch_error"] = str(exc)
 
     # -- the check, every position tick --------------------------------------------------------------------
@@ -155,6 +164,16 @@ class Supervisor:
             return self.reason
         r = self._check(t, fb, x_cmd)
         return self.trip(t, r, fb) if r else None
+
+    def check_setpoint(self, t: float, x_next: float) -> str | None:
+        """Check the position setpoint about to go out (the command of the next tick, which a
+        position-mode drive receives this cycle): the travel, and the commanded speed,
+        acceleration and jerk it makes with the commands before it. A trip here stops the axis
+        before the setpoint is sent (hil.loop calls it after :meth:`check`, before writing)."""
+        if self.tripped:
+            return self.reason
+        r = _command_rule(self.cfg, 1.0 + self.tol, self.period, list(self._cmd) + [x_next], "command")
+        return self.trip(t, r) if r else None
 
     def _check(self, t, fb, x_cmd) -> str | None:
         cfg, tol, T = self.cfg, 1.0 + self.tol, self.period
@@ -173,16 +192,9 @@ class Supervisor:
                 return f"travel limit: {name} at {x * 1e3:.3f} mm outside [{lo * 1e3:g}, {hi * 1e3:g}] mm"
         c = self._cmd
         c.append(x_cmd)
-        if len(c) >= 2 and abs(c[-1] - c[-2]) / T > cfg["limits.speed"] * tol + 1e-9:
-            return f"speed limit: commanded {abs(c[-1] - c[-2]) / T:.4g} m/s > {cfg['limits.speed']:g} m/s"
-        if len(c) >= 3:
-            a = abs(c[-1] - 2 * c[-2] + c[-3]) / T ** 2
-            if a > cfg["limits.acceleration"] * tol + 1e-6:
-                return f"acceleration limit: commanded {a:.4g} m/s^2 > {cfg['limits.acceleration']:g} m/s^2"
-        if len(c) >= 4:
-            j = abs(c[-1] - 3 * c[-2] + 3 * c[-3] - c[-4]) / T ** 3
-            if j > cfg["limits.jerk"] * tol + 1e-3:
-                return f"jerk limit: commanded {j:.4g} m/s^3 > {cfg['limits.jerk']:g} m/s^3"
+        r = _command_rule(cfg, tol, T, c, None)
+        if r:
+            return r
         if abs(fb.v_motor) > 1.5 * cfg["limits.speed"]:
             return f"speed limit: measured {abs(fb.v_motor):.4g} m/s > 1.5 x {cfg['limits.speed']:g} m/s"
         tq = cfg.get("limits.torque")
@@ -204,3 +216,152 @@ class Supervisor:
             self._same = 0
         self._last_x = (fb.x_table, fb.x_motor)
         return None
+
+
+def is_latch(path: str | Path) -> bool:
+    """Whether ``path`` is a latch file as :meth:`Supervisor.trip` writes it: a regular file (not
+    a symbolic link), UTF-8 JSON, an object with exactly the trip record's keys."""
+    p = Path(path)
+    try:
+        if p.is_symlink() or not p.is_file() or p.stat().st_size > LATCH_MAX_BYTES:
+            return False
+        info = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(info, dict) and set(LATCH_KEYS) <= set(info) and isinstance(info["reason"], str)
+
+
+def remove_latch(path: str | Path) -> bool:
+    """Delete the latch file at ``path`` if it is one (:func:`is_latch`); False where there is
+    none. Anything else at that name (a configuration, a link, a folder) is left alone and refused
+    with a ConfigError: ``supervisor.latch_file`` names no latch."""
+    from hil.errors import ConfigError
+    p = Path(path)
+    if not p.exists() and not p.is_symlink():
+        return False
+    if not is_latch(p):
+        raise ConfigError(f"supervisor.latch_file {p}: not a latch file written by the supervisor (a link, a "
+                          f"folder or another file); not deleted")
+    p.unlink()
+    return True
+
+
+def _command_rule(cfg, tol: float, T: float, c, travel: str | None) -> str | None:
+    """The rules on the commanded positions ``c`` (oldest first, the newest last): the travel of
+    the newest (where ``travel`` names it), and the speed, acceleration and jerk of the newest
+    first, second and third differences."""
+    if travel is not None:
+        lo, hi = cfg["limits.travel_min"], cfg["limits.travel_max"]
+        if not lo <= c[-1] <= hi:
+            return f"travel limit: {travel} at {c[-1] * 1e3:.3f} mm outside [{lo * 1e3:g}, {hi * 1e3:g}] mm"
+    if len(c) >= 2 and abs(c[-1] - c[-2]) / T > cfg["limits.speed"] * tol + 1e-9:
+        return f"speed limit: commanded {abs(c[-1] - c[-2]) / T:.4g} m/s > {cfg['limits.speed']:g} m/s"
+    if len(c) >= 3:
+        a = abs(c[-1] - 2 * c[-2] + c[-3]) / T ** 2
+        if a > cfg["limits.acceleration"] * tol + 1e-6:
+            return f"acceleration limit: commanded {a:.4g} m/s^2 > {cfg['limits.acceleration']:g} m/s^2"
+    if len(c) >= 4:
+        j = abs(c[-1] - 3 * c[-2] + 3 * c[-3] - c[-4]) / T ** 3
+        if j > cfg["limits.jerk"] * tol + 1e-3:
+            return f"jerk limit: commanded {j:.4g} m/s^3 > {cfg['limits.jerk']:g} m/s^3"
+    return None
+
+
+def check_record(cfg, ch: dict, v_motor=None, period: float | None = None) -> tuple[int, str] | None:
+    """The supervisor's rules on a whole record, vectorized: the first position tick at which
+    :class:`Supervisor` would trip, run cycle by cycle on the same readings, and its reason; None
+    where it would not trip. What the compiled dry run calls on its record (hil.runtime), so
+    that a dry run trips where the axis would.
+
+    ``ch``: the record's channels, one row per position tick (``x_cmd``, ``x_table``,
+    ``x_motor``, ``x_tip``, ``torque`` or ``command``); ``v_motor``: the motor speed (m/s) at
+    the same ticks, where known. Per tick the order is :meth:`Supervisor.check`'s and then
+    :meth:`Supervisor.check_setpoint`'s (the next command); the real-time watchdog does not apply
+    to a simulated clock. The messages are the supervisor's."""
+    import numpy as np  # here: the command line imports this module without numpy
+    T = float(period or cfg["control.position_period"])
+    tol = 1.0 + float(cfg.get("supervisor.tolerance", 0.05))
+    x = np.asarray(ch["x_cmd"], float)
+    K = x.size
+    if K == 0:
+        return None
+    xt, xm = np.asarray(ch["x_table"], float), np.asarray(ch["x_motor"], float)
+    tip = np.asarray(ch.get("x_tip", np.full(K, np.nan)), float)
+    out = np.asarray(ch["torque"] if "torque" in ch else ch.get("command", np.zeros(K)), float)
+    lo, hi = cfg["limits.travel_min"], cfg["limits.travel_max"]
+    nothing = np.zeros(K, bool)
+
+    def kin(c, ahead):
+        """speed, acceleration, jerk rules of the differences ending at c[k + ahead] (ticks k)"""
+        d1 = np.full(K, 0.0)
+        d2 = np.full(K, 0.0)
+        d3 = np.full(K, 0.0)
+        idx = np.arange(K) + ahead              # the newest command of tick k
+        ok = idx < c.size
+        i = idx[ok]
+        for arr, n in ((d1, 1), (d2, 2), (d3, 3)):
+            m = i >= n
+            coef = {1: (1, -1), 2: (1, -2, 1), 3: (1, -3, 3, -1)}[n]
+            v = np.zeros(i.size)
+            for j, a in enumerate(coef):
+                v[m] += a * c[i[m] - j]
+            arr[np.flatnonzero(ok)[m]] = np.abs(v[m])
+        return [(d1 / T > cfg["limits.speed"] * tol + 1e-9, lambda k: f"speed limit: commanded {d1[k] / T:.4g} m/s "
+                 f"> {cfg['limits.speed']:g} m/s"),
+                (d2 / T ** 2 > cfg["limits.acceleration"] * tol + 1e-6, lambda k: f"acceleration limit: commanded "
+                 f"{d2[k] / T ** 2:.4g} m/s^2 > {cfg['limits.acceleration']:g} m/s^2"),
+                (d3 / T ** 3 > cfg["limits.jerk"] * tol + 1e-3, lambda k: f"jerk limit: commanded {d3[k] / T ** 3:.4g} "
+                 f"m/s^3 > {cfg['limits.jerk']:g} m/s^3")]
+
+    def travel(v, name):
+        return (~((lo <= v) & (v <= hi)), lambda k: f"travel limit: {name} at {v[k] * 1e3:.3f} mm outside "
+                f"[{lo * 1e3:g}, {hi * 1e3:g}] mm")
+
+    rules = [travel(x, "command"), travel(xt, "table"), travel(xm, "motor")]
+    rules += kin(x, 0)
+    if v_motor is not None:
+        vm = np.abs(np.asarray(v_motor, float))
+        rules.append((vm > 1.5 * cfg["limits.speed"], lambda k: f"speed limit: measured {vm[k]:.4g} m/s > 1.5 x "
+                      f"{cfg['limits.speed']:g} m/s"))
+    tq = cfg.get("limits.torque")
+    if tq:
+        rules.append((np.abs(out) > tq * tol, lambda k: f"torque limit: {abs(out[k]):.4g} > {tq:g}"))
+    w = cfg.get("limits.following_error_table")
+    if w:
+        et = np.abs(x - xt)
+        rules.append((et > w, lambda k: f"following error at the table: {et[k] * 1e3:.3f} mm > {w * 1e3:g} mm"))
+    w2 = cfg.get("limits.following_error_tip")
+    if w2:
+        ep = np.abs(x - tip)
+        rules.append((~np.isnan(tip) & (ep > w2), lambda k: f"following error at the tool tip: {ep[k] * 1e3:.3f} mm "
+                      f"> {w2 * 1e3:g} mm"))
+    # frozen feedback: readings unchanged (from the tick before) while the command moved
+    frozen_n = int(cfg.get("supervisor.frozen_cycles", 10))
+    same = nothing.copy()
+    if K > 1:
+        moving = np.abs(np.diff(x)) / T > 1e-3
+        same[1:] = (xt[1:] == xt[:-1]) & (xm[1:] == xm[:-1]) & moving
+    run = np.zeros(K, int)
+    if same.any():
+        # length of the run of unchanged readings ending at each tick
+        c = np.cumsum(same)
+        reset = np.maximum.accumulate(np.where(~same, c, 0))
+        run = c - reset
+    rules.append((run >= frozen_n, lambda k: f"position feedback frozen for {run[k]} cycles while commanded to move"))
+    # then the setpoint about to go out: the command of the next tick (held after the last)
+    nxt = np.append(x, x[-1])
+    tr_next = ~((lo <= nxt[1:]) & (nxt[1:] <= hi))
+    rules.append((tr_next, lambda k: f"travel limit: command at {nxt[k + 1] * 1e3:.3f} mm outside "
+                  f"[{lo * 1e3:g}, {hi * 1e3:g}] mm"))
+    rules += kin(nxt, 1)
+    first = K
+    for mask, _ in rules:
+        hit = np.flatnonzero(mask)
+        if hit.size and hit[0] < first:
+            first = int(hit[0])
+    if first == K:
+        return None
+    for mask, msg in rules:            # the first rule in the supervisor's order at that tick
+        if mask[first]:
+            return first, msg(first)
+    return None

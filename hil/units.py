@@ -12,7 +12,7 @@ from functools import lru_cache
 
 from hil.errors import UnitError
 
-__all__ = ["UnitError", "parse", "parse_list", "DIMENSIONS"]
+__all__ = ["UnitError", "parse", "parse_list", "parse_bounded", "DIMENSIONS"]
 
 
 # Expected kinds of quantity, by name, as pint dimensionalities written as strings.
@@ -71,6 +71,7 @@ def _registry():
         return pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
 
 
+_DIGIT_GROUPS = re.compile(r"[0-9]_[0-9]")
 _NM = re.compile(r"(?<![A-Za-z])Nm(?![A-Za-z])")
 
 
@@ -99,6 +100,9 @@ def parse(value, kind: str, what: str = "value") -> float:
             raise UnitError(f"{what}: empty string, expected a {kind} ({SI_UNIT[kind]})")
         if text.lower() in ("inf", "+inf", "infinity"):
             return math.inf
+        if _DIGIT_GROUPS.search(text):
+            # Python's float() reads "1_000" as 1000: a written quantity means what it shows
+            raise UnitError(f"{what}: cannot read {value!r} as a {kind}: '_' inside a number")
         try:
             return _finite_or_nan(float(text), what, kind)      # a bare number: SI already
         except ValueError:
@@ -141,3 +145,32 @@ def parse_list(text: str, kind: str, what: str = "value") -> list[float]:
             p = p + " " + unit
         out.append(parse(p, kind, what))
     return out
+
+
+def parse_bounded(value, kind: str, what: str, *, positive: bool = False, nonnegative: bool = False,
+                  minimum: float | None = None, maximum: float | None = None) -> float:
+    """:func:`parse` for a command-line option that must be a finite number within bounds
+    (SI): one clear line (a UnitError) for inf, a sign that does not fit, or a value out of range.
+
+    Parameters
+    ----------
+    value, kind, what
+        As for :func:`parse`; ``what`` names the option in the message (e.g. ``"--dwell"``).
+    positive, nonnegative : bool
+        Require > 0 or >= 0.
+    minimum, maximum : float, optional
+        Bounds, SI (inclusive); the message shows them in SI units.
+    """
+    x = parse(value, kind, what)
+    unit = SI_UNIT[kind]
+    if not math.isfinite(x):
+        raise UnitError(f"{what}: expected a finite {kind} ({unit}), got {value!r}")
+    if positive and not x > 0:
+        raise UnitError(f"{what}: expected a positive {kind} ({unit}), got {value!r}")
+    if nonnegative and not x >= 0:
+        raise UnitError(f"{what}: expected a {kind} >= 0 ({unit}), got {value!r}")
+    if minimum is not None and x < minimum:
+        raise UnitError(f"{what}: expected a {kind} of at least {minimum:g} {unit}, got {value!r}")
+    if maximum is not None and x > maximum:
+        raise UnitError(f"{what}: expected a {kind} of at most {maximum:g} {unit}, got {value!r}")
+    return x

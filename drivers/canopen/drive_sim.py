@@ -635,6 +635,11 @@ class SocketcandServerBus(can.BusABC):
             conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
 
+    # the longest command a client may send (a "< send 1FFFFFFF 8 FF FF FF FF FF FF FF FF >" is 46
+    # characters): input beyond it without a closing ">" is dropped, so a client cannot grow the
+    # buffer without limit, and each received chunk is scanned once
+    MAX_COMMAND = 256
+
     def _serve(self, conn):
         buf, ready = "", False
         try:
@@ -644,26 +649,18 @@ class SocketcandServerBus(can.BusABC):
                 if not data:
                     break
                 buf += data.decode("ascii", "replace")
-                while ">" in buf:
-                    end = buf.index(">")
-                    start = buf.find("<")
-                    cmd, buf = buf[start + 1:end].split(), buf[end + 1:]
-                    if not cmd:
-                        continue
-                    if cmd[0] == "open":
-                        conn.sendall(b"< ok >")
-                    elif cmd[0] == "rawmode":
-                        conn.sendall(b"< ok >")
-                        ready = True
-                        with self._clients_lock:
-                            self._clients.append(conn)
-                    elif cmd[0] == "send" and ready and len(cmd) >= 3:
-                        can_id, n = int(cmd[1], 16), int(cmd[2], 16)
-                        payload = bytes(int(b, 16) for b in cmd[3:3 + n])
-                        msg = can.Message(arbitration_id=can_id, data=payload, is_extended_id=len(cmd[1]) > 3,
-                                          timestamp=time.time(), is_rx=True, channel=self.channel)
-                        self._queue.put(msg)
-                        self._broadcast(msg, skip=conn)
+                pos = 0
+                while True:
+                    end = buf.find(">", pos)
+                    if end < 0:
+                        break
+                    start = buf.find("<", pos, end)
+                    body, pos = (buf[start + 1:end] if start >= 0 else ""), end + 1
+                    ready = self._command(conn, body.split(), ready)
+                buf = buf[pos:]
+                if len(buf) > self.MAX_COMMAND:          # no ">" in sight: not a command, drop it
+                    start = buf.rfind("<")
+                    buf = buf[start:] if 0 <= start and len(buf) - start <= self.MAX_COMMAND else ""
         except OSError:
             pass
         finally:
@@ -671,6 +668,33 @@ class SocketcandServerBus(can.BusABC):
                 if conn in self._clients:
                     self._clients.remove(conn)
             conn.close()
+
+    def _command(self, conn, cmd, ready: bool) -> bool:
+        """One socketcand command of a client; a malformed one is ignored (the client stays
+        connected, as on a bus where a bad frame is dropped). Returns whether it is in raw mode."""
+        if not cmd:
+            return ready
+        if cmd[0] == "open":
+            conn.sendall(b"< ok >")
+        elif cmd[0] == "rawmode":
+            conn.sendall(b"< ok >")
+            with self._clients_lock:
+                if conn not in self._clients:
+                    self._clients.append(conn)
+            return True
+        elif cmd[0] == "send" and ready and len(cmd) >= 3:
+            try:
+                can_id, n = int(cmd[1], 16), int(cmd[2], 16)
+                if not (0 <= can_id <= 0x1FFFFFFF and 0 <= n <= 8 and len(cmd) == 3 + n):
+                    return ready
+                payload = bytes(int(b, 16) for b in cmd[3:3 + n])
+            except ValueError:          # not hexadecimal, or a byte beyond 0xFF
+                return ready
+            msg = can.Message(arbitration_id=can_id, data=payload, is_extended_id=len(cmd[1]) > 3,
+                              timestamp=time.time(), is_rx=True, channel=self.channel)
+            self._queue.put(msg)
+            self._broadcast(msg, skip=conn)
+        return ready
 
     def _broadcast(self, msg, skip=None):
         cid = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"

@@ -73,7 +73,8 @@ def _section_lookup(key: str):
                                     default="\r"),
         "serial.checksum": Field("str", "line checksum", default="none", choices=("none", "sum8", "xor8")),
         "serial.checksum_separator": Field("str", "character before the checksum's two hex digits", default="*"),
-        "serial.max_reply": Field("int", "longest reply line accepted (bytes)", default=128, nonnegative=True),
+        "serial.max_reply": Field("int", "longest reply line accepted (bytes)", default=128, nonnegative=True,
+                                  maximum=4096),
         "serial.scale_position": Field("dimensionless", "drive position counts per metre (load side)", default=None,
                                        positive=True),
         "serial.scale_speed": Field("dimensionless", "velocity mode: drive speed units per controller speed unit "

@@ -35,7 +35,37 @@ OPERATIONS = ("identify", "watchdog", "clear_fault", "enable", "disable", "quick
 FEEDBACK_GROUPS = ("x_motor", "x_table", "v_motor", "output", "fault")
 CHECKSUMS = ("none", "sum8", "xor8")
 _INT = re.compile(r"[+-]?[0-9]{1,12}\Z")
-_FIELD = re.compile(r"\{([a-z_]+)\}")
+
+
+# the fields a command template may hold, the format specs they may carry (sign, zero padding,
+# width, decimal), and the longest template and reply pattern taken from a configuration
+FIELDS = ("position", "speed", "output", "ms")
+_SPEC = re.compile(r"[+ -]?0?[0-9]{0,2}d?\Z")
+MAX_TEMPLATE = 256
+MAX_PATTERN = 512
+
+
+def _check_template(op: str, tpl) -> None:
+    """A command template holds only the named fields with a decimal format spec: no attribute
+    or index access (``{position.__class__}``, ``{position[0]}``), no conversion (``!r``), no
+    nested field; ``str.format`` then cannot reach anything but the integers it is given."""
+    import string
+    if not isinstance(tpl, str) or len(tpl) > MAX_TEMPLATE:
+        raise ValueError(f"serial.commands.{op}: expected a template of at most {MAX_TEMPLATE} characters")
+    try:
+        parts = list(string.Formatter().parse(tpl))
+    except ValueError as exc:
+        raise ValueError(f"serial.commands.{op}: not a template ({exc}; write a literal brace as {{{{ or }}}})") from None
+    for _, name, spec, conversion in parts:
+        if name is None:
+            continue
+        if name not in FIELDS:
+            raise ValueError(f"serial.commands.{op}: unknown field {{{name}}} (known: position, speed, output, "
+                             f"ms; no attribute or index access)")
+        if conversion is not None or not _SPEC.match(spec or ""):
+            raise ValueError(f"serial.commands.{op}: field {{{name}}} with "
+                             f"{'!' + conversion if conversion else ':' + spec!s}: only a decimal format spec "
+                             f"(sign, zero padding, width, d) is allowed")
 
 
 class ReplyError(Exception):
@@ -96,14 +126,14 @@ class CommandSet:
         if not self.line_ending:
             raise ValueError("serial.line_ending: empty")
         for op, tpl in self.commands.items():
-            for name in _FIELD.findall(tpl):
-                if name not in ("position", "speed", "output", "ms"):
-                    raise ValueError(f"serial.commands.{op}: unknown field {{{name}}} "
-                                     "(known: position, speed, output, ms)")
+            _check_template(op, tpl)
         for op, pat in self.replies.items():
+            if not isinstance(pat, str) or len(pat) > MAX_PATTERN:
+                raise ValueError(f"serial.replies.{op}: expected a regular expression of at most {MAX_PATTERN} "
+                                 f"characters")
             try:
                 self._re[op] = re.compile(pat)
-            except re.error as exc:
+            except (re.error, RecursionError, OverflowError) as exc:
                 raise ValueError(f"serial.replies.{op}: not a regular expression ({exc})") from None
         for op in self.commands:
             if op != "error" and op not in self.replies:
@@ -197,12 +227,14 @@ class CommandSet:
 # -- a simulated drive's side: commands as patterns, replies rendered from their patterns -------------
 def command_pattern(template: str) -> re.Pattern:
     """A command template as a regular expression (the simulated drive recognises commands so)."""
-    out, pos = [], 0
-    for m in _FIELD.finditer(template):
-        out.append(re.escape(template[pos:m.start()]))
-        out.append(f"(?P<{m.group(1)}>[+-]?[0-9]{{1,12}})")
-        pos = m.end()
-    out.append(re.escape(template[pos:]))
+    import string
+    out = []
+    for literal, name, spec, _ in string.Formatter().parse(template):
+        out.append(re.escape(literal))
+        if name is not None:
+            # a format spec may pad with spaces or zeros and show the sign
+            pad = " *" if spec else ""
+            out.append(f"{pad}(?P<{name}>[+-]?[0-9]{{1,14}})")
     return re.compile("".join(out))
 
 

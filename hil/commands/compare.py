@@ -1,6 +1,7 @@
 """``hil compare``: replay a measurement through the model and show where it fails."""
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 from hil.io.jsonout import dumps
@@ -40,8 +41,13 @@ def load_inputs(args):
     """The config (``--config`` with ``--set``) and the record (``data`` with ``--map``)."""
     from hil.config import load, parse_assignment
     from hil.io.importers import parse_mapping, read_any
+    from hil.io.measurement import check_usable
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
-    return cfg, read_any(args.data, parse_mapping(args.map) or None)
+    meas = read_any(args.data, parse_mapping(args.map) or None)
+    # degenerate records are refused, never diagnosed
+    check_usable(meas, (cfg["limits.travel_min"], cfg["limits.travel_max"]), cfg["control.position_period"],
+                 cfg["control.velocity_period"])
+    return cfg, meas
 
 
 def make_replay(args, cfg, meas):
@@ -49,6 +55,38 @@ def make_replay(args, cfg, meas):
     from hil.ident.replay import Replay
     chans = args.channels.split(",") if getattr(args, "channels", None) else None
     return Replay(meas, cfg, chans, align=getattr(args, "align", False))
+
+
+# records this long report their progress on stderr (shorter ones only on a terminal)
+PROGRESS_ROWS = 100_000
+
+
+def progress(rows: int):
+    """A function that prints one progress line on stderr, or does nothing for a short record
+    that is not run from a terminal (the one-line error contract of the tests and scripts)."""
+    import sys
+    import time
+    if rows < PROGRESS_ROWS and not sys.stderr.isatty():
+        return lambda msg: None
+    t0 = time.perf_counter()
+    return lambda msg: print(f"  [{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+
+@contextmanager
+def prompt_interrupt():
+    """Ctrl-C ends the process at once inside the block (the default action of SIGINT): the
+    compiled replay holds the interpreter for seconds on a long record, where a KeyboardInterrupt
+    would wait for it. For computing only: nothing may be half-written inside the block."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def strip(analysis):
@@ -61,9 +99,15 @@ def run(args) -> int:
     from hil.plots.compare import comparison_figures
     from hil.plots.report import write_report
     cfg, meas = load_inputs(args)
-    rp = make_replay(args, cfg, meas)
-    a = analyse(rp)
-    b = analyse(rp, load(args.after)) if args.after else None
+    after = load(args.after) if args.after else None
+    say = progress(meas.t.size)
+    with prompt_interrupt():
+        say(f"replaying {meas.t.size} samples through {cfg.source}")
+        rp = make_replay(args, cfg, meas)
+        say("analysing the residuals")
+        a = analyse(rp)
+        b = analyse(rp, after) if after is not None else None
+    say("writing the figures and the report")
     out = Path(args.out)
     figs = comparison_figures(a, out, after=b)
     rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b)

@@ -51,7 +51,9 @@ def run(args) -> int:
         prog = lambda n: (bar.update(1), bar.set_postfix_str(n))  # noqa: E731
     except ImportError:
         bar, prog = None, lambda n: print(f"  fitting {n}", file=sys.stderr)
-    d = diagnose(rp, names, progress=prog, jobs=args.jobs)
+    from hil.commands.compare import prompt_interrupt
+    with prompt_interrupt():           # Ctrl-C ends it at once, inside the compiled fits too
+        d = diagnose(rp, names, progress=prog, jobs=args.jobs)
     if bar is not None:
         bar.close()
     if args.json:

@@ -142,6 +142,8 @@ def run(args) -> int:
     if args.switch_interval and args.switch_interval > 0:
         sys.setswitchinterval(args.switch_interval)
     port = args.port if args.port is not None else int(cfg.get("canopen.port", 29536))
+    if not 0 <= port <= 65535:
+        raise UserError(f"--port {port}: expected a TCP port 0..65535 (0: a free one)")
     try:
         bus = SocketcandServerBus(host="127.0.0.1", port=port, channel=args.channel)
     except OSError as exc:

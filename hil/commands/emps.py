@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hil.errors import UserError
 from hil.io.jsonout import dumps
+from hil.io.safe_write import write_atomic
 
 HELP = "EMPS record: effects added one by one, fitted parameters and errors beside the published reference"
 DESCRIPTION = """\
@@ -45,15 +46,15 @@ def run(args) -> int:
     rows, cfgs, diags = res.rows, res.configs, res.diagnoses
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "emps_fitted.toml").write_text(cfgs["fitted"].to_toml(), encoding="utf-8")
-    (out / "emps_asymmetric.toml").write_text(cfgs["asymmetric"].to_toml(), encoding="utf-8")
+    write_atomic(out / "emps_fitted.toml", cfgs["fitted"].to_toml())
+    write_atomic(out / "emps_asymmetric.toml", cfgs["asymmetric"].to_toml())
     a, b = analyse(res.replay, cfgs["start"]), analyse(res.replay, cfgs["fitted"])
     figs = comparison_figures(a, out, after=b)
     figs.append(error_fall_figure(rows[1:], out / "error_fall.png"))
     md = table_markdown(rows)
     chk = res.check
     diag_md = diagnosis_markdown(diags)
-    (out / "table.md").write_text(md + "\n\n" + diag_md + "\n", encoding="utf-8")
+    write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n")
     write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
                  notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."] + diag_md.splitlines())
     if args.docs:

@@ -30,6 +30,28 @@ def add_arguments(parser) -> None:
     parser.add_argument("--out", required=True, metavar="FILE", help="the new config (TOML)")
 
 
+def _check_out(args) -> None:
+    """--out: never the input config or data (checked before the fit's minutes, and again when
+    writing), never a folder."""
+    from hil.io.safe_write import refuse_inputs
+    refuse_inputs(args.out, (args.config, args.data))
+    if Path(args.out).is_dir():
+        raise UserError(f"--out {args.out}: is a folder, expected the new config's file name")
+
+
+def _refit_keys(text: str | None) -> list[str]:
+    """The --refit keys, each a parameter the schema knows (checked before fitting)."""
+    from hil.config import field_for
+    if not text:
+        return []
+    keys = [k.strip() for k in text.split(",") if k.strip()]
+    for k in keys:
+        f = field_for(k)
+        if f is None or f.kind_for({}) in ("str", "bool", "floats", "int"):
+            raise UserError(f"--refit {k}: not a numeric parameter of the configuration schema")
+    return keys
+
+
 def run(args) -> int:
     from hil.ident.frf_fit import is_frf_file
     if is_frf_file(args.data):
@@ -37,21 +59,27 @@ def run(args) -> int:
     from hil.ident.fit import fit_effects, joint_refit
     from hil.plant_config import candidate
     cfg, meas = load_inputs(args)
+    _check_out(args)
     for n in args.add:
         try:
             candidate(n, cfg)
         except KeyError as exc:
             raise UserError(str(exc).strip("'\"")) from None
+    refit = _refit_keys(args.refit)
     rp = make_replay(args, cfg, meas)
     before = {c: float((rp.base_residuals[c] ** 2).mean() ** 0.5) for c in rp.channels}
     new, steps = fit_effects(rp, args.add, progress=lambda n: print(f"  fitting {n}", file=sys.stderr))
-    if args.refit:
-        new = joint_refit(rp, new, args.refit.split(","))
+    if refit:
+        missing = [k for k in refit if not isinstance(new.get(k), float)]
+        if missing:
+            raise UserError(f"--refit {missing[0]}: not a number of the fitted config (the keys it has: "
+                            f"the config's and the added effects')")
+        new = joint_refit(rp, new, refit)
     res = rp.residuals(new)
     after = {c: float((res[c] ** 2).mean() ** 0.5) for c in rp.channels}
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(f"# fitted by hil fit on {meas.source}: {', '.join(args.add)}\n" + new.to_toml(),
-                              encoding="utf-8")
+    from hil.io.safe_write import write_atomic
+    write_atomic(args.out, f"# fitted by hil fit on {meas.source}: {', '.join(args.add)}\n" + new.to_toml(),
+                 inputs=(args.config, args.data, args.after if hasattr(args, "after") else None))
     out = {"config": args.out, "steps": [s.as_json() for s in steps], "error_before": before, "error_after": after}
     if args.json:
         print(dumps(out, indent=1))
@@ -69,14 +97,15 @@ def _run_frequency(args) -> int:
     from hil.config import load, parse_assignment
     from hil.ident.frf_fit import FrfDataError, fit_frf, load_frf
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    _check_out(args)
     try:
         data = load_frf(args.data)
         fit = fit_frf(cfg, data, args.add)
     except (FrfDataError, KeyError) as exc:
         raise UserError(str(exc).strip("'\"")) from None
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(f"# fitted by hil fit on {args.data} (frequency responses): {', '.join(args.add)}\n"
-                              + fit.config.to_toml(), encoding="utf-8")
+    from hil.io.safe_write import write_atomic
+    write_atomic(args.out, f"# fitted by hil fit on {args.data} (frequency responses): {', '.join(args.add)}\n"
+                 + fit.config.to_toml(), inputs=(args.config, args.data))
     out = {"config": args.out, "domain": "frequency", "effect": fit.effect, "params": fit.params,
            "error_before": fit.error_before, "error_after": fit.error_after, "per_response": fit.per_response}
     if args.json:

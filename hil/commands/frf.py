@@ -7,6 +7,7 @@ from pathlib import Path
 from hil.config import load, parse_assignment
 from hil.errors import BackendError, BackendFault, RunStopped, UnitError, UserError
 from hil.io.jsonout import dumps
+from hil.io.safe_write import save_figure, write_atomic
 from hil.supervisor import Supervisor, refuse_if_tripped
 from hil.units import parse
 
@@ -185,14 +186,14 @@ def run(args) -> int:
         for key, names in (("bode_plant", plant_names), ("bode_loops", loop_names)):
             fig = bode_measured_vs_model(result, names, title)
             paths[key] = str(out / f"{key}.png")
-            fig.savefig(paths[key], dpi=110)
+            save_figure(fig, paths[key], dpi=110)
             plt.close(fig)
         fig = coherence_figure(result, title)
         paths["coherence"] = str(out / "coherence.png")
-        fig.savefig(paths["coherence"], dpi=110)
+        save_figure(fig, paths["coherence"], dpi=110)
         plt.close(fig)
-        (out / "frf.json").write_text(dumps(report, indent=None))
-        (out / "config_diff.txt").write_text(_diff_text(result) + "\n")
+        write_atomic(out / "frf.json", dumps(report, indent=None))
+        write_atomic(out / "config_diff.txt", _diff_text(result) + "\n")
         report["plots"] = paths
     except OSError as exc:
         raise UserError(f"--out {args.out}: cannot write ({exc.strerror or exc})") from None

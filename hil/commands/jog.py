@@ -25,12 +25,14 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from drivers import BackendError, open_backend
-    from hil.commands.move import load_config
+    from hil.commands.move import _no_move, load_config
     from hil.errors import UserError, stop_exit_code
     from hil.profiles import LimitError, MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     from hil.supervisor import refuse_if_tripped
     cfg = load_config(args)
+    if _no_move(cfg, parse(args.distance, "length", "--distance"), "--distance", args.json):
+        return 0
     refuse_if_tripped(cfg)                 # before anything connects
     traj = Trajectory(start=0.0)           # a relative move: the runtime plans it from where the axis stands
     try:

@@ -5,6 +5,7 @@ import math
 from pathlib import Path
 
 from hil.io.jsonout import dumps
+from hil.io.safe_write import save_figure
 
 HELP = "model summary: modes, damping ratios, Bode plots of TF1, TF2, TF3"
 DESCRIPTION = """\
@@ -79,7 +80,7 @@ def write_plots(cfg, report: dict, out_dir: Path) -> str:
                       modes_hz=report["modes_hz"])
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "bode_tf.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     import matplotlib.pyplot as plt
     plt.close(fig)
     return str(path)

@@ -86,14 +86,33 @@ def build_trajectory(args, cfg) -> Trajectory:
     return traj
 
 
+def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:
+    """A zero or sub-resolution stroke is no move: say so in one line (nothing is sent)."""
+    from hil.profiles import is_null_stroke
+    res = max(cfg.get("sensors.table_resolution", 0.0) or 0.0, cfg.get("sensors.motor_resolution", 0.0) or 0.0)
+    if not is_null_stroke(stroke, res):
+        return False
+    msg = (f"no move: {option} {stroke * 1e3:g} mm is below the axis resolution "
+           f"({max(res, 1e-9) * 1e3:g} mm); nothing was sent")
+    print(dumps({"ok": True, "moved": False, "reason": msg}, indent=2) if as_json else msg)
+    return True
+
+
 def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
-    from hil.profiles import AxisLimits, LimitError, check_limits
+    from hil.profiles import AxisLimits, LimitError, check_limits, check_sampled
+    from hil.units import parse_bounded
     cfg = load_config(args)
+    band = parse_bounded(args.band, "length", "--band", positive=True, maximum=1.0)   # before anything moves
+    if _no_move(cfg, parse(args.stroke, "length", "--stroke"), "--stroke", args.json):
+        return 0
     traj = build_trajectory(args, cfg)
     try:
         check_limits(traj, AxisLimits.from_config(cfg))
+        # and the command as it will be sent, sample by sample (--check included)
+        tp = cfg["control.position_period"]
+        check_sampled(traj.sample(tp)[1], tp, AxisLimits.from_config(cfg))
         check_loop_stability(cfg)
     except (LimitError, UnstableLoopError) as exc:
         raise UserError(str(exc)) from None
@@ -141,7 +160,6 @@ def run(args) -> int:
                   f"no overshoot or settling figures for an incomplete move")
             print(f"  record {rec.path}, plot {png}; 'hil status' shows the trip, 'hil reset' clears it")
         return summary["exit_code"]
-    band = parse(args.band, "length", "--band")
     t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
         traj.segments[1], "stroke") else 0.0)
     fig = move_figures(ch["t"], ch["x_cmd"], ch["x_table"], ch["x_tip"], ch.get("torque", ch.get("command")),

@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import csv
+import math
 import re
 from pathlib import Path
 
 from hil.errors import LimitError, UserError
 from hil.io.jsonout import dumps
+from hil.io.safe_write import save_figure, write_atomic
 from hil.units import SI_UNIT, parse, parse_list
 
 HELP = "jerk sweep: overshoot vs. jerk, the largest safe jerk for a tolerance, 2-dof vs. 3-dof"
@@ -74,6 +76,9 @@ def add_arguments(p) -> None:
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
 
 
+# the most runs one sweep asks for (each is a whole closed-loop run; 10^8 grew to 6.9 GB)
+MAX_POINTS = 10_000
+
 _RANGE = re.compile(r"^\s*(.+?)\s*\.\.\s*(.+?)\s*$")
 
 
@@ -93,13 +98,17 @@ def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
         if unit and re.fullmatch(r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?", lo_t):
             lo_t = f"{lo_t} {unit}"
         lo, hi = parse(lo_t, kind, what), parse(hi_t, kind, what)
+        if not (math.isfinite(lo) and math.isfinite(hi)):
+            raise UserError(f"{what} {text!r}: the range must be finite")
         try:
             return jerk_grid(lo, hi, points)
         except ValueError as exc:
             raise UserError(f"{what} {text!r}: {exc}") from None
     vals = parse_list(text, kind, what)
-    if any(not v > 0 for v in vals):
-        raise UserError(f"{what}: every value must be positive, got {text!r}")
+    if any(not v > 0 or not math.isfinite(v) for v in vals):
+        raise UserError(f"{what}: every value must be positive and finite, got {text!r}")
+    if len(vals) > MAX_POINTS:
+        raise UserError(f"{what}: {len(vals)} values, at most {MAX_POINTS}")
     return sorted(set(vals))
 
 
@@ -130,8 +139,8 @@ def settings_from_args(args, cfg):
     if not feed > 0:
         raise UserError(f"--feed: must be positive, got {args.feed!r}")
     g0 = parse(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
-    if args.points < 2:
-        raise UserError(f"--points: need at least 2, got {args.points}")
+    if not 2 <= args.points <= MAX_POINTS:
+        raise UserError(f"--points: expected 2 .. {MAX_POINTS}, got {args.points}")
     if args.tacc:
         if not g0:
             raise UserError("--tacc needs the rapid speed G0: give --g0 or nc.g0 in the config")
@@ -153,7 +162,8 @@ def settings_from_args(args, cfg):
 
 
 def write_csv(report: dict, path: Path) -> None:
-    with open(path, "w", newline="") as fh:
+    import io
+    with io.StringIO(newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=CSV_FIELDS, extrasaction="ignore")
         w.writeheader()
         an = "transmission" if report["analysis"] == "transmission" else "mechatronic"
@@ -162,6 +172,7 @@ def write_csv(report: dict, path: Path) -> None:
                               ("compare", "compare_runs_transmission", "transmission")):
             for r in report.get(key) or []:
                 w.writerow({**r, "model": model, "analysis": a, "grid": not r.get("refine")})
+        write_atomic(path, fh.getvalue())
 
 
 def _text(r: dict) -> str:
@@ -242,6 +253,11 @@ def run(args) -> int:
         check_scheduler_address(args.scheduler)
     from hil.supervisor import refuse_if_tripped
     refuse_if_tripped(cfg)             # a trip not reset refuses motion on every backend
+    # an unstable loop has no overshoot to report (issue 18): refused, for the compared model too
+    from hil.closed_loop import check_loop_stability
+    for c in (cfg, cmp_cfg):
+        if c is not None and s.analysis != "transmission":
+            check_loop_stability(c)
     if s.analysis != "mechatronic" and cfg.n_masses < 2:
         raise UserError(f"--analysis {s.analysis}: the transmission analysis needs a chain of at least 2 masses")
     if args.jobs is not None and args.jobs < 1:
@@ -273,12 +289,12 @@ def run(args) -> int:
     if not args.no_plot:
         from hil.plots.sweep import sweep_figure
         fig = sweep_figure(report)
-        fig.savefig(out / "sweep.png", dpi=110)
+        save_figure(fig, out / "sweep.png", dpi=110)
         import matplotlib.pyplot as plt
         plt.close(fig)
         files["plot"] = str(out / "sweep.png")
     report["files"] = files
-    (out / "sweep.json").write_text(dumps(report, indent=2))
+    write_atomic(out / "sweep.json", dumps(report, indent=2))
     if args.json:
         print(dumps(report, indent=2))
     else:

@@ -24,11 +24,23 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", action="store_true")
 
 
+def _check_times(duration: float, sample_period: float) -> None:
+    """A record of at least 10 samples, at most an hour, sampled at most every second."""
+    import math
+    if not (math.isfinite(duration) and 0 < duration <= 3600):
+        raise UserError(f"--duration: expected 0 < seconds <= 3600, got {duration:g}")
+    if not (math.isfinite(sample_period) and 0 < sample_period <= 1.0):
+        raise UserError(f"--sample-period: expected 0 < seconds <= 1, got {sample_period:g}")
+    if duration / sample_period < 10:
+        raise UserError(f"--sample-period {sample_period:g} s: fewer than 10 samples in --duration {duration:g} s")
+
+
 def run(args) -> int:
     from hil.config import load, parse_assignment
     from hil.ident.synth import synthesize
     from hil.io.measurement import write
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    _check_times(args.duration, args.sample_period)
     vals = None
     if args.param:
         try:
@@ -43,7 +55,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     write(args.out, ch, {"sample_period": f"{args.sample_period} s", "config": args.config,
-                         "hidden_effect": truth["effect"], "seed": args.seed})
+                         "hidden_effect": truth["effect"], "seed": args.seed}, inputs=(args.config,))
     info = {"out": args.out, "effect": truth["effect"], "params": truth["params"], "samples": int(ch["t"].size)}
     print(dumps(info) if args.json else f"wrote {args.out}: hidden {truth['effect']} {truth['params']}")
     return 0

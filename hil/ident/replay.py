@@ -29,6 +29,7 @@ from hil.errors import UserError
 from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
 from hil.ident.scores import noise_floor
+from hil.ident.synth import extend_command
 from hil.plant_config import plant_from_config, record_effects
 from hil.simulate import simulate
 
@@ -93,7 +94,10 @@ class Replay:
     def simulate(self, cfg=None):
         cfg = cfg or self.cfg
         plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
-        return simulate(plant, controller_from_config(cfg, plant), self.x_cmd_sim, x0=self.x0)
+        # one extrapolated command sample past the end (synth.extend_command): a record that ends
+        # mid-motion is replayed without a false torque spike at its last sample
+        res = simulate(plant, controller_from_config(cfg, plant), extend_command(self.x_cmd_sim), x0=self.x0)
+        return _first(res, self.x_cmd_sim.size)
 
     def simulated(self, cfg=None) -> dict[str, np.ndarray]:
         """Simulated channels on the measurement's sample times, with the recording's artefacts."""
@@ -141,6 +145,14 @@ def _loop_key(cfg):
             continue
         items.append((k, repr(v)))
     return tuple(sorted(items))
+
+
+def _first(res, n: int):
+    """The SimulationResult ``res`` cut to its first ``n`` records."""
+    import dataclasses
+    cut = {f.name: getattr(res, f.name)[:n] for f in dataclasses.fields(res)
+           if isinstance(getattr(res, f.name), np.ndarray)}
+    return dataclasses.replace(res, **cut)
 
 
 def _shifted(y, s):

@@ -112,10 +112,25 @@ def overshoots(t, x_cmd, x):
 
 
 def xcorr(a, b, maxlag):
+    """Cross-correlation of the standardised ``a`` and ``b`` at lags -maxlag .. maxlag (the
+    module's definition), in time linear in the record's length: a dot product per lag where the
+    window is short, else by FFT (scipy.signal.correlate, the full correlation in O(N log N)).
+
+    The quadratic ``np.correlate(mode="full")`` it replaces took 20 s at 10^5 samples; both ways
+    agree with it to rounding (tests/test_compare_speed.py)."""
+    a = np.asarray(a, float)
+    b = np.asarray(b, float)
     a = (a - a.mean()) / (a.std() or 1.0)
     b = (b - b.mean()) / (b.std() or 1.0)
     n = a.size
-    full = np.correlate(a, b, mode="full") / n
-    mid = n - 1
+    maxlag = int(min(maxlag, n - 1))
     lags = np.arange(-maxlag, maxlag + 1)
+    if (2 * maxlag + 1) <= 4 * max(math.log2(max(n, 2)), 1.0) * 8:
+        c = np.empty(lags.size)
+        for i, lag in enumerate(lags):
+            c[i] = a[lag:] @ b[:n - lag] if lag >= 0 else a[:n + lag] @ b[-lag:]
+        return lags, c / n
+    from scipy.signal import correlate
+    full = correlate(a, b, mode="full", method="fft") / n
+    mid = n - 1
     return lags, full[mid - maxlag:mid + maxlag + 1]

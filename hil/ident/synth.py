@@ -84,6 +84,18 @@ def move_sequence(duration: float = 12.0, dt: float = 4e-3, seed: int = 0, trave
     return np.concatenate(xs)[:n]
 
 
+def extend_command(x_cmd):
+    """``x_cmd`` with one more sample: the command of the tick after a record's last (its
+    feed-forward needs it), extrapolated at constant acceleration (3 x[-1] - 3 x[-2] + x[-3];
+    linearly from two samples). The held value where the record ends at rest, as before."""
+    x = np.asarray(x_cmd, float)
+    if x.size >= 3:
+        nxt = 3.0 * x[-1] - 3.0 * x[-2] + x[-3]
+    else:
+        nxt = 2.0 * x[-1] - x[-2] if x.size == 2 else x[-1]
+    return np.append(x, nxt)
+
+
 def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, duration: float = 12.0,
                sample_period: float = 4e-3, seed: int = 0, resolution: float = 0.5e-6,
                position_noise: float = 0.1e-6, force_noise: float | None = None, x_cmd=None):
@@ -106,8 +118,12 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
     k = int(round(ratio))
     if x_cmd is None:
         x_cmd = move_sequence(duration, tp, seed)
-    res = simulate_config(rich, x_cmd)
-    ch = {c: y[::k] for c, y in res.channels().items()}
+    # the command goes on past the record's end (one sample, extrapolated at constant acceleration), as it did on
+    # the machine: holding it would end the record with a one-sample torque spike (the last
+    # tick's feed-forward falling to zero), an artefact of the record's end, not of the plant
+    x_cmd = np.asarray(x_cmd, float)
+    res = simulate_config(rich, extend_command(x_cmd))
+    ch = {c: y[:x_cmd.size][::k] for c, y in res.channels().items()}
     for eff, v in record_effects(rich):          # the recording's artefacts (a skewed channel)
         ch = eff.apply_record(ch["t"], ch, v)
     rng = np.random.default_rng(seed + 1000)

@@ -63,15 +63,35 @@ def parse_mapping(items) -> dict[str, str]:
     return out
 
 
+def _numeric(raw, name: str, source: str) -> np.ndarray:
+    """A MATLAB variable as real numbers, or one line saying why it is not one (a string, a cell
+    or struct, complex values with an imaginary part, nothing at all)."""
+    a = np.asarray(raw)
+    if a.dtype.kind in "USO" or a.dtype.names is not None:
+        what = {"U": "text", "S": "text", "O": "a cell array or struct"}.get(a.dtype.kind, "a struct")
+        raise MeasurementError(f"{source}: variable {name!r} is {what}, expected numbers")
+    if a.dtype.kind == "c":
+        if np.any(a.imag != 0):
+            raise MeasurementError(f"{source}: variable {name!r} is complex (imaginary parts not 0), expected "
+                                   f"real numbers")
+        a = a.real
+    if a.dtype.kind not in "biuf":
+        raise MeasurementError(f"{source}: variable {name!r} has type {a.dtype}, expected numbers")
+    if a.size == 0:
+        raise MeasurementError(f"{source}: variable {name!r} is empty")
+    return a.astype(float)
+
+
 def _evaluate(expr: str, data: dict, source: str) -> np.ndarray:
     value = np.array(1.0)
     for factor in expr.split("*"):
         factor = factor.strip()
         if _TOKEN.match(factor):
-            if factor not in data:
+            if factor not in data or factor.startswith("__"):
+                # (scipy's __header__, __version__, __globals__ are file metadata, not variables)
                 known = ", ".join(k for k in data if not k.startswith("__"))
                 raise MeasurementError(f"{source}: no variable {factor!r} (the file has: {known})")
-            v = np.asarray(data[factor], dtype=float)
+            v = _numeric(data[factor], factor, source)
         else:
             try:
                 v = np.array(float(factor))
@@ -111,6 +131,8 @@ def read_mat(path: str | Path, mapping: dict[str, str] | None = None) -> Measure
         if req not in channels:
             raise MeasurementError(f"{source}: the mapping gives no {req!r} channel (use --map VARIABLE={req})")
     n = channels["t"].size
+    if n < 2:
+        raise MeasurementError(f"{source}: 't' ({mapping['t']}) has {n} sample(s), a record needs at least 2")
     for name, v in channels.items():
         if v.size != n:
             raise MeasurementError(f"{source}: channel {name!r} ({mapping[name]}) has {v.size} samples, "

@@ -112,7 +112,11 @@ def read(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement
         raise MeasurementError(f"{path}: no such file") from None
     except UnicodeDecodeError:
         raise MeasurementError(f"{path}: not a UTF-8 text file") from None
-    return parse_text(text, path, mapping)
+    except IsADirectoryError:
+        raise MeasurementError(f"{path}: is a folder, expected a measurement file") from None
+    except OSError as exc:
+        raise MeasurementError(f"{path}: cannot read ({exc.strerror})") from None
+    return parse_text(text.removeprefix("\ufeff"), path, mapping)     # a BOM (spreadsheet exports)
 
 
 def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None = None) -> Measurement:
@@ -168,6 +172,8 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
             raise MeasurementError(f"{source}, line {lineno}: {len(cells)} values, expected {len(names)}")
         try:
             row = [float(c) for c in cells]
+            if "_" in line:          # float() reads "1_000" as 1000: a cell means what it shows
+                raise ValueError
         except ValueError:
             bad = next(c for c in cells if not _is_float(c))
             col = cells.index(bad)
@@ -188,6 +194,8 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
 
 def _is_float(s: str) -> bool:
     try:
+        if "_" in s:
+            return False
         float(s)
         return True
     except ValueError:
@@ -217,15 +225,74 @@ def format_rows(columns: list[np.ndarray], factors: list[float]) -> str:
     return buf.getvalue()
 
 
-def write(path: str | Path, channels: dict[str, np.ndarray], meta: dict[str, object] | None = None) -> Path:
-    """Write channels (SI) in the measurement format."""
+def write(path: str | Path, channels: dict[str, np.ndarray], meta: dict[str, object] | None = None,
+          inputs=()) -> Path:
+    """Write channels (SI) in the measurement format, at once (hil.io.safe_write.write_atomic:
+    never through a symbolic link, never over one of ``inputs``)."""
+    from hil.io.safe_write import write_atomic
     path = Path(path)
     names = list(channels)
     kinds = [CHANNELS.get(n, "dimensionless") for n in names]
-    with open(path, "w", encoding="utf-8", newline="") as fh:
-        for k, v in (meta or {}).items():
-            fh.write(f"# {k} = {v}\n")
-        fh.write(",".join(header_name(n, k) for n, k in zip(names, kinds)) + "\n")
-        fh.write(format_rows([np.asarray(channels[n], float) for n in names],
-                             [UNITS[WRITE_UNIT[k]][1] for k in kinds]))
+    fh = io.StringIO()
+    for k, v in (meta or {}).items():
+        fh.write(f"# {k} = {v}\n")
+    fh.write(",".join(header_name(n, k) for n, k in zip(names, kinds)) + "\n")
+    fh.write(format_rows([np.asarray(channels[n], float) for n in names],
+                         [UNITS[WRITE_UNIT[k]][1] for k in kinds]))
+    write_atomic(path, fh.getvalue(), inputs=inputs)
     return path
+
+
+# a record shorter than this says nothing about the loop (and the statistics divide by N - 1)
+MIN_ROWS = 10
+# any value beyond this (SI) is a corrupt cell, not a reading (1e300 in a spreadsheet)
+MAX_VALUE = 1e6
+POSITIONS = ("x_cmd", "x_motor", "x_table", "x_tip")
+
+
+def check_usable(meas: Measurement, travel: tuple[float, float], position_period: float,
+                 velocity_period: float) -> None:
+    """Refuse, in one line, a record that cannot be compared or diagnosed as it is: too few rows,
+    a cell beyond any reading, positions that do not fit the axis travel (a unit that does not
+    fit: mm written as m), a sample period no loop of the axis has (a ``t [ms]`` header on
+    seconds), or a command that does not move.
+
+    Parameters
+    ----------
+    meas : Measurement
+        The record (SI).
+    travel : (float, float)
+        The axis's travel limits (m); positions may reach one travel beyond them (a record of
+        another origin), not more.
+    position_period, velocity_period : float
+        The configuration's loop periods (s).
+    """
+    from hil.errors import MeasurementError
+    src = meas.source
+    n = meas.t.size
+    if n < MIN_ROWS:
+        raise MeasurementError(f"{src}: {n} rows, at least {MIN_ROWS} needed to compare a record")
+    for name, v in meas.channels.items():
+        big = np.flatnonzero(np.abs(v) > MAX_VALUE)
+        if big.size:
+            raise MeasurementError(f"{src}: channel {name!r}, row {big[0] + 1}: {v[big[0]]:g} is beyond any reading "
+                                   f"(|value| > {MAX_VALUE:g} in SI units)")
+    lo, hi = travel
+    span = hi - lo
+    for name in POSITIONS:
+        if name in meas.channels:
+            v = meas.channels[name]
+            if v.min() < lo - span or v.max() > hi + span:
+                far = v.max() if v.max() > hi + span else v.min()
+                raise MeasurementError(f"{src}: channel {name!r} reaches {far:g} m, far beyond the axis travel "
+                                       f"[{lo:g}, {hi:g}] m: is its unit right (mm written as m)?")
+    dt = float(np.median(np.diff(meas.t)))
+    if not velocity_period / 2 <= dt <= 1.0:
+        raise MeasurementError(f"{src}: sample period {dt:g} s, expected between {velocity_period / 2:g} s and 1 s "
+                               f"(the loops run every {position_period:g} / {velocity_period:g} s): is the unit of "
+                               f"'t' right (a [ms] header on seconds)?")
+    if meas.t[-1] - meas.t[0] < MIN_ROWS * position_period:
+        raise MeasurementError(f"{src}: the record lasts {meas.t[-1] - meas.t[0]:g} s, less than {MIN_ROWS} position "
+                               f"periods")
+    if np.ptp(meas.channels["x_cmd"]) == 0.0:
+        raise MeasurementError(f"{src}: the command x_cmd never moves: nothing to compare or diagnose")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from hil.io.measurement import CHANNELS, UNITS, WRITE_UNIT, format_rows, header_name
+from hil.io.safe_write import open_new, write_atomic
 
 __all__ = ["Recorder"]
 
@@ -27,7 +28,8 @@ class Recorder:
         self.names = list(channels)
         kinds = [CHANNELS.get(n, "dimensionless") for n in self.names]
         self._factors = np.array([UNITS[WRITE_UNIT[k]][1] for k in kinds])
-        self._fh = open(self.path, "w", encoding="utf-8", newline="")
+        # O_NOFOLLOW: a symbolic link planted at the record's name is refused, not followed
+        self._fh = open_new(self.path)
         for k, v in (meta or {}).items():
             self._fh.write(f"# {k} = {v}\n")
         self._fh.write(",".join(header_name(n, k) for n, k in zip(self.names, kinds)) + "\n")
@@ -48,9 +50,8 @@ class Recorder:
                 "time": time.strftime("%Y-%m-%dT%H:%M:%S")}
         if extra:
             info.update(extra)
-        tmp = self.status_path.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(info, indent=2))
-        os.replace(tmp, self.status_path)
+        # a fresh temporary name in the folder, renamed over the status (not a fixed .json.tmp)
+        write_atomic(self.status_path, json.dumps(info, indent=2))
 
     def append(self, **values: float) -> None:
         """One row: a value (SI) for every channel of the header."""

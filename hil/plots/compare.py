@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.io.safe_write import save_figure
+
 
 def _plt():
     import matplotlib
@@ -34,7 +36,7 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
     axes[-1, 0].set_xlabel("t [s]")
     fig.tight_layout()
     paths.append(out / f"overlay{tag}.png")
-    fig.savefig(paths[-1], dpi=90)
+    save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
     fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.4 * len(chans)), sharex=True, squeeze=False)
     for ax, c in zip(axes[:, 0], chans):
@@ -46,7 +48,7 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
     axes[-1, 0].set_xlabel("t [s]")
     fig.tight_layout()
     paths.append(out / f"residual{tag}.png")
-    fig.savefig(paths[-1], dpi=90)
+    save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
     dt = analysis["sample_period"]
     fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.4 * len(chans)), squeeze=False)
@@ -63,7 +65,7 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
     axes[-1, 0].set_xlabel("frequency [Hz]")
     fig.tight_layout()
     paths.append(out / f"spectrum{tag}.png")
-    fig.savefig(paths[-1], dpi=90)
+    save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
     fig, axes = plt.subplots(len(chans), 3, figsize=(11, 2.6 * len(chans)), squeeze=False)
     for i, c in enumerate(chans):
@@ -73,7 +75,7 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
             axes[i, j].set_ylabel(f"{c} residual" if j == 0 else "")
     fig.tight_layout()
     paths.append(out / f"scatter{tag}.png")
-    fig.savefig(paths[-1], dpi=90)
+    save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
     return paths
 
@@ -92,6 +94,6 @@ def error_fall_figure(rows: list[dict], out: Path, keys=("position", "velocity",
     ax.legend(fontsize=7)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=90)
+    save_figure(fig, out, dpi=90)
     plt.close(fig)
     return out

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.io.safe_write import save_figure
+
 __all__ = ["bode_figure"]
 
 _TITLES = ["TF1 = x1 / f", "TF2 = x2 / x1", "TF3 = x3 / x2"]
@@ -71,6 +73,6 @@ def closed_loop_figure(r, out_dir) -> Path:
     out = _P(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bode_closed_loop.png"
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

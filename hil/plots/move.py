@@ -8,6 +8,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from hil.io.safe_write import save_figure
+
 __all__ = ["plot_move"]
 
 
@@ -43,6 +45,6 @@ def plot_move(channels: dict, path: str | Path, title: str = "", target: float |
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -4,6 +4,8 @@ from __future__ import annotations
 import html
 from pathlib import Path
 
+from hil.io.safe_write import write_atomic
+
 
 def _fmt(v):
     if v is None:
@@ -60,5 +62,5 @@ table{{border-collapse:collapse}}</style></head><body>
 <table><tr><th>channel</th>{''.join(f'<th>{p}</th>' for p in analysis['phases'])}</tr>{''.join(phase_rows)}</table>
 <ul>{''.join(where)}</ul>{diag}<h2>3. Figures</h2>{figs}</body></html>"""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(text, encoding="utf-8")
+    write_atomic(path, text)
     return path

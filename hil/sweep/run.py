@@ -17,8 +17,9 @@ plus the ramp time T_r, the move's duration and the dominant frequency of the ti
 ``t_acc`` is filled from G0 by Eq. (15) when the run was given a jerk. :data:`RUN_FIELDS` are the
 figures a report row keeps.
 
-``RunSpec.key(fingerprint)`` identifies a run in ``runs.jsonl``; its text must not change, or old
-stores stop resuming. :func:`run_task` is what a worker computes: module-level, so that a process
+``RunSpec.key(fingerprint, backend)`` identifies a run in ``runs.jsonl``: the model, the code
+version (a hash of the sources that compute a run: a changed kernel never reuses old figures),
+the backend (a simulated sweep's runs are never an axis's) and the move. :func:`run_task` is what a worker computes: module-level, so that a process
 pool and Dask can pickle it by name.
 """
 from __future__ import annotations
@@ -47,6 +48,27 @@ RUN_FIELDS = ("j_max", "a_max", "t_acc", "peak_speed", "ramp_time", "duration",
               "settling_time_tip", "peak_torque", "f_dom_tip_hz")
 
 
+def _code_version() -> str:
+    """A short hash of the project's version and of the sources that compute a run's figures."""
+    import hashlib
+    from pathlib import Path
+
+    import hil
+    root = Path(__file__).resolve().parents[2]
+    h = hashlib.sha1(str(getattr(hil, "__version__", "")).encode())
+    for rel in ("hil/control.py", "hil/simulate.py", "hil/profiles.py", "hil/analysis.py", "hil/runtime.py",
+                "hil/plant_config.py", "hil/sweep/run.py", "hil/sweep/transmission.py", "hil/sweep/model.py",
+                "sim_plant/kernel.py", "sim_plant/chain.py", "sim_plant/plant.py"):
+        try:
+            h.update((root / rel).read_bytes())
+        except OSError:
+            h.update(rel.encode())
+    return h.hexdigest()[:10]
+
+
+CODE_VERSION = _code_version()
+
+
 @dataclass(frozen=True)
 class RunSpec:
     """One move of a sweep, SI units. Exactly one of ``t_acc`` (with g0) and ``j_max``."""
@@ -65,10 +87,14 @@ class RunSpec:
             return MoveSpec(self.stroke, self.feed, t_acc=self.t_acc, g0=self.g0)
         return MoveSpec(self.stroke, self.feed, j_max=self.j_max, g0=self.g0)
 
-    def key(self, fp: str) -> str:
+    def key(self, fp: str, backend: str = "model") -> str:
+        """The run's key in ``runs.jsonl``: everything that changes its figures: the model
+        (``fp``, :func:`hil.sweep.model.fingerprint`), the code that computes it
+        (:data:`CODE_VERSION`), the backend it ran on (``"model"``: the sweep's own compiled runs),
+        the analysis and the move."""
         what = f"t_acc={self.t_acc!r}" if self.t_acc is not None else f"j_max={self.j_max!r}"
-        return (f"{fp}|{self.analysis}|stroke={self.stroke!r}|feed={self.feed!r}|g0={self.g0!r}|{what}"
-                f"|dwell={self.dwell!r}|rec={self.record_every}")
+        return (f"{fp}|code={CODE_VERSION}|backend={backend}|{self.analysis}|stroke={self.stroke!r}"
+                f"|feed={self.feed!r}|g0={self.g0!r}|{what}|dwell={self.dwell!r}|rec={self.record_every}")
 
 
 def dominant_frequency(t, x, t_from: float, fmin: float = 1.0) -> float | None:

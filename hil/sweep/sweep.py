@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterable
 
@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from hil.profiles import AxisLimits, MoveSpec, check_limits
-from hil.sweep.curve import cancellation_jerks, local_minima, tolerance_answer
+from hil.sweep.curve import cancellation_jerks, local_minima, tolerance_answer, verify_answer
 from hil.sweep.executors import BackendExecutor, DaskExecutor, LocalExecutor
 from hil.sweep.jerk import jmax_to_t_acc
 from hil.sweep.model import fingerprint, model_of
@@ -53,6 +53,8 @@ class SweepSettings:
     budget: float | None = None         # s, longest acceptable move time for the proposal
     budget_pct: float | None = 5.0      # or: percent over the fastest move of the range
     refine_rel: float = 0.002
+    verify_rel: float = 0.01            # the answer checked by runs this close below it (0: not checked)
+    verify_runs: int = 400              # at most this many checking runs (the spacing widens beyond)
 
     def analyses(self) -> list[str]:
         return list(ANALYSES) if self.analysis == "both" else [self.analysis]
@@ -75,12 +77,13 @@ def default_dwell(cfg) -> float:
 class _Runner:
     """Runs specs through an executor and a store, with a progress bar."""
 
-    def __init__(self, cfg, executor, store: ResultStore, progress: bool):
+    def __init__(self, cfg, executor, store: ResultStore, progress: bool, backend: str = "model"):
         self.cfg, self.ex, self.store, self.progress = cfg, executor, store, progress
         self.fp = fingerprint(cfg)
+        self.backend = backend
 
     def many(self, specs: list[RunSpec], desc: str) -> list[dict]:
-        keys = [s.key(self.fp) for s in specs]
+        keys = [s.key(self.fp, self.backend) for s in specs]
         todo, seen = [], set()
         for k, s in zip(keys, specs):
             if k in self.store.done:
@@ -98,7 +101,7 @@ class _Runner:
         return [self.store.done[k] for k in keys]
 
     def one(self, spec: RunSpec) -> dict:
-        k = spec.key(self.fp)
+        k = spec.key(self.fp, self.backend)
         if k in self.store.done:
             self.store.reused += 1
         else:
@@ -142,7 +145,26 @@ def _model_side(runner: _Runner, s: SweepSettings, dwell: float, tag: str) -> di
             spec = RunSpec(s.primary, s.stroke, s.feed, s.g0, None, float(jm), dwell, s.record_every, True)
             return runner.one(spec)["overshoot_tip_um"] * 1e-6
 
-        side["tolerance"] = tolerance_answer(j, y, s.tolerance, f, s.refine_rel, y_scale=1e6, y_unit="um")
+        ans = tolerance_answer(j, y, s.tolerance, f, s.refine_rel, y_scale=1e6, y_unit="um")
+        if ans["max_jerk"] is not None and s.verify_rel:
+            # the answer checked by runs, not interpolated (curve.verify_answer)
+            def f_many(js):
+                specs = [RunSpec(s.primary, s.stroke, s.feed, s.g0, None, float(v), dwell, s.record_every, True)
+                         for v in js]
+                return [r["overshoot_tip_um"] * 1e-6 for r in runner.many(specs, f"{tag} verify")]
+            v = verify_answer(j, y, s.tolerance, ans["max_jerk"], f, f_many, s.refine_rel, s.verify_rel,
+                              s.verify_runs)
+            ans["verification"] = {"runs": v["runs"], "spacing_rel": v["spacing_rel"],
+                                   "largest_overshoot_um": v["largest_below"] * 1e6, "moved": v["moved"],
+                                   "peaks": [{"j_max": p["j_max"], "overshoot_tip_um": p["overshoot"] * 1e6}
+                                             for p in v["peaks"]],
+                                   "bracket_rel": s.refine_rel}
+            ans["max_jerk"] = v["max_jerk"]
+            if v["max_jerk"] is None:
+                ans["admissible"] = ans["admissible"][1:]
+            elif ans["admissible"] and ans["admissible"][0][1] > v["max_jerk"]:
+                ans["admissible"][0][1] = v["max_jerk"]
+        side["tolerance"] = ans
     return side
 
 
@@ -245,6 +267,9 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
     if s.analysis not in ANALYSES + ("both",):
         raise ValueError(f"analysis: mechatronic, transmission or both, not {s.analysis!r}")
     dwell = s.dwell if s.dwell is not None else default_dwell(cfg)
+    if backend and s.verify_rel:
+        # hundreds of checking moves on an axis: the answer is checked on the simulated plant only
+        s = replace(s, verify_rel=0.0)
     store = ResultStore(None if out_dir is None else Path(out_dir) / "runs.jsonl", resume=resume)
     if backend:
         lim = AxisLimits.from_config(cfg)
@@ -264,7 +289,7 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
                        "record_period_s": s.record_every * model_of(cfg)[1].velocity_period, "swept": s.by},
               "analysis": s.analysis}
     try:
-        runner = _Runner(cfg, ex, store, progress)
+        runner = _Runner(cfg, ex, store, progress, backend or "model")
         main = _model_side(runner, s, dwell, "sweep")
         report["runs"] = main[s.primary]
         if s.analysis == "both":
@@ -272,13 +297,14 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
         notes = []
         if s.tolerance is not None:
             t = main["tolerance"]
-            report.update(tolerance_um=s.tolerance * 1e6, max_jerk=t["max_jerk"], admissible=t["admissible"])
+            report.update(tolerance_um=s.tolerance * 1e6, max_jerk=t["max_jerk"], admissible=t["admissible"],
+                          verification=t.get("verification"))
             report["max_jerk_t_acc"] = (jmax_to_t_acc(t["max_jerk"], s.feed, s.g0)
                                         if t["max_jerk"] and s.g0 else None)
             if t["note"]:
                 notes.append(t["note"])
         if compare_cfg is not None:
-            cmp_runner = _Runner(compare_cfg, ex, store, progress)
+            cmp_runner = _Runner(compare_cfg, ex, store, progress, backend or "model")
             other = _model_side(cmp_runner, s, dwell, "compare")
             report["compare_config"] = compare_cfg.source
             report["compare_runs"] = other[s.primary]
@@ -286,7 +312,8 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
                 report["compare_runs_transmission"] = other["transmission"]
             if s.tolerance is not None:
                 t = other["tolerance"]
-                report.update(max_jerk_compare=t["max_jerk"], admissible_compare=t["admissible"])
+                report.update(max_jerk_compare=t["max_jerk"], admissible_compare=t["admissible"],
+                              verification_compare=t.get("verification"))
                 if t["note"]:
                     notes.append("compare model: " + t["note"])
                 mj, mc = report["max_jerk"], report["max_jerk_compare"]

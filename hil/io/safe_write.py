@@ -1,0 +1,89 @@
+"""Writing outputs safely: never through a planted symbolic link, never over an input, never
+half-written.
+
+* :func:`open_new`: a file streamed as it is written (the recorder's record), opened with
+  ``O_NOFOLLOW`` (a symbolic link at its name is refused, not followed) and never an input of
+  the command.
+* :func:`write_atomic`: a whole file at once: written to a fresh temporary file in the target's
+  folder (``tempfile.mkstemp``: a new, unpredictable name, created exclusively) and renamed over
+  the target (``os.replace``: a link at the target's name is replaced, its destination is not
+  touched), so readers see the old file or the new one, never a part.
+
+Both refuse a target that is one of the command's ``inputs`` (the same file, by device and
+inode: a relative path, a hard link or a link to it included).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from hil.errors import UserError
+
+__all__ = ["open_new", "write_atomic", "refuse_inputs", "save_figure"]
+
+
+def refuse_inputs(path: str | Path, inputs=()) -> None:
+    """Raise UserError when ``path`` names one of ``inputs`` (an existing file)."""
+    p = Path(path)
+    if not p.exists():
+        return
+    for i in inputs:
+        if i is None:
+            continue
+        try:
+            if Path(i).exists() and os.path.samefile(p, i):
+                raise UserError(f"{path}: is an input of this command ({i}); refusing to overwrite it, "
+                                f"write the output elsewhere")
+        except OSError:
+            continue
+
+
+def open_new(path: str | Path, inputs=(), encoding: str = "utf-8"):
+    """A text file opened for writing (truncated), refusing a symbolic link at ``path`` and any of
+    ``inputs``."""
+    refuse_inputs(path, inputs)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(path, flags, 0o644)
+    except OSError as exc:
+        if Path(path).is_symlink():
+            raise UserError(f"{path}: is a symbolic link; refusing to write through it") from None
+        raise UserError(f"{path}: cannot write ({exc.strerror})") from None
+    return os.fdopen(fd, "w", encoding=encoding, newline="")
+
+
+def write_atomic(path: str | Path, data: str | bytes, inputs=(), encoding: str = "utf-8") -> Path:
+    """Write ``data`` to ``path`` at once (a temporary file in the same folder, renamed over it)."""
+    path = Path(path)
+    refuse_inputs(path, inputs)
+    if path.is_dir() and not path.is_symlink():
+        raise UserError(f"{path}: is a folder, expected a file name")
+    folder = path.parent
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write ({exc.strerror})") from None
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data.encode(encoding) if isinstance(data, str) else data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def save_figure(fig, path: str | Path, inputs=(), **kw) -> Path:
+    """A matplotlib figure saved as :func:`write_atomic` writes (the format from the suffix)."""
+    import io
+    path = Path(path)
+    buf = io.BytesIO()
+    fig.savefig(buf, format=path.suffix.lstrip(".") or "png", **kw)
+    return write_atomic(path, buf.getvalue(), inputs)
