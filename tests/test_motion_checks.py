@@ -193,7 +193,7 @@ def test_dry_run_without_a_trip_is_unchanged(bench):
         assert np.array_equal(rec[n], sim.channels()[n])
 
 
-def test_check_record_frozen_and_command_rules_match_the_supervisor(bench):
+def test_check_record_frozen_and_command_rules_match_the_supervisor(bench, tmp_path):
     """check_record against Supervisor.check/check_setpoint fed the same readings tick by tick,
     on random records with frozen stretches and jumps."""
     rng = np.random.default_rng(3)
@@ -208,7 +208,7 @@ def test_check_record_frozen_and_command_rules_match_the_supervisor(bench):
         xt[i0:i0 + rng.integers(1, 8)] = xt[i0]
         xm = xt.copy()
         ch = {"x_cmd": x, "x_table": xt, "x_motor": xm, "x_tip": xt, "torque": rng.normal(0, 3, K)}
-        sup = Supervisor(cfg, period=0.004, latch_file="")
+        sup = Supervisor(cfg, period=0.004, latch_file=str(tmp_path / f"latch{trial}.json"))   # trips latch
         expect = None
         nxt = np.append(x, x[-1])
         for k in range(K):
