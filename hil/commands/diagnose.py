@@ -112,7 +112,7 @@ def chain_text(d, rp) -> list[str]:
     """The error falling step by step: per step the effects added and the RMS error of each channel
     (before -> after, and its ratio to the noise floor), then the end."""
     from hil.ident.unexplained import describe
-    floor = d["noise_floor"]
+    floor = {c: max(v, 1e-300) for c, v in d["noise_floor"].items()}
     chans = list(floor)
     lines = ["chain (RMS error per channel; x floor = ratio to the noise floor):",
              "  start: " + ", ".join(f"{c} {d['error_before'][c]:.3g} {rp.unit(c)} ({d['error_before'][c] / floor[c]:.1f} x floor)"

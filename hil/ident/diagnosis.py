@@ -221,12 +221,15 @@ def _rank(cands: list[Candidate], combos: list | None = None, floor=None):
 
 def _rank_single(cands: list) -> list:
     # best score first; the same fit twice (mass_change is parameter:plant.m<table> by another name)
-    # puts the catalogue effect, which names the physics, before the parameter
+    # puts the catalogue effect, which names the physics, before the parameter: the same fit when
+    # the scores agree to 1e-4, or when both leave the same error in every channel (to 2 %: the
+    # fits' convergence differs, the model does not) and the scores lie within MIN_SCORE
     cands = sorted(cands, key=lambda c: -c.score)
     for i in range(len(cands) - 1):
         a, b = cands[i], cands[i + 1]
-        if a.effect.startswith("parameter:") and not b.effect.startswith("parameter:") \
-                and abs(a.score - b.score) <= 1e-4 * abs(a.score) + 0.05:
+        if a.effect.startswith("parameter:") and not b.effect.startswith("parameter:") and not isinstance(b, Combo) \
+                and (abs(a.score - b.score) <= 1e-4 * abs(a.score) + 0.05
+                     or (a.score - b.score <= MIN_SCORE and _close(b, a, 0.02))):
             cands[i], cands[i + 1] = b, a
     # a preferred combination before the richer effect it mimics
     for c in [c for c in cands if isinstance(c, Combo)]:

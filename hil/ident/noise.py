@@ -8,9 +8,9 @@ Per channel, in this order:
   the record adds (q^2 / 12 in quadrature);
 * otherwise the larger of
   - the encoder quantization: a channel whose samples all lie on a grid of step q (detected from
-    the values: the smallest difference between distinct values, which every value must be a whole
-    multiple of, from the smallest, to 1 % of q: a file's stored digits round the grid) carries at
-    least q / sqrt(12), the RMS of a uniform rounding error;
+    the values: the largest whole fraction of the smallest difference between distinct values that
+    every value is a whole multiple of, from the smallest, to 1 % of q: a file's stored digits round
+    the grid) carries at least q / sqrt(12), the RMS of a uniform rounding error;
   - the standstill noise: the residual in the settled part of each standstill of the command
     (hil.ident.residual.motion_phases; each standstill less its first ``SETTLE`` s, at most half of
     it), less a straight line per segment (a static offset or a creep is a model error, not noise),
@@ -45,12 +45,13 @@ QUIET = 2.5         # segments within this factor of the quietest's variance are
 NOISE_KINDS = _NOISE_KINDS     # the unit kind of each channel's noise figure (the config's [noise] section)
 
 
-def quantization_step(y) -> float:
+def quantization_step(y, max_divisor: int = 200) -> float:
     """The step q of the grid all samples of ``y`` lie on (0.0 when they do not, or too few levels).
 
-    q is the smallest difference between distinct values (differences below 1e-9 of the largest
-    magnitude are float noise of the unit conversion); every sample must be a whole multiple of q
-    from the smallest value, to 1e-2 q (a record's stored digits round the grid)."""
+    d is the smallest difference between distinct values (differences below 1e-9 of the largest
+    magnitude are float noise of the unit conversion); q is the largest d / n (n = 1, 2, ...
+    ``max_divisor``: a fast record rarely visits neighbouring levels) that every sample is a whole
+    multiple of, from the smallest value, to 1e-2 q (a record's stored digits round the grid)."""
     y = np.asarray(y, float)
     u = np.unique(y)
     if u.size < 3:
@@ -59,9 +60,19 @@ def quantization_step(y) -> float:
     du = du[du > 1e-9 * max(float(np.max(np.abs(u))), 1e-300)]
     if du.size == 0:
         return 0.0
-    q = float(np.min(du))
-    k = (y - u[0]) / q
-    return q if bool(np.all(np.abs(k - np.round(k)) < 1e-2)) else 0.0
+    d = float(np.min(du))
+    off = u - u[0]
+    for n in range(1, max_divisor + 1):
+        q = d / n
+        # refined on ever more levels (d itself is rounded): least squares of the offsets on k q
+        for span in (30.0, 1e3, math.inf):
+            sel = off <= span * q
+            k = np.round(off[sel] / q)
+            if np.any(k):
+                q = float(np.dot(k, off[sel]) / np.dot(k, k))
+        if np.all(np.abs(off / q - np.round(off / q)) < 1e-2):
+            return q
+    return 0.0
 
 
 def _segments(t, x_cmd, settle: float = SETTLE):
@@ -129,7 +140,7 @@ def record_noise(meas, cfg, residuals: dict) -> dict:
                       "quantization": q}
             continue
         s, n = standstill_noise(t, xc, r)
-        if s is not None or q > 0:
+        if (s is not None and s > 0) or q > 0:
             src = "quantization" if (s is None or fq >= s) else f"standstill ({n} samples)"
             out[c] = {"rms": max(fq, s or 0.0), "source": src, "quantization": q}
             continue
