@@ -9,8 +9,9 @@
   candidate closing less than :data:`HALF_GAP` of it is evidence, never the verdict;
 * the residual's evidence per channel above the floor: its RMS against the floor, the three
   strongest spectral peaks (hil.ident.residual.spectrum_peaks), its correlation coefficients with
-  the commanded position, speed, acceleration and direction sign(v), and its RMS while the command
-  moves against its RMS at standstill.
+  the commanded position, speed, acceleration and direction sign(v), the band of the travel (one of
+  :data:`TRAVEL_BINS` equal bands of the commanded position) where its RMS is largest against the
+  median band, and its RMS while the command moves against its RMS at standstill.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ __all__ = ["AT_FLOOR", "HALF_GAP", "rms", "at_noise_floor", "gap_closed", "resid
 
 AT_FLOOR = 1.5
 HALF_GAP = 0.5
+TRAVEL_BINS = 10
 
 
 def rms(res: dict) -> dict:
@@ -42,6 +44,22 @@ def gap_closed(before: float, after: float, floor: float) -> float:
 
 def _corr(r, q) -> float:
     return float(np.corrcoef(r, q)[0, 1]) if np.std(q) > 0 and np.std(r) > 0 else 0.0
+
+
+def _along_travel(x, r, bins: int = TRAVEL_BINS) -> dict:
+    """Where along the travel the residual is largest: the commanded positions split into ``bins``
+    equal bands, the RMS of the residual in each (empty bands left out), and the band with the
+    largest against the median band."""
+    lo, hi = float(np.min(x)), float(np.max(x))
+    if hi <= lo:
+        return {}
+    edges = np.linspace(lo, hi, bins + 1)
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, bins - 1)
+    band = [float(np.sqrt(np.mean(r[idx == i] ** 2))) if np.any(idx == i) else None for i in range(bins)]
+    full = [b for b in band if b is not None]
+    i = int(np.nanargmax([np.nan if b is None else b for b in band]))
+    return {"band": [float(edges[i]), float(edges[i + 1])], "rms": band[i],
+            "against_median": band[i] / max(float(np.median(full)), 1e-300)}
 
 
 def residual_evidence(replay, res: dict, best=None) -> dict:
@@ -65,6 +83,7 @@ def residual_evidence(replay, res: dict, best=None) -> dict:
             "spectral_peaks": [{"frequency": f, "amplitude": amp} for f, amp in spectrum_peaks(r, replay.sample_period)],
             "correlation": {"position": _corr(r, xc), "speed": _corr(r, v), "acceleration": _corr(r, a),
                             "direction": _corr(r, np.sign(v))},
+            "along_travel": _along_travel(xc, r),
             "rms_moving": float(np.sqrt(np.mean(r[~still] ** 2))) if (~still).any() else 0.0,
             "rms_standstill": float(np.sqrt(np.mean(r[still] ** 2))) if still.any() else None})
     if best is not None:
@@ -82,11 +101,14 @@ def describe(ev: dict) -> list[str]:
         cor = d["correlation"]
         top = max(cor, key=lambda k: abs(cor[k]))
         still = "no standstill" if d["rms_standstill"] is None else f"{d['rms_standstill']:.3g} {u} at standstill"
+        tr = d["along_travel"]
+        where = (f"; largest at x = {1e3 * tr['band'][0]:.1f} .. {1e3 * tr['band'][1]:.1f} mm, {tr['against_median']:.1f} x "
+                 f"the median band" if tr else "")
         lines.append(f"{d['channel']}: RMS {d['rms']:.3g} {u}, {d['above_floor']:.1f} x its noise floor "
                      f"{d['noise_floor']:.3g} {u}; spectral peaks {peaks or 'none'}; correlation with position "
                      f"{cor['position']:+.2f}, speed {cor['speed']:+.2f}, acceleration {cor['acceleration']:+.2f}, "
-                     f"direction {cor['direction']:+.2f} (strongest: {top}); {d['rms_moving']:.3g} {u} moving "
-                     f"against {still}")
+                     f"direction {cor['direction']:+.2f} (strongest: {top}){where}; {d['rms_moving']:.3g} {u} "
+                     f"moving against {still}")
     if "best_candidate" in ev:
         g = ev["best_gap_closed"]
         lines.append(f"the best candidate, {ev['best_candidate']}, closed {100 * g:.0f} % of the gap to the noise "
