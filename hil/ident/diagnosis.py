@@ -231,6 +231,23 @@ def _rank_single(cands: list) -> list:
                 and (abs(a.score - b.score) <= 1e-4 * abs(a.score) + 0.05
                      or (a.score - b.score <= MIN_SCORE and _close(b, a, 0.02))):
             cands[i], cands[i + 1] = b, a
+    # a candidate that leaves less error in every channel with no more parameters goes first: the
+    # scores count the effective samples of each one's own residual, and a smoother residual after
+    # the better fit can score lower (comparing scores rewards a whiter residual twice)
+    changed = True
+    while changed:
+        changed = False
+        for i in range(len(cands)):
+            for j in range(i + 1, len(cands)):
+                a, b = cands[i], cands[j]
+                if isinstance(a, Combo) or isinstance(b, Combo) or not b.significant:
+                    continue
+                if _dominates(b, a):
+                    cands.insert(i, cands.pop(j))
+                    changed = True
+                    break
+            if changed:
+                break
     # a preferred combination before the richer effect it mimics
     for c in [c for c in cands if isinstance(c, Combo)]:
         i, j = cands.index(c.rich), cands.index(c)
@@ -254,6 +271,15 @@ def _rank_single(cands: list) -> list:
             if changed:
                 break
     return cands
+
+
+def _dominates(b: Candidate, a: Candidate) -> bool:
+    """``b`` leaves less RMS error than ``a`` in every channel (by more than 5 % in one) with no more
+    parameters."""
+    if not a.errors_after or set(a.errors_after) != set(b.errors_after) or len(b.params) > len(a.params):
+        return False
+    return all(b.errors_after[c] <= a.errors_after[c] for c in a.errors_after) and \
+        any(b.errors_after[c] < 0.95 * a.errors_after[c] for c in a.errors_after)
 
 
 def _prefer(combo, chans=None, floor=None) -> bool:
