@@ -150,6 +150,12 @@ def test_cli_chain_json_and_out(tmp_path, capsys):
     cfg = load(out)
     assert cfg["effects.coulomb_friction.level"] == pytest.approx(p["coulomb_friction"]["level"])
     assert cfg["effects.constant_force.force"] == pytest.approx(p["constant_force"]["force"])
+    # --no-chain: the single diagnosis, today's keys, nothing added
+    rc = main(["diagnose", str(data), "--config", "config/paper_bench.toml", "--candidates",
+               "coulomb_friction,constant_force", "--jobs", "1", "--json", "--no-chain"])
+    one = json.loads(capsys.readouterr().out)
+    assert rc == 0 and "chain" not in one and one["verdict"] == d["verdict"]
+    assert one["noise_floor"] == pytest.approx(d["noise_floor"])
 
 
 # --- the physics, over strengths ----------------------------------------------------------------

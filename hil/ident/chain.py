@@ -24,7 +24,8 @@ the one still far above it.
 It stops when every channel is at its noise floor (``end`` "noise floor reached"), when the
 diagnosis finds nothing that pays ("no effect pays for its parameters"; the remainder above the
 floor comes with the evidence of where it lives), when the first verdict is ``none`` or
-``unexplained``, or after ``max_steps``.
+``unexplained``, when every candidate is in the model ("no candidate left"), or after
+``max_steps``.
 """
 from __future__ import annotations
 
@@ -96,6 +97,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             break
         pool = names or candidate_names(cur.cfg, cur.plant)
         cands = [n for n in pool if n not in found]
+        if not cands:
+            end = "no candidate left"
+            break
         d = diagnose(cur, cands, progress=progress, jobs=jobs, max_nfev=max_nfev,
                      min_gap=HALF_GAP if i == 0 else 0.0, **kw)
         diags.append(d)
