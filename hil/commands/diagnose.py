@@ -35,9 +35,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--candidates", default=None, help="comma-separated candidates (default: the whole catalogue)")
     parser.add_argument("--jobs", type=int, default=None, help="processes (default: the CPUs)")
     parser.add_argument("--max-steps", "--steps", dest="max_steps", type=int, default=4, metavar="N",
-                        help="at most N diagnoses in the chain, each adding its verdict (default 4; 1: one step)")
-    parser.add_argument("--no-chain", action="store_true", help="one diagnosis, nothing added (as --steps 1 "
-                        "without fitting the verdict)")
+                        help="at most N steps in the chain, each a diagnosis that adds its verdict (default 4; "
+                             "1: the single diagnosis, as --no-chain)")
+    parser.add_argument("--no-chain", action="store_true", help="the single diagnosis, nothing added")
     parser.add_argument("--out", default=None, metavar="FILE", help="write the config with the whole chain (TOML)")
 
 
@@ -74,7 +74,7 @@ def run(args) -> int:
         prog = lambda n: (bar.update(1), bar.set_postfix_str(n))  # noqa: E731
     except ImportError:
         bar, prog = None, lambda n: print(f"  fitting {n}", file=sys.stderr)
-    if args.no_chain or args.max_steps < 1:
+    if args.no_chain or args.max_steps <= 1:
         d = diagnose(rp, names, progress=prog, jobs=args.jobs, min_gap=HALF_GAP)
     else:
         d = diagnose_chain(rp, names, max_steps=args.max_steps, progress=prog, jobs=args.jobs)
