@@ -77,9 +77,13 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     -------
     dict
         The first diagnosis's keys (``verdict``, ``candidates``, ``also_missing``, ...), and
-        ``chain`` (one entry per added step, see :func:`_entry`), ``final`` (the residual against
-        the noise floor and why it ended), ``diagnoses`` (every step's diagnosis) and ``config``
-        (the model with the whole chain).
+        ``chain`` (one entry per added step: ``step``, ``effect`` (its verdict), ``effects`` (what
+        it added), ``params`` ({effect: {param: value}} of everything found so far, after the
+        step's refit), ``error_before`` and ``error_after`` (RMS per channel), ``gap_closed`` (per
+        channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``; and,
+        with a leading underscore, the fits and the config, left out of the JSON), ``final`` (the
+        residual against the noise floor and why it ended), ``diagnoses`` (every step's diagnosis)
+        and ``config`` (the model with the whole chain).
     """
     floor = replay.noise
     cur = replay
@@ -148,7 +152,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             end = "no effect pays for its parameters"
             break
         found += add
-        lead = d["candidates"][0] if d["candidates"] else None
+        lead = next((c for c in d["candidates"] if c.effect == verdict), None)
         err1 = rms(res1)
         steps.append({"step": i + 1, "effect": verdict, "effects": list(add),
                       "params": {n: effect_values(n, cfg1) for n in found},
