@@ -47,7 +47,20 @@ def effect_values(name: str, cfg) -> dict:
     eff = candidate(name, cfg)
     if name.startswith("parameter:"):
         return {"value": float(cfg[eff.key])}
-    return {p.name: float(cfg[f"effects.{name}.{p.name}"]) for p in eff.params}
+    # an alias (time_delay) configures its effect's own section
+    out = {}
+    for p in eff.params:
+        v = cfg.get(f"effects.{eff.name}.{p.name}")
+        out[p.name] = float(v if v is not None else cfg[f"effects.{name}.{p.name}"])
+    return out
+
+
+def _same(name: str, cfg) -> str:
+    """What a candidate name stands for (an alias and its effect are one)."""
+    try:
+        return candidate(name, cfg).name
+    except KeyError:
+        return name
 
 
 def _weighted(replay, res) -> float:
@@ -100,7 +113,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 diags.append(first)
             break
         pool = names or candidate_names(cur.cfg, cur.plant)
-        cands = [n for n in pool if n not in found]
+        have = {_same(n, cur.cfg) for n in found}
+        cands = [n for n in pool if _same(n, cur.cfg) not in have]
         if not cands:
             end = "no candidate left"
             break
@@ -114,7 +128,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             end = ("noise floor reached" if verdict == "none" else
                    "unexplained" if i == 0 else "no effect pays for its parameters")
             break
-        add = [verdict] + [m["effect"] for m in d["also_missing"] if m["effect"] not in found]
+        add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
         if len(add) > 1:
             # a combination: one after the other on top of the model, then together (hil fit --add ...)
             cfg1, fits = fit_effects(cur, add, max_nfev=fit_nfev, progress=progress)
