@@ -110,6 +110,9 @@ def test_noise_floor_of_a_clean_record_and_a_given_figure():
     given = record_noise(meas, CFG, rp.base_residuals)
     assert given["x_tip"]["rms"] == pytest.approx(math.hypot(0.3e-6, 0.5e-6 / math.sqrt(12)))
     assert given["torque"]["rms"] == pytest.approx(0.05) and given["torque"]["source"] == "given"
+    from hil.errors import HilError
+    with pytest.raises(HilError, match=r"synth: noise.x_tip: cannot read 'banana' as a length"):
+        record_noise(Measurement(ch, meta={"noise.x_tip": "banana"}, source="synth"), CFG, rp.base_residuals)
 
 
 # --- the chain on the command line: its JSON ----------------------------------------------------
