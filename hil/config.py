@@ -171,7 +171,7 @@ SCHEMA: dict[str, Field] = {
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {}
 # The module that registers each such section, imported the first time one of its keys is read.
 SECTION_PROVIDERS = {"effects": "hil.plant_config", "serial": "drivers.serial.backend", "canopen": "drivers.canopen.backend",
-                     "supervisor": "hil.supervisor"}
+                     "supervisor": "hil.supervisor", "noise": "hil.plant_config"}
 
 
 def register_section(prefix: str, lookup: Callable[[str], Field | None]) -> None:

@@ -87,6 +87,21 @@ def _effects_field(key: str) -> Field | None:
 
 register_section("effects", _effects_field)
 
+# --- the sensors' noise: [noise] <channel> = RMS (hil.ident.noise reads it for the noise floor) -----
+_NOISE_KINDS = {"x_motor": "length", "x_table": "length", "x_tip": "length", "torque": "torque", "force": "force",
+                "command": "voltage", "e_table": "length", "e_tip": "length"}
+
+
+def _noise_field(key: str) -> Field | None:
+    parts = key.split(".")
+    if len(parts) != 2 or parts[1] not in _NOISE_KINDS:
+        return None
+    return Field(_NOISE_KINDS[parts[1]], f"RMS noise of the {parts[1]} sensor (before quantization): the "
+                 f"noise floor of hil diagnose", default=None, nonnegative=True)
+
+
+register_section("noise", _noise_field)
+
 
 def _configured_effects(cfg: Config):
     """(section name, effect, values) of every ``[effects.<name>]`` section of the config, checked

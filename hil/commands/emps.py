@@ -13,9 +13,10 @@ from hil.io.safe_write import write_atomic
 HELP = "EMPS record: effects added one by one, fitted parameters and errors beside the published reference"
 DESCRIPTION = """\
 Reads DATA_EMPS.mat (mapping t, qg -> x_cmd, qm -> x_motor, vir*gtau -> force), starts from
-config/emps.toml (published M and Fv, no Coulomb friction, no offset), adds coulomb_friction and
-constant_force, refits M, Fv, Fc and the offset jointly (output error, simulation in the loop),
-then tries asymmetric_friction. Errors are relative 2-norm errors in %, 100 ||y - y_sim|| / ||y||,
+config/emps.toml (published M and Fv, no Coulomb friction, no offset), runs the diagnosis chain of
+hil diagnose (coulomb_friction and constant_force, then asymmetric_friction), and beside it the
+published inverse model refitted by output error (M, Fv, Fc and the offset jointly, simulation in
+the loop), then asymmetric_friction from its inverse model. Errors are relative 2-norm errors in %, 100 ||y - y_sim|| / ||y||,
 of the position qm, of the velocity the controller sees (backward difference of the two-tap
 filtered position) and of the force gtau*vir.
 

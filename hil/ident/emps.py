@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hil.config import load
-from hil.ident.diagnosis import diagnose
+from hil.ident.chain import diagnose_chain
 from hil.ident.fit import evaluate, fit_effects, joint_refit
 from hil.ident.inverse import idim_ls
 from hil.ident.replay import Replay
@@ -45,6 +45,7 @@ class EmpsResult:
     rows: list
     configs: dict
     diagnoses: list
+    chain: dict | None = None        # what hil.ident.chain.diagnose_chain returned
 
     @property
     def check(self) -> dict:
@@ -132,37 +133,24 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     rows.append({"step": "start model (M, Fv)", "short": "start model", "params": params_of(cfg0), **errors(rp, cfg0)})
     jobs = 1 if quick else None
     cands = DIAGNOSE_CANDIDATES[:4] if quick else DIAGNOSE_CANDIDATES
-    # the diagnosis names what to add: its verdict and the effects also missing beside it
-    add = ["coulomb_friction", "constant_force"]
     if diagnose_steps:
-        d1 = diagnose(rp, cands, jobs=jobs, max_nfev=nfev)
-        diags.append({"on": "start model", **_summary(d1)})
-        if d1["verdict"] != "none":
-            add = [d1["verdict"]] + [m["effect"] for m in d1["also_missing"]]
-    # hil fit --add ... --add ...: each effect on top of the previous ones, then all jointly
-    cfg2, steps = fit_effects(rp, add, max_nfev=nfev, progress=progress)
-    cur = cfg0
-    for st in steps:
-        if "+" in st.effect:
-            label = f"{' + '.join(st.effect.split('+'))} refitted together"
-        else:
-            label = f"+ {st.effect}"
-            cur = candidate(st.effect, cur).configure(cur, st.params)
-        rows.append({"step": label, "short": "joint refit" if "+" in st.effect else label,
-                     "params": params_of(st.cfg if "+" in st.effect else cur),
-                     **errors(rp, st.cfg if "+" in st.effect else cur)})
-    if diagnose_steps:
-        # the next diagnosis, with the pair in the model: is the asymmetry of the friction significant?
-        rp2 = rp.with_config(cfg2)
-        d2 = diagnose(rp2, cands, jobs=jobs, max_nfev=nfev)
-        diags.append({"on": "+ " + " + ".join(add), **_summary(d2)})
-        if d2["verdict"] != "none":
-            top = d2["candidates"][0]
-            rows.append({"step": f"+ {top.effect} (the next verdict, fitted on top)", "short": f"+ {top.effect}",
-                         "params": params_of(top.cfg), **errors(rp, top.cfg)})
-            # and whatever else the residual still shows
-            d3 = diagnose(rp.with_config(top.cfg), [c for c in cands if c != top.effect], jobs=jobs, max_nfev=nfev)
-            diags.append({"on": f"+ {' + '.join(add)} + {top.effect}", **_summary(d3)})
+        # the diagnosis chain (hil.ident.chain): each verdict, with the effects also missing beside it,
+        # added and fitted, everything found refitted together, diagnosed again
+        ch = diagnose_chain(rp, cands, max_steps=3, progress=progress, jobs=jobs, max_nfev=nfev, fit_nfev=nfev)
+        cfg_chain = cfg0
+        for i, step in enumerate(ch["chain"]):
+            rows += _step_rows(rp, cfg_chain, step, later=i > 0)
+            cfg_chain = step["_config"]
+        labels = ["start model"] + ["+ " + " + ".join(e for s in ch["chain"][:i + 1] for e in s["effects"])
+                                    for i in range(len(ch["chain"]))]
+        diags = [{"on": lab, **_summary(d)} for lab, d in zip(labels, ch["diagnoses"])]
+        chain = ch
+    else:
+        # hil fit --add coulomb_friction --add constant_force: one after the other, then jointly
+        cfg2, steps = fit_effects(rp, ["coulomb_friction", "constant_force"], max_nfev=nfev, progress=progress)
+        rows += _step_rows(rp, cfg0, {"effects": ["coulomb_friction", "constant_force"], "_fits": steps,
+                                      "_joint": None, "_config": cfg2})
+        chain = None
     # the published method on the force channel (inverse model), then output error from there
     inv = idim_ls(meas.t, meas["x_motor"], meas["force"])
     cfg_inv = with_rigid(cfg0, inv["params"])
@@ -181,7 +169,26 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     cfg4 = c4.cfg
     rows.append({"step": "+ asymmetric_friction", "short": "+ asymmetric (IDIM start)", "params": params_of(cfg4), "inverse_force": inv2["relative_error"],
                  "inverse_params": q, **errors(rp, cfg4)})
-    return EmpsResult(rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}, diags)
+    return EmpsResult(rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}, diags, chain)
+
+
+def _step_rows(rp, cfg_before, step, later: bool = False) -> list:
+    """The table's rows of one chain step: each effect as it was fitted on top of the model, the
+    effects of a combination refitted together, and everything found so far refitted together."""
+    rows, cur = [], cfg_before
+    for st in step["_fits"]:
+        if "+" in st.effect:
+            label = f"{' + '.join(st.effect.split('+'))} refitted together"
+            rows.append({"step": label, "short": "joint refit", "params": params_of(st.cfg), **errors(rp, st.cfg)})
+            continue
+        cur = candidate(st.effect, cur).configure(cur, st.params)
+        label = f"+ {st.effect}" + (" (the next verdict, fitted on top)" if later else "")
+        rows.append({"step": label, "short": f"+ {st.effect}", "params": params_of(cur), **errors(rp, cur)})
+    if step["_joint"] is not None:
+        cfg = step["_config"]
+        rows.append({"step": "everything found so far refitted together", "short": "chain refit",
+                     "params": params_of(cfg), **errors(rp, cfg)})
+    return rows
 
 
 def check_published(rows) -> dict:

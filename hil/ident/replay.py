@@ -11,8 +11,10 @@ axis: torque (N m) on a rotary axis, force (N) or command (V) on a linear one.
 ``force_to_load`` = 2 pi / pitch turns a motor torque into a load force (1 otherwise). With
 ``align``, each channel is shifted by the lag (samples, at most 200) that maximises the
 cross-correlation of its derivative with the simulated one, found once on the replay's config.
-``objective`` holds the channels' weights (hil.ident.objective) and ``noise`` their noise floors
-(hil.ident.scores), both from the residual under the replay's config.
+``objective`` holds the channels' weights (hil.ident.objective), from the residual under the
+replay's config; ``noise`` their noise floors (hil.ident.noise: a figure given in the config or
+the file header, the quantization, the settled standstills), the record's, kept by
+:meth:`Replay.with_config`; ``noise_sources`` says where each came from.
 
 Artefacts of the recording (``channel_skew``, ``tip_skew``: sim_plant.effects.RecordEffect) act on
 the simulated channels read back, not in the loop; the last simulation is kept, so that fitting
@@ -26,9 +28,9 @@ import numpy as np
 
 from hil.control import controller_from_config
 from hil.errors import UserError
+from hil.ident.noise import record_noise
 from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
-from hil.ident.scores import noise_floor
 from hil.ident.synth import extend_command
 from hil.plant_config import plant_from_config, record_effects
 from hil.simulate import simulate
@@ -45,7 +47,7 @@ class Replay:
     """A measurement replayed through a config's model: the simulated channels on the measured
     sample times, and their residuals."""
 
-    def __init__(self, meas, cfg, channels=None, align: bool = False):
+    def __init__(self, meas, cfg, channels=None, align: bool = False, noise: dict | None = None):
         self.meas = meas
         self.cfg = cfg
         self.plant = plant_from_config(cfg)
@@ -83,13 +85,15 @@ class Replay:
         self._last = (None, None)        # (key of the loop's config, its simulated channels)
         res0 = self.residuals(cfg, first=True)
         rms = {c: float(np.sqrt(np.mean(res0[c] ** 2))) for c in self.channels}
-        self.noise = {c: noise_floor(res0[c]) for c in self.channels}
+        # the record's noise floor (hil.ident.noise): a property of the record, kept by with_config
+        self.noise_sources = noise or record_noise(meas, cfg, res0)
+        self.noise = {c: self.noise_sources[c]["rms"] for c in self.channels}
         self.objective = Objective(self, {c: 1.0 / max(rms[c], self.noise[c], 1e-15) for c in self.channels},
                                    sum(res0[c].size for c in self.channels))
         self.base_residuals = res0
 
     def with_config(self, cfg) -> "Replay":
-        return Replay(self.meas, cfg, self.channels, self.align)
+        return Replay(self.meas, cfg, self.channels, self.align, self.noise_sources)
 
     def simulate(self, cfg=None):
         cfg = cfg or self.cfg

@@ -8,6 +8,7 @@ Definitions (SI units; t in s, positions in m):
   the axis moves (|v| > 5 % of max|v|), after subtracting a running mean over 25 samples (the slow
   part, a function of velocity and time); periods from three position steps to a third of the
   stroke; amplitude and phase of each peak by least squares on sin and cos of 2 pi x / period;
+  beyond 2500 moving samples, every s-th of them (and the shortest period three of those steps);
 * motion phases from the commanded velocity v and acceleration a: standstill (|v| < 1 % of
   max|v|), reversal (within 50 ms of a change of the direction of motion), acceleration
   (a v > 0), deceleration (a v < 0), constant speed (|a| < 2 % of max|a|);
@@ -23,6 +24,8 @@ import numpy as np
 from scipy.signal import find_peaks, lombscargle
 
 __all__ = ["spectrum_peaks", "periodic_in_position", "motion_phases", "overshoots", "xcorr"]
+
+MAX_SAMPLES = 2500      # moving samples the position periodogram uses at most (every s-th beyond)
 
 
 def spectrum_peaks(r, dt: float, n: int = 3, fmin: float = 0.5):
@@ -52,6 +55,12 @@ def periodic_in_position(x, r, t, n: int = 2):
     k = 25
     rs = rs - np.convolve(rs, np.ones(k) / k, mode="same")
     dx = np.max(np.abs(np.diff(x))) or 1e-9
+    if xs.size > MAX_SAMPLES:
+        # a long record (EMPS: 25 000 samples): every s-th moving sample, the shortest period
+        # three of those steps (99th percentile; the periodogram's cost is samples x periods)
+        s = -(-xs.size // MAX_SAMPLES)
+        xs, rs = xs[::s], rs[::s]
+        dx = max(dx, float(np.percentile(np.abs(np.diff(xs)), 99)))
     lo, hi = 3 * dx, max((xs.max() - xs.min()) / 3, 4 * dx)
     periods = np.geomspace(lo, hi, 1500)
     wn = 2 * np.pi / periods

@@ -1,0 +1,149 @@
+"""The noise floor of a record: what no model can explain, from sources that cannot hold a model
+error (every figure RMS, SI units of the channel).
+
+Per channel, in this order:
+
+* a figure given by the user: the config's ``[noise]`` section (``noise.x_tip = "0.1 um"``) or the
+  file header (``# noise.x_tip = 0.1 um``); the sensor's own noise, to which the quantization of
+  the record adds (q^2 / 12 in quadrature);
+* otherwise the larger of
+  - the encoder quantization: a channel whose samples all lie on a grid of step q (detected from
+    the values: the largest whole fraction of the smallest difference between distinct values that
+    every value is a whole multiple of, from the smallest, to 1 % of q: a file's stored digits round
+    the grid) carries at least q / sqrt(12), the RMS of a uniform rounding error;
+  - the standstill noise: the residual in the settled part of each standstill of the command
+    (hil.ident.residual.motion_phases; each standstill less its first ``SETTLE`` s, at most half of
+    it), less a straight line per segment (a static offset or a creep is a model error, not noise),
+    less what an autoregressive predictor of order ``AR_ORDER`` fitted to the segment explains
+    (a ringing mode is a damped sinusoid, which an AR(2) predicts exactly; white noise is not
+    predictable). The innovation variance SSR / (n - 2p) of each segment; the floor pools the
+    segments whose variance is within ``QUIET`` times the quietest's (segments with leftover
+    structure stand out above it);
+* otherwise (no standstill, no grid, no figure) the third difference of the whole residual,
+  1.4826 MAD(d3 r) / sqrt(20) (hil.ident.scores.noise_floor), marked as possibly holding structure:
+  a light mode at a quarter of the sampling rate survives a third difference.
+
+Never from the whole residual when another source exists: a residual that still holds a mode or a
+ripple would raise its own floor and declare itself explained.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hil.ident.residual import motion_phases
+from hil.ident.scores import noise_floor as third_difference_floor
+from hil.plant_config import _NOISE_KINDS
+
+__all__ = ["quantization_step", "standstill_noise", "record_noise", "given_noise", "SETTLE", "AR_ORDER",
+           "QUIET", "NOISE_KINDS"]
+
+SETTLE = 0.1        # s skipped at the start of each standstill (at most half of it)
+AR_ORDER = 4        # two resonances predicted away
+QUIET = 2.5         # segments within this factor of the quietest's variance are pooled
+NOISE_KINDS = _NOISE_KINDS     # the unit kind of each channel's noise figure (the config's [noise] section)
+
+
+def quantization_step(y, max_divisor: int = 200) -> float:
+    """The step q of the grid all samples of ``y`` lie on (0.0 when they do not, or too few levels).
+
+    d is the smallest difference between distinct values (differences below 1e-9 of the largest
+    magnitude are float noise of the unit conversion); q is the largest d / n (n = 1, 2, ...
+    ``max_divisor``: a fast record rarely visits neighbouring levels) that every sample is a whole
+    multiple of, from the smallest value, to 1e-2 q (a record's stored digits round the grid)."""
+    y = np.asarray(y, float)
+    u = np.unique(y)
+    if u.size < 3:
+        return 0.0
+    du = np.diff(u)
+    du = du[du > 1e-9 * max(float(np.max(np.abs(u))), 1e-300)]
+    if du.size == 0:
+        return 0.0
+    d = float(np.min(du))
+    off = u - u[0]
+    for n in range(1, max_divisor + 1):
+        q = d / n
+        # refined on ever more levels (d itself is rounded): least squares of the offsets on k q
+        for span in (30.0, 1e3, math.inf):
+            sel = off <= span * q
+            k = np.round(off[sel] / q)
+            if np.any(k):
+                q = float(np.dot(k, off[sel]) / np.dot(k, k))
+        if np.all(np.abs(off / q - np.round(off / q)) < 1e-2):
+            return q
+    return 0.0
+
+
+def _segments(t, x_cmd, settle: float = SETTLE):
+    """(start, end) of the settled part of each standstill of the command."""
+    still = motion_phases(t, x_cmd)["standstill"]
+    dt = float(np.median(np.diff(t)))
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+    out = []
+    for s, e in zip(edges[::2], edges[1::2]):
+        s2 = s + min(int(round(settle / dt)), (e - s) // 2)
+        out.append((int(s2), int(e)))
+    return out
+
+
+def standstill_noise(t, x_cmd, r, p: int = AR_ORDER):
+    """The noise of residual ``r`` in the settled standstills: (RMS, samples used), or (None, 0)
+    when no standstill is long enough (see the module's definition)."""
+    r = np.asarray(r, float)
+    est = []
+    for s, e in _segments(t, x_cmd):
+        n = e - s
+        if n < 3 * p + 4:
+            continue
+        seg = r[s:e]
+        k = np.arange(n, dtype=float)
+        seg = seg - np.polyval(np.polyfit(k, seg, 1), k)
+        X = np.column_stack([seg[p - j - 1:n - j - 1] for j in range(p)])
+        y = seg[p:]
+        coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+        ssr = float(np.sum((y - X @ coef) ** 2))
+        dof = y.size - p
+        est.append((ssr / dof, dof))
+    if not est:
+        return None, 0
+    vmin = min(v for v, _ in est)
+    quiet = [(v, d) for v, d in est if v <= QUIET * vmin]
+    dof = sum(d for _, d in quiet)
+    return math.sqrt(sum(v * d for v, d in quiet) / dof), int(dof)
+
+
+def given_noise(cfg, meas, chan: str):
+    """The sensor noise of ``chan`` given in the config (``noise.<chan>``) or in the record's header
+    (``noise.<chan>`` or ``noise_<chan>``, with a unit), SI; None when neither gives one."""
+    from hil.units import parse
+    v = cfg.get(f"noise.{chan}") if cfg is not None else None
+    if v is not None:
+        return float(v)
+    meta = getattr(meas, "meta", {}) or {}
+    for key in (f"noise.{chan}", f"noise_{chan}"):
+        if key in meta:
+            return float(parse(meta[key], NOISE_KINDS.get(chan, "dimensionless"), f"{meas.source}: {key}"))
+    return None
+
+
+def record_noise(meas, cfg, residuals: dict) -> dict:
+    """Per channel of ``residuals``: {"rms": floor, "source": text, "quantization": q} (SI)."""
+    t, xc = meas.t, meas["x_cmd"]
+    out = {}
+    for c, r in residuals.items():
+        q = quantization_step(meas[c]) if c in meas else 0.0
+        fq = q / math.sqrt(12.0)
+        g = given_noise(cfg, meas, c)
+        if g is not None:
+            out[c] = {"rms": math.hypot(g, fq), "source": "given" + (" + quantization" if q else ""),
+                      "quantization": q}
+            continue
+        s, n = standstill_noise(t, xc, r)
+        if (s is not None and s > 0) or q > 0:
+            src = "quantization" if (s is None or fq >= s) else f"standstill ({n} samples)"
+            out[c] = {"rms": max(fq, s or 0.0), "source": src, "quantization": q}
+            continue
+        out[c] = {"rms": third_difference_floor(r), "source": "residual third difference (may hold structure)",
+                  "quantization": 0.0}
+    return out
