@@ -2,9 +2,9 @@
 from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
+import os
 import sys
 import threading
-import time
 
 from hil.errors import UserError
 from hil.io.jsonout import dumps
@@ -46,7 +46,12 @@ def add_arguments(p) -> None:
     p.add_argument("--switch-interval", type=float, default=1e-4, metavar="S",
                    help="the interpreter's thread switch interval (default 100 us: the SYNC handler gets the "
                         "interpreter soon after the frame arrives; Python's own default is 5 ms)")
-    p.add_argument("--json", action="store_true", help="print the connection settings as one JSON line")
+    p.add_argument("--priority", type=int, default=0, metavar="N",
+                   help="SCHED_FIFO priority 1..99 of the drive's thread (Linux, CAP_SYS_NICE; default 0: normal "
+                        "scheduling): a drive is a real-time device; on a loaded machine the scheduler otherwise "
+                        "holds its answer back by milliseconds now and then")
+    p.add_argument("--json", action="store_true", help="print the connection settings as one JSON line, and at the "
+                   "end the drive's SYNC-to-answer times")
 
 
 def parse_fault(text: str):
@@ -78,7 +83,7 @@ def run(args) -> int:
     except OSError as exc:
         raise UserError(f"cannot serve on 127.0.0.1:{port} ({exc}); choose another --port") from None
     try:
-        sim = DriveSim(cfg, bus=bus, lockstep=False)      # a mistake in the config (the EDS): ConfigError
+        sim = DriveSim(cfg, bus=bus, lockstep=False, thread=False)    # a mistake in the config (the EDS): ConfigError
     except BaseException:
         bus.shutdown()
         raise
@@ -94,14 +99,30 @@ def run(args) -> int:
               f"channel {args.channel}", flush=True)
         print(f"host: hil move --config {cfg.source} --backend canopen {sets} ...; Ctrl-C to stop",
               file=sys.stderr, flush=True)
-    t0 = time.monotonic()
     for kind, value, at in faults:
         threading.Timer(at, sim.inject, args=(kind, value)).start()
+    if args.priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.priority))
+        except (AttributeError, PermissionError, OSError) as exc:
+            print(f"hil drive-sim: --priority {args.priority}: real-time scheduling refused ({exc}); running with "
+                  f"normal priority", file=sys.stderr, flush=True)
     try:
-        while not args.seconds or time.monotonic() - t0 < args.seconds:
-            time.sleep(0.1)
+        sim.serve(args.seconds)          # the drive's one thread: this one
     except KeyboardInterrupt:
         pass
     finally:
         sim.close()
+        if args.json:                    # how soon the drive answered each SYNC
+            print(dumps(answer_stats(sim.answer_times)), flush=True)
     return 0
+
+
+def answer_stats(times) -> dict:
+    """The drive's SYNC-to-answer times (SYNC taken off the bus -> its TPDOs written), in us."""
+    import numpy as np
+    a = np.asarray(times, float) * 1e6
+    if not a.size:
+        return {"syncs": 0}
+    return {"syncs": int(a.size), "answer_p50_us": float(np.percentile(a, 50)),
+            "answer_p99_us": float(np.percentile(a, 99)), "answer_max_us": float(a.max())}
