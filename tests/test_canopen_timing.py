@@ -163,3 +163,24 @@ def _drive_sims() -> set[int]:
                 out.add(int(pid))
     return out
 
+
+
+def test_a_bus_that_fails_in_the_cyclic_phase_is_the_feedbacks_fault():
+    """The fault rule of drivers.base: read_feedback never raises; a bus that fails while the loop's
+    thread receives is ``lost communication`` in the next feedback."""
+    ch = channel("rt")
+    cfg = config.load("config/paper_bench_canopen.toml", {"canopen.interface": "virtual", "canopen.channel": ch})
+    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=False)
+    be = CanopenBackend(cfg, lockstep=False)
+    try:
+        be.open()
+        be.enable()
+        assert not be.read_feedback().fault
+        be.network.bus.shutdown()                 # the interface is gone
+        be.receive_until(0.0)                     # the clock's wait: does not raise
+        fb = be.read_feedback()
+        assert fb.fault.startswith("lost communication: the CAN bus failed on receive")
+    finally:
+        be.network.bus = None                     # already shut down
+        be.close()
+        sim.close()

@@ -8,6 +8,18 @@ SYNC (:meth:`sync`); the drive answers with TPDO1 (statusword, position actual, 
 and TPDO2 (velocity actual, linear encoder 0x60E4.1), TPDO3 (tool-tip 0x60E4.2) where the
 config says the drive has a tip sensor.
 
+Threads. Start-up, SDO and shutdown run on canopen's notifier thread (python-can's ``Notifier``
+hands each frame to ``Network.notify``). The cyclic phase, from :meth:`enable` until the next SDO
+use (:meth:`disable`, :meth:`close`, homing, status), has no such thread: the notifier is stopped
+and the loop's own thread takes the frames from the bus (:meth:`CanopenBackend.receive_until`,
+the clock's wait for its next deadline: ``Bus.recv`` with a timeout, outside the interpreter
+lock), decodes the TPDOs it mapped (one ``struct`` per PDO, from the mapping it wrote) and hands
+every other frame (EMCY, heartbeat, SDO) to ``Network.notify``. The answer reaches the loop with
+no hand-over between threads, and no receive thread competes with the loop for the lock. A cycle
+whose answer is not in when the next one reads its feedback is recorded as missed
+(``missed_total``, ``miss_run_max``, an event naming the cycle; the feedback keeps the last
+answer) and ``canopen.pdo_miss_limit`` consecutive misses are ``lost communication``.
+
 A tool-tip sensor on its own node (``canopen.tip_node_id``; object dictionary
 drivers/canopen/eds/tip_encoder_cia406.eds, a CiA 406-like linear encoder): configured at start-up over SDO
 (profile 406 checked, measuring step 0x6005.1 read, TPDO1 mapped to position value 0x6004 and
@@ -245,6 +257,7 @@ class CanopenBackend(Backend):
         self.missed_total = 0
         self.host_heartbeat_dead = False
         self.stopped_state = ""
+        self._rx_error = ""          # the bus failed on receive in the cyclic phase (a Feedback.fault)
         self.miss_run_max = 0        # the longest run of consecutive cycles without their answer
         self.cycling = False         # the cyclic phase: the loop's thread takes the frames, no notifier thread
         self.pdo_frames_on_loop = 0  # TPDO frames the loop's thread took from the bus (cyclic phase)
@@ -259,8 +272,8 @@ class CanopenBackend(Backend):
         cfg = self.cfg
         self.started = True
         if not self.lockstep:
-            # the receive threads (python-can's, canopen's notifier) must get the interpreter soon
-            # after a TPDO arrives, not after Python's default 5 ms switch interval: process-wide
+            # a thread beside the loop (a drive simulated in this process, the heartbeat's) must
+            # give the interpreter back soon, not after Python's default 5 ms switch interval
             sys.setswitchinterval(min(sys.getswitchinterval(), float(cfg.get("canopen.switch_interval", 1e-4))))
         self.connect()
         self.node.nmt.state = "PRE-OPERATIONAL"
@@ -593,10 +606,7 @@ class CanopenBackend(Backend):
         if not self.cycling:
             return
         net = self.network
-        try:
-            self.receive_until(0.0)
-        except (can.CanError, OSError) as exc:
-            self.events.append(f"cycle {self.syncs}: bus: {exc}")
+        self.receive_until(0.0)
         self.cycling = False
         net.notifier = can.Notifier(net.bus, net.listeners, net.NOTIFIER_CYCLE)
 
@@ -607,15 +617,21 @@ class CanopenBackend(Backend):
         ``Bus.recv`` with a timeout waits outside the interpreter lock, so the loop's wait for its
         next deadline is this wait. The TPDOs this backend mapped are decoded here
         (:meth:`_on_tpdo`, :meth:`_on_tip`); every other frame (EMCY, heartbeat, SDO, NMT) goes to
-        canopen (``Network.notify``), which runs its callbacks as its notifier would."""
+        canopen (``Network.notify``), which runs its callbacks as its notifier would. Never
+        raises: a bus that fails here is the next :meth:`read_feedback`'s ``fault``."""
         if not self.cycling:
             return
         recv, take, now = self.network.bus.recv, self._take, time.perf_counter
-        while True:
-            msg = recv(max(0.0, t_end - now()))
-            if msg is None:
-                return
-            take(msg)
+        try:
+            while True:
+                msg = recv(max(0.0, t_end - now()))
+                if msg is None:
+                    return
+                take(msg)
+        except (can.CanError, OSError) as exc:     # the fault rule: the next feedback says so
+            if not self._rx_error:
+                self._rx_error = f"lost communication: the CAN bus failed on receive ({exc})"
+                self.events.append(f"cycle {self.syncs}: {self._rx_error}")
 
     def _take(self, msg) -> None:
         if msg.is_error_frame or msg.is_remote_frame:
@@ -635,10 +651,7 @@ class CanopenBackend(Backend):
         if self.lockstep and not self._fresh >= self._want:
             self._barrier()
         elif self.cycling:
-            try:
-                self.receive_until(0.0)          # what came in after the clock's wait
-            except (can.CanError, OSError) as exc:
-                raise BackendFault(f"lost communication: the CAN bus failed on receive ({exc})") from None
+            self.receive_until(0.0)              # what came in after the clock's wait
         with self._lock:
             fresh = self._fresh >= self._want
             rx = dict(self._rx)
@@ -666,6 +679,8 @@ class CanopenBackend(Backend):
         out = rx.get(0x6077, 0) * 1e-3 * self.rated
         sw = rx.get(0x6041, 0)
         st = cia402.state_from_statusword(sw)
+        if not fault and self._rx_error:
+            fault = self._rx_error
         if not fault:
             if st in ("FAULT", "FAULT REACTION ACTIVE"):
                 fault = f"drive fault: {self._fault_text()}"
@@ -696,19 +711,21 @@ class CanopenBackend(Backend):
         request (canopen's own SDO request format) and takes the frames until the answer."""
         sdo = self.node.sdo
         if self.cycling:
+            recv, t_end = self.network.bus.recv, time.perf_counter() + float(self.cfg.get("canopen.pdo_timeout", 5.0))
             try:
                 sdo.send_request(SDO_STRUCT.pack(REQUEST_UPLOAD, 0x1001, 0) + bytes(4))
-            except (can.CanError, OSError) as exc:
-                raise BackendFault(f"lost communication: the CAN bus refused a frame ({exc})") from None
-            recv, t_end = self.network.bus.recv, time.perf_counter() + float(self.cfg.get("canopen.pdo_timeout", 5.0))
-            while True:
-                msg = recv(max(0.0, t_end - time.perf_counter()))
-                if msg is None:
-                    self.events.append(f"cycle {self.syncs}: no SDO answer to the barrier")
-                    return
-                if msg.arbitration_id == sdo.tx_cobid:
-                    return
-                self._take(msg)
+                while True:
+                    msg = recv(max(0.0, t_end - time.perf_counter()))
+                    if msg is None:
+                        self.events.append(f"cycle {self.syncs}: no SDO answer to the barrier")
+                        return
+                    if msg.arbitration_id == sdo.tx_cobid:
+                        return
+                    self._take(msg)
+            except (can.CanError, OSError) as exc:        # the fault rule: this feedback says so
+                if not self._rx_error:
+                    self._rx_error = f"lost communication: the CAN bus failed ({exc})"
+                    self.events.append(f"cycle {self.syncs}: {self._rx_error}")
         old = sdo.RESPONSE_TIMEOUT
         sdo.RESPONSE_TIMEOUT = max(old, float(self.cfg.get("canopen.pdo_timeout", 5.0)))
         try:
