@@ -106,7 +106,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _stop(proc, sig=signal.SIGINT, wait=10.0):
+def _stop(proc, sig=signal.SIGTERM, wait=10.0):
     """End a process this benchmark started: ``sig``, then kill after ``wait`` seconds."""
     if proc is None or proc.poll() is not None:
         return
@@ -161,7 +161,7 @@ def run_one(transport, rate, seconds, burner, spin, priority):
         if sim is not None:
             sim.close()
         _stop(drive)
-        _stop(burn, signal.SIGTERM, 5.0)
+        _stop(burn, wait=5.0)
     res.update({"transport": "virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)",
                 "load": "one core busy" if burner else "idle",
                 "drive_answer_p50_us": drive_stats.get("answer_p50_us"),

@@ -3,6 +3,7 @@ from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 
@@ -20,8 +21,14 @@ python-can's socketcand interface: this process is a small socketcand server (ra
       --set canopen.interface=socketcand --set canopen.channel=can0 \\
       --stroke 20mm --feed 6000mm/min --amax 2m/s^2 --dwell 0.3s
 
-The drive runs on the wall clock: one cycle per SYNC, and on its own clock when the SYNCs stop
-(the drive-side guards, heartbeat consumer 0x1016 with 0x6007, stop the axis then).
+The drive runs on the wall clock, as a drive: one thread (this process's main thread, --priority
+N: SCHED_FIFO) takes each frame off the bus itself and answers a SYNC at once, on that thread:
+one drive cycle (the plant advanced by the compiled step of drivers.sim; the targets of the last
+RPDO) and its TPDOs written in one segment. Answer time, SYNC taken off the bus to the TPDOs
+written: under 0.5 ms (p50 0.24 ms, p99 0.34-0.41 ms at 250 Hz on a 2-core machine at load
+average 4 to 5 with --priority 50); with --json the last line gives the run's own figures. On its
+own clock when the SYNCs stop (the drive-side guards, heartbeat consumer 0x1016 with 0x6007, stop
+the axis then).
 Faults to inject (repeatable): KIND[=VALUE]@SECONDS after the start, e.g. --fault emcy=0x2310@20,
 --fault heartbeat_loss@30. Kinds: emcy, heartbeat_loss, frozen_encoder, late_pdo (seconds),
 missing_pdo (count), following_error (metres), tip_missing_pdo (count; with a tip sensor node).
@@ -44,8 +51,8 @@ def add_arguments(p) -> None:
                    help="inject a fault that many seconds after the start (repeatable)")
     p.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
     p.add_argument("--switch-interval", type=float, default=1e-4, metavar="S",
-                   help="the interpreter's thread switch interval (default 100 us: the SYNC handler gets the "
-                        "interpreter soon after the frame arrives; Python's own default is 5 ms)")
+                   help="the interpreter's thread switch interval (default 100 us: a fault timer's thread gives the "
+                        "interpreter back to the drive's soon; Python's own default is 5 ms)")
     p.add_argument("--priority", type=int, default=0, metavar="N",
                    help="SCHED_FIFO priority 1..99 of the drive's thread (Linux, CAP_SYS_NICE; default 0: normal "
                         "scheduling): a drive is a real-time device; on a loaded machine the scheduler otherwise "
@@ -107,6 +114,10 @@ def run(args) -> int:
         except (AttributeError, PermissionError, OSError) as exc:
             print(f"hil drive-sim: --priority {args.priority}: real-time scheduling refused ({exc}); running with "
                   f"normal priority", file=sys.stderr, flush=True)
+    def _terminate(signum, frame):      # SIGTERM ends the drive as Ctrl-C does (a parent that stops it)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
     try:
         sim.serve(args.seconds)          # the drive's one thread: this one
     except KeyboardInterrupt:
