@@ -8,6 +8,18 @@ SYNC (:meth:`sync`); the drive answers with TPDO1 (statusword, position actual, 
 and TPDO2 (velocity actual, linear encoder 0x60E4.1), TPDO3 (tool-tip 0x60E4.2) where the
 config says the drive has a tip sensor.
 
+Threads. Start-up, SDO and shutdown run on canopen's notifier thread (python-can's ``Notifier``
+hands each frame to ``Network.notify``). The cyclic phase, from :meth:`enable` until the next SDO
+use (:meth:`disable`, :meth:`close`, homing, status), has no such thread: the notifier is stopped
+and the loop's own thread takes the frames from the bus (:meth:`CanopenBackend.receive_until`,
+the clock's wait for its next deadline: ``Bus.recv`` with a timeout, outside the interpreter
+lock), decodes the TPDOs it mapped (one ``struct`` per PDO, from the mapping it wrote) and hands
+every other frame (EMCY, heartbeat, SDO) to ``Network.notify``. The answer reaches the loop with
+no hand-over between threads, and no receive thread competes with the loop for the lock. A cycle
+whose answer is not in when the next one reads its feedback is recorded as missed
+(``missed_total``, ``miss_run_max``, an event naming the cycle; the feedback keeps the last
+answer) and ``canopen.pdo_miss_limit`` consecutive misses are ``lost communication``.
+
 A tool-tip sensor on its own node (``canopen.tip_node_id``; object dictionary
 drivers/canopen/eds/tip_encoder_cia406.eds, a CiA 406-like linear encoder): configured at start-up over SDO
 (profile 406 checked, measuring step 0x6005.1 read, TPDO1 mapped to position value 0x6004 and
@@ -52,6 +64,7 @@ import time
 
 import can
 import canopen
+from canopen.sdo.constants import REQUEST_UPLOAD, SDO_STRUCT
 
 from drivers.base import Backend, BackendFault, Feedback, Setpoint
 from drivers.canopen import cia402
@@ -137,6 +150,37 @@ TPDO_MAPS = [
 SYNC_ECHO = 0x2001          # the drive's copy of the SYNC counter, in the last TPDO of each answer
 SYNC_OVERFLOW = 240         # 0x1019: the SYNC carries a counter 1..240
 _SIGNED = {0x6064: "i", 0x606C: "i", 0x60E4: "i", 0x6077: "h", 0x6071: "h", 0x607A: "i", 0x60FF: "i"}
+_TIP_FMT = struct.Struct("<i")
+
+
+def _pdo_struct(entries) -> tuple[struct.Struct, tuple]:
+    """One mapped PDO (``[(index, sub, bits)]``, the table :meth:`CanopenBackend.configure` maps)
+    as one ``struct`` and the keys of its values: the whole frame decoded in one call."""
+    fmt = "<" + "".join(_SIGNED.get(i, {8: "B", 16: "H"}.get(b, "I")) for i, _, b in entries)
+    return struct.Struct(fmt), tuple(i if i != 0x60E4 else (i, s) for i, s, _ in entries)
+
+
+class _AnswerEvent(threading.Event):
+    """Set when the whole answer to the last SYNC is in. In the cyclic phase nothing but the
+    caller's own thread takes frames from the bus: :meth:`wait` receives (``receive_until``) until
+    the answer is in or the timeout has passed."""
+
+    def __init__(self, backend):
+        super().__init__()
+        self._backend = backend
+
+    def wait(self, timeout: float | None = None) -> bool:
+        be = self._backend
+        if not be.cycling:
+            return super().wait(timeout)
+        t_end = time.perf_counter() + (3600.0 if timeout is None else timeout)
+        recv = be.network.bus.recv
+        while not self.is_set():
+            msg = recv(max(0.0, t_end - time.perf_counter()))
+            if msg is None:
+                break
+            be._take(msg)
+        return self.is_set()
 
 
 class CanopenBackend(Backend):
@@ -189,7 +233,7 @@ class CanopenBackend(Backend):
         self._rx = {}
         self._fresh = set()
         self._want = set()
-        self._event = threading.Event()
+        self._event = _AnswerEvent(self)
         self._lock = threading.Lock()
         self._cw = cia402.COMMANDS["ENABLE OPERATION"]
         self._target = 0
@@ -213,6 +257,11 @@ class CanopenBackend(Backend):
         self.missed_total = 0
         self.host_heartbeat_dead = False
         self.stopped_state = ""
+        self._rx_error = ""          # the bus failed on receive in the cyclic phase (a Feedback.fault)
+        self.miss_run_max = 0        # the longest run of consecutive cycles without their answer
+        self.cycling = False         # the cyclic phase: the loop's thread takes the frames, no notifier thread
+        self.pdo_frames_on_loop = 0  # TPDO frames the loop's thread took from the bus (cyclic phase)
+        self._decode: dict = {}      # COB-ID -> (struct, keys): the mapped TPDOs, decoded in one call
         self.answer_latency: list[float] = []      # SYNC sent -> the whole TPDO answer taken (s)
         self.setpoint_latency: list[float] = []    # SYNC k sent -> RPDO k+1 (from feedback k) sent (s)
 
@@ -223,8 +272,8 @@ class CanopenBackend(Backend):
         cfg = self.cfg
         self.started = True
         if not self.lockstep:
-            # the receive threads (python-can's, canopen's notifier) must get the interpreter soon
-            # after a TPDO arrives, not after Python's default 5 ms switch interval: process-wide
+            # a thread beside the loop (a drive simulated in this process, the heartbeat's) must
+            # give the interpreter back soon, not after Python's default 5 ms switch interval
             sys.setswitchinterval(min(sys.getswitchinterval(), float(cfg.get("canopen.switch_interval", 1e-4))))
         self.connect()
         self.node.nmt.state = "PRE-OPERATIONAL"
@@ -368,6 +417,9 @@ class CanopenBackend(Backend):
             self._map(0x1800, 0x1A00, 0x180, n, entries)
             if entries:
                 self._tpdo[0x180 + 0x100 * n + self.node_id] = entries
+        self._decode = {cob: _pdo_struct(entries) for cob, entries in self._tpdo.items()}
+        if self._tip_cob:
+            self._decode[self._tip_cob] = (_TIP_FMT, (TIP_KEY,))
         self._want = set(self._tpdo) | ({self._tip_cob} if self._tip_cob else set())
         self._echo_cob = max(self._tpdo) if self.echo else None      # the last TPDO carries the echo
 
@@ -384,6 +436,7 @@ class CanopenBackend(Backend):
             sdo[comm_base + n][1].raw = cob
 
     def state(self) -> str:
+        self._stop_cycling()
         return cia402.state_from_statusword(self.node.sdo[0x6041].raw)
 
     def enable(self) -> None:
@@ -416,6 +469,7 @@ class CanopenBackend(Backend):
                          (0x60E4, 1): sdo[0x60E4][1].raw, (0x60E4, 2): sdo[0x60E4][2].raw, 0x603F: 0})
         if self.tip_node is not None:
             self._rx[TIP_KEY] = self.tip_node.sdo[0x6004].raw
+        self._start_cycling()
 
     def read_position(self) -> Feedback:
         """Where the axis stands, over SDO (not real-time; after :meth:`open`, before :meth:`enable`):
@@ -445,6 +499,7 @@ class CanopenBackend(Backend):
         ok, err = False, False
         try:
             self.enable()
+            self._stop_cycling()              # homing runs over SDO
             sdo[0x6040].raw = cia402.COMMANDS["ENABLE OPERATION"] | 0x10
             t_end = time.perf_counter() + timeout
             while time.perf_counter() < t_end:
@@ -470,6 +525,7 @@ class CanopenBackend(Backend):
         return out
 
     def fault_reset(self) -> str:
+        self._stop_cycling()
         sdo = self.node.sdo
         sdo[0x6040].raw = 0x00
         sdo[0x6040].raw = cia402.COMMANDS["FAULT RESET"]
@@ -485,15 +541,11 @@ class CanopenBackend(Backend):
         echo, the TPDO that carries it must show the counter of the last SYNC (the others of the
         same answer come before it and are held until then); without it, a TPDO counts only if it
         arrived after the SYNC. A late answer is logged and dropped."""
-        entries = self._tpdo.get(can_id)
-        if not entries:
+        plan = self._decode.get(can_id)
+        if plan is None:
             return
-        off, values = 0, {}
-        for index, sub, bits in entries:
-            f = _SIGNED.get(index, {8: "B", 16: "H"}.get(bits, "I"))
-            v = struct.unpack_from("<" + f, data, off)[0]
-            off += bits // 8
-            values[index if index != 0x60E4 else (index, sub)] = v
+        fmt, keys = plan
+        values = dict(zip(keys, fmt.unpack_from(data)))
         with self._lock:
             if self.echo:
                 self._pending[can_id] = values
@@ -526,7 +578,7 @@ class CanopenBackend(Backend):
         after the SYNC (in lockstep the barrier orders it)."""
         if len(data) < 4:
             return
-        v = struct.unpack_from("<i", data, 0)[0]
+        v = _TIP_FMT.unpack_from(data, 0)[0]
         with self._lock:
             self._rx[TIP_KEY] = v
             self._fresh.add(can_id)
@@ -551,19 +603,82 @@ class CanopenBackend(Backend):
         code = self._rx.get(0x603F, 0)
         return f"error code 0x{code:04X} {cia402.emcy_text(code)}" if code else "no EMCY"
 
+    # -- the cyclic phase: the loop's own thread takes the frames --------------------------------------
+    def _start_cycling(self) -> None:
+        """From now on the loop's thread takes every frame from the bus (:meth:`receive_until`, the
+        barrier, :meth:`read_feedback`): canopen's notifier thread is stopped (it returns within
+        its ``NOTIFIER_CYCLE``), so that no second thread takes the answer, runs callbacks on it
+        and competes with the loop for the interpreter lock while the loop runs. (The host's
+        heartbeat stays on python-can's periodic thread: it wakes every 100 ms for one send, and
+        it keeps the drive's heartbeat consumer content between enable and the loop's start.)"""
+        net = self.network
+        if self.cycling or net is None or net.notifier is None:
+            return
+        net.notifier.stop(4 * net.NOTIFIER_CYCLE + 1.0)
+        self.cycling = True
+
+    def _stop_cycling(self) -> None:
+        """Back to canopen's notifier thread (SDO, shutdown): the frames already in are taken here
+        first, in order, then a new notifier serves the network (and the periodic heartbeat)."""
+        if not self.cycling:
+            return
+        net = self.network
+        self.receive_until(0.0)
+        self.cycling = False
+        net.notifier = can.Notifier(net.bus, net.listeners, net.NOTIFIER_CYCLE)
+
+    def receive_until(self, t_end: float) -> None:
+        """Take the frames from the bus on the calling thread (the loop's) until ``t_end``
+        (``time.perf_counter``; one in the past: only those already in), (real-time).
+
+        ``Bus.recv`` with a timeout waits outside the interpreter lock, so the loop's wait for its
+        next deadline is this wait. The TPDOs this backend mapped are decoded here
+        (:meth:`_on_tpdo`, :meth:`_on_tip`); every other frame (EMCY, heartbeat, SDO, NMT) goes to
+        canopen (``Network.notify``), which runs its callbacks as its notifier would. Never
+        raises: a bus that fails here is the next :meth:`read_feedback`'s ``fault``."""
+        if not self.cycling:
+            return
+        recv, take, now = self.network.bus.recv, self._take, time.perf_counter
+        try:
+            while True:
+                msg = recv(max(0.0, t_end - now()))
+                if msg is None:
+                    return
+                take(msg)
+        except (can.CanError, OSError) as exc:     # the fault rule: the next feedback says so
+            if not self._rx_error:
+                self._rx_error = f"lost communication: the CAN bus failed on receive ({exc})"
+                self.events.append(f"cycle {self.syncs}: {self._rx_error}")
+
+    def _take(self, msg) -> None:
+        if msg.is_error_frame or msg.is_remote_frame:
+            return
+        cob = msg.arbitration_id
+        if cob in self._decode:
+            self.pdo_frames_on_loop += 1
+            if cob == self._tip_cob:
+                self._on_tip(cob, msg.data, msg.timestamp)
+            else:
+                self._on_tpdo(cob, msg.data, msg.timestamp)
+        else:
+            self.network.notify(cob, msg.data, msg.timestamp)
+
     # -- cycle ---------------------------------------------------------------------------------------
     def read_feedback(self) -> Feedback:
         if self.lockstep and not self._fresh >= self._want:
             self._barrier()
+        elif self.cycling:
+            self.receive_until(0.0)              # what came in after the clock's wait
         with self._lock:
             fresh = self._fresh >= self._want
             rx = dict(self._rx)
         fault = ""
         if fresh:
             self._misses = 0
-        else:
+        else:                        # recorded as missed: counted, logged, the feedback is the last answer
             self._misses += 1
             self.missed_total += 1
+            self.miss_run_max = max(self.miss_run_max, self._misses)
             with self._lock:
                 lacking = self._want - self._fresh
             who = "tip sensor node %d" % self.tip_id if lacking == {self._tip_cob} else "drive"
@@ -581,6 +696,8 @@ class CanopenBackend(Backend):
         out = rx.get(0x6077, 0) * 1e-3 * self.rated
         sw = rx.get(0x6041, 0)
         st = cia402.state_from_statusword(sw)
+        if not fault and self._rx_error:
+            fault = self._rx_error
         if not fault:
             if st in ("FAULT", "FAULT REACTION ACTIVE"):
                 fault = f"drive fault: {self._fault_text()}"
@@ -607,8 +724,25 @@ class CanopenBackend(Backend):
         and sends its TPDOs while it handles the SYNC, before it answers the SDO; the host handles
         the answers in order too: when the SDO answer is in, every TPDO the drive sent for this
         SYNC has been taken. A missing or late TPDO is then the drive's doing, never the
-        scheduler's, however loaded the machine."""
+        scheduler's, however loaded the machine. In the cyclic phase the loop's thread sends the
+        request (canopen's own SDO request format) and takes the frames until the answer."""
         sdo = self.node.sdo
+        if self.cycling:
+            recv, t_end = self.network.bus.recv, time.perf_counter() + float(self.cfg.get("canopen.pdo_timeout", 5.0))
+            try:
+                sdo.send_request(SDO_STRUCT.pack(REQUEST_UPLOAD, 0x1001, 0) + bytes(4))
+                while True:
+                    msg = recv(max(0.0, t_end - time.perf_counter()))
+                    if msg is None:
+                        self.events.append(f"cycle {self.syncs}: no SDO answer to the barrier")
+                        return
+                    if msg.arbitration_id == sdo.tx_cobid:
+                        return
+                    self._take(msg)
+            except (can.CanError, OSError) as exc:        # the fault rule: this feedback says so
+                if not self._rx_error:
+                    self._rx_error = f"lost communication: the CAN bus failed ({exc})"
+                    self.events.append(f"cycle {self.syncs}: {self._rx_error}")
         old = sdo.RESPONSE_TIMEOUT
         sdo.RESPONSE_TIMEOUT = max(old, float(self.cfg.get("canopen.pdo_timeout", 5.0)))
         try:
@@ -678,6 +812,7 @@ class CanopenBackend(Backend):
         stop or fault reaction; its state is read over SDO (TPDOs may be what failed). A drive still
         in OPERATION ENABLED did not get the RPDO: the stop is commanded again over SDO."""
         limit = max_cycles or int(math.ceil(self.cfg.get("canopen.stop_timeout", 2.0) / self.cycle_time))
+        self._stop_cycling()
         sdo, st, errors = self.node.sdo, "unknown", 0
         for _ in range(limit):
             self._send_sync()
@@ -705,6 +840,7 @@ class CanopenBackend(Backend):
         Nothing on a drive this backend did not start, or after :meth:`close`."""
         if not self.started or self.node is None or self.network is None:
             return
+        self._stop_cycling()
         try:
             if self.quick_stop_sync is not None and self._cw != cia402.COMMANDS["ENABLE OPERATION"] or \
                     cia402.state_from_statusword(self._rx.get(0x6041, 0)) in ("QUICK STOP ACTIVE",
@@ -724,6 +860,7 @@ class CanopenBackend(Backend):
         if self.network is None:
             return
         try:
+            self._stop_cycling()
             if self._host_hb_task is not None:
                 self._host_hb_task.stop()
                 self._host_hb_task = None
@@ -741,6 +878,7 @@ class CanopenBackend(Backend):
         self.started = False
 
     def status(self) -> dict:
+        self._stop_cycling()
         sdo = self.node.sdo
         if self.node.nmt.state == "INITIALISING":         # no heartbeat seen yet: wait for one
             try:

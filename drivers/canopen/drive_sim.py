@@ -4,10 +4,15 @@ PDO, heartbeat and EMCY. Its shaft is the sim_plant model (drivers.sim.Simulated
 one cycle per SYNC, closing in the drive the loops the mode of operation gives it (CSP: both,
 CSV: velocity, CST: none).
 
-Time: ``lockstep=True`` (the tests, the in-process benchmarks) makes the drive's clock the SYNC
-count, heartbeats included, so that runs are deterministic; ``lockstep=False`` (a separate
-process, ``hil drive-sim``) produces heartbeats on the wall clock, and keeps the shaft moving on
-its own clock when SYNCs stop (the link died: the drive-side guards must stop it).
+Time: ``lockstep=True`` (the tests) makes the drive's clock the SYNC count, heartbeats included,
+so that runs are deterministic (canopen's notifier thread hands the drive its frames);
+``lockstep=False`` (``hil drive-sim`` in its own process, the in-process benchmark) runs the drive
+as a drive runs: one thread (:meth:`DriveSim.serve`) takes each frame from the bus itself, and a
+SYNC is answered at once with the TPDOs of the cycle it starts (the plant advanced by the
+compiled drive step of drivers.sim, about 5 us, in about 20 us of cycle work in all), so that
+the answer leaves within a fixed, short time of the SYNC (the figure is in ``hil drive-sim
+--help``); the same thread produces the heartbeats on the wall clock and keeps the shaft moving
+on its own clock when SYNCs stop (the link died: the drive-side guards must stop it).
 
 Drive-side guards (set by the host over SDO at start-up): heartbeat consumer 0x1016 with the
 abort-connection option 0x6007, following-error window 0x6065/0x6066, software position limits
@@ -23,12 +28,14 @@ the same bus, whose position value 0x6004 is the plant's tip mass, sent in its T
 """
 from __future__ import annotations
 
+import gc
 import math
-import queue
+import select
 import socket
 import struct
 import threading
 import time
+from collections import deque
 
 import can
 import canopen
@@ -36,6 +43,7 @@ import canopen
 from drivers.base import Setpoint
 from drivers.canopen import cia402
 from drivers.canopen import eds as eds_files
+from drivers.rt import fine_timer_slack
 from drivers.sim import SimulatedPlant
 from hil.control import new_velocity_state, velocity_law
 from hil.errors import ConfigError
@@ -86,11 +94,14 @@ def _pdo_plan(node, comm_base: int, map_base: int, n: int):
 
 
 class DriveSim:
-    """``DriveSim(cfg, bus=bus)`` on an existing python-can bus, or ``interface=``/``channel=``."""
+    """``DriveSim(cfg, bus=bus)`` on an existing python-can bus, or ``interface=``/``channel=``.
+
+    ``lockstep=False``: the drive's thread (:meth:`serve`) is started here unless ``thread=False``
+    (``hil drive-sim`` runs :meth:`serve` on its main thread)."""
 
     def __init__(self, cfg, bus=None, interface: str | None = None, channel: str | None = None,
                  node_id: int | None = None, eds: str | None = None, lockstep: bool = True, bitrate: int = 1000000,
-                 tip_node_id: int | None = None):
+                 tip_node_id: int | None = None, thread: bool = True):
         self.cfg = cfg
         self.node_id = node_id or int(cfg.get("canopen.node_id", 1))
         self.lockstep = lockstep
@@ -99,11 +110,15 @@ class DriveSim:
         self._own_bus = bus is None
         self.network = canopen.Network(bus)
         self.network.NOTIFIER_CYCLE = 0.05          # the receive thread stops within 50 ms
-        if bus is None:
-            self.network.connect(interface=interface or cfg.get("canopen.interface", "virtual"),
-                                 channel=channel or cfg.get("canopen.channel", "hil"), bitrate=bitrate)
-        else:
-            self.network.connect()
+        if lockstep:              # canopen's notifier thread hands the frames over
+            if bus is None:
+                self.network.connect(interface=interface or cfg.get("canopen.interface", "virtual"),
+                                     channel=channel or cfg.get("canopen.channel", "hil"), bitrate=bitrate)
+            else:
+                self.network.connect()
+        elif bus is None:         # the drive's own thread takes the frames (serve): no notifier
+            self.network.bus = can.Bus(interface=interface or cfg.get("canopen.interface", "virtual"),
+                                       channel=channel or cfg.get("canopen.channel", "hil"), bitrate=bitrate)
         self.node = canopen.LocalNode(self.node_id, od)
         # heartbeats are produced here (on the SYNC clock in lockstep, else the wall clock)
         self.node._write_callbacks.remove(self.node.nmt.on_write)
@@ -151,14 +166,15 @@ class DriveSim:
         self._last_sync_wall = time.perf_counter()
         self._stop = threading.Event()
         self._idle_thread = None
+        self.answer_times: list[float] = []        # serve: SYNC taken from the bus -> its TPDOs sent (s)
         self.node.sdo[0x6041].raw = cia402.statusword_for(self.state)
         tip_id = int(cfg.get("canopen.tip_node_id", 0) or 0) if tip_node_id is None else int(tip_node_id)
         self.tip_sensor = TipSensorSim(self, tip_id) if tip_id else None
         self._warm_up()
         self.node.nmt.state = "PRE-OPERATIONAL"
         self.network.send_message(0x700 + self.node_id, [0])        # boot-up
-        if not lockstep:
-            self._idle_thread = threading.Thread(target=self._idle_loop, daemon=True)
+        if not lockstep and thread:
+            self._idle_thread = threading.Thread(target=self.serve, name="drive-sim", daemon=True)
             self._idle_thread.start()
 
     # -- plant ----------------------------------------------------------------------------------
@@ -312,13 +328,57 @@ class DriveSim:
             _put(self.node, 0x2001, 0, "B", self.sync_counter)
             self._cycle(from_sync=True)
 
-    def _idle_loop(self):
-        """Wall-clock mode: the shaft keeps moving when SYNCs stop (3 periods without one)."""
-        while not self._stop.wait(self.period):
-            with self.lock:
-                if time.perf_counter() - self._last_sync_wall > 3 * self.period:
-                    self._cycle(from_sync=False)
-                self._heartbeat_wall()
+    def serve(self, seconds: float = 0.0, on_duty=None) -> None:
+        """Wall-clock mode: the drive's one thread, until :meth:`close` (or ``seconds``, 0: no
+        end). It takes each frame from the bus itself (``Bus.recv`` with a timeout: the wait gives
+        the interpreter lock away) and hands it to canopen's dispatch (``Network.notify``: SYNC,
+        RPDO, SDO, NMT, the host's heartbeat), so a SYNC is answered on this thread, with no
+        hand-over to another; between frames, once a period, the heartbeat and the shaft's own
+        cycle when the SYNCs have stopped (3 periods without one). ``answer_times``: per SYNC,
+        the time from taking it off the bus to its TPDOs written to the bus. ``on_duty(self)``, where
+        given, is called once a period with the drive's lock held (hil drive-sim's fault schedule)."""
+        fine_timer_slack()
+        # what exists now (numba, the dictionaries) is never collected: a full collection of it
+        # would hold an answer up by milliseconds; the cycle's own garbage goes by reference count
+        gc.collect()
+        gc.freeze()
+        bus, notify, now = self.network.bus, self.network.notify, time.perf_counter
+        hold, release = getattr(bus, "hold", None), getattr(bus, "release", None)
+        t_end = now() + seconds if seconds else math.inf
+        duty = now()
+        times = self.answer_times
+        while not self._stop.is_set() and now() < t_end:
+            try:
+                msg = bus.recv(max(0.0, min(duty, t_end) - now()))
+            except (can.CanError, OSError, ValueError):
+                if self._stop.is_set():
+                    return
+                raise
+            if msg is not None:
+                if msg.is_error_frame or msg.is_remote_frame:
+                    continue
+                t_in = now()
+                if msg.arbitration_id == 0x80 and hold is not None:
+                    hold()                          # the whole answer goes out in one write
+                    try:
+                        notify(0x80, msg.data, msg.timestamp)
+                    finally:
+                        release()
+                else:
+                    notify(msg.arbitration_id, msg.data, msg.timestamp)
+                if msg.arbitration_id == 0x80:
+                    times.append(now() - t_in)
+            t = now()
+            if t >= duty:
+                with self.lock:
+                    if t - self._last_sync_wall > 3 * self.period:
+                        self._cycle(from_sync=False)
+                    self._heartbeat_wall()
+                    if on_duty is not None:
+                        on_duty(self)
+                duty += self.period
+                if duty <= t:                     # held up: the next duty one period from now
+                    duty = t + self.period
 
     def _heartbeat_wall(self):
         ms = self._config()["hb_ms"]
@@ -606,14 +666,21 @@ class SocketcandServerBus(can.BusABC):
     drive uses it as its bus, and every other process reaches the drive with python-can's own
     socketcand interface (``interface="socketcand", host="127.0.0.1", port=..., channel=...``).
     Frames a client sends go to the drive and to the other clients, as on one CAN bus. Only the
-    loopback address is served: nothing leaves the machine."""
+    loopback address is served: nothing leaves the machine.
+
+    No thread of its own: :meth:`recv` (the drive's thread) waits in one ``select`` on the
+    listening socket and the clients, accepts, answers the handshake and parses the frames
+    there, so that a SYNC reaches the drive with no hand-over between threads. :meth:`send`
+    writes to every client at once (a lock keeps frames whole when a fault timer sends too)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 29536, channel: str = "can0", **kwargs):
         if host not in LOOPBACK:
             raise ValueError(f"the simulated drive serves 127.0.0.1 only, not {host!r}")
-        self._queue: "queue.Queue[can.Message]" = queue.Queue()
-        self._clients: list = []
+        self._pending: deque = deque()
+        self._conns: dict = {}                 # socket -> its unparsed text
+        self._clients: list = []               # sockets in raw mode: they get every frame
         self._clients_lock = threading.Lock()
+        self._held: list | None = None         # frames held back by hold() until release()
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self._sock.bind(("127.0.0.1", int(port)))
@@ -623,51 +690,61 @@ class SocketcandServerBus(can.BusABC):
         self.channel_info = f"socketcand server {channel}@127.0.0.1:{self.port}"
         self._t0 = time.time()
         self._closed = False
-        threading.Thread(target=self._accept, daemon=True).start()
         super().__init__(channel=channel, **kwargs)
 
-    def _accept(self):
-        while not self._closed:
-            try:
-                conn, _ = self._sock.accept()
-            except OSError:
-                return
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
+    def _accept(self) -> None:
+        try:
+            conn, _ = self._sock.accept()
+        except OSError:
+            return
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        try:
+            conn.sendall(b"< hi >")
+        except OSError:
+            conn.close()
+            return
+        self._conns[conn] = ""
+
+    def _drop(self, conn) -> None:
+        self._conns.pop(conn, None)
+        with self._clients_lock:
+            if conn in self._clients:
+                self._clients.remove(conn)
+        conn.close()
 
     # the longest command a client may send (a "< send 1FFFFFFF 8 FF FF FF FF FF FF FF FF >" is 46
     # characters): input beyond it without a closing ">" is dropped, so a client cannot grow the
     # buffer without limit, and each received chunk is scanned once
     MAX_COMMAND = 256
 
-    def _serve(self, conn):
-        buf, ready = "", False
+    def _read(self, conn) -> None:
+        """What one client sent: the handshake (open, rawmode) and its frames; a malformed command
+        is ignored (the client stays connected, as on a bus where a bad frame is dropped)."""
         try:
-            conn.sendall(b"< hi >")
-            while not self._closed:
-                data = conn.recv(4096)
-                if not data:
-                    break
-                buf += data.decode("ascii", "replace")
-                pos = 0
-                while True:
-                    end = buf.find(">", pos)
-                    if end < 0:
-                        break
-                    start = buf.find("<", pos, end)
-                    body, pos = (buf[start + 1:end] if start >= 0 else ""), end + 1
-                    ready = self._command(conn, body.split(), ready)
-                buf = buf[pos:]
-                if len(buf) > self.MAX_COMMAND:          # no ">" in sight: not a command, drop it
-                    start = buf.rfind("<")
-                    buf = buf[start:] if 0 <= start and len(buf) - start <= self.MAX_COMMAND else ""
+            data = conn.recv(4096)
         except OSError:
-            pass
-        finally:
-            with self._clients_lock:
-                if conn in self._clients:
-                    self._clients.remove(conn)
-            conn.close()
+            data = b""
+        if not data:
+            self._drop(conn)
+            return
+        buf = self._conns[conn] + data.decode("ascii", "replace")
+        pos = 0
+        try:
+            while True:
+                end = buf.find(">", pos)
+                if end < 0:
+                    break
+                start = buf.find("<", pos, end)
+                body, pos = (buf[start + 1:end] if start >= 0 else ""), end + 1
+                self._command(conn, body.split(), conn in self._clients)
+        except OSError:
+            self._drop(conn)
+            return
+        buf = buf[pos:]
+        if len(buf) > self.MAX_COMMAND:          # no ">" in sight: not a command, drop it
+            start = buf.rfind("<")
+            buf = buf[start:] if 0 <= start and len(buf) - start <= self.MAX_COMMAND else ""
+        self._conns[conn] = buf
 
     def _command(self, conn, cmd, ready: bool) -> bool:
         """One socketcand command of a client; a malformed one is ignored (the client stays
@@ -692,7 +769,7 @@ class SocketcandServerBus(can.BusABC):
                 return ready
             msg = can.Message(arbitration_id=can_id, data=payload, is_extended_id=len(cmd[1]) > 3,
                               timestamp=time.time(), is_rx=True, channel=self.channel)
-            self._queue.put(msg)
+            self._pending.append(msg)
             self._broadcast(msg, skip=conn)
         return ready
 
@@ -700,21 +777,55 @@ class SocketcandServerBus(can.BusABC):
         cid = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
         line = f"< frame {cid} {time.time() - self._t0:.6f} {bytes(msg.data).hex().upper()} >".encode()
         with self._clients_lock:
-            clients = [c for c in self._clients if c is not skip]
-        for c in clients:
-            try:
-                c.sendall(line)
-            except OSError:
-                pass
+            if self._held is not None and skip is None:
+                self._held.append(line)
+                return
+            self._write(line, skip)
+
+    def _write(self, data: bytes, skip=None) -> None:
+        for c in self._clients:
+            if c is not skip:
+                try:
+                    c.sendall(data)
+                except OSError:
+                    pass
 
     def send(self, msg, timeout=None):
         self._broadcast(msg)
 
+    def hold(self) -> None:
+        """From now on the frames sent are held until :meth:`release`, which writes them to each
+        client at once: the drive's whole answer to a SYNC in one TCP segment (one wake-up of the
+        host, as the frames of one answer follow each other on a CAN bus)."""
+        with self._clients_lock:
+            self._held = []
+
+    def release(self) -> None:
+        with self._clients_lock:
+            held, self._held = self._held, None
+            if held:
+                self._write(b"".join(held))
+
     def _recv_internal(self, timeout):
-        try:
-            return self._queue.get(timeout=timeout), False
-        except queue.Empty:
-            return None, False
+        if self._pending:
+            return self._pending.popleft(), False
+        t_end = None if timeout is None else time.perf_counter() + timeout
+        while not self._closed:
+            left = None if t_end is None else max(0.0, t_end - time.perf_counter())
+            try:
+                ready, _, _ = select.select([self._sock, *self._conns], [], [], left)
+            except (OSError, ValueError):         # closed meanwhile
+                break
+            for s in ready:
+                if s is self._sock:
+                    self._accept()
+                elif s in self._conns:
+                    self._read(s)
+            if self._pending:
+                return self._pending.popleft(), False
+            if t_end is not None and time.perf_counter() >= t_end:
+                break
+        return None, False
 
     def shutdown(self):
         self._closed = True
@@ -722,11 +833,12 @@ class SocketcandServerBus(can.BusABC):
             self._sock.close()
         except OSError:
             pass
+        for c in list(self._conns):
+            try:
+                c.close()
+            except OSError:
+                pass
+        self._conns = {}
         with self._clients_lock:
-            for c in self._clients:
-                try:
-                    c.close()
-                except OSError:
-                    pass
             self._clients = []
         super().shutdown()

@@ -2,6 +2,8 @@
 from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
+import os
+import signal
 import sys
 import time
 
@@ -19,8 +21,15 @@ python-can's socketcand interface: this process is a small socketcand server (ra
       --set canopen.interface=socketcand --set canopen.channel=can0 \\
       --stroke 20mm --feed 6000mm/min --amax 2m/s^2 --dwell 0.3s
 
-The drive runs on the wall clock: one cycle per SYNC, and on its own clock when the SYNCs stop
-(the drive-side guards, heartbeat consumer 0x1016 with 0x6007, stop the axis then).
+The drive runs on the wall clock, as a drive: one thread (this process's main thread, --priority
+N: SCHED_FIFO) takes each frame off the bus itself and answers a SYNC at once, on that thread:
+one drive cycle (the plant advanced by the compiled step of drivers.sim; the targets of the last
+RPDO) and its TPDOs written in one segment. Answer time, SYNC taken off the bus to the TPDOs
+written: under 0.5 ms (at 250 Hz p50 0.24 ms, p99 0.34-0.41 ms; at 1 kHz p50 0.09 ms, p99
+0.16-0.18 ms; a 2-core machine at load average 2 to 5, --priority 50); with --json the last
+line gives the run's own figures. On its
+own clock when the SYNCs stop (the drive-side guards, heartbeat consumer 0x1016 with 0x6007, stop
+the axis then).
 Faults to inject (repeatable): KIND[=VALUE]@SECONDS, SECONDS of the drive's clock after it is
 first enabled (OPERATION ENABLED: the host's move has begun), e.g. --fault emcy=0x2310@0.2 fires
 0.2 s into the first move. Kinds: emcy, heartbeat_loss, frozen_encoder, late_pdo (seconds),
@@ -46,9 +55,14 @@ def add_arguments(p) -> None:
                    help="inject a fault that many seconds after the start (repeatable)")
     p.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
     p.add_argument("--switch-interval", type=float, default=1e-4, metavar="S",
-                   help="the interpreter's thread switch interval (default 100 us: the SYNC handler gets the "
-                        "interpreter soon after the frame arrives; Python's own default is 5 ms)")
-    p.add_argument("--json", action="store_true", help="print the connection settings as one JSON line")
+                   help="the interpreter's thread switch interval (default 100 us: a fault timer's thread gives the "
+                        "interpreter back to the drive's soon; Python's own default is 5 ms)")
+    p.add_argument("--priority", type=int, default=0, metavar="N",
+                   help="SCHED_FIFO priority 1..99 of the drive's thread (Linux, CAP_SYS_NICE; default 0: normal "
+                        "scheduling): a drive is a real-time device; on a loaded machine the scheduler otherwise "
+                        "holds its answer back by milliseconds now and then")
+    p.add_argument("--json", action="store_true", help="print the connection settings as one JSON line, and at the "
+                   "end the drive's SYNC-to-answer times")
 
 
 FAULT_KINDS = ("emcy", "heartbeat_loss", "frozen_encoder", "late_pdo", "missing_pdo", "following_error",
@@ -86,6 +100,7 @@ class FaultSchedule:
         self.enabled_at: float | None = None
         self.fired: list[tuple[str, float]] = []
         self._thaw: float | None = None
+        self.killed = False
 
     def poll(self, sim) -> None:
         if self.enabled_at is None:
@@ -105,6 +120,7 @@ class FaultSchedule:
                 sim.inject("heartbeat_loss")
                 self._thaw = now + (0.5 if value is None else float(value))
             elif kind == "kill":
+                self.killed = True
                 self.kill(sim)
             else:
                 sim.inject(kind, value)
@@ -149,7 +165,7 @@ def run(args) -> int:
     except OSError as exc:
         raise UserError(f"cannot serve on 127.0.0.1:{port} ({exc}); choose another --port") from None
     try:
-        sim = DriveSim(cfg, bus=bus, lockstep=False)      # a mistake in the config (the EDS): ConfigError
+        sim = DriveSim(cfg, bus=bus, lockstep=False, thread=False)    # a mistake in the config (the EDS): ConfigError
     except BaseException:
         bus.shutdown()
         raise
@@ -166,19 +182,30 @@ def run(args) -> int:
         print(f"host: hil move --config {cfg.source} --backend canopen {sets} ...; Ctrl-C to stop",
               file=sys.stderr, flush=True)
     schedule = FaultSchedule(faults)
+
+    def on_duty(drive):                 # once a period, on the drive's thread (its lock held)
+        before = len(schedule.fired)
+        schedule.poll(drive)
+        for kind, at in schedule.fired[before:]:
+            print(f"drive-sim: {kind} injected {at:.3f} s after the drive was enabled", file=sys.stderr, flush=True)
+
+    if args.priority > 0:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.priority))
+        except (AttributeError, PermissionError, OSError) as exc:
+            print(f"hil drive-sim: --priority {args.priority}: real-time scheduling refused ({exc}); running with "
+                  f"normal priority", file=sys.stderr, flush=True)
+
+    def _terminate(signum, frame):      # SIGTERM ends the drive as Ctrl-C does (a parent that stops it)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, _terminate)
     t0 = time.monotonic()
     try:
-        while not args.seconds or time.monotonic() - t0 < args.seconds:
-            if schedule.done:
-                time.sleep(0.1)
-                continue
-            with sim.lock:
-                before = len(schedule.fired)
-                schedule.poll(sim)
-            for kind, at in schedule.fired[before:]:
-                print(f"drive-sim: {kind} injected {at:.3f} s after the drive was enabled", file=sys.stderr,
-                      flush=True)
-            time.sleep(min(0.002, sim.period))
+        sim.serve(args.seconds, on_duty=on_duty if faults else None)    # the drive's one thread: this one
+        # a killed drive is silent, not gone: the server stays, nothing answers, until the end
+        while schedule.killed and (not args.seconds or time.monotonic() - t0 < args.seconds):
+            time.sleep(0.05)
     except KeyboardInterrupt:
         pass
     except OSError as exc:            # the server's socket failed under it: one line, not a traceback
@@ -189,4 +216,16 @@ def run(args) -> int:
         except Exception:
             pass
         bus.shutdown()
+        if args.json:                    # how soon the drive answered each SYNC
+            print(dumps(answer_stats(sim.answer_times)), flush=True)
     return 0
+
+
+def answer_stats(times) -> dict:
+    """The drive's SYNC-to-answer times (SYNC taken off the bus -> its TPDOs written), in us."""
+    import numpy as np
+    a = np.asarray(times, float) * 1e6
+    if not a.size:
+        return {"syncs": 0}
+    return {"syncs": int(a.size), "answer_p50_us": float(np.percentile(a, 50)),
+            "answer_p99_us": float(np.percentile(a, 99)), "answer_max_us": float(a.max())}
