@@ -46,6 +46,8 @@ def test_pulses_after_the_controller_replay_to_the_noise_floor(tmp_path, capsys,
     assert main(["compare", str(out), "--config", BENCH, "--out", str(tmp_path / "cmp"), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["before"]["channels"]["torque"]["rms"] <= 1.5 * rp.noise["torque"]
+    assert rep["warnings"] == [] and rep["before"]["inputs"][0].startswith("u_add [N*m] added after the controller")
+    assert "u_add [N*m] added after the controller" in (tmp_path / "cmp" / "report.html").read_text()
 
 
 def test_output_that_excludes_u_add(tmp_path):

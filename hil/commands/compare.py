@@ -125,10 +125,11 @@ def run(args) -> int:
     say("writing the figures and the report")
     out = Path(args.out)
     figs = comparison_figures(a, out, after=b)
-    rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b)
+    notes = a["inputs"] + [f"warning: {w}" for w in meas.warnings]
+    rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b, notes=notes)
     if args.json:
         print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
-                          "figures": [str(f) for f in figs]}, indent=1))
+                     "figures": [str(f) for f in figs], "warnings": meas.warnings}, indent=1))
     else:
         for c, d in a["channels"].items():
             e = b["channels"][c] if b else None

@@ -120,6 +120,22 @@ class Replay:
     def _source_meas(self):
         return getattr(self.meas, "open_loop_source", self.meas)
 
+    def input_notes(self) -> list[str]:
+        """What drives the replay besides the command, in words (the report and the JSON say it)."""
+        m, out = self.meas, []
+        if self.open_loop:
+            out.append(f"open loop: the recorded {self.drive_channel} drives the plant, no position loop; "
+                       f"the positions are compared")
+        if "u_add" in m:
+            inc = self.cfg.get("measurement.output_includes_u_add", True)
+            out.append(f"u_add [{(m.units or {}).get('u_add') or 'controller units'}] added after the controller; "
+                       f"the recorded controller output {'includes' if inc else 'excludes'} it "
+                       f"(measurement.output_includes_u_add = {'true' if inc else 'false'})")
+        for c, where in (("f_ext_table", "the table"), ("f_ext_tip", "the tool tip")):
+            if c in m:
+                out.append(f"{c}: a measured external force on {where}")
+        return out
+
     def inputs(self, plant, ctrl) -> dict:
         """The record's measured inputs on the loop's clock (keyword arguments of hil.simulate.simulate)."""
         tv, n_sub = ctrl.velocity_period, ctrl.substeps

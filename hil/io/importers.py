@@ -469,8 +469,8 @@ def read_xlsx(path: str | Path, mapping: dict[str, str] | None = None, sheet: st
 
 
 def _project_csv(path: Path) -> bool:
-    """Whether a .csv/.txt file is in the project's format (its header carries ``[unit]`` cells
-    separated by commas, or it starts with ``#`` metadata)."""
+    """Whether a .csv/.txt file is in the project's format: it starts with ``#`` metadata, or its
+    first line is a comma-separated header of ``name`` or ``name [unit]`` cells."""
     try:
         with open(path, encoding="utf-8", errors="replace") as fh:
             for line in fh:
@@ -479,7 +479,10 @@ def _project_csv(path: Path) -> bool:
                     continue
                 if s.startswith("#"):
                     return True
-                return "," in s and ";" not in s and not all(_is_number(c) for c in s.split(","))
+                cells = s.split(",")
+                from hil.io.measurement import _HEADER
+                return ("," in s and ";" not in s and not all(_is_number(c) for c in cells)
+                        and all(_HEADER.match(c) for c in cells))
     except OSError:
         return True          # the CSV reader says what is wrong
     return True
