@@ -28,7 +28,8 @@ def test_pulses_after_the_controller_replay_to_the_noise_floor(tmp_path, capsys,
     out = tmp_path / "pulses.csv"
     assert main(["synth", "--config", BENCH, "--pulses", f"{amplitude} N*m", "--duration", "4", "--out", str(out),
                  "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["samples"] == 1000
+    info = json.loads(capsys.readouterr().out)
+    assert info["samples"] == 1000 and info["inputs"] == ["u_add"] and info["open_loop"] is False
     meas = read(out)
     assert meas.units["u_add"] == "N*m"
     np.testing.assert_allclose(meas["u_add"], pulse_train(meas.t, amplitude))
@@ -39,9 +40,12 @@ def test_pulses_after_the_controller_replay_to_the_noise_floor(tmp_path, capsys,
     without = Measurement({k: v for k, v in meas.channels.items() if k != "u_add"}, source="no u_add")
     rp0 = Replay(without, CFG)
     res0 = rp0.residuals()
-    # without it the residual is the pulse train: the torque channel misses about the pulses' RMS
-    assert _rms(res0["torque"]) > 0.5 * _rms(pulse_train(meas.t, amplitude))
-    assert _rms(res0["torque"]) > 20 * rp0.noise["torque"]
+    # without it the residual is the loop's answer to the pulses: the P-I loop rejects a constant
+    # disturbance after the controller, so the torque shows it at the edges (within ~ti) and the
+    # positions sag during each pulse, far above their noise floors
+    for c in ("x_motor", "x_table", "x_tip"):
+        assert _rms(res0[c]) > 10 * rp0.noise[c], (c, _rms(res0[c]), rp0.noise[c])
+    assert _rms(res0["torque"]) > 2.5 * rp0.noise["torque"]
     # compare reads it from the file the same way
     assert main(["compare", str(out), "--config", BENCH, "--out", str(tmp_path / "cmp"), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
@@ -153,8 +157,9 @@ def test_force_sensor_offset_is_named_as_an_offset(offset):
     best = d["candidates"][0]
     assert best.params["offset"] == pytest.approx(offset, rel=0.03)
     assert best.evidence.startswith("a sensor offset, not a load")
-    cf = next(c for c in d["candidates"] if c.name == "constant_force")
-    assert cf.error_after > 2 * best.error_after
+    cf = next(c for c in d["candidates"] if c.effect == "constant_force")
+    # a load fitted in its place leaves the start, where the integrator takes it up, unexplained
+    assert cf.errors_after["torque"] > best.errors_after["torque"] and cf.score < best.score
 
 
 def test_constant_load_is_not_named_an_offset():

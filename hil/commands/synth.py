@@ -109,6 +109,7 @@ def run(args) -> int:
     if args.open_loop:
         meta["open_loop"] = "true (replay with --open-loop)"
     write(args.out, ch, meta, inputs=(args.config,), kinds=kinds)
-    info = {"out": args.out, "effect": truth["effect"], "params": truth["params"], "samples": int(ch["t"].size)}
+    info = {"out": args.out, "effect": truth["effect"], "params": truth["params"], "samples": int(ch["t"].size),
+            "inputs": sorted(inputs), "open_loop": bool(args.open_loop)}
     print(dumps(info) if args.json else f"wrote {args.out}: hidden {truth['effect']} {truth['params']}")
     return 0

@@ -13,7 +13,7 @@ replay applies them (hil.ident.replay).
 Measured inputs besides the command (``inputs``, on the record's sample clock, held between
 samples as the replay holds them): ``u_add``, a command added after the controller (controller
 units: N m on a rotary axis, V on a linear one), recorded exactly (a known signal, as EMPS's
-pulses); ``f_ext_table``, ``f_ext_tip``, external forces (N), recorded with the force noise. With
+pulses); ``f_ext_table``, ``f_ext_tip``, external forces (N), recorded as applied too. With
 ``open_loop`` there is no loop: ``u_add`` is the actuator's whole command, written as the torque
 (command) channel, and x_cmd is zero. :func:`pulse_train` makes EMPS-like pulses.
 """
@@ -95,7 +95,8 @@ def move_sequence(duration: float = 12.0, dt: float = 4e-3, seed: int = 0, trave
 
 def pulse_train(t, amplitude: float, period: float = 1.0, width: float = 0.2, start: float = 0.5) -> np.ndarray:
     """0 / ``amplitude`` pulses of ``width`` s every ``period`` s from ``start`` s, on the times ``t``."""
-    t = np.asarray(t, float)
+    # (a nanosecond's tolerance: the same train from times read back from a file, rounded)
+    t = np.asarray(t, float) + 1e-9
     phase = np.mod(t - start, period)
     return np.where((t >= start) & (phase < width), float(amplitude), 0.0)
 
@@ -175,8 +176,9 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
             out["u_add"] = ins["u_add"].copy()
     for c in ("f_ext_table", "f_ext_tip"):
         if c in ins:
-            fn = 0.01 * float(np.sqrt(np.mean(ins[c] ** 2)))
-            out[c] = ins[c] + rng.normal(0.0, fn, ins[c].size)
+            # as applied: a force sensor's noise, fed back into the replay, would excite the
+            # lightly damped tip mode by itself (a record to test the loop's inputs, not the sensor)
+            out[c] = ins[c].copy()
     truth = {"effect": effect or "none", "params": vals, "config": rich, "seed": seed,
              "resolution": resolution, "position_noise": position_noise, "force_noise": force_noise}
     return out, truth

@@ -199,6 +199,8 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
         factors.append(factor)
         units[name] = unit or ""
     for req in () if raw else REQUIRED:
+        if req == "x_cmd" and any(c in names for c in ("torque", "force", "command")):
+            continue          # an open-loop record: its actuator's command drives (check_usable asks for --open-loop)
         if req not in names:
             raise MeasurementError(f"{source}, line {header_line}: missing required column {req!r} "
                                    f"(header has: {', '.join(names)})")
