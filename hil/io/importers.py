@@ -523,7 +523,7 @@ def read_any(path: str | Path, mapping: dict[str, str] | None = None, sheet: str
 
 # --- data sanity: warnings, never errors -----------------------------------------------------
 
-OUTLIER_MADS = 20.0       # a sample this many robust deviations from the local median is an outlier
+OUTLIER_MADS = 20.0       # an outlier: this many robust deviations from the local median, and beyond the bulk
 SLOW_FACTOR = 5.0         # a sample period this many position periods long cannot resolve the loop
 
 
@@ -535,8 +535,9 @@ def _samples(idx, limit: int = 5) -> str:
 def data_warnings(meas: Measurement, position_period: float | None = None) -> list[str]:
     """Warnings about a record that can still be replayed: outliers of a channel (beyond
     ``OUTLIER_MADS`` median absolute deviations of the sample-to-sample difference around a
-    running median), gaps of the time base, a sample period more than ``SLOW_FACTOR`` position
-    periods. Sample numbers count from 1."""
+    running median of 9, and beyond the channel's 0.5..99.5 % percentile range by that range
+    again), gaps of the time base, a sample period more than ``SLOW_FACTOR`` position periods.
+    Sample numbers count from 1."""
     out = list(getattr(meas, "warnings", []) or [])
     from scipy.ndimage import median_filter
     for name, v in meas.channels.items():
@@ -547,8 +548,11 @@ def data_warnings(meas: Measurement, position_period: float | None = None) -> li
         scale = float(np.median(np.abs(np.diff(v)))) * 1.4826
         floor = 1e-9 * max(float(np.max(np.abs(v))), 1e-300)
         bound = OUTLIER_MADS * max(scale, float(np.median(dev)) * 1.4826, floor)
-        # and a twentieth of the channel's range: a quantum of a still encoder is no outlier
-        bad = np.flatnonzero((dev > bound) & (dev > 0.05 * float(np.ptp(v))))
+        # and beyond the bulk of the channel by its own span (0.5 to 99.5 percentiles): a short
+        # torque peak of a fast move or a quantum of a still encoder is no outlier, a glitch is
+        lo, hi = np.percentile(v, [0.5, 99.5])
+        span = max(float(hi - lo), floor)
+        bad = np.flatnonzero((dev > bound) & ((v > hi + span) | (v < lo - span)))
         if bad.size and bad.size < 0.01 * v.size + 1:
             out.append(f"{meas.source}: channel {name!r}: {bad.size} outlier(s) beyond {bound:.3g} from the running "
                        f"median, sample(s) {_samples(bad)} (e.g. {v[bad[0]]:.6g})")
