@@ -157,6 +157,11 @@ SCHEMA: dict[str, Field] = {
                                       nonnegative=True),
     "sensors.motor_resolution": Field("length", "motor-encoder quantum in linear units; 0 = ideal", default=0.0,
                                       nonnegative=True),
+    # --- measurement (records compared with the model: hil.ident.replay) -------------------------
+    "measurement.output_includes_u_add": Field("bool", "the recorded controller output (torque, force or command) "
+                                               "includes the record's u_add channel (the drive's command logged "
+                                               "after the addition); false: the controller's own output",
+                                               default=True),
     # --- runtime -------------------------------------------------------------------------------
     "runtime.priority": Field("int", "real-time (SCHED_FIFO) priority of the loop's thread on hardware, 1..99 "
                               "(Linux, needs CAP_SYS_NICE); 0 = normal scheduling", default=0, nonnegative=True,

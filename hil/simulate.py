@@ -34,7 +34,7 @@ from hil.plant_config import plant_from_config
 from sim_plant.kernel import plant_step
 from sim_plant.plant import Plant
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel"]
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "per_velocity_period"]
 
 
 @dataclass
@@ -82,7 +82,7 @@ class SimulationResult:
 def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
                        codes, eparams, delay, ubuf, lag_alpha, record_every,
                        X, V, U, XM, XT, XCMD, exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None,
-                       hbuf=None, fb_delay=0.0):
+                       hbuf=None, fb_delay=0.0, u_add=None, f_ext=None, open_loop=False):
     """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
     output arrays (positions, velocities, output, measured motor and table, command).
 
@@ -101,6 +101,13 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     periods (hil.control.LoopTerms.feedback_buffer; None: no feedback delay, compiled away). The
     feedback position is pushed after every plant step and read ``fb_delay`` periods old at each
     position tick; the recorded positions are the true ones.
+
+    Measured inputs of a record (hil.ident.replay), each None where absent (compiled away):
+    ``u_add``, one value per velocity period added to the controller's output after the law (the
+    feed-forward stays) and limited with it; ``f_ext``, one row per velocity period of external
+    forces on the masses (N; needs ``codes``, an empty table when the plant has no effects).
+    ``open_loop``: no position or velocity loop, the output is ``u_add`` alone, not limited (the
+    actuator's command measured in an open-loop run).
 
     Returns the number of velocity periods in which the excitation drove the output past its limit."""
     nn = Ad.shape[0]
@@ -167,7 +174,10 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                 w_meas = measured_speed(p, s, x[n], xm)
             else:
                 w_meas = x[n] * speed_scale
-            u_ctrl, integral, saturated = pi_law(kp, ti, tv, limit, integral, saturated, w_ref_v, w_meas, ff)
+            if open_loop:
+                u_ctrl = 0.0
+            else:
+                u_ctrl, integral, saturated = pi_law(kp, ti, tv, limit, integral, saturated, w_ref_v, w_meas, ff)
             u = u_ctrl
             if exc is not None:
                 # a torque excitation is added to the controller's output and limited with it
@@ -178,6 +188,14 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                 elif u < -limit:
                     u = -limit
                     n_sat += 1
+            if u_add is not None:
+                # a measured command after the controller (EMPS's pulses), limited with the output
+                u = u + u_add[step]
+                if not open_loop:
+                    if u > limit:
+                        u = limit
+                    elif u < -limit:
+                        u = -limit
             if out is not None:
                 out[step, 0] = r
                 out[step, 1] = u
@@ -207,20 +225,29 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                     XCMD[rec] = x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub
                     rec += 1
             # --- plant over one Tv ---
-            plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
+            if f_ext is not None:
+                plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new, f_ext[step])
+            else:
+                plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
             if hbuf is not None:
                 history_push(hbuf, quantize(x[0], res_motor) if fb_motor else quantize(x[table], res_table))
     return n_sat
 
 
 def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int | None = None,
-             x0: float | None = None, v_cmd=None) -> SimulationResult:
+             x0: float | None = None, v_cmd=None, u_add=None, f_ext=None, open_loop: bool = False) -> SimulationResult:
     """Closed-loop response to the command ``x_cmd`` sampled on the position clock.
 
     ``x_cmd[k]`` is the command at tick k; the loop runs ``len(x_cmd)`` ticks (the command is
     held after the last sample, which the feed-forward of the last tick needs). The plant starts
     at rest at ``x0`` (default ``x_cmd[0]``). ``record_every``: velocity steps per recorded
-    sample (default: one per position tick)."""
+    sample (default: one per position tick).
+
+    Measured inputs (:func:`per_velocity_period` puts a record's samples on the loop's clock):
+    ``u_add``, one value per velocity period added after the controller (controller units: N m on
+    a rotary axis, V on a linear one); ``f_ext``, one row per velocity period of forces on each
+    mass (N); ``open_loop``: no loops, ``u_add`` is the whole output. Arrays shorter than the run
+    hold their last value."""
     x_cmd = np.ascontiguousarray(x_cmd, dtype=float)
     if x_cmd.ndim != 1 or x_cmd.size < 2:
         raise ValueError("x_cmd: expected a 1-D array of at least 2 samples")
@@ -239,11 +266,23 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     X, V = np.zeros((n_rec, n)), np.zeros((n_rec, n))
     U, XM, XT, XC = (np.zeros(n_rec) for _ in range(4))
     terms = loop_terms(plant, ctrl)
+    codes, params = terms.codes, terms.params
+    inputs = {}
+    if u_add is not None or open_loop:
+        inputs["u_add"] = _held(np.zeros(1) if u_add is None else u_add, steps)
+        inputs["open_loop"] = bool(open_loop)
+    if f_ext is not None:
+        fe = np.asarray(f_ext, float)
+        if fe.ndim != 2 or fe.shape[1] != n:
+            raise ValueError(f"f_ext: expected one row of {n} forces per velocity period")
+        inputs["f_ext"] = np.ascontiguousarray(fe[np.minimum(np.arange(steps), fe.shape[0] - 1)])
+        if codes is None:            # external forces take the effects' force path
+            codes, params = np.zeros(0, np.int64), np.zeros((0, params.shape[1]))
     closed_loop_kernel(disc.A, disc.B, state0, ctrl.as_array(), plant.force_gain, cmd, n_sub,
                        plant.table, plant.tip, ctrl.position_feedback == "motor",
                        plant.friction.as_tuple(), plant.table_resolution, plant.motor_resolution,
-                       terms.codes, terms.params, terms.delay, terms.delay_buffer(), terms.lag_alpha, record_every,
-                       X, V, U, XM, XT, XC, hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay)
+                       codes, params, terms.delay, terms.delay_buffer(), terms.lag_alpha, record_every,
+                       X, V, U, XM, XT, XC, hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay, **inputs)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command
@@ -255,6 +294,23 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
                             x_tip=X[:, plant.tip].copy() if plant.tip != plant.table else XT.copy(),
                             rotary=plant.pitch is not None,
                             meta={"force_gain": plant.force_gain, "record_period": record_every * ctrl.velocity_period})
+
+
+def _held(y, steps: int) -> np.ndarray:
+    """``y`` on ``steps`` velocity periods, its last value held past its end."""
+    y = np.asarray(y, float).reshape(-1)
+    return np.ascontiguousarray(y[np.minimum(np.arange(steps), y.size - 1)])
+
+
+def per_velocity_period(t_samples, y, t0: float, velocity_period: float, steps: int) -> np.ndarray:
+    """A recorded input (samples ``y`` at times ``t_samples``) on the loop's clock: the value of
+    velocity period j (starting at t0 + j Tv) is the last sample taken at or before its start, as
+    a drive holds the command it was sent (zero-order hold; the first sample before the record)."""
+    t_samples = np.asarray(t_samples, float)
+    tj = t0 + np.arange(steps) * velocity_period
+    # a relative tolerance: sample instants that fall on a period's start belong to it
+    idx = np.searchsorted(t_samples, tj + 1e-9 * velocity_period, side="right") - 1
+    return np.ascontiguousarray(np.asarray(y, float)[np.clip(idx, 0, t_samples.size - 1)])
 
 
 def simulate_config(cfg, x_cmd, **kw) -> SimulationResult:

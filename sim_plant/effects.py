@@ -362,6 +362,55 @@ class TipSkew(ChannelSkew):
 
 
 @register
+class ForceOffset(RecordEffect):
+    """A constant offset of the force sensor (a current or torque reading, a load cell): the
+    recorded torque (rotary) or force (linear) reads ``offset`` more than the actuator delivered.
+    A sensor offset, not a load: it changes the recorded channel alone, the same at standstill
+    and in motion, and never the positions; a constant load force (``constant_force``) moves the
+    axis, and on a P-I loop the torque shows it only as the integrator takes it up (not while dry
+    friction holds the axis at rest)."""
+    name = "force_offset"
+    description = ("a sensor offset, not a load: the force (torque, current) channel reads a constant offset, the "
+                   "same at rest and in motion, and the positions are unchanged")
+    params = (Param("offset", _motor_force_kind, -1e5, 1e5, 0.0, "offset of the recorded torque (force) channel"),)
+    channels = ("torque", "force")
+
+    def apply_record(self, t, channels, values):
+        out = dict(channels)
+        for c in self.channels:
+            if c in out:
+                out[c] = out[c] + values["offset"]
+        return out
+
+    def guess(self, plant, scale):
+        # (linear in the offset: any start of the residual's size converges; 0 gives no scale)
+        return {"offset": 0.1 * scale.get("force", 1.0) / _to_linear(plant)}
+
+
+@register
+class PositionOffset(RecordEffect):
+    """A constant offset of the tool-tip channel (another instrument: a laser interferometer or
+    a probe whose zero is not the scale's): a sensor offset, not a motion of the tip."""
+    name = "position_offset"
+    description = ("a sensor offset, not a motion: the tool-tip position channel (another instrument) reads a "
+                   "constant offset from the drive's positions")
+    params = (Param("offset", "length", -1.0, 1.0, 0.0, "offset of the recorded x_tip channel"),)
+    channels = ("x_tip",)
+
+    def applicable(self, plant):
+        return plant.tip != plant.table
+
+    def apply_record(self, t, channels, values):
+        out = dict(channels)
+        if "x_tip" in out:
+            out["x_tip"] = out["x_tip"] + values["offset"]
+        return out
+
+    def guess(self, plant, scale):
+        return {"offset": 1e-6}
+
+
+@register
 class StiffnessAlongTravel(Effect):
     """The transmission stiffness k1 changes with the nut position: the screw's axial compliance
     grows with the length of screw between the fixed bearing and the nut (EA/L, Eq. 20, for a

@@ -152,10 +152,12 @@ def friction_force(fric, v_start, v_free, b):
 
 
 @njit(cache=True, inline="always")
-def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
+def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new, fext=None):
     """Advance the plant state ``x`` in place over one step: x+ = Ad x + Bd f, where f holds the
-    drive force on mass 1, the effects' forces and the dry friction on the motor (which needs the
-    free motion of the step to decide between sticking and sliding).
+    drive force on mass 1, the effects' forces, external forces ``fext`` (one per mass, N, held
+    over the step: a measured cutting force; None: compiled away; they need ``codes``, an empty
+    table when there are no effects) and the dry friction on the motor (which needs the free
+    motion of the step to decide between sticking and sliding).
 
     Written for speed (this is the simulator's inner loop): one pass over Ad, the friction decided
     from mass 1's free velocity alone, the other force columns only when effects exist."""
@@ -167,6 +169,9 @@ def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new):
         for i in range(n):
             f[i] = 0.0
         effect_forces(codes, eparams, x[:n], x[n:], f)
+        if fext is not None:
+            for i in range(n):
+                f[i] += fext[i]
         f[0] += f_drive
         f0 = f[0]
     stuck = False

@@ -22,7 +22,7 @@ CASES = {
                     "unknown key 'plant.m9x' (known keys in [plant]: plant.cN, plant.kN, plant.mN, plant.pitch, "
                     "plant.table_mass, plant.tip_mass)"),
     "unknown section": (BASE + "\n[foo]\nbar = 1\n", "unknown key 'foo.bar' (known sections: actuator, backend, canopen, control, effects, friction, "
-                       "limits, meta, nc, noise, plant, runtime, sensors, serial, supervisor"),
+                       "limits, measurement, meta, nc, noise, plant, runtime, sensors, serial, supervisor"),
     "missing required key": (BASE.replace('kv = "50 1/s"\n', ""),
                              "missing required key 'control.kv' (position-loop P gain Kv (1/s); a frequency in 1/s)"),
     "missing chain key": (BASE.replace('k2 = "3.7060e4 N/m"   # thin plates\n', ""),

@@ -15,17 +15,26 @@ with the command and with v, a, x. Writes overlay/residual/spectrum/scatter PNGs
 
   hil compare data.csv --config config/paper_bench.toml
   hil compare DATA_EMPS.mat --config config/emps.toml --map t=t,qg=x_cmd,qm=x_motor,vir*gtau=force
+  hil compare pulses.csv --config config/paper_bench.toml          (a u_add channel: added after the controller)
+  hil compare idf.mat --config motor.toml --open-loop --map "data[:,0]=t,data[:,2]=x_motor,data[:,4]=torque"
+  hil compare log.txt --config lina.toml --map "data[:,0]=t[ms],data[:,1]=x_cmd[mm],data[:,3]=x_motor[mm]"
   hil compare data.csv --config old.toml --after new.toml     (before and after side by side)
 """
 
 
 def add_common(parser) -> None:
-    parser.add_argument("data", help="measurement: CSV in the project's format, or a MATLAB .mat record")
+    parser.add_argument("data", help="measurement: CSV in the project's format, a text log, an Excel .xlsx sheet, "
+                                     "or a MATLAB .mat record (v7.3 too)")
     parser.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a parameter")
     parser.add_argument("--map", action="append", default=[], metavar="SOURCE=CHANNEL[unit]",
-                        help="column or variable -> channel, the same for CSV and .mat: pos=x_table[mm], "
-                             "vir*gtau=force (repeatable, or comma-separated)")
+                        help="column, variable or expression -> channel, the same for every format: "
+                             "pos=x_table[mm], vir*gtau=force, data[:,2]=x_motor (0-based column; data(:,3) "
+                             "1-based as in MATLAB) (repeatable, or comma-separated)")
+    parser.add_argument("--sheet", default=None, metavar="NAME", help="the sheet of an Excel file (default: the first)")
+    parser.add_argument("--open-loop", action="store_true",
+                        help="an open-loop run (torque steps, a chirp): the recorded torque (rotary) or command/force "
+                             "(linear) drives the plant, no position loop; the positions are compared")
     parser.add_argument("--channels", default=None, help="comma-separated channels to use (default: all measured)")
     parser.add_argument("--align", action="store_true", help="align each channel in time by cross-correlation")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -39,14 +48,20 @@ def add_arguments(parser) -> None:
 
 def load_inputs(args):
     """The config (``--config`` with ``--set``) and the record (``data`` with ``--map``)."""
+    import sys
+
     from hil.config import load, parse_assignment
-    from hil.io.importers import parse_mapping, read_any
+    from hil.io.importers import data_warnings, parse_mapping, read_any
     from hil.io.measurement import check_usable
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
-    meas = read_any(args.data, parse_mapping(args.map) or None)
+    meas = read_any(args.data, parse_mapping(args.map) or None, sheet=getattr(args, "sheet", None))
     # degenerate records are refused, never diagnosed
     check_usable(meas, (cfg["limits.travel_min"], cfg["limits.travel_max"]), cfg["control.position_period"],
-                 cfg["control.velocity_period"])
+                 cfg["control.velocity_period"], open_loop=getattr(args, "open_loop", False))
+    # what can still be replayed but deserves a look: outliers, gaps, a slow log
+    meas.warnings = data_warnings(meas, cfg["control.position_period"])
+    for w in meas.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     return cfg, meas
 
 
@@ -54,7 +69,7 @@ def make_replay(args, cfg, meas):
     """The record replayed through the config, on the ``--channels`` asked for, ``--align``-ed."""
     from hil.ident.replay import Replay
     chans = args.channels.split(",") if getattr(args, "channels", None) else None
-    return Replay(meas, cfg, chans, align=getattr(args, "align", False))
+    return Replay(meas, cfg, chans, align=getattr(args, "align", False), open_loop=getattr(args, "open_loop", False))
 
 
 # records this long report their progress on stderr (shorter ones only on a terminal)
@@ -110,10 +125,11 @@ def run(args) -> int:
     say("writing the figures and the report")
     out = Path(args.out)
     figs = comparison_figures(a, out, after=b)
-    rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b)
+    notes = a["inputs"] + [f"warning: {w}" for w in meas.warnings]
+    rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b, notes=notes)
     if args.json:
         print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
-                          "figures": [str(f) for f in figs]}, indent=1))
+                     "figures": [str(f) for f in figs], "warnings": meas.warnings}, indent=1))
     else:
         for c, d in a["channels"].items():
             e = b["channels"][c] if b else None

@@ -9,6 +9,14 @@ DESCRIPTION = """\
   hil synth --config config/paper_bench.toml --effect coulomb_friction --out data.csv
   hil synth --config config/paper_bench.toml --effect parameter:plant.c2 --param value=40 --out c2.csv
   hil synth --config config/paper_bench.toml --out clean.csv          (no hidden effect)
+  hil synth --config config/paper_bench.toml --pulses 0.5N*m --out pulses.csv   (u_add after the controller)
+  hil synth --config config/paper_bench.toml --external-force 300N --force-on tip --out cut.csv
+  hil synth --config config/paper_bench.toml --open-loop --pulses 1.5N*m --pulse-period 4s --pulse-width 2s --out ol.csv
+
+Pulses (--pulses, --external-force) are 0/amplitude pulses of --pulse-width every --pulse-period
+from 0.5 s. --pulses: a command added after the controller, written as the u_add channel (a
+torque on a rotary axis, a command in V or a force in N on a linear one); with --open-loop the
+pulses are the actuator's whole command (torque steps), no position loop.
 """
 
 
@@ -20,6 +28,13 @@ def add_arguments(parser) -> None:
     parser.add_argument("--duration", type=float, default=12.0, help="seconds (default 12)")
     parser.add_argument("--sample-period", type=float, default=4e-3, help="seconds (default 0.004)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--pulses", default=None, metavar="AMPLITUDE",
+                        help="u_add pulses after the controller (N*m on a rotary axis; V or N on a linear one)")
+    parser.add_argument("--external-force", default=None, metavar="FORCE", help="external force pulses (N)")
+    parser.add_argument("--force-on", choices=("table", "tip"), default="table", help="the mass the force acts on")
+    parser.add_argument("--pulse-period", default="1 s", metavar="TIME", help="pulse period (default 1 s)")
+    parser.add_argument("--pulse-width", default="0.2 s", metavar="TIME", help="pulse width (default 0.2 s)")
+    parser.add_argument("--open-loop", action="store_true", help="no position loop: the pulses are the whole command")
     parser.add_argument("--out", required=True, metavar="FILE")
     parser.add_argument("--json", action="store_true")
 
@@ -35,6 +50,40 @@ def _check_times(duration: float, sample_period: float) -> None:
         raise UserError(f"--sample-period {sample_period:g} s: fewer than 10 samples in --duration {duration:g} s")
 
 
+def _inputs(args, cfg):
+    """The pulse trains asked for (functions of the record's sample times) and the written kind of u_add."""
+    from functools import partial
+
+    from hil.ident.synth import pulse_train
+    from hil.units import UnitError, parse
+    inputs, kinds = {}, {}
+    try:
+        period = parse(args.pulse_period, "time", "--pulse-period")
+        width = parse(args.pulse_width, "time", "--pulse-width")
+        if not 0 < width < period:
+            raise UserError(f"--pulse-width {args.pulse_width}: expected between 0 and --pulse-period")
+        if args.pulses is not None:
+            kind = "torque" if cfg.rotary else "voltage"
+            try:
+                amp = parse(args.pulses, kind, "--pulses")
+            except UnitError:
+                if cfg.rotary:
+                    raise
+                amp = parse(args.pulses, "force", "--pulses") / cfg["actuator.gain"]
+            inputs["u_add"] = partial(pulse_train, amplitude=amp, period=period, width=width)
+            kinds["u_add"] = kind
+        elif args.open_loop:
+            raise UserError("--open-loop: give the actuator's command as --pulses AMPLITUDE")
+        if args.external_force is not None:
+            f = parse(args.external_force, "force", "--external-force")
+            inputs[f"f_ext_{args.force_on}"] = partial(pulse_train, amplitude=f, period=period, width=width)
+    except UnitError as exc:
+        raise UserError(str(exc)) from None
+    if args.open_loop:
+        kinds = {}                     # the pulses are written as the torque (command) channel
+    return inputs, kinds
+
+
 def run(args) -> int:
     from hil.config import load, parse_assignment
     from hil.ident.synth import synthesize
@@ -47,15 +96,20 @@ def run(args) -> int:
             vals = {k.strip(): float(v) for k, _, v in (p.partition("=") for p in args.param)}
         except ValueError:
             raise UserError(f"--param: expected NAME=NUMBER (SI), got {args.param}") from None
+    inputs, kinds = _inputs(args, cfg)
     try:
         ch, truth = synthesize(cfg, args.effect, vals, duration=args.duration, sample_period=args.sample_period,
-                               seed=args.seed)
+                               seed=args.seed, inputs=inputs, open_loop=args.open_loop)
     except KeyError as exc:
         raise UserError(str(exc).strip("'\"")) from None
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    write(args.out, ch, {"sample_period": f"{args.sample_period} s", "config": args.config,
-                         "hidden_effect": truth["effect"], "seed": args.seed}, inputs=(args.config,))
-    info = {"out": args.out, "effect": truth["effect"], "params": truth["params"], "samples": int(ch["t"].size)}
+    meta = {"sample_period": f"{args.sample_period} s", "config": args.config, "hidden_effect": truth["effect"],
+            "seed": args.seed}
+    if args.open_loop:
+        meta["open_loop"] = "true (replay with --open-loop)"
+    write(args.out, ch, meta, inputs=(args.config,), kinds=kinds)
+    info = {"out": args.out, "effect": truth["effect"], "params": truth["params"], "samples": int(ch["t"].size),
+            "inputs": sorted(inputs), "open_loop": bool(args.open_loop)}
     print(dumps(info) if args.json else f"wrote {args.out}: hidden {truth['effect']} {truth['params']}")
     return 0

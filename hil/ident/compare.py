@@ -49,7 +49,7 @@ def analyse(replay: Replay, cfg=None) -> dict:
     a = np.gradient(v, t)
     phases = motion_phases(t, xc)
     out = {"channels": {}, "phases": list(phases), "sample_period": replay.sample_period,
-           "shifts": dict(replay.shifts)}
+           "shifts": dict(replay.shifts), "inputs": replay.input_notes()}
     n = t.size
     band = 2.576 / math.sqrt(n)
     maxlag = min(200, n // 4)

@@ -13,6 +13,8 @@ max|v|):
 * the delays (actuator_delay, alias time_delay; feedback_delay): the fitted delay in the loop's
   periods, and where it sits;
 * channel_skew, tip_skew: the skew in samples, said to be a logging artefact, not physics;
+* force_offset, position_offset: the offset, said to be a sensor's, not a load (the force
+  residual's mean at rest and moving: a sensor offset is the same in both);
 * stiffness_along_travel: k1 and the transmission mode's frequency (sim_plant.modal) at both ends
   of the stretch, and whether the record can see the variation at all: a constant k1 (the best of
   the two end values and their middle) scored against the fit (BIC, hil.ident.scores); when it
@@ -96,6 +98,18 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
         return (f"a logging artefact, not physics: the {which} channel is recorded {abs(sk) * 1e3:.3g} ms "
                 f"({abs(sk) / replay.sample_period:.2f} samples) {'late' if sk >= 0 else 'early'} against the "
                 f"others; the model of the axis needs no change; " + fall)
+    if name == "force_offset":
+        off = vals.get("offset", 0.0)
+        still = ~moving
+        parts = [f"{float(np.mean(rf[sel])):+.3g} {fu} {what}" for sel, what in ((still, "at rest"), (moving, "moving"))
+                 if rf is not None and sel.sum() >= 8]
+        return (f"a sensor offset, not a load: the {fch or 'force'} channel reads {off:+.3g} {fu} more than the "
+                f"actuator delivers" + (f" (residual mean {' and '.join(parts)})" if parts else "") +
+                "; a load would move the axis and show in the positions, this changes the recorded channel alone; "
+                + fall)
+    if name == "position_offset":
+        return (f"a sensor offset, not a motion: the x_tip channel reads {vals.get('offset', 0.0) * 1e6:+.3g} um "
+                f"from the drive's positions, at rest and in motion alike; " + fall)
     if name in ("stiffness_along_travel", "stiffness_along_travel_fixed_fixed"):
         return _stiffness_evidence(name, vals, replay, res0) + fall
     if eff_name == "mass_change":

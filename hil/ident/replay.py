@@ -16,9 +16,21 @@ replay's config; ``noise`` their noise floors (hil.ident.noise: a figure given i
 the file header, the quantization, the settled standstills), the record's, kept by
 :meth:`Replay.with_config`; ``noise_sources`` says where each came from.
 
-Artefacts of the recording (``channel_skew``, ``tip_skew``: sim_plant.effects.RecordEffect) act on
-the simulated channels read back, not in the loop; the last simulation is kept, so that fitting
-such an artefact costs no simulation.
+Artefacts of the recording (``channel_skew``, ``tip_skew``, ``force_offset``, ``position_offset``:
+sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop; the last
+simulation is kept, so that fitting such an artefact costs no simulation.
+
+Measured inputs besides the command enter the one compiled loop (hil.simulate), each held from
+its sample over the velocity periods that follow it (:func:`hil.simulate.per_velocity_period`):
+``u_add``, a command added after the controller (in the controller's units: N m on a rotary
+axis, V on a linear one; a channel in N is divided by the drive's force gain), and
+``f_ext_table``, ``f_ext_tip``, external forces on those masses. When the config's
+``measurement.output_includes_u_add`` is false the recorded force channel is the controller's own
+output, and the simulated one is compared less u_add. ``open_loop``: the actuator's recorded
+command (torque on a rotary axis, command or force on a linear one) is the whole input, there is
+no loop, and that channel is an input, not compared; the replay's record then holds the measured
+feedback position as ``x_cmd`` (the motion that happened, for the motion phases and the fits'
+scales), the loop never reads it.
 """
 from __future__ import annotations
 
@@ -33,7 +45,7 @@ from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
 from hil.ident.synth import extend_command
 from hil.plant_config import plant_from_config, record_effects
-from hil.simulate import simulate
+from hil.simulate import per_velocity_period, simulate
 
 __all__ = ["Replay", "POSITION_CHANNELS", "UNITS"]
 
@@ -47,12 +59,18 @@ class Replay:
     """A measurement replayed through a config's model: the simulated channels on the measured
     sample times, and their residuals."""
 
-    def __init__(self, meas, cfg, channels=None, align: bool = False, noise: dict | None = None):
-        self.meas = meas
+    def __init__(self, meas, cfg, channels=None, align: bool = False, noise: dict | None = None,
+                 open_loop: bool = False):
         self.cfg = cfg
         self.plant = plant_from_config(cfg)
+        self.open_loop = open_loop
+        self.drive_channel = _drive_channel(meas, cfg) if open_loop else None
+        if open_loop:
+            meas = _open_loop_view(meas, cfg)
+        self.meas = meas
         self.align = align
         self.shifts: dict[str, int] = {}
+        self._inputs: dict = {}
         t = meas.t
         self.sample_period = meas.sample_period
         tp = cfg["control.position_period"]
@@ -67,6 +85,8 @@ class Replay:
             avail.append("command")
         elif "torque" in meas and cfg.rotary:
             avail.append("torque")
+        if self.drive_channel in avail:         # the input of an open-loop run is not an output
+            avail.remove(self.drive_channel)
         if channels:
             bad = [c for c in channels if c not in avail]
             if bad:
@@ -93,14 +113,63 @@ class Replay:
         self.base_residuals = res0
 
     def with_config(self, cfg) -> "Replay":
-        return Replay(self.meas, cfg, self.channels, self.align, self.noise_sources)
+        # (an open-loop replay's meas is its view of the record: the new one starts from the record)
+        return Replay(self._source_meas, cfg, self.channels, self.align, self.noise_sources, open_loop=self.open_loop)
+
+    @property
+    def _source_meas(self):
+        return getattr(self.meas, "open_loop_source", self.meas)
+
+    def input_notes(self) -> list[str]:
+        """What drives the replay besides the command, in words (the report and the JSON say it)."""
+        m, out = self.meas, []
+        if self.open_loop:
+            out.append(f"open loop: the recorded {self.drive_channel} drives the plant, no position loop; "
+                       f"the positions are compared")
+        if "u_add" in m:
+            inc = self.cfg.get("measurement.output_includes_u_add", True)
+            out.append(f"u_add [{(m.units or {}).get('u_add') or 'controller units'}] added after the controller; "
+                       f"the recorded controller output {'includes' if inc else 'excludes'} it "
+                       f"(measurement.output_includes_u_add = {'true' if inc else 'false'})")
+        for c, where in (("f_ext_table", "the table"), ("f_ext_tip", "the tool tip")):
+            if c in m:
+                out.append(f"{c}: a measured external force on {where}")
+        return out
+
+    def inputs(self, plant, ctrl) -> dict:
+        """The record's measured inputs on the loop's clock (keyword arguments of hil.simulate.simulate)."""
+        tv, n_sub = ctrl.velocity_period, ctrl.substeps
+        key = (tv, n_sub, plant.force_gain, plant.n, plant.table, plant.tip)
+        if key in self._inputs:
+            return self._inputs[key]
+        m, t = self.meas, self.meas.t
+        steps = (self.x_cmd_sim.size + 1) * n_sub
+        out = {}
+        if self.open_loop:
+            y = _in_controller_units(m, self.drive_channel, plant, "--open-loop")
+            out["open_loop"] = True
+            out["u_add"] = per_velocity_period(t, y, t[0], tv, steps)
+            if "u_add" in m:
+                out["u_add"] = out["u_add"] + per_velocity_period(t, _in_controller_units(m, "u_add", plant, "u_add"),
+                                                                  t[0], tv, steps)
+        elif "u_add" in m:
+            out["u_add"] = per_velocity_period(t, _in_controller_units(m, "u_add", plant, "u_add"), t[0], tv, steps)
+        if "f_ext_table" in m or "f_ext_tip" in m:
+            fe = np.zeros((steps, plant.n))
+            for c, mass in (("f_ext_table", plant.table), ("f_ext_tip", plant.tip)):
+                if c in m:
+                    fe[:, mass] += per_velocity_period(t, m[c], t[0], tv, steps)
+            out["f_ext"] = fe
+        self._inputs[key] = out
+        return out
 
     def simulate(self, cfg=None):
         cfg = cfg or self.cfg
         plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
+        ctrl = controller_from_config(cfg, plant)
         # one extrapolated command sample past the end (synth.extend_command): a record that ends
         # mid-motion is replayed without a false torque spike at its last sample
-        res = simulate(plant, controller_from_config(cfg, plant), extend_command(self.x_cmd_sim), x0=self.x0)
+        res = simulate(plant, ctrl, extend_command(self.x_cmd_sim), x0=self.x0, **self.inputs(plant, ctrl))
         return _first(res, self.x_cmd_sim.size)
 
     def simulated(self, cfg=None) -> dict[str, np.ndarray]:
@@ -117,6 +186,13 @@ class Replay:
             if c in ch:
                 y = ch[c]
                 out[c] = y[:self.meas.t.size].copy() if self.one_to_one else np.interp(self.meas.t, self.t_sim, y)
+        if "u_add" in self.meas and not self.open_loop and not cfg.get("measurement.output_includes_u_add", True):
+            # the record logged the controller's own output: the simulated one less the added command
+            plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
+            u = _in_controller_units(self.meas, "u_add", plant, "u_add")
+            for c in _FORCE:
+                if c in out:
+                    out[c] = out[c] - u * (plant.force_gain if c == "force" else 1.0)
         for eff, vals in record_effects(cfg):
             out = eff.apply_record(self.meas.t, out, vals)
         return out
@@ -137,6 +213,48 @@ class Replay:
 
     def primary_channel(self, res) -> str:
         return self.force_channel or max(self.channels, key=lambda c: float(np.mean(res[c] ** 2) * self.objective.weights[c] ** 2))
+
+
+def _drive_channel(meas, cfg) -> str:
+    """The channel that drives an open-loop run: the torque on a rotary axis, the command (else
+    the force) on a linear one."""
+    order = ("torque",) if cfg.rotary else ("command", "force")
+    for c in order:
+        if c in meas:
+            return c
+    raise UserError(f"{meas.source}: --open-loop: no {' or '.join(order)} channel to drive the "
+                    f"{'rotary' if cfg.rotary else 'linear'} axis (map the actuator's command to it)")
+
+
+def _in_controller_units(meas, chan: str, plant, what: str) -> np.ndarray:
+    """A recorded actuator channel in the controller's output units (N m on a rotary axis, V on a
+    linear one): a force (N on mass 1) is divided by the plant's force gain."""
+    from hil.io.measurement import UNITS as MUNITS
+    unit = (getattr(meas, "units", {}) or {}).get(chan, "")
+    kind = MUNITS[unit][0] if unit in MUNITS else {"torque": "torque", "force": "force",
+                                                   "command": "voltage"}.get(chan, "")
+    y = np.asarray(meas[chan], float)
+    rotary = plant.pitch is not None
+    if kind == "force":
+        return y / plant.force_gain
+    if kind in ("", "dimensionless") or (kind == "torque" and rotary) or (kind == "voltage" and not rotary):
+        return y
+    raise UserError(f"{meas.source}: {what}: channel {chan!r} is a {kind}, the {'rotary' if rotary else 'linear'} "
+                    f"axis's controller outputs a {'torque' if rotary else 'command (V)'} (or give a force in N)")
+
+
+def _open_loop_view(meas, cfg):
+    """The record as an open-loop replay sees it: ``x_cmd`` is the measured feedback position."""
+    import copy
+    fb = "x_motor" if cfg.get("control.position_feedback") == "motor" else "x_table"
+    pos = next((c for c in (fb,) + POSITION_CHANNELS if c in meas), None)
+    if pos is None:
+        raise UserError(f"{meas.source}: --open-loop: no measured position (x_motor, x_table or x_tip) to compare")
+    view = copy.copy(meas)
+    view.channels = dict(meas.channels)
+    view.channels["x_cmd"] = np.asarray(meas[pos], float).copy()
+    view.open_loop_source = meas
+    return view
 
 
 def _loop_key(cfg):

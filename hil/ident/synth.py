@@ -9,6 +9,13 @@ The quantization is applied to the record, not inside the loop, so that the clea
 config replays through that config to within the sensor noise. Artefacts of the recording
 (``channel_skew``, ``tip_skew``) act on the recorded channels before the sensor noise, as the
 replay applies them (hil.ident.replay).
+
+Measured inputs besides the command (``inputs``, on the record's sample clock, held between
+samples as the replay holds them): ``u_add``, a command added after the controller (controller
+units: N m on a rotary axis, V on a linear one), recorded exactly (a known signal, as EMPS's
+pulses); ``f_ext_table``, ``f_ext_tip``, external forces (N), recorded as applied too. With
+``open_loop`` there is no loop: ``u_add`` is the actuator's whole command, written as the torque
+(command) channel, and x_cmd is zero. :func:`pulse_train` makes EMPS-like pulses.
 """
 from __future__ import annotations
 
@@ -20,7 +27,7 @@ from hil.plant_config import candidate, record_effects
 from hil.simulate import simulate_config
 from sim_plant.effects import ALIASES
 
-__all__ = ["move_sequence", "synthesize", "HIDDEN_DEFAULTS"]
+__all__ = ["move_sequence", "synthesize", "pulse_train", "HIDDEN_DEFAULTS"]
 
 # Values of the hidden effects for the paper bench (rotary: torques in N m on the motor).
 HIDDEN_DEFAULTS = {
@@ -34,6 +41,8 @@ HIDDEN_DEFAULTS = {
     "feedback_delay": {"delay": 2e-3},
     "channel_skew": {"skew": 8e-3},
     "tip_skew": {"skew": 8e-3},
+    "force_offset": {"offset": 0.4},        # N m on the motor: a current sensor's offset
+    "position_offset": {"offset": 5e-6},
     "stiffness_along_travel": {"k_start": 1.2 * 5.362e7, "k_end": 0.8 * 5.362e7, "x_start": 0.0, "x_end": 0.08},
     # a screw held at both ends: k1 30 % lower with the nut midway than at both ends of the travel
     "stiffness_along_travel_fixed_fixed": {"k_start": 5.362e7, "k_middle": 0.7 * 5.362e7, "k_end": 5.362e7,
@@ -84,6 +93,14 @@ def move_sequence(duration: float = 12.0, dt: float = 4e-3, seed: int = 0, trave
     return np.concatenate(xs)[:n]
 
 
+def pulse_train(t, amplitude: float, period: float = 1.0, width: float = 0.2, start: float = 0.5) -> np.ndarray:
+    """0 / ``amplitude`` pulses of ``width`` s every ``period`` s from ``start`` s, on the times ``t``."""
+    # (a nanosecond's tolerance: the same train from times read back from a file, rounded)
+    t = np.asarray(t, float) + 1e-9
+    phase = np.mod(t - start, period)
+    return np.where((t >= start) & (phase < width), float(amplitude), 0.0)
+
+
 def extend_command(x_cmd):
     """``x_cmd`` with one more sample: the command of the tick after a record's last (its
     feed-forward needs it), extrapolated at constant acceleration (3 x[-1] - 3 x[-2] + x[-3];
@@ -98,9 +115,13 @@ def extend_command(x_cmd):
 
 def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, duration: float = 12.0,
                sample_period: float = 4e-3, seed: int = 0, resolution: float = 0.5e-6,
-               position_noise: float = 0.1e-6, force_noise: float | None = None, x_cmd=None):
+               position_noise: float = 0.1e-6, force_noise: float | None = None, x_cmd=None,
+               inputs: dict | None = None, open_loop: bool = False):
     """Channels (SI) of a record of ``cfg``'s plant with the hidden ``effect`` (None: clean).
-    Returns (channels, truth) with the config of the richer plant in ``truth["config"]``."""
+    ``inputs``: measured inputs on the record's sample clock (``u_add``, ``f_ext_table``,
+    ``f_ext_tip``; a function of the sample times is called with them); ``open_loop``: ``u_add``
+    drives the plant alone. Returns (channels, truth) with the config of the richer plant in
+    ``truth["config"]``."""
     rich = cfg
     if effect:
         eff = candidate(effect, cfg)
@@ -117,13 +138,23 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
         raise ValueError(f"sample period {sample_period:g} s must be a whole multiple of the position period {tp:g} s")
     k = int(round(ratio))
     if x_cmd is None:
-        x_cmd = move_sequence(duration, tp, seed)
+        x_cmd = np.zeros(int(round(duration / tp))) if open_loop else move_sequence(duration, tp, seed)
     # the command goes on past the record's end (one sample, extrapolated at constant acceleration), as it did on
     # the machine: holding it would end the record with a one-sample torque spike (the last
     # tick's feed-forward falling to zero), an artefact of the record's end, not of the plant
     x_cmd = np.asarray(x_cmd, float)
-    res = simulate_config(rich, extend_command(x_cmd))
+    t_rec = np.arange((x_cmd.size + k - 1) // k) * sample_period
+    ins = {c: np.asarray(v(t_rec) if callable(v) else v, float) for c, v in (inputs or {}).items()}
+    if open_loop and "u_add" not in ins:
+        raise ValueError("an open-loop record needs its actuator command (inputs['u_add'])")
+    res = simulate_config(rich, extend_command(x_cmd), **_loop_inputs(rich, ins, t_rec, x_cmd.size + 1, open_loop))
     ch = {c: y[:x_cmd.size][::k] for c, y in res.channels().items()}
+    if "u_add" in ins and not open_loop and not rich.get("measurement.output_includes_u_add", True):
+        ch = dict(ch)             # the drive logged its controller's own output, without the pulses
+        fg = res.meta["force_gain"]
+        for c in ("torque", "command", "force"):
+            if c in ch:
+                ch[c] = ch[c] - ins["u_add"] * (fg if c == "force" else 1.0)
     for eff, v in record_effects(rich):          # the recording's artefacts (a skewed channel)
         ch = eff.apply_record(ch["t"], ch, v)
     rng = np.random.default_rng(seed + 1000)
@@ -135,7 +166,45 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
     y = ch[fch]
     if force_noise is None:
         force_noise = 0.01 * float(np.sqrt(np.mean(y * y))) + 1e-9
-    out[fch] = y + rng.normal(0.0, force_noise, y.size)
+    if open_loop:
+        # the actuator's command is the run's input, logged as it was sent
+        out["x_cmd"] = np.zeros_like(out["t"])
+        out["torque" if cfg.rotary else "command"] = ins["u_add"].copy()
+    else:
+        out[fch] = y + rng.normal(0.0, force_noise, y.size)
+        if "u_add" in ins:
+            out["u_add"] = ins["u_add"].copy()
+    for c in ("f_ext_table", "f_ext_tip"):
+        if c in ins:
+            # as applied: a force sensor's noise, fed back into the replay, would excite the
+            # lightly damped tip mode by itself (a record to test the loop's inputs, not the sensor)
+            out[c] = ins[c].copy()
     truth = {"effect": effect or "none", "params": vals, "config": rich, "seed": seed,
              "resolution": resolution, "position_noise": position_noise, "force_noise": force_noise}
     return out, truth
+
+
+def _loop_inputs(cfg, ins: dict, t_rec, ticks: int, open_loop: bool) -> dict:
+    """The inputs on the loop's clock (hil.simulate.simulate's keywords), held from each sample
+    as hil.ident.replay holds a record's."""
+    from hil.control import controller_from_config
+    from hil.plant_config import plant_from_config
+    from hil.simulate import per_velocity_period
+    if not ins and not open_loop:
+        return {}
+    plant = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant)
+    steps = ticks * ctrl.substeps
+    tv = ctrl.velocity_period
+    out = {}
+    if "u_add" in ins:
+        out["u_add"] = per_velocity_period(t_rec, ins["u_add"], t_rec[0], tv, steps)
+    if open_loop:
+        out["open_loop"] = True
+    if "f_ext_table" in ins or "f_ext_tip" in ins:
+        fe = np.zeros((steps, plant.n))
+        for c, mass in (("f_ext_table", plant.table), ("f_ext_tip", plant.tip)):
+            if c in ins:
+                fe[:, mass] += per_velocity_period(t_rec, ins[c], t_rec[0], tv, steps)
+        out["f_ext"] = fe
+    return out

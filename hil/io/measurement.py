@@ -9,9 +9,27 @@
     ...
 
 Optional ``#`` comment lines first (``key = value`` metadata), then one header row whose names
-carry their unit in brackets. Channels: ``t`` and ``x_cmd`` are required; ``v_cmd``,
-``x_motor``, ``x_table``, ``x_tip``, ``torque``, ``force``, ``command``, ``e_table``, ``e_tip`` are
-known; unknown channels are kept and ignored. Everything is converted to SI on reading.
+carry their unit in brackets. Channels: ``t`` and ``x_cmd`` are required (``x_cmd`` not in an
+open-loop record, which has the actuator's command instead); ``v_cmd``, ``x_motor``, ``x_table``,
+``x_tip``, ``torque``, ``force``, ``command``, ``e_table``, ``e_tip`` are known; unknown channels
+are kept and ignored. Everything is converted to SI on reading.
+
+Measured inputs besides the command (hil.ident.replay feeds them into the one compiled loop):
+
+- ``u_add``: an additive command after the controller (a pulse train, a frequency-response
+  excitation), in the actuator's units: a torque [N*m] on a rotary axis, a command [V] or a
+  force [N] on a linear one (a force is divided by the drive gain). Whether the recorded
+  controller output (torque / force / command) includes it is the config key
+  ``measurement.output_includes_u_add`` (default true: the drive's command was logged after the
+  addition, as EMPS's ``vir``).
+- ``f_ext_table``, ``f_ext_tip`` [N]: a measured external force on the table or on the tool tip
+  (a cutting force), + in +x, acting on that mass of the chain.
+- an open-loop record (``--open-loop``): no position loop; the actuator's measured command
+  (``torque`` on a rotary axis, ``command`` or ``force`` on a linear one) drives the plant, and
+  the positions are compared. ``x_cmd`` may then be absent or identically zero.
+
+Reading never fails for a record that can still be replayed: gaps of the time base come back as
+``Measurement.warnings`` (sample numbers counted from 1), printed by the commands.
 """
 from __future__ import annotations
 
@@ -35,7 +53,8 @@ UNITS = {
     "m": ("length", 1.0), "mm": ("length", 1e-3), "um": ("length", 1e-6), "µm": ("length", 1e-6),
     "m/s": ("speed", 1.0), "mm/s": ("speed", 1e-3), "mm/min": ("speed", 1e-3 / 60), "m/min": ("speed", 1 / 60),
     "N*m": ("torque", 1.0), "N m": ("torque", 1.0), "Nm": ("torque", 1.0),
-    "N": ("force", 1.0), "V": ("voltage", 1.0), "1": ("dimensionless", 1.0),
+    "N": ("force", 1.0), "kN": ("force", 1e3), "V": ("voltage", 1.0), "mV": ("voltage", 1e-3),
+    "1": ("dimensionless", 1.0), "A": ("current", 1.0), "mA": ("current", 1e-3), "mN*m": ("torque", 1e-3),
     "rad": ("angle", 1.0), "rad/s": ("angular_speed", 1.0),
 }
 
@@ -44,12 +63,18 @@ CHANNELS = {
     "t": "time", "x_cmd": "length", "v_cmd": "speed", "x_motor": "length", "x_table": "length",
     "x_tip": "length", "torque": "torque", "force": "force", "command": "voltage",
     "e_table": "length", "e_tip": "length",
+    # measured inputs besides the command: an additive command after the controller (in the
+    # actuator's units: torque, force or voltage) and external forces on the table and the tip
+    "u_add": "actuator", "f_ext_table": "force", "f_ext_tip": "force",
 }
+# the kinds an "actuator" channel may have
+ACTUATOR_KINDS = ("torque", "force", "voltage")
+INPUT_CHANNELS = ("u_add", "f_ext_table", "f_ext_tip")
 REQUIRED = ("t", "x_cmd")
 
 # the unit the writer uses per kind
 WRITE_UNIT = {"time": "s", "length": "mm", "speed": "mm/s", "torque": "N*m", "force": "N", "voltage": "V",
-              "dimensionless": "1", "angle": "rad", "angular_speed": "rad/s"}
+              "dimensionless": "1", "angle": "rad", "angular_speed": "rad/s", "current": "A"}
 
 _HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[([^\]]*)\])?\s*$")
 
@@ -61,6 +86,7 @@ class Measurement:
     meta: dict[str, str] = field(default_factory=dict)
     source: str = "<measurement>"
     units: dict[str, str] = field(default_factory=dict)   # as written in the file
+    warnings: list[str] = field(default_factory=list)     # what the reader noticed (gaps), for the commands to print
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.channels[name]
@@ -82,6 +108,8 @@ class Measurement:
 
 def header_name(name: str, kind: str | None = None) -> str:
     kind = kind or CHANNELS.get(name, "dimensionless")
+    if kind == "actuator":
+        kind = "torque"
     return f"{name} [{WRITE_UNIT[kind]}]"
 
 
@@ -96,6 +124,11 @@ def _kind_of(name: str, unit: str | None, where: str) -> tuple[str, float]:
         raise MeasurementError(f"{where}: column {name!r}: unknown unit [{u}] (known: {', '.join(UNITS)})")
     kind, factor = UNITS[u]
     want = CHANNELS.get(name)
+    if want == "actuator":
+        if kind not in ACTUATOR_KINDS:
+            raise MeasurementError(f"{where}: column {name!r}: unit [{u}] is a {kind}, expected the actuator's unit "
+                                   f"(a torque [N*m], a force [N] or a command [V])")
+        return kind, factor
     if want is not None and kind != want:
         raise MeasurementError(f"{where}: column {name!r}: unit [{u}] is a {kind}, expected a {want} "
                                f"(e.g. [{WRITE_UNIT[want]}])")
@@ -119,7 +152,9 @@ def read(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement
     return parse_text(text.removeprefix("\ufeff"), path, mapping)     # a BOM (spreadsheet exports)
 
 
-def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None = None) -> Measurement:
+def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None = None, raw: bool = False):
+    """The measurement of a CSV text; ``raw``: (names, units as written, values as written, meta),
+    for a map to evaluate expressions of the columns (hil.io.importers)."""
     lines = text.splitlines()
     meta: dict[str, str] = {}
     i = 0
@@ -141,6 +176,14 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
             raise MeasurementError(f"{source}, line {header_line}: column {col + 1} header {cell!r} is not "
                                    f"'name [unit]'")
         name, unit = m.group(1), m.group(2)
+        if raw:
+            if name in names:
+                raise MeasurementError(f"{source}, line {header_line}: column {name!r} appears twice")
+            names.append(name)
+            factors.append(1.0)
+            if unit is not None and unit.strip():
+                units[name] = unit.strip()
+            continue
         if name in mapping:
             target = mapping[name]
             mm = _HEADER.match(target)
@@ -155,7 +198,9 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
         names.append(name)
         factors.append(factor)
         units[name] = unit or ""
-    for req in REQUIRED:
+    for req in () if raw else REQUIRED:
+        if req == "x_cmd" and any(c in names for c in ("torque", "force", "command")):
+            continue          # an open-loop record: its actuator's command drives (check_usable asks for --open-loop)
         if req not in names:
             raise MeasurementError(f"{source}, line {header_line}: missing required column {req!r} "
                                    f"(header has: {', '.join(names)})")
@@ -187,9 +232,11 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
     if len(rows) < 2:
         raise MeasurementError(f"{source}: fewer than 2 data rows")
     arr = np.array(rows) * np.array(factors)
+    if raw:
+        return names, units, arr, meta
     channels = {n: arr[:, c].copy() for c, n in enumerate(names)}
-    _check_time(channels["t"], source, i + 2)
-    return Measurement(channels, meta, source, units)
+    warnings = _check_time(channels["t"], source, i + 2)
+    return Measurement(channels, meta, source, units, warnings)
 
 
 def _is_float(s: str) -> bool:
@@ -202,7 +249,9 @@ def _is_float(s: str) -> bool:
         return False
 
 
-def _check_time(t: np.ndarray, source: str, first_line: int) -> None:
+def _check_time(t: np.ndarray, source: str, first_line: int) -> list[str]:
+    """Refuse a time base that does not increase; a gap (a step over 1.5 sample periods) is a
+    warning with its line (sample) numbers: the replay interpolates over it."""
     dt = np.diff(t)
     bad = np.flatnonzero(dt <= 0)
     if bad.size:
@@ -213,8 +262,11 @@ def _check_time(t: np.ndarray, source: str, first_line: int) -> None:
     gaps = np.flatnonzero(dt > 1.5 * med)
     if gaps.size:
         k = int(gaps[0]) + 1
-        raise MeasurementError(f"{source}, line {first_line + k}, column 't': a gap of {dt[k - 1]:g} s after "
-                               f"{t[k - 1]:g} s (the sample period is {med:g} s); fill or cut the record")
+        where = "line" if first_line > 1 else "sample"
+        more = f" ({gaps.size} gaps in all, the widest {dt.max():g} s)" if gaps.size > 1 else ""
+        return [f"{source}, {where} {first_line + k}, column 't': a gap of {dt[k - 1]:g} s after {t[k - 1]:g} s (the "
+                f"sample period is {med:g} s){more}; the replay interpolates over it"]
+    return []
 
 
 def format_rows(columns: list[np.ndarray], factors: list[float]) -> str:
@@ -226,13 +278,15 @@ def format_rows(columns: list[np.ndarray], factors: list[float]) -> str:
 
 
 def write(path: str | Path, channels: dict[str, np.ndarray], meta: dict[str, object] | None = None,
-          inputs=()) -> Path:
+          inputs=(), kinds: dict[str, str] | None = None) -> Path:
     """Write channels (SI) in the measurement format, at once (hil.io.safe_write.write_atomic:
-    never through a symbolic link, never over one of ``inputs``)."""
+    never through a symbolic link, never over one of ``inputs``). ``kinds``: the quantity of a
+    channel whose kind is not fixed (``u_add``: torque, force or voltage; torque by default)."""
     from hil.io.safe_write import write_atomic
     path = Path(path)
     names = list(channels)
-    kinds = [CHANNELS.get(n, "dimensionless") for n in names]
+    kinds = [(kinds or {}).get(n) or CHANNELS.get(n, "dimensionless") for n in names]
+    kinds = ["torque" if k == "actuator" else k for k in kinds]
     fh = io.StringIO()
     for k, v in (meta or {}).items():
         fh.write(f"# {k} = {v}\n")
@@ -251,7 +305,7 @@ POSITIONS = ("x_cmd", "x_motor", "x_table", "x_tip")
 
 
 def check_usable(meas: Measurement, travel: tuple[float, float], position_period: float,
-                 velocity_period: float) -> None:
+                 velocity_period: float, open_loop: bool = False) -> None:
     """Refuse, in one line, a record that cannot be compared or diagnosed as it is: too few rows,
     a cell beyond any reading, positions that do not fit the axis travel (a unit that does not
     fit: mm written as m), a sample period no loop of the axis has (a ``t [ms]`` header on
@@ -294,5 +348,16 @@ def check_usable(meas: Measurement, travel: tuple[float, float], position_period
     if meas.t[-1] - meas.t[0] < MIN_ROWS * position_period:
         raise MeasurementError(f"{src}: the record lasts {meas.t[-1] - meas.t[0]:g} s, less than {MIN_ROWS} position "
                                f"periods")
-    if np.ptp(meas.channels["x_cmd"]) == 0.0:
-        raise MeasurementError(f"{src}: the command x_cmd never moves: nothing to compare or diagnose")
+    drive = next((c for c in ("torque", "command", "force") if c in meas.channels), None)
+    if open_loop:
+        if drive is None:
+            raise MeasurementError(f"{src}: --open-loop: the record has no torque, force or command channel to drive "
+                                   f"the plant")
+        return
+    if "x_cmd" not in meas.channels or np.ptp(meas.channels["x_cmd"]) == 0.0:
+        what = "has no command x_cmd" if "x_cmd" not in meas.channels else "never moves its command x_cmd"
+        hint = (f"; if it is an open-loop run driven by its {drive} channel, say so with --open-loop"
+                if drive is not None and np.ptp(meas.channels[drive]) > 0 else "")
+        if "x_cmd" in meas.channels and not hint:
+            raise MeasurementError(f"{src}: the command x_cmd never moves: nothing to compare or diagnose")
+        raise MeasurementError(f"{src}: the record {what}{hint}")
