@@ -161,7 +161,8 @@ def run(args) -> int:
     else:
         refuse_if_tripped(cfg)
         supervisor = None
-    progress = frf.stderr_progress
+    from hil.commands.progress import shown
+    progress = frf.stderr_progress if shown(args) else None      # silent with --json or off a terminal
     try:
         result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
                              pm_min=args.pm, gm_min_db=args.gm, supervisor=supervisor)

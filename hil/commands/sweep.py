@@ -238,6 +238,7 @@ def check_scheduler_address(address: str) -> None:
 
 
 def run(args) -> int:
+    from hil.commands.progress import shown
     from hil.config import load, parse_assignment
     from hil.sweep import run_sweep
 
@@ -269,7 +270,8 @@ def run(args) -> int:
         raise UserError(f"--out {args.out}: cannot create the folder ({exc.strerror or exc})") from None
     try:
         report = run_sweep(cfg, s, compare_cfg=cmp_cfg, out_dir=out, jobs=args.jobs, scheduler=args.scheduler,
-                           backend=args.backend, progress=not args.no_progress, resume=not args.restart)
+                           backend=args.backend, progress=not args.no_progress and shown(args),
+                           resume=not args.restart)
     except LimitError as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:

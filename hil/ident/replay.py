@@ -22,6 +22,7 @@ such an artefact costs no simulation.
 """
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -34,6 +35,8 @@ from hil.ident.residual import xcorr
 from hil.ident.synth import extend_command
 from hil.plant_config import plant_from_config, record_effects
 from hil.simulate import simulate
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["Replay", "POSITION_CHANNELS", "UNITS"]
 
@@ -48,6 +51,7 @@ class Replay:
     sample times, and their residuals."""
 
     def __init__(self, meas, cfg, channels=None, align: bool = False, noise: dict | None = None):
+        logger.debug("replaying %s through %s", getattr(meas, "source", "a record"), cfg.source)
         self.meas = meas
         self.cfg = cfg
         self.plant = plant_from_config(cfg)
