@@ -144,7 +144,8 @@ class Supervisor:
             self.record = {"reason": reason, "time": self.tripped_at, "config": str(self.cfg.source),
                            "cycle": max(self.k - 1, 0), "t": t, "stop": self.stop, "last_cycles": list(self.history)}
             self._write_latch()
-            logger.warning("supervisor tripped at t = %.4f s: %s", t, reason)
+            # info, not warning: the command reports the trip in its own one line
+            logger.info("supervisor tripped at t = %.4f s: %s", t, reason)
         return reason
 
     def _write_latch(self) -> None:

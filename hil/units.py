@@ -263,7 +263,10 @@ def fmt(value, kind: str, digits: int = 4, unit: str | None = None) -> str:
     if math.isinf(value):
         return ("-" if value < 0 else "") + "inf"
     shown, factor = display_unit(value, kind, unit)
-    text = f"{value * factor:.{digits}g}"
+    x = value * factor
+    text = f"{x:.{digits}g}"
+    if "e" in text and abs(x) >= 1:          # 12345 m/s^3, not 1.234e+04
+        text = f"{x:.0f}"
     return f"{text} {shown}" if shown else text
 
 

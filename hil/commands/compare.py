@@ -26,7 +26,7 @@ def add_common(parser) -> None:
     parser.add_argument("--map", action="append", default=[], metavar="SOURCE=CHANNEL[unit]",
                         help="column or variable -> channel, the same for CSV and .mat: pos=x_table[mm], "
                              "vir*gtau=force (repeatable, or comma-separated)")
-    parser.add_argument("--channels", default=None, help="comma-separated channels to use (default: all measured)")
+    parser.add_argument("--channels", metavar="CHANNELS", default=None, help="comma-separated channels to use (default: all measured)")
     parser.add_argument("--align", action="store_true", help="align each channel in time by cross-correlation")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 

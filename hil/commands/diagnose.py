@@ -30,8 +30,8 @@ and no candidate closes half of the gap (with the evidence of where the residual
 
 def add_arguments(parser) -> None:
     add_common(parser)
-    parser.add_argument("--candidates", default=None, help="comma-separated candidates (default: the whole catalogue)")
-    parser.add_argument("--jobs", type=int, default=None, help="processes (default: the CPUs)")
+    parser.add_argument("--candidates", metavar="EFFECTS", default=None, help="comma-separated candidates (default: the whole catalogue)")
+    parser.add_argument("--jobs", metavar="N", type=int, default=None, help="processes (default: the CPUs)")
     parser.add_argument("--max-steps", "--steps", dest="max_steps", type=int, default=4, metavar="N",
                         help="at most N steps in the chain, each a diagnosis that adds its verdict (default 4; "
                              "1: the single diagnosis, as --no-chain)")
@@ -147,18 +147,20 @@ def chain_text(d, rp) -> list[str]:
     """The error falling step by step: per step the effects added and the RMS error of each channel
     (before -> after, and its ratio to the noise floor), then the end."""
     from hil.ident.unexplained import describe
+    from hil.units import fmt_si
     floor = {c: max(v, 1e-300) for c, v in d["noise_floor"].items()}
     chans = list(floor)
     lines = ["chain (RMS error per channel; x floor = ratio to the noise floor):",
-             "  start: " + ", ".join(f"{c} {d['error_before'][c]:.3g} {rp.unit(c)} ({d['error_before'][c] / floor[c]:.1f} x floor)"
-                                     for c in chans)]
+             "  start: " + ", ".join(f"{c} {fmt_si(d['error_before'][c], rp.unit(c), 3)} "
+                                     f"({d['error_before'][c] / floor[c]:.1f} x floor)" for c in chans)]
     for s in d["chain"]:
         added = " + ".join(s["effects"])
         par = "; ".join(f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in s["params"].items()
                         if n in s["effects"])
         lines.append(f"  step {s['step']}: + {added}{' (all refitted together)' if s['refitted_together'] else ''}"
                      f" [{par}]")
-        lines.append("          " + ", ".join(f"{c} {s['error_before'][c]:.3g} -> {s['error_after'][c]:.3g} "
+        lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
+                                           f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))
     f = d["final"]
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else

@@ -28,7 +28,7 @@ def add_arguments(parser) -> None:
     add_common(parser)
     parser.add_argument("--add", action="append", required=True, metavar="EFFECT",
                         help="catalogue effect or parameter:<dotted key> (repeatable)")
-    parser.add_argument("--refit", default=None, help="comma-separated config keys to refit jointly at the end")
+    parser.add_argument("--refit", metavar="KEYS", default=None, help="comma-separated config keys to refit jointly at the end")
     parser.add_argument("--out", required=True, metavar="FILE", help="the new config (TOML)")
 
 

@@ -60,21 +60,21 @@ def load_config(args):
 
 def add_arguments(p) -> None:
     add_common(p)
-    p.add_argument("--stroke", required=True, help="signed stroke, e.g. 100mm or -0.1m")
-    p.add_argument("--feed", required=True, help="feed (peak speed), e.g. 7000mm/min")
+    p.add_argument("--stroke", metavar="LENGTH", required=True, help="signed stroke, e.g. 100mm or -0.1m")
+    p.add_argument("--feed", metavar="SPEED", required=True, help="feed (peak speed), e.g. 7000mm/min")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--tacc", help="NC acceleration time to reach G0, e.g. 200ms")
-    g.add_argument("--amax", help="peak acceleration, e.g. 4m/s^2")
-    g.add_argument("--jmax", help="peak jerk, e.g. 200m/s^3")
-    p.add_argument("--g0", help="rapid speed G0 (default: the config's nc.g0)")
-    p.add_argument("--start", help="start position. Simulated plant: where it starts (default 0mm). An axis "
+    g.add_argument("--tacc", metavar="TIME", help="NC acceleration time to reach G0, e.g. 200ms")
+    g.add_argument("--amax", metavar="ACCELERATION", help="peak acceleration, e.g. 4m/s^2")
+    g.add_argument("--jmax", metavar="JERK", help="peak jerk, e.g. 200m/s^3")
+    p.add_argument("--g0", metavar="SPEED", help="rapid speed G0 (default: the config's nc.g0)")
+    p.add_argument("--start", metavar="LENGTH", help="start position. Simulated plant: where it starts (default 0mm). An axis "
                    "(canopen, serial): where it must stand (within limits.start_window), else refused; "
                    "default: the move starts where the axis stands")
     p.add_argument("--back", action="store_true", help="return to the start after the dwell")
-    p.add_argument("--dwell", default="1s", help="standstill after each move (default 1s)")
-    p.add_argument("--band", default="1um", help="settling band around the target (default 1um)")
+    p.add_argument("--dwell", metavar="TIME", default="1s", help="standstill after each move (default 1s)")
+    p.add_argument("--band", metavar="LENGTH", default="1um", help="settling band around the target (default 1um)")
     p.add_argument("--check", action="store_true", help="check the move against the limits, do not run it")
-    p.add_argument("--out", default="out/move", help="output folder for the record and the plot (default out/move)")
+    p.add_argument("--out", metavar="DIR", default="out/move", help="output folder for the record and the plot (default out/move)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 

@@ -19,7 +19,8 @@ max|v|):
   does as well, the variation cannot be seen over the stroke the record covers;
 * a combination: each member's evidence, then the fall of the joint fit.
 
-It ends with "RMS <channel> error <before> -> <after> <unit> (<fall> % less)".
+It ends with "RMS <channel> error <before> -> <after> (<fall> % less)", each error in its
+engineering unit (hil.units.fmt).
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ import numpy as np
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.plant_config import candidate, plant_from_config
+from hil.units import fmt_si
 from sim_plant.effects import ALIASES
 from sim_plant.modal import transmission_mode
 
@@ -39,7 +41,9 @@ __all__ = ["evidence", "model_modes"]
 def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, before: float, after: float,
               base_modes) -> str:
     unit = replay.unit(chan)
-    fall = f"RMS {chan} error {before:.3g} -> {after:.3g} {unit} ({100 * (1 - after / before) if before else 0:.0f} % less)"
+    # each figure in its engineering unit (203 um -> 337 nm), hil.units
+    fall = (f"RMS {chan} error {fmt_si(before, unit, 3)} -> {fmt_si(after, unit, 3)} "
+            f"({100 * (1 - after / before) if before else 0:.0f} % less)")
     if "+" in eff_name:
         # a combination: each member's evidence, then the fall of the joint fit
         heads = []
