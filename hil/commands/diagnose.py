@@ -44,6 +44,10 @@ def candidates_json(d):
            "also_missing": d.get("also_missing", []), "combinations": d.get("combinations", []),
            "noise_floor": d["noise_floor"], "error_before": d["error_before"],
            "noise_floor_source": d.get("noise_floor_source", {}), "gap_closed": d.get("gap_closed")}
+    # the convention of every command's JSON: SI, and a units map where a key does not carry its unit
+    from hil.ident.replay import UNITS
+    per_channel = {c: UNITS.get(c, "") for c in d["noise_floor"]}
+    out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
     if "chain" in d:
