@@ -12,7 +12,6 @@ unit, MATLAB values are taken as SI and CSV columns keep the unit of their heade
 """
 from __future__ import annotations
 
-import logging
 import re
 from pathlib import Path
 
@@ -20,8 +19,6 @@ import numpy as np
 
 from hil.io.measurement import CHANNELS, Measurement, MeasurementError, _check_time
 from hil.io.measurement import read as read_csv
-
-logger = logging.getLogger(__name__)
 
 __all__ = ["read_mat", "read_any", "parse_mapping", "EMPS_MAPPING"]
 
@@ -151,6 +148,6 @@ def read_mat(path: str | Path, mapping: dict[str, str] | None = None) -> Measure
 
 def read_any(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement:
     """A measurement CSV, or a MATLAB ``.mat`` record (chosen by the suffix)."""
-    meas = read_mat(path, mapping) if str(path).lower().endswith(".mat") else read_csv(path, mapping)
-    logger.info("read %s: %d samples, channels %s", path, meas.t.size, ", ".join(meas.channels))
-    return meas
+    if str(path).lower().endswith(".mat"):
+        return read_mat(path, mapping)
+    return read_csv(path, mapping)
