@@ -188,7 +188,7 @@ def parse_bounded(value, kind: str, what: str, *, positive: bool = False, nonneg
 # fallback. Printed spellings are ASCII (um, not the micro sign; "N m", as in the config files).
 DISPLAY_UNITS: dict[str, list[tuple[str, str, float]]] = {
     "length": [("nm", "nm", 1e-6), ("um", "um", 1e-3), ("mm", "mm", 10.0), ("m", "m", math.inf)],
-    "time": [("us", "us", 1e-3), ("ms", "ms", 10.0), ("s", "s", math.inf)],
+    "time": [("us", "us", 1e-3), ("ms", "ms", 1.0), ("s", "s", math.inf)],
     "frequency": [("Hz", "Hz", 1e4), ("kHz", "kHz", math.inf)],
     "speed": [("mm/s", "mm/s", 0.1), ("m/s", "m/s", math.inf)],
     "acceleration": [("m/s^2", "m/s^2", math.inf)],

@@ -42,11 +42,12 @@ def test_fmt_fixed_unit_and_the_conversion_is_pints():
     import pint
     ureg = pint.UnitRegistry()
     assert fmt(0.0123, "time", unit="ms") == "12.3 ms"
-    assert fmt(2.5, "speed", unit="mm/min") == f"{ureg.Quantity(2.5, 'm/s').to('mm/min').magnitude:.4g} mm/min"
+    assert fmt(0.025, "speed", unit="mm/min") == f"{ureg.Quantity(0.025, 'm/s').to('mm/min').magnitude:.4g} mm/min"
+    assert fmt(2.5, "speed", unit="mm/min") == "150000 mm/min"        # no e-notation for large values
 
 
 @pytest.mark.parametrize("value, sigma, rounded, decimals", [
-    (40.0912, 0.0374, 40.091, 3), (2.23456, 0.00012, 2.23456, 5), (12345.6, 230.0, 12300.0, -1),
+    (40.0912, 0.0374, 40.091, 3), (2.23456, 0.00012, 2.23456, 5), (12345.6, 230.0, 12350.0, -1),
     (1.5, None, 1.5, None), (1.5, float("nan"), 1.5, None)])
 def test_rounded_to_two_digits_of_the_uncertainty(value, sigma, rounded, decimals):
     r, d = round_to_uncertainty(value, sigma)
@@ -95,9 +96,9 @@ def test_edit_keeps_comments_units_and_layout():
     assert set(keys) == {"plant.c2", "plant.k2", "effects.coulomb_friction.level"}
     out = edit_config_text(text, new, keys, stderr={"plant.c2": 0.0374}, note="test")
     removed, added = _changed_lines(text, out)
-    assert removed == ['c2 = "11.80 N*s/m"', 'k2 = "3.7060e4 N/m"   # thin plates']
-    assert added[0] == 'c2 = "40.091 N*s/m" # test; +- 0.037 N*s/m (standard error); was "11.80 N*s/m"'
-    assert added[1].startswith('k2 = "31000 N/m"') and added[1].endswith("thin plates")   # its comment kept
+    assert removed == ['k2 = "3.7060e4 N/m"   # thin plates', 'c2 = "11.80 N*s/m"']
+    assert added[0].startswith('k2 = "31000 N/m"') and added[0].endswith("thin plates")   # its comment kept
+    assert added[1] == 'c2 = "40.091 N*s/m" # test; +- 0.037 N*s/m (standard error); was "11.80 N*s/m"'
     assert '[effects.coulomb_friction]' in added and any(a.startswith('level = "2.2345') for a in added)
     back = loads(out, "edited")
     assert back["plant.c2"] == 40.091 and back["plant.k2"] == 3.1e4
