@@ -191,7 +191,7 @@ def register_section(prefix: str, lookup: Callable[[str], Field | None],
 
 
 def did_you_mean(key: str) -> str:
-    """``" (did you mean 'plant.c2'?)"`` for a mistyped key, or ``""`` when nothing is close
+    """``"; did you mean 'plant.c2'?"`` for a mistyped key, or ``""`` when nothing is close
     (difflib, over the schema's keys and the keys the registered sections list)."""
     import difflib
     names = [k for k in SCHEMA if "*" not in k]
@@ -208,7 +208,7 @@ def did_you_mean(key: str) -> str:
         except Exception:       # a section that cannot list its keys now: no suggestion from it
             continue
     close = difflib.get_close_matches(key, names, n=1, cutoff=0.75)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def field_for(key: str) -> Field | None:
@@ -401,7 +401,7 @@ def _validate(raw: dict[str, Any], where: str) -> Config:
             known = _known_in_section(section) if section else ""
             hint = f" (known keys in [{section}]: {known})" if known else \
                 f" (known sections: {', '.join(_known_sections())})"
-            raise ConfigError(f"{where}: unknown key {key!r}{did_you_mean(key) or hint}")
+            raise ConfigError(f"{where}: unknown key {key!r}{hint}{did_you_mean(key)}")
         if key == "actuator.type":
             continue
         values[key] = _convert(key, value, f, values, where)
