@@ -86,7 +86,7 @@ def _new_item(key: str, value: Any, values: dict, old_item, sigma: float | None)
         return tomlkit.item("inf" if value > 0 else "-inf"), None
     x = value * factor
     s = abs(sigma) * factor if sigma is not None and math.isfinite(sigma) and sigma > 0 else None
-    r, dec = round_to_uncertainty(x, s)
+    r, dec = round_to_uncertainty(x, s) if s is not None else (x, None)
     text = _number_text(r, dec)
     s_text = (_number_text(s, dec) + (f" {unit}" if unit else "")) if s is not None else None
     if not unit:
