@@ -7,12 +7,23 @@ and imports what it needs inside ``run``: building the parser imports every comm
 Every error the project raises on purpose derives from :class:`hil.errors.HilError`; ``main``
 catches that root and prints one line: exit 2 for what the user can fix (bad config, bad data,
 refused moves), 1 for a drive fault, 130 for an interrupt. Never a traceback.
+
+Global options (before the command): ``--version``; ``--log-level LEVEL`` (the library logs
+through ``logging``, one logger per module named after it: ``hil.ident.diagnosis``,
+``drivers.canopen.backend``; the level applies to them and to the bus libraries, canopen and
+python-can; without it the project's loggers show warnings and the bus libraries only critical
+messages, since the backends already report their failures as one clear line);
+``--can-log FILE.asc|.blf`` (python-can's trace of the CAN bus of every canopen backend the command
+connects, drivers.canopen.canlog; also accepted after the CAN commands).
+An unknown command gets a "did you mean" (difflib).
 """
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import importlib.util
+import logging
 import re
 import sys
 
@@ -52,6 +63,49 @@ class HilArgumentParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
         self._negative_number_matcher = re.compile(r"^-\.?\d")
 
+    def error(self, message):
+        """argparse's message, with "did you mean" for a mistyped command or choice."""
+        m = re.search(r"invalid choice: '?([^'\s]*)'? \(choose from (.*)\)", message)
+        if m:
+            choices = [c.strip().strip("'\"") for c in m.group(2).split(",")]
+            close = difflib.get_close_matches(m.group(1), choices, n=1, cutoff=0.6)
+            if close:
+                message += f"; did you mean '{close[0]}'?"
+        super().error(message)
+
+
+LOG_LEVELS = ("debug", "info", "warning", "error", "critical")
+# the bus libraries: they log what the backends already report as one clear line (an SDO transfer
+# aborted because no drive answers); shown from --log-level on
+BUS_LOGGERS = ("canopen", "can")
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A handler on the current sys.stderr (looked up at each record: a test's capture, a
+    redirected stream), not the one of the first call."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+def setup_logging(level: str | None) -> None:
+    """Logging on stderr: the project's loggers at ``level`` (default warning), the bus libraries'
+    at ``level`` when given, else critical only."""
+    root = logging.getLogger()
+    if not any(getattr(h, "_hil", False) for h in root.handlers):
+        handler = _StderrHandler()
+        handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+        handler._hil = True
+        root.addHandler(handler)
+    root.setLevel(getattr(logging, (level or "warning").upper()))
+    for name in BUS_LOGGERS:
+        logging.getLogger(name).setLevel(logging.NOTSET if level else logging.CRITICAL)
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = HilArgumentParser(
@@ -59,6 +113,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Hardware-in-the-loop runtime and model toolkit for feed drives of compliant machine tools. "
                     "Runs on the embedded simulated plant unless a backend is chosen.")
     parser.add_argument("--version", action="version", version=f"hil {__version__}")
+    parser.add_argument("--log-level", type=str.lower, choices=LOG_LEVELS, default=None, metavar="LEVEL",
+                        help=f"log messages from this level on ({', '.join(LOG_LEVELS)}; default: warnings of hil, "
+                             f"only critical messages of the CAN libraries)")
+    parser.add_argument("--can-log", default=None, metavar="FILE",
+                        help="record the CAN bus (received and sent frames) with python-can's logger: FILE.asc "
+                             "or .blf (also .log, .csv, .trc)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, modname in COMMANDS.items():
         if importlib.util.find_spec(modname) is None:
@@ -72,16 +132,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    # the bus libraries log what the backends already report as one clear line (e.g. an SDO
-    # transfer aborted because no drive answers): keep their logs for --debug users of the API
-    import logging
-    logging.getLogger("canopen").setLevel(logging.CRITICAL)
     parser = build_parser()
     args = parser.parse_args(argv)
+    setup_logging(args.log_level)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
     try:
+        if args.can_log:
+            from drivers.canopen import canlog
+            try:
+                canlog.request(args.can_log)
+            except ValueError as exc:
+                print(f"hil {args.command}: error: {exc}", file=sys.stderr)
+                return 2
         return int(args._run(args) or 0)
     except HilError as exc:
         # one line, and the exit code of the error's kind (2: fix and retry; 1: drive fault;
@@ -97,6 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"hil {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if args.can_log:
+            from drivers.canopen import canlog
+            canlog.request(None)
 
 
 if __name__ == "__main__":  # pragma: no cover

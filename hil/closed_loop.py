@@ -8,6 +8,7 @@ table (and tip) samples, exact at the ticks: H(z) = C (zI - A)^-1 Gamma R (Kv + 
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -17,6 +18,8 @@ from hil.control import controller_from_config
 from hil.errors import UnstableLoopError
 from hil.plant_config import plant_from_config
 from sim_plant.transfer import chain_tfs
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["ClosedLoopResponse", "closed_loop_response", "closed_loop_report", "bandwidth"]
 
@@ -282,6 +285,7 @@ def loop_stability(cfg) -> tuple[bool, float] | None:
 def check_loop_stability(cfg) -> None:
     """Refuse a loop configuration whose closed loop the model shows unstable."""
     res = loop_stability(cfg)
+    logger.debug("loop stability of %s: %s", cfg.source, res)
     if res is None or res[0]:
         return
     tv, tp = cfg["control.velocity_period"], cfg["control.position_period"]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import importlib
+import logging
 import math
 import re
 import sys
@@ -26,6 +27,8 @@ from typing import Any, Callable
 
 from hil.errors import ConfigError
 from hil.units import SI_UNIT, UnitError, parse
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section", "field_for",
            "parse_assignment", "schema_markdown", "examples_dir", "example_names"]
@@ -179,9 +182,38 @@ SECTION_PROVIDERS = {"effects": "hil.plant_config", "serial": "drivers.serial.ba
                      "supervisor": "hil.supervisor", "noise": "hil.plant_config"}
 
 
-def register_section(prefix: str, lookup: Callable[[str], Field | None]) -> None:
-    """Let a backend or an effect catalogue own the keys below ``prefix`` (e.g. ``"canopen"``)."""
+# The keys each such section knows, where its owner lists them (for "did you mean").
+_SECTION_KEYS: dict[str, Callable[[], list[str]]] = {}
+
+
+def register_section(prefix: str, lookup: Callable[[str], Field | None],
+                     known: Callable[[], list[str]] | None = None) -> None:
+    """Let a backend or an effect catalogue own the keys below ``prefix`` (e.g. ``"canopen"``);
+    ``known`` lists its keys (dotted, with the prefix) for the "did you mean" of an unknown key."""
     _SECTIONS[prefix] = lookup
+    if known is not None:
+        _SECTION_KEYS[prefix] = known
+
+
+def did_you_mean(key: str) -> str:
+    """``"; did you mean 'plant.c2'?"`` for a mistyped key, or ``""`` when nothing is close
+    (difflib, over the schema's keys and the keys the registered sections list)."""
+    import difflib
+    names = [k for k in SCHEMA if "*" not in k]
+    names += [f"plant.{c}{i}" for c in "mkc" for i in range(1, 10)]
+    for head, module in SECTION_PROVIDERS.items():      # only on the way to an error: load them all
+        if head not in _SECTIONS:
+            try:
+                importlib.import_module(module)
+            except ImportError:
+                pass
+    for known in _SECTION_KEYS.values():
+        try:
+            names += list(known())
+        except Exception:       # a section that cannot list its keys now: no suggestion from it
+            continue
+    close = difflib.get_close_matches(key, names, n=1, cutoff=0.75)
+    return f"; did you mean {close[0]!r}?" if close else ""
 
 
 def field_for(key: str) -> Field | None:
@@ -374,7 +406,7 @@ def _validate(raw: dict[str, Any], where: str) -> Config:
             known = _known_in_section(section) if section else ""
             hint = f" (known keys in [{section}]: {known})" if known else \
                 f" (known sections: {', '.join(_known_sections())})"
-            raise ConfigError(f"{where}: unknown key {key!r}{hint}")
+            raise ConfigError(f"{where}: unknown key {key!r}{hint}{did_you_mean(key)}")
         if key == "actuator.type":
             continue
         values[key] = _convert(key, value, f, values, where)
@@ -444,7 +476,8 @@ def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None 
     if overrides:
         for k, v in overrides.items():
             if field_for(k) is None:
-                raise ConfigError(f"--set {k}: unknown key {k!r} (not a parameter of {source})")
+                raise ConfigError(f"--set {k}: unknown key {k!r} (not a parameter of {source})"
+                                  f"{did_you_mean(k)}")
             raw[k] = v
     return _validate(raw, source)
 
@@ -489,6 +522,7 @@ def load(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
     except UnicodeDecodeError:
         raise ConfigError(f"{path}: not a UTF-8 text file") from None
+    logger.debug("reading the configuration %s (overrides: %s)", p, overrides or "none")
     return loads(text, str(path), overrides)
 
 

@@ -85,7 +85,8 @@ def _effects_field(key: str) -> Field | None:
     return None
 
 
-register_section("effects", _effects_field)
+register_section("effects", _effects_field,
+                 lambda: [f"effects.{n}.{p.name}" for n, e in CATALOGUE.items() for p in e.params])
 
 # --- the sensors' noise: [noise] <channel> = RMS (hil.ident.noise reads it for the noise floor) -----
 _NOISE_KINDS = {"x_motor": "length", "x_table": "length", "x_tip": "length", "torque": "torque", "force": "force",
@@ -100,7 +101,7 @@ def _noise_field(key: str) -> Field | None:
                  f"noise floor of hil diagnose", default=None, nonnegative=True)
 
 
-register_section("noise", _noise_field)
+register_section("noise", _noise_field, lambda: [f"noise.{c}" for c in _NOISE_KINDS])
 
 
 def _configured_effects(cfg: Config):

@@ -23,6 +23,7 @@ Never does a run command a jump from where the axis is to where the plan assumed
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +41,8 @@ from hil.loop import ControlLoop, LoopResult
 from hil.profiles import AxisLimits, Trajectory, check_limits, check_sampled
 from hil.simulate import simulate
 from hil.supervisor import check_record, refuse_if_tripped
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["RunRecord", "run_trajectory", "record_channels"]
 
@@ -157,6 +160,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         rec.close("aborted", "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else
                   f"{type(exc).__name__}: {exc}")
         raise
+    logger.info("run on %s: %s%s", getattr(backend, "name", "sim"), result.status,
+                f" ({result.reason})" if result.reason else "")
     rec.close(result.status, result.reason, {"loop": result.clock, "supervisor": getattr(supervisor, "record", {}),
                                              "start": started})
     if isinstance(rec, _MemoryRecorder):

@@ -18,6 +18,7 @@ This monitoring is no substitute for the drive's certified safety functions (STO
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import time
@@ -27,6 +28,8 @@ from pathlib import Path
 
 from hil.config import Field, register_section
 from hil.errors import SupervisorTripped, UserError
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["Supervisor", "SupervisorTripped", "SECTION", "state_dir", "latch_path", "refuse_if_tripped",
            "check_record", "is_latch", "remove_latch"]
@@ -78,7 +81,7 @@ SECTION = {
                                    "latch.json in $HIL_STATE_DIR, $XDG_STATE_HOME/compliant-axis-hil or "
                                    "~/.local/state/compliant-axis-hil", default=""),
 }
-register_section("supervisor", lambda key: SECTION.get(key))
+register_section("supervisor", lambda key: SECTION.get(key), lambda: list(SECTION))
 
 
 class Supervisor:
@@ -141,6 +144,8 @@ class Supervisor:
             self.record = {"reason": reason, "time": self.tripped_at, "config": str(self.cfg.source),
                            "cycle": max(self.k - 1, 0), "t": t, "stop": self.stop, "last_cycles": list(self.history)}
             self._write_latch()
+            # info, not warning: the command reports the trip in its own one line
+            logger.info("supervisor tripped at t = %.4f s: %s", t, reason)
         return reason
 
     def _write_latch(self) -> None:

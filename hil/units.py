@@ -3,6 +3,12 @@
 Parsing is pint's; this module only fixes the project's conventions: every value inside the
 program is SI, radians are dimensionless, and ``Nm`` means newton metre (pint would read
 nanometre).
+
+The other way, for what a person reads: :func:`fmt` writes an SI value in the unit an engineer of
+feed drives reads (um or mm for a position, ms for a time, Hz, N m, N/um for a stiffness), the unit
+chosen by the magnitude from a short ladder per kind (:data:`DISPLAY_UNITS`), the conversion
+pint's. Every command's text output goes through it; JSON stays SI (the convention is in the
+README, "Output: units").
 """
 from __future__ import annotations
 
@@ -12,7 +18,8 @@ from functools import lru_cache
 
 from hil.errors import UnitError
 
-__all__ = ["UnitError", "parse", "parse_list", "parse_bounded", "DIMENSIONS"]
+__all__ = ["UnitError", "parse", "parse_list", "parse_bounded", "DIMENSIONS", "fmt", "fmt_uncertain",
+           "round_to_uncertainty", "display_unit", "DISPLAY_UNITS", "SI_UNIT"]
 
 
 # Expected kinds of quantity, by name, as pint dimensionalities written as strings.
@@ -174,3 +181,134 @@ def parse_bounded(value, kind: str, what: str, *, positive: bool = False, nonneg
     if maximum is not None and x > maximum:
         raise UnitError(f"{what}: expected a {kind} of at most {maximum:g} {unit}, got {value!r}")
     return x
+
+
+# The units a person reads, per kind: (unit as printed, as pint reads it, the largest |SI value| it
+# is used up to). The first rung whose limit the magnitude stays below is taken; the last is the
+# fallback. Printed spellings are ASCII (um, not the micro sign; "N m", as in the config files).
+DISPLAY_UNITS: dict[str, list[tuple[str, str, float]]] = {
+    "length": [("nm", "nm", 1e-6), ("um", "um", 1e-3), ("mm", "mm", 10.0), ("m", "m", math.inf)],
+    "time": [("us", "us", 1e-3), ("ms", "ms", 1.0), ("s", "s", math.inf)],
+    "frequency": [("Hz", "Hz", 1e4), ("kHz", "kHz", math.inf)],
+    "speed": [("mm/s", "mm/s", 0.1), ("m/s", "m/s", math.inf)],
+    "acceleration": [("m/s^2", "m/s^2", math.inf)],
+    "jerk": [("m/s^3", "m/s^3", math.inf)],
+    "mass": [("g", "g", 0.1), ("kg", "kg", math.inf)],
+    "inertia": [("kg m^2", "kg*m^2", math.inf)],
+    "stiffness": [("N/m", "N/m", 1e3), ("N/mm", "N/mm", 1e6), ("N/um", "N/um", math.inf)],
+    "damping": [("N s/m", "N*s/m", math.inf)],
+    "force": [("N", "N", 1e4), ("kN", "kN", math.inf)],
+    "torque": [("N m", "N*m", math.inf)],
+    "rot_stiffness": [("N m/rad", "N*m", math.inf)],
+    "rot_damping": [("N m s/rad", "N*m*s", math.inf)],
+    "angular_speed": [("rad/s", "1/s", math.inf)],
+    "voltage": [("mV", "mV", 1.0), ("V", "V", math.inf)],
+    "force_per_volt": [("N/V", "N/V", math.inf)],
+    "pressure": [("Pa", "Pa", 1e3), ("kPa", "kPa", 1e6), ("MPa", "MPa", math.inf)],
+    "area": [("mm^2", "mm^2", 1e-2), ("m^2", "m^2", math.inf)],
+    "area_moment": [("mm^4", "mm^4", 1e-4), ("m^4", "m^4", math.inf)],
+    "density": [("kg/m^3", "kg/m^3", math.inf)],
+    "volt_per_speed": [("V s/m", "V*s/m", math.inf)],
+    "dimensionless": [("", "", math.inf)],
+}
+
+
+@lru_cache(maxsize=None)
+def _factor(kind: str, pint_unit: str) -> float:
+    """SI value * factor = value in ``pint_unit`` (pint's conversion, cached per unit)."""
+    if not pint_unit:
+        return 1.0
+    ureg = _registry()
+    si = ureg.Quantity(1.0, _normalise(SI_UNIT[kind]).replace("^", "**"))
+    return float(si.to(pint_unit.replace("^", "**")).magnitude)
+
+
+def display_unit(value: float, kind: str, unit: str | None = None) -> tuple[str, float]:
+    """The unit :func:`fmt` prints ``value`` (SI) in, and the factor from SI to it.
+
+    ``unit``: a fixed unit (printed as given, e.g. ``"um"`` for a column of figures that should
+    share one unit); default: chosen by the magnitude from :data:`DISPLAY_UNITS`.
+    """
+    if kind not in DIMENSIONS:
+        raise KeyError(f"unknown kind of quantity {kind!r}")
+    if unit is not None:
+        return unit, _factor(kind, _normalise(unit))
+    ladder = DISPLAY_UNITS.get(kind) or [(SI_UNIT[kind], SI_UNIT[kind], math.inf)]
+    mag = abs(value) if isinstance(value, (int, float)) and math.isfinite(value) else 0.0
+    for shown, pint_unit, limit in ladder:
+        if mag < limit:
+            return shown, _factor(kind, pint_unit)
+    shown, pint_unit, _ = ladder[-1]
+    return shown, _factor(kind, pint_unit)
+
+
+def fmt(value, kind: str, digits: int = 4, unit: str | None = None) -> str:
+    """``value`` (SI) as text in an engineering unit: ``fmt(2.033e-4, "length")`` -> ``"203.3 um"``,
+    ``fmt(8.94, "torque")`` -> ``"8.94 N m"``, ``fmt(0.012, "time")`` -> ``"12 ms"``.
+
+    Parameters
+    ----------
+    value : float or None
+        SI value; None and NaN are written ``n/a``.
+    kind : str
+        A key of :data:`DIMENSIONS`.
+    digits : int
+        Significant digits (``g`` format: no trailing zeros, no e-notation for 1e-4 .. 1e6).
+    unit : str, optional
+        Print in this unit instead of the one chosen by the magnitude.
+    """
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "n/a"
+    value = float(value)
+    if math.isinf(value):
+        return ("-" if value < 0 else "") + "inf"
+    shown, factor = display_unit(value, kind, unit)
+    x = value * factor
+    text = f"{x:.{digits}g}"
+    if "e" in text and abs(x) >= 1:          # 12345 m/s^3, not 1.234e+04
+        text = f"{x:.0f}"
+    return f"{text} {shown}" if shown else text
+
+
+def round_to_uncertainty(value: float, sigma: float | None, sig: int = 2) -> tuple[float, int | None]:
+    """``value`` rounded to the last digit that its standard error ``sigma`` leaves meaningful
+    (``sig`` significant digits of sigma): ``(40.0912, 0.0374)`` -> ``(40.091, 3)``; returns the
+    rounded value and the number of decimals kept (None: sigma unknown or zero, value kept to 6
+    significant digits)."""
+    if sigma is None or not math.isfinite(sigma) or sigma <= 0 or not math.isfinite(value):
+        return (float(f"{value:.6g}") if math.isfinite(value) else value), None
+    decimals = sig - 1 - int(math.floor(math.log10(sigma)))
+    return round(value, decimals), decimals
+
+
+def fmt_uncertain(value: float, sigma: float | None, kind: str, unit: str | None = None) -> str:
+    """``value +- sigma`` in one engineering unit, the value rounded to its uncertainty:
+    ``fmt_uncertain(40.0912, 0.0374, "damping")`` -> ``"40.091 +- 0.037 N s/m"``."""
+    shown, factor = display_unit(value, kind, unit)
+    v = value * factor
+    s = None if sigma is None or not math.isfinite(sigma) else abs(sigma) * factor
+    r, dec = round_to_uncertainty(v, s)
+    tail = f" {shown}" if shown else ""
+    if dec is None:
+        return f"{r:.6g}{tail}" if math.isfinite(v) else f"{v}{tail}"
+    d = max(dec, 0)
+    return f"{r:.{d}f} +- {s:.{d}f}{tail}" if dec >= 0 else f"{r:.0f} +- {round(s, dec):.0f}{tail}"
+
+
+def kind_of(si_unit: str) -> str | None:
+    """The kind of quantity whose SI unit is ``si_unit`` (``"m"`` -> ``"length"``, ``"N*m"`` ->
+    ``"torque"``), None when no kind has it; for channels that carry their unit, not their kind."""
+    want = si_unit.replace("*", " ").strip()
+    for kind in ("length", "time", "torque", "force", "speed", "acceleration", "voltage", "frequency", "mass"):
+        if SI_UNIT[kind].replace("*", " ") == want:
+            return kind
+    return None
+
+
+def fmt_si(value, si_unit: str, digits: int = 4) -> str:
+    """:func:`fmt` for a value known by its SI unit (a record's channel): ``fmt_si(2.03e-4, "m")``
+    -> ``"203 um"``; a unit of no known kind is written as given."""
+    kind = kind_of(si_unit)
+    if kind is None:
+        return "n/a" if value is None else f"{float(value):.{digits}g} {si_unit}".rstrip()
+    return fmt(value, kind, digits)

@@ -116,7 +116,10 @@ def effect(name: str) -> Effect:
     try:
         return CATALOGUE[ALIASES.get(name, name)]
     except KeyError:
-        raise KeyError(f"unknown effect {name!r} (known: {', '.join(sorted(CATALOGUE))})") from None
+        import difflib
+        close = difflib.get_close_matches(name, list(CATALOGUE) + list(ALIASES), n=1, cutoff=0.6)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise KeyError(f"unknown effect {name!r} ({hint}known: {', '.join(sorted(CATALOGUE))})") from None
 
 
 def _motor_force_kind(values):

@@ -67,7 +67,7 @@ import canopen
 from canopen.sdo.constants import REQUEST_UPLOAD, SDO_STRUCT
 
 from drivers.base import Backend, BackendFault, Feedback, Setpoint
-from drivers.canopen import cia402
+from drivers.canopen import canlog, cia402
 from drivers.canopen import eds as eds_files
 from hil.config import Field, register_section
 from hil.control import controller_from_config
@@ -139,7 +139,7 @@ def _lookup(key: str):
     return SECTION.get(key)
 
 
-register_section("canopen", _lookup)
+register_section("canopen", _lookup, lambda: list(SECTION))
 
 RPDO_TARGET = {"csp": (0x607A, 0, 32), "csv": (0x60FF, 0, 32), "cst": (0x6071, 0, 16)}
 TPDO_MAPS = [
@@ -230,6 +230,7 @@ class CanopenBackend(Backend):
         self.started = False         # open() has begun: the drive is this backend's to stop and release
         self.emcy_log: list[dict] = []
         self.events: list[str] = []
+        self._recorder = None          # the bus trace of hil --can-log (drivers.canopen.canlog)
         self._rx = {}
         self._fresh = set()
         self._want = set()
@@ -324,6 +325,8 @@ class CanopenBackend(Backend):
                 raise BackendFault(f"cannot open the CAN bus {self.interface}:{self.channel} ({exc})") from None
         else:
             self.network.connect()
+        # hil --can-log FILE: python-can's logger on the bus, received and sent frames (drivers.canopen.canlog)
+        self._recorder = canlog.attach(self.network)
         self.node = self.network.add_node(self.node_id, self._od)
         self.node.sdo.RESPONSE_TIMEOUT = cfg.get("canopen.sdo_timeout", 0.5)
         self.node.emcy.add_callback(self._on_emcy)
@@ -874,6 +877,9 @@ class CanopenBackend(Backend):
             self.network.disconnect()
         except Exception as exc:
             self.events.append(f"close: {exc}")
+        if self._recorder is not None:
+            self._recorder.stop()
+            self._recorder = None
         self.network = None
         self.started = False
 

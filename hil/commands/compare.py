@@ -35,7 +35,7 @@ def add_common(parser) -> None:
     parser.add_argument("--open-loop", action="store_true",
                         help="an open-loop run (torque steps, a chirp): the recorded torque (rotary) or command/force "
                              "(linear) drives the plant, no position loop; the positions are compared")
-    parser.add_argument("--channels", default=None, help="comma-separated channels to use (default: all measured)")
+    parser.add_argument("--channels", metavar="CHANNELS", default=None, help="comma-separated channels to use (default: all measured)")
     parser.add_argument("--align", action="store_true", help="align each channel in time by cross-correlation")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -76,12 +76,13 @@ def make_replay(args, cfg, meas):
 PROGRESS_ROWS = 100_000
 
 
-def progress(rows: int):
+def progress(rows: int, quiet: bool = False):
     """A function that prints one progress line on stderr, or does nothing for a short record
-    that is not run from a terminal (the one-line error contract of the tests and scripts)."""
+    that is not run from a terminal (the one-line error contract of the tests and scripts), and
+    nothing with ``quiet`` (--json)."""
     import sys
     import time
-    if rows < PROGRESS_ROWS and not sys.stderr.isatty():
+    if quiet or (rows < PROGRESS_ROWS and not sys.stderr.isatty()):
         return lambda msg: None
     t0 = time.perf_counter()
     return lambda msg: print(f"  [{time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
@@ -115,7 +116,7 @@ def run(args) -> int:
     from hil.plots.report import write_report
     cfg, meas = load_inputs(args)
     after = load(args.after) if args.after else None
-    say = progress(meas.t.size)
+    say = progress(meas.t.size, quiet=args.json)
     with prompt_interrupt():
         say(f"replaying {meas.t.size} samples through {cfg.source}")
         rp = make_replay(args, cfg, meas)
@@ -131,11 +132,14 @@ def run(args) -> int:
         print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
                      "figures": [str(f) for f in figs], "warnings": meas.warnings}, indent=1))
     else:
+        from hil.units import fmt_si
         for c, d in a["channels"].items():
             e = b["channels"][c] if b else None
-            line = f"{c:8s} RMS {d['rms']:.4g} {d['unit']}  peak {d['peak']:.4g}  fit {d['fit']:.2f} %  rel {d['relative_error']:.4g} %"
+            u = d["unit"]
+            line = (f"{c:8s} RMS {fmt_si(d['rms'], u):>10s}  peak {fmt_si(d['peak'], u):>10s}  fit {d['fit']:.2f} %  "
+                    f"rel {d['relative_error']:.4g} %")
             if e:
-                line += f"   after: RMS {e['rms']:.4g}  fit {e['fit']:.2f} %  rel {e['relative_error']:.4g} %"
+                line += f"   after: RMS {fmt_si(e['rms'], u)}  fit {e['fit']:.2f} %  rel {e['relative_error']:.4g} %"
             print(line)
         print(f"report: {rep}")
     return 0

@@ -1,8 +1,6 @@
 """``hil diagnose``: which physical effect is the model missing?"""
 from __future__ import annotations
 
-import sys
-
 from hil.commands.compare import add_common, load_inputs, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import dumps
@@ -32,8 +30,8 @@ and no candidate closes half of the gap (with the evidence of where the residual
 
 def add_arguments(parser) -> None:
     add_common(parser)
-    parser.add_argument("--candidates", default=None, help="comma-separated candidates (default: the whole catalogue)")
-    parser.add_argument("--jobs", type=int, default=None, help="processes (default: the CPUs)")
+    parser.add_argument("--candidates", metavar="EFFECTS", default=None, help="comma-separated candidates (default: the whole catalogue)")
+    parser.add_argument("--jobs", metavar="N", type=int, default=None, help="processes (default: the CPUs)")
     parser.add_argument("--max-steps", "--steps", dest="max_steps", type=int, default=4, metavar="N",
                         help="at most N steps in the chain, each a diagnosis that adds its verdict (default 4; "
                              "1: the single diagnosis, as --no-chain)")
@@ -46,6 +44,10 @@ def candidates_json(d):
            "also_missing": d.get("also_missing", []), "combinations": d.get("combinations", []),
            "noise_floor": d["noise_floor"], "error_before": d["error_before"],
            "noise_floor_source": d.get("noise_floor_source", {}), "gap_closed": d.get("gap_closed")}
+    # the convention of every command's JSON: SI, and a units map where a key does not carry its unit
+    from hil.ident.replay import UNITS
+    per_channel = {c: UNITS.get(c, "") for c in d["noise_floor"]}
+    out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
     if "chain" in d:
@@ -68,37 +70,21 @@ def run(args) -> int:
             candidate(n, cfg)
         except KeyError as exc:
             raise UserError(str(exc).strip("'\"")) from None
-    try:
-        from tqdm import tqdm
-        bar = tqdm(desc="diagnose", unit="fit", file=sys.stderr, disable=None)
-        prog = lambda n: (bar.update(1), bar.set_postfix_str(n))  # noqa: E731
-    except ImportError:
-        bar, prog = None, lambda n: print(f"  fitting {n}", file=sys.stderr)
     from hil.commands.compare import prompt_interrupt
-    with prompt_interrupt():           # Ctrl-C ends it at once, inside the compiled fits too
+    from hil.commands.progress import bar
+    # Ctrl-C ends it at once, inside the compiled fits too
+    with prompt_interrupt(), bar("diagnose", args) as prog:
         if args.no_chain or args.max_steps <= 1:
             d = diagnose(rp, names, progress=prog, jobs=args.jobs, min_gap=HALF_GAP)
         else:
             d = diagnose_chain(rp, names, max_steps=args.max_steps, progress=prog, jobs=args.jobs)
-    if bar is not None:
-        bar.close()
     if args.out and "config" in d:
-        _write_config(args.out, d, meas.source)
+        _write_config(args, d, meas.source)
     if args.json:
         print(dumps(candidates_json(d), indent=1))
         return 0
-    verdicts = {"none": "none (the model matches the record down to the noise floor)",
-                "unexplained": "unexplained (above the noise floor, and no catalogue effect explains it)"}
-    print(f"verdict: {verdicts.get(d['verdict'], d['verdict'])}")
-    for i, c in enumerate(d["candidates"]):
-        mark = "*" if c.significant else " "
-        print(f"{i + 1:2d}{mark} {c.effect:26s} score {c.score:10.1f}  {c.evidence}")
-    for m in d.get("also_missing", []):
-        print(f"also missing: {m['effect']} (score {m['score']:.1f} beside {d['verdict']}): {m['evidence']}")
-    for cb in d.get("combinations", []):
-        print(f"combination {' + '.join(cb['effects'])} against {cb['explains']}: score {cb['score']:.1f}, "
-              f"{100 * cb['explained']:.0f} % of its gain, {cb['explains']} against it {cb['rich_against_combination']:.1f}"
-              f" -> {'named first' if cb['preferred'] else cb['explains'] + ' first'}")
+    for line in ranking_text(d):
+        print(line)
     if "chain" in d:
         for line in chain_text(d, rp):
             print(line)
@@ -110,22 +96,75 @@ def run(args) -> int:
     return 0
 
 
+def ranking_text(d) -> list[str]:
+    """The diagnosis as a person reads it: the verdict first, with the score that decided it (a
+    combination's when simpler effects fitted together were preferred to a richer one), the effects
+    also missing beside it with their own (marginal) scores, then every other candidate by its
+    score, best first, each listed once; a richer effect that a combination mimics says so."""
+    verdicts = {"none": "none (the model matches the record down to the noise floor)",
+                "unexplained": "unexplained (above the noise floor, and no catalogue effect explains it)"}
+    verdict = d["verdict"]
+    cands = list(d["candidates"])
+    by_name = {c.effect: c for c in cands}
+    lead = next((cb for cb in d.get("combinations", []) if cb.get("preferred") and verdict in cb["effects"]), None)
+    lines = []
+    if verdict in by_name:
+        c = by_name[verdict]
+        if lead is not None:
+            lines.append(f"verdict: {verdict} (with {' + '.join(e for e in lead['effects'] if e != verdict)}: "
+                         f"combination score {lead['score']:.1f}, {100 * lead['explained']:.0f} % of the gain of "
+                         f"{lead['explains']}; alone {c.score:.1f})")
+        else:
+            lines.append(f"verdict: {verdict} (score {c.score:.1f})")
+        lines.append(f"    {c.evidence}")
+    else:
+        lines.append(f"verdict: {verdicts.get(verdict, verdict)}")
+    shown = {verdict}
+    for m in d.get("also_missing", []):
+        lines.append(f"also missing: {m['effect']} (score {m['score']:.1f} in the joint fit beside {verdict}: "
+                     f"the fall of the BIC when it is left out)")
+        lines.append(f"    {m['evidence']}")
+        shown.add(m["effect"])
+    mimicked = {cb["explains"]: cb for cb in d.get("combinations", [])}
+    rest = sorted((c for c in cands if c.effect not in shown), key=lambda c: -c.score)
+    if rest:
+        lines.append("other candidates, by score (BIC fall; * significant):")
+    for i, c in enumerate(rest):
+        mark = "*" if c.significant else " "
+        note = ""
+        cb = mimicked.get(c.effect)
+        if cb is not None and cb.get("preferred"):
+            note = (f" [mimicked by {' + '.join(cb['effects'])}: {100 * cb['explained']:.0f} % of its gain; "
+                    f"against them it scores {cb['rich_against_combination']:.1f}]")
+        lines.append(f"{i + 1:3d}{mark} {c.effect:26s} score {c.score:10.1f}  {c.evidence}{note}")
+    for cb in d.get("combinations", []):
+        if cb is lead:
+            continue
+        lines.append(f"combination {' + '.join(cb['effects'])} against {cb['explains']}: score {cb['score']:.1f}, "
+                     f"{100 * cb['explained']:.0f} % of its gain, {cb['explains']} against it "
+                     f"{cb['rich_against_combination']:.1f} -> "
+                     f"{'named first' if cb['preferred'] else cb['explains'] + ' first'}")
+    return lines
+
+
 def chain_text(d, rp) -> list[str]:
     """The error falling step by step: per step the effects added and the RMS error of each channel
     (before -> after, and its ratio to the noise floor), then the end."""
     from hil.ident.unexplained import describe
+    from hil.units import fmt_si
     floor = {c: max(v, 1e-300) for c, v in d["noise_floor"].items()}
     chans = list(floor)
     lines = ["chain (RMS error per channel; x floor = ratio to the noise floor):",
-             "  start: " + ", ".join(f"{c} {d['error_before'][c]:.3g} {rp.unit(c)} ({d['error_before'][c] / floor[c]:.1f} x floor)"
-                                     for c in chans)]
+             "  start: " + ", ".join(f"{c} {fmt_si(d['error_before'][c], rp.unit(c), 3)} "
+                                     f"({d['error_before'][c] / floor[c]:.1f} x floor)" for c in chans)]
     for s in d["chain"]:
         added = " + ".join(s["effects"])
         par = "; ".join(f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in s["params"].items()
                         if n in s["effects"])
         lines.append(f"  step {s['step']}: + {added}{' (all refitted together)' if s['refitted_together'] else ''}"
                      f" [{par}]")
-        lines.append("          " + ", ".join(f"{c} {s['error_before'][c]:.3g} -> {s['error_after'][c]:.3g} "
+        lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
+                                           f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))
     f = d["final"]
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else
@@ -135,9 +174,12 @@ def chain_text(d, rp) -> list[str]:
     return lines
 
 
-def _write_config(path, d, source) -> None:
+def _write_config(args, d, source) -> None:
+    """--out: the config with the chain, as an edit of --config (hil.io.config_write: only the keys
+    the chain changed, the file's comments, layout and units kept)."""
     from pathlib import Path
-    added = [" + ".join(s["effects"]) for s in d["chain"]]
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    Path(path).write_text(f"# fitted by hil diagnose on {source}: chain {', '.join(added) or '(nothing added)'}\n"
-                          + d["config"].to_toml(), encoding="utf-8")
+
+    from hil.io.config_write import write_config
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    write_config(args.out, args.config, d["config"], note=f"hil diagnose on {Path(str(source)).name}",
+                 inputs=(args.config, args.data))

@@ -45,16 +45,19 @@ its TPDO1 on every SYNC.
 
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
-    add_common(p, backend=False)
-    p.add_argument("--interface", default="socketcand", choices=("socketcand", "slcan"),
-                   help="transport for other processes: socketcand (a server on 127.0.0.1; default). "
-                        "slcan is not built in this version")
-    p.add_argument("--channel", default="can0", help="the socketcand bus name clients open (default can0)")
-    p.add_argument("--port", type=int, help="TCP port on 127.0.0.1 (default: the config's canopen.port, 29536)")
+    add_common(p, backend=False, can=False)
+    # only what works: the socketcand server (a serial slcan adapter would need hardware on both ends)
+    p.add_argument("-i", "--interface", default="socketcand", choices=("socketcand",), metavar="NAME",
+                   help="transport for other processes: socketcand (a server on 127.0.0.1; the only one)")
+    p.add_argument("-c", "--channel", default="can0", metavar="NAME",
+                   help="the socketcand bus name clients open (default can0)")
+    p.add_argument("--port", type=int, metavar="PORT",
+                   help="TCP port on 127.0.0.1 (default: the config's canopen.port, 29536)")
     p.add_argument("--fault", action="append", default=[], metavar="KIND[=VALUE]@SECONDS",
                    help="inject a fault that many seconds after the start (repeatable)")
-    p.add_argument("--seconds", type=float, default=0.0, help="stop after this long (default: until Ctrl-C)")
-    p.add_argument("--switch-interval", type=float, default=1e-4, metavar="S",
+    p.add_argument("--seconds", default="0s", metavar="TIME",
+                   help="stop after this long, e.g. 30s or 2min (default: until Ctrl-C)")
+    p.add_argument("--switch-interval", default="100us", metavar="TIME",
                    help="the interpreter's thread switch interval (default 100 us: a fault timer's thread gives the "
                         "interpreter back to the drive's soon; Python's own default is 5 ms)")
     p.add_argument("--priority", type=int, default=0, metavar="N",
@@ -147,15 +150,14 @@ def run(args) -> int:
     from drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
     from hil.commands.move import load_config
     cfg = load_config(args)
-    if args.interface == "slcan":
-        raise UserError("--interface slcan is not built in this version; use --interface socketcand")
     faults = [parse_fault(f) for f in args.fault]
     if any(k == "tip_missing_pdo" for k, _, _ in faults) and not int(cfg.get("canopen.tip_node_id", 0) or 0):
         raise UserError("--fault tip_missing_pdo: the simulated drive has no tip sensor node "
                         "(--set canopen.tip_node_id=2)")
-    if args.seconds < 0:
-        raise UserError(f"--seconds: must be >= 0, got {args.seconds:g}")
-    if args.switch_interval and args.switch_interval > 0:
+    from hil.units import parse_bounded
+    args.seconds = parse_bounded(args.seconds, "time", "--seconds", nonnegative=True)
+    args.switch_interval = parse_bounded(args.switch_interval, "time", "--switch-interval", nonnegative=True)
+    if args.switch_interval > 0:
         sys.setswitchinterval(args.switch_interval)
     port = args.port if args.port is not None else int(cfg.get("canopen.port", 29536))
     if not 0 <= port <= 65535:

@@ -3,7 +3,6 @@ itself is hil.ident.emps)."""
 from __future__ import annotations
 
 import shutil
-import sys
 from pathlib import Path
 
 from hil.errors import UserError
@@ -25,8 +24,8 @@ filtered position) and of the force gtau*vir.
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--data", default="../shared/data/emps/DATA_EMPS.mat", help="the EMPS .mat record")
-    parser.add_argument("--config", default=str(Path(__file__).resolve().parents[2] / "config" / "emps.toml"))
+    parser.add_argument("--data", metavar="FILE", default="../shared/data/emps/DATA_EMPS.mat", help="the EMPS .mat record")
+    parser.add_argument("--config", metavar="FILE", default=str(Path(__file__).resolve().parents[2] / "config" / "emps.toml"))
     parser.add_argument("--out", default="out/emps", metavar="DIR")
     parser.add_argument("--quick", action="store_true", help="fewer iterations (tests)")
     parser.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis rankings (faster)")
@@ -42,8 +41,9 @@ def run(args) -> int:
     from hil.plots.report import write_report
     if not Path(args.data).exists():
         raise UserError(f"{args.data}: no such file (the EMPS record, see ../shared/data/emps/PROVENANCE.md)")
-    res = run_emps(args.data, args.config, args.quick, progress=lambda n: print(f"  fitting {n}", file=sys.stderr),
-                   diagnose_steps=not args.no_diagnose)
+    from hil.commands.progress import bar
+    with bar("emps", args) as prog:
+        res = run_emps(args.data, args.config, args.quick, progress=prog, diagnose_steps=not args.no_diagnose)
     rows, cfgs, diags = res.rows, res.configs, res.diagnoses
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

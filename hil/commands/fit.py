@@ -1,7 +1,6 @@
 """``hil fit``: add effects with fitted parameters and write the new config."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from hil.commands.compare import add_common, load_inputs, make_replay
@@ -12,6 +11,9 @@ HELP = "fit one or more effects (or parameter:<key>) to a measurement and write 
 DESCRIPTION = """\
 Adds each --add effect in turn, fitting its parameters on top of the ones before, and writes the
 config with the effects' sections ([effects.<name>]) or the re-identified parameters to --out.
+--out is an edit of --config: only the fitted keys change (comments, layout and the units each
+value was written in are kept), each value rounded to its standard error (from the fit's
+Jacobian), which a comment beside it gives.
 Then `hil compare DATA --config OLD --after NEW` shows the error fall. DATA may also be the
 frf.json that `hil frf` writes: the effects are then fitted to the measured frequency responses
 (all --add fitted together, weighted by the measured uncertainty).
@@ -26,7 +28,7 @@ def add_arguments(parser) -> None:
     add_common(parser)
     parser.add_argument("--add", action="append", required=True, metavar="EFFECT",
                         help="catalogue effect or parameter:<dotted key> (repeatable)")
-    parser.add_argument("--refit", default=None, help="comma-separated config keys to refit jointly at the end")
+    parser.add_argument("--refit", metavar="KEYS", default=None, help="comma-separated config keys to refit jointly at the end")
     parser.add_argument("--out", required=True, metavar="FILE", help="the new config (TOML)")
 
 
@@ -66,30 +68,99 @@ def run(args) -> int:
         except KeyError as exc:
             raise UserError(str(exc).strip("'\"")) from None
     refit = _refit_keys(args.refit)
+    refit_se: dict = {}
     rp = make_replay(args, cfg, meas)
     before = {c: float((rp.base_residuals[c] ** 2).mean() ** 0.5) for c in rp.channels}
-    new, steps = fit_effects(rp, args.add, progress=lambda n: print(f"  fitting {n}", file=sys.stderr))
+    from hil.commands.progress import bar
+    with bar("fit", args, total=len(args.add) + (len(args.add) > 1)) as prog:
+        new, steps = fit_effects(rp, args.add, progress=prog)
     if refit:
         missing = [k for k in refit if not isinstance(new.get(k), float)]
         if missing:
             raise UserError(f"--refit {missing[0]}: not a number of the fitted config (the keys it has: "
                             f"the config's and the added effects')")
-        new = joint_refit(rp, new, refit)
+        new = joint_refit(rp, new, refit, stderr=refit_se)
     res = rp.residuals(new)
     after = {c: float((res[c] ** 2).mean() ** 0.5) for c in rp.channels}
-    from hil.io.safe_write import write_atomic
-    write_atomic(args.out, f"# fitted by hil fit on {meas.source}: {', '.join(args.add)}\n" + new.to_toml(),
-                 inputs=(args.config, args.data, args.after if hasattr(args, "after") else None))
-    out = {"config": args.out, "steps": [s.as_json() for s in steps], "error_before": before, "error_after": after}
+    stderr = fitted_stderr(cfg, steps)
+    stderr.update(refit_se)
+    written = _write(args, new, stderr, f"hil fit on {Path(str(meas.source)).name}",
+                     inputs=(args.config, args.data, args.after if hasattr(args, "after") else None))
+    fitted = {k: {"value": new.get(k), "stderr": stderr.get(k), "unit": _si_unit(k, new)} for k in written}
+    out = {"config": args.out, "steps": [s.as_json() for s in steps], "fitted": fitted,
+           "error_before": before, "error_after": after,
+           "units": {"error_before": {c: rp.unit(c) for c in rp.channels},
+                     "error_after": {c: rp.unit(c) for c in rp.channels}}}
     if args.json:
         print(dumps(out, indent=1))
     else:
-        for s in steps:
-            print(f"{s.effect}: " + ", ".join(f"{k} = {v:.6g}" for k, v in s.params.items()))
+        from hil.units import fmt_si
+        for line in fitted_text(written, new, stderr):
+            print(line)
         for c in rp.channels:
-            print(f"  {c}: RMS {before[c]:.4g} -> {after[c]:.4g}")
-        print(f"wrote {args.out}")
+            print(f"  {c}: RMS {fmt_si(before[c], rp.unit(c))} -> {fmt_si(after[c], rp.unit(c))}")
+        print(f"wrote {args.out} (changed: {', '.join(written) or 'nothing'})")
     return 0
+
+
+def _si_unit(key: str, cfg) -> str:
+    from hil.config import field_for
+    from hil.units import SI_UNIT
+    f = field_for(key)
+    return SI_UNIT.get(f.kind_for(cfg.values), "") if f is not None else ""
+
+
+def fitted_stderr(cfg, steps) -> dict:
+    """Standard error (SI) per config key of the fitted parameters: each step's parameters mapped
+    to the keys they set (a later step, the joint fit, wins)."""
+    import math
+
+    from hil.plant_config import candidate
+    out: dict = {}
+    for s in steps:
+        try:
+            eff = candidate(s.effect, cfg)
+        except KeyError:
+            continue
+        vals = dict(s.params)
+        try:
+            ref = eff.configure(cfg, vals)
+        except ValueError:
+            continue
+        for name, se in s.stderr.items():
+            bumped = dict(vals, **{name: vals[name] * (1 + 1e-3) + 1e-9})
+            try:
+                other = eff.configure(cfg, bumped)
+            except ValueError:
+                continue
+            keys = [k for k, v in other.values.items() if v != ref.values.get(k)]
+            if len(keys) == 1:
+                out[keys[0]] = se if math.isfinite(se) else None
+    return out
+
+
+def fitted_text(keys, new, stderr) -> list[str]:
+    """One line per written key: its value rounded to its standard error, in an engineering unit."""
+    from hil.config import field_for
+    from hil.units import DIMENSIONS, fmt, fmt_uncertain
+    lines = []
+    for k in keys:
+        v = new.get(k)
+        f = field_for(k)
+        kind = f.kind_for(new.values) if f is not None else "dimensionless"
+        if not isinstance(v, float) or kind not in DIMENSIONS:
+            lines.append(f"{k} = {v}")
+        elif stderr.get(k) is not None:
+            lines.append(f"{k} = {fmt_uncertain(v, stderr[k], kind)}  (standard error)")
+        else:
+            lines.append(f"{k} = {fmt(v, kind, digits=6)}")
+    return lines
+
+
+def _write(args, new, stderr, note, inputs) -> list[str]:
+    """--out as an edit of --config: the changed keys only (hil.io.config_write)."""
+    from hil.io.config_write import write_config
+    return write_config(args.out, args.config, new, stderr=stderr, note=note, inputs=inputs)
 
 
 def _run_frequency(args) -> int:
@@ -103,15 +174,15 @@ def _run_frequency(args) -> int:
         fit = fit_frf(cfg, data, args.add)
     except (FrfDataError, KeyError) as exc:
         raise UserError(str(exc).strip("'\"")) from None
-    from hil.io.safe_write import write_atomic
-    write_atomic(args.out, f"# fitted by hil fit on {args.data} (frequency responses): {', '.join(args.add)}\n"
-                 + fit.config.to_toml(), inputs=(args.config, args.data))
+    written = _write(args, fit.config, {}, f"hil fit on {Path(args.data).name} (frequency responses)",
+                     inputs=(args.config, args.data))
     out = {"config": args.out, "domain": "frequency", "effect": fit.effect, "params": fit.params,
            "error_before": fit.error_before, "error_after": fit.error_after, "per_response": fit.per_response}
     if args.json:
         print(dumps(out, indent=1))
     else:
-        print(f"{fit.effect}: " + ", ".join(f"{k} = {v:.6g}" for k, v in fit.params.items()))
+        for line in fitted_text(written, fit.config, {}):
+            print(line)
         for name, e in fit.per_response.items():
             print(f"  {name}: rms log error {e['before']:.4g} -> {e['after']:.4g}")
         print(f"wrote {args.out}")

@@ -33,28 +33,30 @@ changes only the simulated plant (to rehearse finding a wrong parameter).
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--config", required=True, help="axis configuration (TOML)")
+    p.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config parameter (model and simulated plant), repeatable")
     p.add_argument("--sim-set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a parameter of the simulated plant only (the model keeps the config's)")
-    p.add_argument("--backend", help="sim (default: the compiled loop) or another backend in torque mode")
+    p.add_argument("--backend", metavar="NAME", help="sim (default: the compiled loop) or another backend in torque mode")
+    from hil.commands.canbus import add_can_options
+    add_can_options(p)
     p.add_argument("--signal", choices=("multisine", "chirp", "prbs"), default="multisine")
     p.add_argument("--input", choices=("torque", "velocity"), default="torque",
                    help="where the excitation enters: the controller output or the speed reference")
-    p.add_argument("--amplitude", help="peak of the excitation: a torque (default 10%% of the output limit) "
+    p.add_argument("--amplitude", metavar="QUANTITY", help="peak of the excitation: a torque (default 10%% of the output limit) "
                                        "or a speed (default 5 mm/s, or rad/s of the motor)")
-    p.add_argument("--band", default="1Hz..200Hz", help="frequency band, e.g. 1Hz..200Hz")
-    p.add_argument("--periods", type=int, default=6, help="averaged excitation periods (default 6)")
-    p.add_argument("--period", default="2s", help="length of one excitation period (default 2 s)")
-    p.add_argument("--settle", default="4s", help="least excitation time before averaging (default 4 s; "
+    p.add_argument("--band", metavar="FMIN..FMAX", default="1Hz..200Hz", help="frequency band, e.g. 1Hz..200Hz")
+    p.add_argument("--periods", metavar="N", type=int, default=6, help="averaged excitation periods (default 6)")
+    p.add_argument("--period", metavar="TIME", default="2s", help="length of one excitation period (default 2 s)")
+    p.add_argument("--settle", metavar="TIME", default="4s", help="least excitation time before averaging (default 4 s; "
                                                   "longer when the model has a slow mode)")
-    p.add_argument("--speed", default="10mm/s", help="speed of the working point (default 10 mm/s)")
-    p.add_argument("--noise", default="0 rad/s", help="simulated speed measurement noise, rms, in rad/s "
+    p.add_argument("--speed", metavar="SPEED", default="10mm/s", help="speed of the working point (default 10 mm/s)")
+    p.add_argument("--noise", metavar="QUANTITY", default="0 rad/s", help="simulated speed measurement noise, rms, in rad/s "
                                                 "(simulated backend only; default 0)")
-    p.add_argument("--pm", type=float, default=45.0, help="phase margin to keep, deg (default 45)")
-    p.add_argument("--gm", type=float, default=6.0, help="gain margin to keep, dB (default 6)")
-    p.add_argument("--out", default="out/frf", help="folder for plots and data (default out/frf)")
+    p.add_argument("--pm", metavar="DEG", type=float, default=45.0, help="phase margin to keep, deg (default 45)")
+    p.add_argument("--gm", metavar="DB", type=float, default=6.0, help="gain margin to keep, dB (default 6)")
+    p.add_argument("--out", metavar="DIR", default="out/frf", help="folder for plots and data (default out/frf)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -114,11 +116,11 @@ def _check_travel(cfg, st, duration: float, x0: float) -> None:
 def run(args) -> int:
     from drivers import open_backend
     from hil import frf
+    from hil.commands.move import load_config
     from hil.control import controller_from_config
     from hil.plant_config import plant_from_config
-
     overrides = dict(parse_assignment(s) for s in args.set)
-    cfg = load(args.config, overrides)
+    cfg = load_config(args)            # --set, and -i/-c/-b or python-can's configuration for canopen
     plant_model = plant_from_config(cfg)
     ctrl = controller_from_config(cfg, plant_model)
     st = settings_from_args(args, cfg, ctrl)
@@ -161,7 +163,8 @@ def run(args) -> int:
     else:
         refuse_if_tripped(cfg)
         supervisor = None
-    progress = frf.stderr_progress
+    from hil.commands.progress import shown
+    progress = frf.stderr_progress if shown(args) else None      # silent with --json or off a terminal
     try:
         result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
                              pm_min=args.pm, gm_min_db=args.gm, supervisor=supervisor)

@@ -14,8 +14,8 @@ Other methods are the drive's own; the simulated drive knows 35 and 37.
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
     add_common(p, backend=False)
-    p.add_argument("--offset", default="0mm", help="position of the home point (default 0mm)")
-    p.add_argument("--method", type=int, default=37, help="homing method 0x6098 (default 37)")
+    p.add_argument("--offset", metavar="LENGTH", default="0mm", help="position of the home point (default 0mm)")
+    p.add_argument("--method", metavar="N", type=int, default=37, help="homing method 0x6098 (default 37)")
     p.add_argument("--json", action="store_true", help="print as JSON")
 
 

@@ -16,10 +16,10 @@ motion, the supervisor watching every cycle). A latched trip refuses it until 'h
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
     add_common(p, backend=False)
-    p.add_argument("--backend", default="canopen", help="canopen (default), serial or sim")
-    p.add_argument("--distance", required=True, help="signed distance, e.g. 5mm or -2mm")
-    p.add_argument("--speed", default="600mm/min", help="jog speed (default 600mm/min)")
-    p.add_argument("--amax", default="0.5m/s^2", help="acceleration (default 0.5m/s^2)")
+    p.add_argument("--backend", metavar="NAME", default="canopen", help="canopen (default), serial or sim")
+    p.add_argument("--distance", metavar="LENGTH", required=True, help="signed distance, e.g. 5mm or -2mm")
+    p.add_argument("--speed", metavar="SPEED", default="600mm/min", help="jog speed (default 600mm/min)")
+    p.add_argument("--amax", metavar="ACCELERATION", default="0.5m/s^2", help="acceleration (default 0.5m/s^2)")
     p.add_argument("--json", action="store_true", help="print as JSON")
 
 

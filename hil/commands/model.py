@@ -90,11 +90,13 @@ def _text(r: dict) -> str:
     lines = [f"{r['name'] or 'model'} ({r['config']})",
              f"chain of {len(r['masses_kg'])} masses, {r['actuator']} actuator"
              + (f", pitch {r['pitch_m'] * 1e3:g} mm" if r["pitch_m"] else "")]
-    for sym, vals, unit in (("m", r["masses_kg"], "kg"), ("k", r["stiffness_N_per_m"], "N/m"),
-                            ("c", r["damping_N_s_per_m"], "N s/m")):
+    from hil.units import fmt
+    for sym, vals, kind in (("m", r["masses_kg"], "mass"), ("k", r["stiffness_N_per_m"], "stiffness"),
+                            ("c", r["damping_N_s_per_m"], "damping")):
         if vals:
-            lines.append("  " + "   ".join(f"{sym}{i} = {v:.6g} {unit}" for i, v in enumerate(vals, 1)))
-    lines.append(f"  motor viscous friction on mass 1: {r['viscous_friction_N_s_per_m']:.6g} N s/m (linear units)")
+            lines.append("  " + "   ".join(f"{sym}{i} = {fmt(v, kind, 6)}" for i, v in enumerate(vals, 1)))
+    lines.append(f"  motor viscous friction on mass 1: {fmt(r['viscous_friction_N_s_per_m'], 'damping', 6)} "
+                 f"(linear units)")
     if not r["modes_hz"]:
         lines.append("no elastic mode (a single mass)")
     else:
@@ -106,6 +108,33 @@ def _text(r: dict) -> str:
                          f"at {r['damped_modes_hz'][i]:.3f} Hz")
     if r.get("plot"):
         lines.append(f"Bode plots: {r['plot']}")
+    return "\n".join(lines)
+
+
+_BANDWIDTHS = {"table_ff": "table, with feed-forward", "table_no_ff": "table, without feed-forward",
+               "tip_ff": "tool tip, with feed-forward", "table_ff_tf3": "table, with feed-forward, TF3 included",
+               "table_no_ff_tf3": "table, without feed-forward, TF3 included"}
+
+
+def closed_loop_text(cl) -> str:
+    """The closed position loop in lines a person reads (the JSON has the same numbers, SI)."""
+    from hil.units import fmt
+    if isinstance(cl, str):
+        return cl
+    lines = ["closed position loop:"]
+    if "stable" in cl:
+        rho = cl.get("spectral_radius")
+        lines.append(f"  {'stable' if cl['stable'] else 'UNSTABLE'}"
+                     + (f" (spectral radius of the sampled loop {rho:.4f})" if isinstance(rho, float) else ""))
+    for k, v in (cl.get("bandwidth_hz") or {}).items():
+        lines.append(f"  -3 dB bandwidth, {_BANDWIDTHS.get(k, k)}: {fmt(v, 'frequency') if v is not None else 'n/a'}")
+    for k, v in (cl.get("peak_gain_db") or {}).items():
+        lines.append(f"  peak gain, {_BANDWIDTHS.get(k, k)}: {v:.2f} dB")
+    for k, v in cl.items():
+        if k not in ("stable", "spectral_radius", "bandwidth_hz", "peak_gain_db", "plot"):
+            lines.append(f"  {k.replace('_', ' ')}: {v}")
+    if cl.get("plot"):
+        lines.append(f"closed-loop plot: {cl['plot']}")
     return "\n".join(lines)
 
 
@@ -131,7 +160,6 @@ def run(args) -> int:
     else:
         print(_text(report))
         if "closed_loop" in report:
-            cl = report["closed_loop"]
-            print(cl if isinstance(cl, str) else dumps(cl, indent=2))
+            print(closed_loop_text(report["closed_loop"]))
     return 0
 

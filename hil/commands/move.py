@@ -31,36 +31,50 @@ example:
 """
 
 
-def add_common(p, backend: bool = True) -> None:
-    p.add_argument("--config", required=True, help="axis configuration (TOML)")
+def add_common(p, backend: bool = True, can: bool = True) -> None:
+    p.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config parameter, e.g. --set plant.c2=33 (repeatable)")
     if backend:
-        p.add_argument("--backend", help="sim (default), canopen or serial; default: the config's backend.type")
+        p.add_argument("--backend", metavar="NAME",
+                       help="sim (default), canopen or serial; default: the config's backend.type")
+    if can:
+        from hil.commands.canbus import add_can_options
+        add_can_options(p)
 
 
 def load_config(args):
     overrides = dict(config_mod.parse_assignment(s) for s in args.set)
-    return config_mod.load(args.config, overrides)
+    cfg = config_mod.load(args.config, overrides)
+    if not hasattr(args, "bitrate"):            # a command without the CAN options
+        return cfg
+    given = any(getattr(args, k, None) is not None for k in ("interface", "channel", "bitrate"))
+    if given or (getattr(args, "backend", None) or cfg.get("backend.type", "sim")) == "canopen":
+        # -i/-c/-b, then python-can's configuration for what the file does not write; --set wins
+        from hil.commands.canbus import can_overrides
+        extra = can_overrides(args, cfg.source)
+        if extra:
+            cfg = config_mod.load(args.config, {**extra, **overrides})
+    return cfg
 
 
 def add_arguments(p) -> None:
     add_common(p)
-    p.add_argument("--stroke", required=True, help="signed stroke, e.g. 100mm or -0.1m")
-    p.add_argument("--feed", required=True, help="feed (peak speed), e.g. 7000mm/min")
+    p.add_argument("--stroke", metavar="LENGTH", required=True, help="signed stroke, e.g. 100mm or -0.1m")
+    p.add_argument("--feed", metavar="SPEED", required=True, help="feed (peak speed), e.g. 7000mm/min")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--tacc", help="NC acceleration time to reach G0, e.g. 200ms")
-    g.add_argument("--amax", help="peak acceleration, e.g. 4m/s^2")
-    g.add_argument("--jmax", help="peak jerk, e.g. 200m/s^3")
-    p.add_argument("--g0", help="rapid speed G0 (default: the config's nc.g0)")
-    p.add_argument("--start", help="start position. Simulated plant: where it starts (default 0mm). An axis "
+    g.add_argument("--tacc", metavar="TIME", help="NC acceleration time to reach G0, e.g. 200ms")
+    g.add_argument("--amax", metavar="ACCELERATION", help="peak acceleration, e.g. 4m/s^2")
+    g.add_argument("--jmax", metavar="JERK", help="peak jerk, e.g. 200m/s^3")
+    p.add_argument("--g0", metavar="SPEED", help="rapid speed G0 (default: the config's nc.g0)")
+    p.add_argument("--start", metavar="LENGTH", help="start position. Simulated plant: where it starts (default 0mm). An axis "
                    "(canopen, serial): where it must stand (within limits.start_window), else refused; "
                    "default: the move starts where the axis stands")
     p.add_argument("--back", action="store_true", help="return to the start after the dwell")
-    p.add_argument("--dwell", default="1s", help="standstill after each move (default 1s)")
-    p.add_argument("--band", default="1um", help="settling band around the target (default 1um)")
+    p.add_argument("--dwell", metavar="TIME", default="1s", help="standstill after each move (default 1s)")
+    p.add_argument("--band", metavar="LENGTH", default="1um", help="settling band around the target (default 1um)")
     p.add_argument("--check", action="store_true", help="check the move against the limits, do not run it")
-    p.add_argument("--out", default="out/move", help="output folder for the record and the plot (default out/move)")
+    p.add_argument("--out", metavar="DIR", default="out/move", help="output folder for the record and the plot (default out/move)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
@@ -102,7 +116,7 @@ def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
     from hil.profiles import AxisLimits, LimitError, check_limits, check_sampled
-    from hil.units import parse_bounded
+    from hil.units import SI_UNIT, fmt, parse_bounded
     cfg = load_config(args)
     band = parse_bounded(args.band, "length", "--band", positive=True, maximum=1.0)   # before anything moves
     if _no_move(cfg, parse(args.stroke, "length", "--stroke"), "--stroke", args.json):
@@ -120,9 +134,10 @@ def run(args) -> int:
     if args.check:
         summary = {"ok": True, "j_max": first.j_max, "a_max": first.a_max, "peak_speed": first.peak_speed,
                    "duration": traj.duration, "reduced_peak_speed": first.reduced}
+        summary["units"] = {"j_max": "m/s^3", "a_max": "m/s^2", "peak_speed": "m/s", "duration": "s"}
         print(dumps(summary, indent=2) if args.json else
-              f"move fits the limits: j_max {first.j_max:.4g} m/s^3, a_max {first.a_max:.4g} m/s^2, "
-              f"peak speed {first.peak_speed * 60e3:.0f} mm/min, duration {traj.duration:.3f} s")
+              f"move fits the limits: j_max {fmt(first.j_max, 'jerk')}, a_max {fmt(first.a_max, 'acceleration')}, "
+              f"peak speed {first.peak_speed * 60e3:.0f} mm/min, duration {fmt(traj.duration, 'time')}")
         return 0
     from drivers import BackendError, open_backend
     from hil.runtime import run_trajectory
@@ -167,16 +182,21 @@ def run(args) -> int:
     png = plot_move(ch, out / "move.png", title=title)
     summary = dict(fig.as_dict(), status=rec.status, reason=rec.reason, record=str(rec.path), plot=str(png),
                    backend=backend.name, start_m=traj.start)
+    drive = "torque" if cfg.rotary else "force"
+    summary["units"] = {k: u for k, u in (("settling_time_table", "s"), ("settling_time_tip", "s"),
+                                          ("peak_torque", SI_UNIT[drive]), ("j_max", "m/s^3"),
+                                          ("a_max", "m/s^2"), ("peak_speed", "m/s"), ("t_acc", "s"),
+                                          ("start_m", "m")) if k in summary}
     if args.json:
         print(dumps(summary, indent=2))
     else:
-        st = lambda v: "not settled" if v is None else f"{v * 1e3:.1f} ms"  # noqa: E731
-        print(f"move {first.stroke * 1e3:g} mm at {first.peak_speed * 60e3:.0f} mm/min on {backend.name}: "
-              f"j_max {first.j_max:.4g} m/s^3, a_max {first.a_max:.4g} m/s^2")
+        st = lambda v: "not settled" if v is None else fmt(v, "time", unit="ms")  # noqa: E731
+        print(f"move {fmt(first.stroke, 'length')} at {first.peak_speed * 60e3:.0f} mm/min on {backend.name}: "
+              f"j_max {fmt(first.j_max, 'jerk')}, a_max {fmt(first.a_max, 'acceleration')}")
         print(f"  overshoot          table {fig.overshoot_table_um:8.2f} um   tip {fig.overshoot_tip_um:8.2f} um")
         print(f"  peak follow. error table {fig.peak_following_error_table_um:8.1f} um   tip "
               f"{fig.peak_following_error_tip_um:8.1f} um")
         print(f"  settling (+-{band * 1e6:g} um) table {st(fig.settling_time_table)}   tip {st(fig.settling_time_tip)}")
-        print(f"  residual tip vibration {fig.residual_tip_um:.2f} um, peak torque {fig.peak_torque:.2f}")
+        print(f"  residual tip vibration {fig.residual_tip_um:.2f} um, peak {drive} {fmt(fig.peak_torque, drive, 3)}")
         print(f"  record {rec.path}, plot {png}")
     return 0

@@ -23,7 +23,7 @@ unexpected, refuse, drive_fault, vanish, late (the reply 50 ms late), frozen_enc
 
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
-    add_common(p, backend=False)
+    add_common(p, backend=False, can=False)
     p.add_argument("--fault", action="append", default=[], metavar="KIND[@AFTER][xCOUNT][:OP]",
                    help="inject a fault (repeatable)")
     p.add_argument("--advance", choices=("setpoint", "wall"), default="wall",

@@ -19,7 +19,7 @@ backend).
 def add_arguments(p) -> None:
     from hil.commands.move import add_common
     add_common(p, backend=False)
-    p.add_argument("--backend", help="the drive to ask (canopen); default: the config's backend.type (others: "
+    p.add_argument("--backend", metavar="NAME", help="the drive to ask (canopen); default: the config's backend.type (others: "
                    "the supervisor's latch only)")
     p.add_argument("--json", action="store_true", help="print as JSON")
 

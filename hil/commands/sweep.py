@@ -49,25 +49,25 @@ def add_arguments(p) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config parameter, e.g. --set plant.c2=33 (repeatable; applied to --compare "
                         "where that model has the parameter)")
-    p.add_argument("--stroke", required=True, help="stroke of each move, e.g. 590mm")
-    p.add_argument("--feed", required=True, help="feed (peak speed), e.g. 15m/min")
-    p.add_argument("--g0", help="rapid speed G0 for t_acc (default: the config's nc.g0)")
+    p.add_argument("--stroke", metavar="LENGTH", required=True, help="stroke of each move, e.g. 590mm")
+    p.add_argument("--feed", metavar="SPEED", required=True, help="feed (peak speed), e.g. 15m/min")
+    p.add_argument("--g0", metavar="SPEED", help="rapid speed G0 for t_acc (default: the config's nc.g0)")
     g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--tacc", help="acceleration times, e.g. 60ms,80ms,100ms (or a range 60ms..300ms with --points)")
-    g.add_argument("--jmax", help="jerks: a list 10,20,50 or a log-spaced range 1..2000 (m/s^3 unless written)")
-    p.add_argument("--points", type=int, default=40, help="points of a range (default 40)")
+    g.add_argument("--tacc", metavar="TIMES", help="acceleration times, e.g. 60ms,80ms,100ms (or a range 60ms..300ms with --points)")
+    g.add_argument("--jmax", metavar="JERKS", help="jerks: a list 10,20,50 or a log-spaced range 1..2000 (m/s^3 unless written)")
+    p.add_argument("--points", metavar="N", type=int, default=40, help="points of a range (default 40)")
     p.add_argument("--analysis", choices=("mechatronic", "transmission", "both"), default="mechatronic",
                    help="which model (default mechatronic; the JSON runs hold it unless transmission)")
-    p.add_argument("--tolerance", help="tip overshoot tolerance, e.g. 8um: largest safe jerk and admissible intervals")
+    p.add_argument("--tolerance", metavar="LENGTH", help="tip overshoot tolerance, e.g. 8um: largest safe jerk and admissible intervals")
     p.add_argument("--compare", metavar="CONFIG", help="a second model (e.g. the 2-dof one) to compare with")
-    p.add_argument("--budget", help="move-time budget for the proposed jerk: a time (2.5s) or a percent over the "
+    p.add_argument("--budget", metavar="TIME|PERCENT", help="move-time budget for the proposed jerk: a time (2.5s) or a percent over the "
                                     "fastest move of the range (default 5%%)")
-    p.add_argument("--dwell", help="standstill after each move (default: max(1 s, 10 periods of the lowest mode))")
+    p.add_argument("--dwell", metavar="TIME", help="standstill after each move (default: max(1 s, 10 periods of the lowest mode))")
     p.add_argument("--record-every", type=int, default=8, metavar="N",
                    help="velocity steps per recorded sample (default 8 = 0.5 ms at 62.5 us)")
-    p.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
+    p.add_argument("--jobs", metavar="N", type=int, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on a dask.distributed scheduler, e.g. tcp://host:8786")
-    p.add_argument("--backend", help="run the moves on this runtime backend (canopen, serial, sim) instead of "
+    p.add_argument("--backend", metavar="NAME", help="run the moves on this runtime backend (canopen, serial, sim) instead of "
                                      "the compiled simulation; one after the other, with return moves")
     p.add_argument("--out", default="out/sweep", metavar="DIR", help="output folder (default out/sweep)")
     p.add_argument("--restart", action="store_true", help="forget the finished runs in --out and start over")
@@ -238,6 +238,7 @@ def check_scheduler_address(address: str) -> None:
 
 
 def run(args) -> int:
+    from hil.commands.progress import shown
     from hil.config import load, parse_assignment
     from hil.sweep import run_sweep
 
@@ -269,7 +270,8 @@ def run(args) -> int:
         raise UserError(f"--out {args.out}: cannot create the folder ({exc.strerror or exc})") from None
     try:
         report = run_sweep(cfg, s, compare_cfg=cmp_cfg, out_dir=out, jobs=args.jobs, scheduler=args.scheduler,
-                           backend=args.backend, progress=not args.no_progress, resume=not args.restart)
+                           backend=args.backend, progress=not args.no_progress and shown(args),
+                           resume=not args.restart)
     except LimitError as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:

@@ -3,15 +3,19 @@ from __future__ import annotations
 
 from hil.errors import UserError
 from hil.io.jsonout import dumps
+from hil.units import DIMENSIONS, SI_UNIT
 
 HELP = "synthetic measurement with a hidden effect (0.5 um quantization, noise, 4 ms sampling)"
 DESCRIPTION = """\
   hil synth --config config/paper_bench.toml --effect coulomb_friction --out data.csv
   hil synth --config config/paper_bench.toml --effect parameter:plant.c2 --param value=40 --out c2.csv
   hil synth --config config/paper_bench.toml --out clean.csv          (no hidden effect)
+  hil synth --config config/paper_bench.toml --effect coulomb_friction --param level=2Nm --duration 5s --out f.csv
   hil synth --config config/paper_bench.toml --pulses 0.5N*m --out pulses.csv   (u_add after the controller)
   hil synth --config config/paper_bench.toml --external-force 300N --force-on tip --out cut.csv
   hil synth --config config/paper_bench.toml --open-loop --pulses 1.5N*m --pulse-period 4s --pulse-width 2s --out ol.csv
+
+Quantities take units (--duration 5s, --sample-period 4ms, --param level=2Nm); a bare number is SI.
 
 Pulses (--pulses, --external-force) are 0/amplitude pulses of --pulse-width every --pulse-period
 from 0.5 s. --pulses: a command added after the controller, written as the u_add channel (a
@@ -21,13 +25,16 @@ pulses are the actuator's whole command (torque steps), no position loop.
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--config", required=True, metavar="FILE")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
-    parser.add_argument("--effect", default=None, help="hidden effect (catalogue name or parameter:<key>)")
-    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="its values (SI)")
-    parser.add_argument("--duration", type=float, default=12.0, help="seconds (default 12)")
-    parser.add_argument("--sample-period", type=float, default=4e-3, help="seconds (default 0.004)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config parameter, e.g. --set plant.c2=33 (repeatable)")
+    parser.add_argument("--effect", default=None, metavar="EFFECT",
+                        help="hidden effect (catalogue name or parameter:<key>)")
+    parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                        help="a parameter of the effect, with its unit (level=2Nm; a bare number is SI; repeatable)")
+    parser.add_argument("--duration", default="12s", metavar="TIME", help="length of the record (default 12s)")
+    parser.add_argument("--sample-period", default="4ms", metavar="TIME", help="sampling period (default 4ms)")
+    parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the moves and the noise")
     parser.add_argument("--pulses", default=None, metavar="AMPLITUDE",
                         help="u_add pulses after the controller (N*m on a rotary axis; V or N on a linear one)")
     parser.add_argument("--external-force", default=None, metavar="FORCE", help="external force pulses (N)")
@@ -35,19 +42,53 @@ def add_arguments(parser) -> None:
     parser.add_argument("--pulse-period", default="1 s", metavar="TIME", help="pulse period (default 1 s)")
     parser.add_argument("--pulse-width", default="0.2 s", metavar="TIME", help="pulse width (default 0.2 s)")
     parser.add_argument("--open-loop", action="store_true", help="no position loop: the pulses are the whole command")
-    parser.add_argument("--out", required=True, metavar="FILE")
-    parser.add_argument("--json", action="store_true")
+    parser.add_argument("--out", required=True, metavar="FILE", help="the measurement file to write (CSV)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def _check_times(duration: float, sample_period: float) -> None:
     """A record of at least 10 samples, at most an hour, sampled at most every second."""
     import math
     if not (math.isfinite(duration) and 0 < duration <= 3600):
-        raise UserError(f"--duration: expected 0 < seconds <= 3600, got {duration:g}")
+        raise UserError(f"--duration: expected 0 < time <= 3600 s, got {duration:g} s")
     if not (math.isfinite(sample_period) and 0 < sample_period <= 1.0):
-        raise UserError(f"--sample-period: expected 0 < seconds <= 1, got {sample_period:g}")
+        raise UserError(f"--sample-period: expected 0 < time <= 1 s, got {sample_period:g} s")
     if duration / sample_period < 10:
         raise UserError(f"--sample-period {sample_period:g} s: fewer than 10 samples in --duration {duration:g} s")
+
+
+def _param_values(args, cfg) -> tuple[dict | None, dict]:
+    """--param NAME=VALUE of the effect, each read in its parameter's unit (SI); and the kind of
+    quantity of every parameter of the effect (for the output)."""
+    import difflib
+
+    from hil.plant_config import candidate
+    from hil.units import parse
+    kinds = {}
+    if args.effect:
+        try:
+            eff = candidate(args.effect, cfg)
+        except KeyError as exc:
+            raise UserError(str(exc).strip("'\"")) from None
+        kinds = {p.name: (p.kind(cfg.values) if callable(p.kind) else p.kind) for p in eff.params}
+    if not args.param:
+        return None, kinds
+    if not args.effect:
+        raise UserError("--param: no --effect to give it to")
+    vals = {}
+    for text in args.param:
+        name, eq, value = text.partition("=")
+        name = name.strip()
+        if not eq or not value.strip():
+            raise UserError(f"--param {text!r}: expected NAME=VALUE, e.g. level=2Nm")
+        if name not in kinds:
+            close = difflib.get_close_matches(name, list(kinds), n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise UserError(f"--param {name}: not a parameter of {args.effect} ({hint}its parameters: "
+                            f"{', '.join(kinds)})")
+        vals[name] = parse(value.strip(), kinds[name] if kinds[name] in DIMENSIONS else "dimensionless",
+                           f"--param {name}")
+    return vals, kinds
 
 
 def _inputs(args, cfg):
@@ -88,28 +129,35 @@ def run(args) -> int:
     from hil.config import load, parse_assignment
     from hil.ident.synth import synthesize
     from hil.io.measurement import write
+    from hil.units import fmt, parse
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
-    _check_times(args.duration, args.sample_period)
-    vals = None
-    if args.param:
-        try:
-            vals = {k.strip(): float(v) for k, _, v in (p.partition("=") for p in args.param)}
-        except ValueError:
-            raise UserError(f"--param: expected NAME=NUMBER (SI), got {args.param}") from None
-    inputs, kinds = _inputs(args, cfg)
+    duration = parse(args.duration, "time", "--duration")
+    sample_period = parse(args.sample_period, "time", "--sample-period")
+    _check_times(duration, sample_period)
+    vals, kinds = _param_values(args, cfg)
+    inputs, input_kinds = _inputs(args, cfg)
     try:
-        ch, truth = synthesize(cfg, args.effect, vals, duration=args.duration, sample_period=args.sample_period,
+        ch, truth = synthesize(cfg, args.effect, vals, duration=duration, sample_period=sample_period,
                                seed=args.seed, inputs=inputs, open_loop=args.open_loop)
     except KeyError as exc:
         raise UserError(str(exc).strip("'\"")) from None
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    meta = {"sample_period": f"{args.sample_period} s", "config": args.config, "hidden_effect": truth["effect"],
+    meta = {"sample_period": f"{sample_period:g} s", "config": args.config, "hidden_effect": truth["effect"],
             "seed": args.seed}
     if args.open_loop:
         meta["open_loop"] = "true (replay with --open-loop)"
-    write(args.out, ch, meta, inputs=(args.config,), kinds=kinds)
+    write(args.out, ch, meta, inputs=(args.config,), kinds=input_kinds)
     info = {"out": args.out, "effect": truth["effect"], "params": truth["params"], "samples": int(ch["t"].size),
-            "inputs": sorted(inputs), "open_loop": bool(args.open_loop)}
-    print(dumps(info) if args.json else f"wrote {args.out}: hidden {truth['effect']} {truth['params']}")
+            "duration": float(ch["t"][-1] - ch["t"][0]) + sample_period, "sample_period": sample_period,
+            "inputs": sorted(inputs), "open_loop": bool(args.open_loop),
+            "units": {"params": {k: SI_UNIT.get(kinds.get(k, ""), "") for k in truth["params"]},
+                      "duration": "s", "sample_period": "s"}}
+    if args.json:
+        print(dumps(info))
+    else:
+        params = ", ".join(f"{k} = {fmt(v, kinds[k]) if kinds.get(k) in DIMENSIONS else f'{v:g}'}"
+                           for k, v in truth["params"].items())
+        print(f"wrote {args.out}: {info['samples']} samples every {fmt(sample_period, 'time')} "
+              f"({fmt(info['duration'], 'time')}), hidden effect {truth['effect']}" + (f": {params}" if params else ""))
     return 0

@@ -8,6 +8,7 @@ adds the tuning help (:mod:`hil.frf.loop_tuning`). :class:`FrfResult` holds it a
 """
 from __future__ import annotations
 
+import logging
 import sys
 from dataclasses import dataclass, field
 
@@ -18,6 +19,8 @@ from hil.frf.loop_tuning import tuning
 from hil.frf.model import model_responses
 from hil.frf.modes import discrepancies, fit_modes
 from hil.frf.run import FrfRecord, FrfSettings, run_backend, run_sim
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["FrfResult", "measure", "stderr_progress"]
 
@@ -55,6 +58,7 @@ def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progre
             gm_min_db: float = 6.0, supervisor=None) -> FrfResult:
     """Excite, estimate, set against the model, fit the modes, suggest. ``plant_true`` is what the
     simulated run uses (None with a backend); ``plant_model`` the config's model."""
+    logger.info("frf: %s excitation of %s on %s", st.signal, st.input, getattr(backend, "name", "the simulated plant"))
     if backend is None:
         rec = run_sim(plant_true, ctrl, st, progress)
     else:

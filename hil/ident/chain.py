@@ -29,6 +29,8 @@ floor comes with the evidence of where it lives), when the first verdict is ``no
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from hil.ident.diagnosis import candidate_names, diagnose
@@ -36,6 +38,8 @@ from hil.ident.fit import evaluate, fit_effects
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["diagnose_chain", "chain_json", "MAX_STEPS", "effect_values"]
 
@@ -174,6 +178,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "gap_closed": {c: gap_closed(err0[c], err1[c], floor[c]) for c in err0},
                       "score": float(paid), "evidence": lead.evidence if lead is not None else "",
                       "refitted_together": joint is not None, "_fits": fits, "_joint": joint, "_config": cfg1})
+        logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         cur = cur.with_config(cfg1)
     errf = rms(cur.base_residuals)
     final = {"error": errf, "noise_floor": dict(floor),

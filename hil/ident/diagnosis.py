@@ -22,6 +22,7 @@ effect's fall of the log weighted error.
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
 from dataclasses import dataclass
@@ -36,6 +37,8 @@ from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import at_noise_floor, gap_closed, residual_evidence
 from hil.plant_config import candidate, default_parameters
 from sim_plant.effects import CATALOGUE
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["diagnose", "candidate_names", "Combo", "pair_score", "EXPLAINED"]
 
@@ -105,6 +108,9 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
          "noise_floor_source": {c: replay.noise_sources[c]["source"] for c in replay.noise}}
     if verdict == "unexplained":
         d["residual"] = residual_evidence(replay, res0, best)
+    for c in ranked:
+        logger.debug("candidate %s: score %.1f, params %s", c.effect, c.score, c.params)
+    logger.info("diagnosis: verdict %s (%d candidates; gap closed %.2f)", verdict, len(ranked), closed)
     return d
 
 

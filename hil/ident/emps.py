@@ -12,6 +12,7 @@ and of the force gtau*vir. Published: Janot et al. 2019.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,8 @@ from hil.ident.replay import Replay
 from hil.ident.scores import relative_error
 from hil.io.importers import read_mat
 from hil.plant_config import candidate
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["PUBLISHED", "MAPPING", "DIAGNOSE_CANDIDATES", "EmpsResult", "run_emps", "velocity", "errors",
            "params_of", "with_rigid", "check_published", "table_markdown", "diagnosis_markdown"]
@@ -126,6 +129,7 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     meas = read_mat(data, MAPPING)
     cfg0 = load(config)
     rp = Replay(meas, cfg0)
+    logger.info("EMPS: %d samples of %s", meas.t.size, data)
     nfev = 15 if quick else 40
     rows, diags = [], []
     pub = with_rigid(cfg0, PUBLISHED)

@@ -21,7 +21,8 @@ max|v|):
   does as well, the variation cannot be seen over the stroke the record covers;
 * a combination: each member's evidence, then the fall of the joint fit.
 
-It ends with "RMS <channel> error <before> -> <after> <unit> (<fall> % less)".
+It ends with "RMS <channel> error <before> -> <after> (<fall> % less)", each error in its
+engineering unit (hil.units.fmt).
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ import numpy as np
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.plant_config import candidate, plant_from_config
+from hil.units import fmt_si
 from sim_plant.effects import ALIASES
 from sim_plant.modal import transmission_mode
 
@@ -41,7 +43,9 @@ __all__ = ["evidence", "model_modes"]
 def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, before: float, after: float,
               base_modes) -> str:
     unit = replay.unit(chan)
-    fall = f"RMS {chan} error {before:.3g} -> {after:.3g} {unit} ({100 * (1 - after / before) if before else 0:.0f} % less)"
+    # each figure in its engineering unit (203 um -> 337 nm), hil.units
+    fall = (f"RMS {chan} error {fmt_si(before, unit, 3)} -> {fmt_si(after, unit, 3)} "
+            f"({100 * (1 - after / before) if before else 0:.0f} % less)")
     if "+" in eff_name:
         # a combination: each member's evidence, then the fall of the joint fit
         heads = []
@@ -60,16 +64,16 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
         X = np.column_stack([np.sign(v[moving]), v[moving], np.ones(moving.sum())])
         coef, *_ = np.linalg.lstsq(X, rf[moving], rcond=None)
         if eff_name == "constant_force":
-            return f"{fch} residual has a mean of {coef[2]:.3g} {fu} in both directions; " + fall
+            return f"{fch} residual has a mean of {fmt_si(coef[2], fu, 3)} in both directions; " + fall
         if eff_name == "viscous_friction":
             return f"{fch} residual grows with velocity, {coef[1]:.3g} {fu} per m/s; " + fall
         if eff_name == "asymmetric_friction":
             vm = v[moving]
             p = (vm > 0).astype(float)
             cp, *_ = np.linalg.lstsq(np.column_stack([p, 1 - p, vm * p, vm * (1 - p)]), rf[moving], rcond=None)
-            return (f"{fch} residual differs per direction: level {cp[0]:.3g} {fu} and slope {cp[2]:.3g} {fu} per m/s "
-                    f"moving +, level {cp[1]:.3g} {fu} and slope {cp[3]:.3g} {fu} per m/s moving -; " + fall)
-        return f"{fch} residual follows sign(v), {abs(coef[0]):.3g} {fu}; " + fall
+            return (f"{fch} residual differs per direction: level {fmt_si(cp[0], fu, 3)} and slope {cp[2]:.3g} {fu} per m/s "
+                    f"moving +, level {fmt_si(cp[1], fu, 3)} and slope {cp[3]:.3g} {fu} per m/s moving -; " + fall)
+        return f"{fch} residual follows sign(v), {fmt_si(abs(coef[0]), fu, 3)}; " + fall
     if eff_name in ("pitch_error", "torque_ripple"):
         what = "x_motor - x_table" if eff_name == "pitch_error" and "x_table" in res0 else chan
         per = vals.get("period", 0.0)
@@ -117,6 +121,13 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
     if eff_name.startswith("parameter:"):
         key = eff_name.split(":", 1)[1]
         old = replay.cfg.get(key)
+        from hil.config import field_for
+        from hil.units import DIMENSIONS, fmt
+        f = field_for(key)
+        kind = f.kind_for(replay.cfg.values) if f is not None else None
+        if isinstance(old, (int, float)) and kind in DIMENSIONS:
+            return (f"{key} {fmt(old, kind)} -> {fmt(vals.get('value', 0), kind)} explains the {chan} residual; "
+                    + fall)
         return f"{key} {old:.4g} -> {vals.get('value', 0):.4g} explains the {chan} residual; " + fall
     return fall
 

@@ -11,9 +11,17 @@ falls the most, relatively.
 
 :func:`fit_effects` adds effects one after the other (greedy), then refits them all together
 from the greedy values; :func:`joint_refit` refits config keys together from their values.
+
+The standard error of each fitted parameter is the linearised one of the least-squares fit
+(:func:`standard_errors`): with the Jacobian J of the weighted residual vector at the solution
+(scipy's, in the scaled parameters), s^2 = ||r||^2 / (n - p) and Cov = s^2 (J^T J)^-1 (a
+pseudo-inverse: a parameter at its bound or without influence has no finite one and gets NaN).
+It is the uncertainty of the value under the model (white, independent residuals); a record whose
+residual is coloured makes it optimistic.
 """
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 
@@ -28,7 +36,9 @@ from hil.ident.starts import record_scales, starting_values
 from hil.plant_config import candidate
 from sim_plant.effects import Effect
 
-__all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit"]
+logger = logging.getLogger(__name__)
+
+__all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit", "standard_errors"]
 
 
 @dataclass
@@ -48,12 +58,38 @@ class Candidate:
     errors_after: dict = field(default_factory=dict)
     nfev: int = 0
     res: dict = field(default=None, repr=False)     # residuals after the fit (for pairwise comparisons)
+    stderr: dict = field(default_factory=dict)      # standard error of each fitted parameter (SI; NaN: none)
 
     def as_json(self) -> dict:
         return {"effect": self.effect, "params": {k: float(v) for k, v in self.params.items()},
+                "stderr": {k: float(v) for k, v in self.stderr.items()},
                 "channel": self.channel, "error_before": float(self.error_before),
                 "error_after": float(self.error_after), "score": float(self.score), "evidence": self.evidence,
                 "gain": float(self.gain), "significant": bool(self.significant)}
+
+
+def standard_errors(sol, scale) -> np.ndarray:
+    """Standard errors of the parameters ``sol.x * scale`` of a :func:`least_squares` result:
+    sqrt(diag(s^2 (J^T J)^-1)) * scale, s^2 = 2 cost / (n - p); NaN where J^T J is singular in that
+    direction (a parameter at its bound, or one the residual does not see)."""
+    J = np.asarray(sol.jac, dtype=float)
+    n, p = J.shape
+    scale = np.broadcast_to(np.asarray(scale, dtype=float), (p,))
+    if n <= p or not np.all(np.isfinite(J)):
+        return np.full(p, np.nan)
+    s2 = 2.0 * float(sol.cost) / (n - p)
+    jtj = J.T @ J
+    try:
+        cov = np.linalg.inv(jtj)
+    except np.linalg.LinAlgError:
+        return np.full(p, np.nan)
+    var = s2 * np.diag(cov)
+    # a direction the residual does not see: no finite standard error
+    bad = (np.diag(jtj) <= 1e-12 * max(float(np.max(np.diag(jtj))), 1e-300)) | ~(var >= 0)
+    out = np.sqrt(np.where(bad, np.nan, var)) * np.abs(scale)
+    at_bound = np.asarray(getattr(sol, "active_mask", np.zeros(p)), dtype=int) != 0
+    out[at_bound] = np.nan
+    return out
 
 
 def _param_scale(p, g):
@@ -63,8 +99,9 @@ def _param_scale(p, g):
     return max(abs(p.upper), abs(p.lower), 1e-12) * 1e-3 if not math.isfinite(span) else span * 1e-3
 
 
-def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev: int = 40):
-    """Least squares from each start; returns (values, cfg, residuals, nfev) of the best."""
+def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev: int = 40, stderr=None):
+    """Least squares from each start; returns (values, cfg, residuals, nfev) of the best, and fills
+    ``stderr`` (a dict, when given) with the standard error of each fitted parameter."""
     best = None
     total = 0
     fitted = eff.fitted_params
@@ -91,10 +128,13 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
         total += sol.nfev * (1 + len(names))
         cost = float(sol.cost)
         if best is None or cost < best[0]:
-            best = (cost, dict(held, **dict(zip(names, (sol.x * scale).tolist()))))
+            best = (cost, dict(held, **dict(zip(names, (sol.x * scale).tolist()))), sol, scale)
     if best is None:
         raise ValueError(f"{eff.name}: no start could be fitted")
     vals = best[1]
+    logger.debug("%s fitted: %s (cost %.4g, %d evaluations)", eff.name, vals, best[0], total)
+    if stderr is not None:
+        stderr.update(zip(names, standard_errors(best[2], best[3]).tolist()))
     cfg = eff.configure(base_cfg, vals)
     return vals, cfg, obj.residuals(cfg), total
 
@@ -111,7 +151,8 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     obj = replay.objective
     scale = record_scales(replay, res0)
     starts = [dict(start)] if start else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)]
-    vals, cfg1, res1, nfev = _fit_one(obj, cfg, eff, starts, max_nfev=max_nfev)
+    se: dict = {}
+    vals, cfg1, res1, nfev = _fit_one(obj, cfg, eff, starts, max_nfev=max_nfev, stderr=se)
     chans = list(obj.weights)
     score = bic_score(res0, res1, chans, len(eff.fitted_params), replay.noise)
     e0 = float(np.sum(obj.vector(res0) ** 2))
@@ -126,7 +167,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     significant = score > MIN_SCORE and before > SIGNIFICANT_ABOVE_NOISE * floor
     ev = evidence(name, vals, replay, res0, chan, before, after, model_modes(cfg))
     return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant, cfg1,
-                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1)
+                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se)
 
 
 def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=None):
@@ -156,8 +197,9 @@ def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=N
     return cur.cfg, steps
 
 
-def joint_refit(replay: Replay, cfg, keys: list[str], max_nfev: int = 60):
-    """Refit several config keys together (after greedy additions), from their current values."""
+def joint_refit(replay: Replay, cfg, keys: list[str], max_nfev: int = 60, stderr: dict | None = None):
+    """Refit several config keys together (after greedy additions), from their current values;
+    ``stderr`` (a dict, when given) receives the standard error of each key (SI)."""
     obj = replay.objective
     x0 = np.array([float(cfg[k]) for k in keys])
     # steps large enough to see through the stick-slip's non-smoothness
@@ -169,4 +211,6 @@ def joint_refit(replay: Replay, cfg, keys: list[str], max_nfev: int = 60):
         except ValueError:
             return np.full(obj.n, 1e3)
     sol = least_squares(fun, x0 / scale, diff_step=1e-2, max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
+    if stderr is not None:
+        stderr.update(zip(keys, standard_errors(sol, scale).tolist()))
     return cfg.with_values(dict(zip(keys, (sol.x * scale).tolist())))

@@ -34,6 +34,7 @@ scales), the loop never reads it.
 """
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -46,6 +47,8 @@ from hil.ident.residual import xcorr
 from hil.ident.synth import extend_command
 from hil.plant_config import plant_from_config, record_effects
 from hil.simulate import per_velocity_period, simulate
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["Replay", "POSITION_CHANNELS", "UNITS"]
 
@@ -61,6 +64,7 @@ class Replay:
 
     def __init__(self, meas, cfg, channels=None, align: bool = False, noise: dict | None = None,
                  open_loop: bool = False):
+        logger.debug("replaying %s through %s", getattr(meas, "source", "a record"), cfg.source)
         self.cfg = cfg
         self.plant = plant_from_config(cfg)
         self.open_loop = open_loop

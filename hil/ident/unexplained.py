@@ -93,21 +93,24 @@ def residual_evidence(replay, res: dict, best=None) -> dict:
 
 
 def describe(ev: dict) -> list[str]:
-    """The evidence as text lines, one per channel, then the best candidate's share."""
+    """The evidence as text lines, one per channel, then the best candidate's share (each figure
+    in its engineering unit, hil.units.fmt)."""
+    from hil.units import fmt_si
     lines = []
     for d in ev.get("channels", []):
         u = d["unit"]
-        peaks = ", ".join(f"{p['frequency']:.1f} Hz ({p['amplitude']:.3g} {u})" for p in d["spectral_peaks"])
+        q = lambda v: fmt_si(v, u, 3)  # noqa: E731
+        peaks = ", ".join(f"{p['frequency']:.1f} Hz ({q(p['amplitude'])})" for p in d["spectral_peaks"])
         cor = d["correlation"]
         top = max(cor, key=lambda k: abs(cor[k]))
-        still = "no standstill" if d["rms_standstill"] is None else f"{d['rms_standstill']:.3g} {u} at standstill"
+        still = "no standstill" if d["rms_standstill"] is None else f"{q(d['rms_standstill'])} at standstill"
         tr = d["along_travel"]
         where = (f"; largest at x = {1e3 * tr['band'][0]:.1f} .. {1e3 * tr['band'][1]:.1f} mm, {tr['against_median']:.1f} x "
                  f"the median band" if tr else "")
-        lines.append(f"{d['channel']}: RMS {d['rms']:.3g} {u}, {d['above_floor']:.1f} x its noise floor "
-                     f"{d['noise_floor']:.3g} {u}; spectral peaks {peaks or 'none'}; correlation with position "
+        lines.append(f"{d['channel']}: RMS {q(d['rms'])}, {d['above_floor']:.1f} x its noise floor "
+                     f"{q(d['noise_floor'])}; spectral peaks {peaks or 'none'}; correlation with position "
                      f"{cor['position']:+.2f}, speed {cor['speed']:+.2f}, acceleration {cor['acceleration']:+.2f}, "
-                     f"direction {cor['direction']:+.2f} (strongest: {top}){where}; {d['rms_moving']:.3g} {u} "
+                     f"direction {cor['direction']:+.2f} (strongest: {top}){where}; {q(d['rms_moving'])} "
                      f"moving against {still}")
     if "best_candidate" in ev:
         g = ev["best_gap_closed"]

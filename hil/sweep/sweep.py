@@ -18,6 +18,7 @@ of ``hil sweep``. The dwell defaults to max(1 s, 10 periods of the lowest elasti
 """
 from __future__ import annotations
 
+import logging
 import math
 import sys
 from dataclasses import dataclass, replace
@@ -34,6 +35,8 @@ from hil.sweep.jerk import jmax_to_t_acc
 from hil.sweep.model import fingerprint, model_of
 from hil.sweep.run import ANALYSES, RUN_FIELDS, RunSpec, backend_trajectory, run_one
 from hil.sweep.store import ResultStore
+
+logger = logging.getLogger(__name__)
 
 __all__ = ["SweepSettings", "default_dwell", "run_sweep", "warm_up"]
 
@@ -261,6 +264,8 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
     ``scheduler``: a dask.distributed address (or Client) to run on; ``jobs``: local processes
     (default: all cores); ``backend``: run the mechatronic moves on that runtime backend instead of
     the simulated plant; ``out_dir``: where ``runs.jsonl`` (resume) lives."""
+    logger.info("sweep of %s: %d values, analysis %s, backend %s", cfg.source, len(settings.values),
+                settings.analysis, backend or "model")
     s = settings
     if s.by == "t_acc" and not s.g0:
         raise ValueError("a t_acc sweep needs the rapid speed g0 (nc.g0 in the config, or --g0)")

@@ -1,0 +1,118 @@
+"""A trace of the CAN bus during a run, written by python-can's own loggers (``--can-log FILE``).
+
+``can.Logger`` picks the format from the file's suffix (``.asc``: Vector ASCII, ``.blf``: Vector
+binary, ``.log``, ``.csv``, ...), the files every CAN tool reads. The recorder is one
+``can.Listener``:
+
+* received frames: attached to the canopen network's notifier (the thread that already takes every
+  received frame and hands it to canopen's subscribers), so nothing is added to the receive path
+  but one call per frame;
+* sent frames: the bus's ``send`` is wrapped, each frame written after it went out, marked as
+  transmitted (``is_rx = False``; ``Tx`` in an ASC file).
+
+Writing is the logger's (a buffered file write under a lock, the notifier and the cycle thread
+both write). It is for commissioning and fault finding, not for timing figures: a run with a trace
+does a little more per frame. A receive path that bypasses the notifier (a loop that reads the bus
+itself) is not seen; the frames it sends still are.
+
+The command line asks for it once (:func:`request`, ``hil --can-log FILE``); the canopen backend
+attaches a recorder when it connects (:func:`attach`) and stops it when it closes.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+
+import can
+
+__all__ = ["BusRecorder", "request", "requested", "attach"]
+
+logger = logging.getLogger(__name__)
+
+_requested: list[str] = []
+# the formats of python-can's writers that need no further package (its .mf4 needs asammdf)
+FORMATS = (".asc", ".blf", ".log", ".csv", ".trc")
+
+
+def request(path: str | Path | None) -> None:
+    """Record the bus of every canopen backend this process connects into ``path`` (None: stop
+    asking). The suffix names the format (python-can: .asc, .blf, .log, .csv, ...)."""
+    _requested.clear()
+    if path:
+        suffix = Path(path).suffix.lower()
+        if suffix not in FORMATS:
+            raise ValueError(f"--can-log {path}: expected a file ending in {', '.join(FORMATS)} (the format "
+                             f"python-can writes), got {suffix or 'no suffix'}")
+        _requested.append(str(path))
+
+
+def requested() -> str | None:
+    return _requested[0] if _requested else None
+
+
+class BusRecorder(can.Listener):
+    """Every frame received (through the notifier) and sent (through the bus) written to ``path``
+    by :class:`can.Logger`."""
+
+    def __init__(self, path: str | Path):
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        self.path = str(path)
+        self._writer = can.Logger(self.path)
+        self._lock = threading.Lock()
+        self._bus = None
+        self._send = None
+        self._notifier = None
+        self.frames = 0
+
+    def on_message_received(self, msg: can.Message) -> None:
+        with self._lock:
+            if self._writer is None:
+                return
+            self._writer.on_message_received(msg)
+            self.frames += 1
+
+    def attach(self, notifier, bus) -> "BusRecorder":
+        """Listen on ``notifier`` (received frames) and wrap ``bus.send`` (sent frames)."""
+        if notifier is not None:
+            notifier.add_listener(self)
+            self._notifier = notifier
+        if bus is not None:
+            original = bus.send
+            self._bus, self._send = bus, original
+
+            def send(msg, timeout=None):
+                original(msg, timeout)
+                if not msg.timestamp:
+                    msg.timestamp = time.time()
+                msg.is_rx = False
+                self.on_message_received(msg)
+            bus.send = send
+        logger.info("recording the CAN bus into %s", self.path)
+        return self
+
+    def stop(self) -> None:
+        """Detach and close the file (safe to call twice)."""
+        if self._notifier is not None:
+            try:
+                self._notifier.remove_listener(self)
+            except ValueError:
+                pass
+            self._notifier = None
+        if self._bus is not None:
+            self._bus.send = self._send
+            self._bus = None
+        with self._lock:
+            if self._writer is not None:
+                self._writer.stop()
+                self._writer = None
+                logger.info("CAN trace: %d frames in %s", self.frames, self.path)
+
+
+def attach(network) -> BusRecorder | None:
+    """A recorder on a connected ``canopen.Network`` when one was requested, else None."""
+    path = requested()
+    if path is None or network is None:
+        return None
+    return BusRecorder(path).attach(getattr(network, "notifier", None), getattr(network, "bus", None))

@@ -1,0 +1,350 @@
+"""Issue 17, the command line as a drive engineer reads it: engineering units in the text output
+(hil.units.fmt), the fit's uncertainty and a config edited rather than rewritten
+(hil.io.config_write), the diagnosis read top down, --log-level, --can-log (python-can's logger),
+-i/-c, units on every quantity option and "did you mean"."""
+import difflib
+import json
+import logging
+import math
+import re
+from pathlib import Path
+from types import SimpleNamespace
+
+import can
+import numpy as np
+import pytest
+from canopen_rig import channel
+
+from hil.cli import main
+from hil.config import load, loads
+from hil.errors import ConfigError
+from hil.units import fmt, fmt_uncertain, round_to_uncertainty
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCH = str(ROOT / "config" / "paper_bench.toml")
+CANOPEN = "config/paper_bench_canopen.toml"
+
+
+# --- units -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("value, kind, text", [
+    (2.033e-4, "length", "203.3 um"), (1.028e-3, "length", "1.028 mm"), (0.1, "length", "100 mm"),
+    (12.5, "length", "12.5 m"), (0.012, "time", "12 ms"), (62.5e-6, "time", "62.5 us"), (12.0, "time", "12 s"),
+    (8.94, "torque", "8.94 N m"), (8.2, "frequency", "8.2 Hz"), (5.362e7, "stiffness", "53.62 N/um"),
+    (3.706e4, "stiffness", "37.06 N/mm"), (11.8, "damping", "11.8 N s/m"), (20.2386, "force", "20.24 N"),
+    (4.228, "mass", "4.228 kg"), (None, "length", "n/a"), (float("inf"), "time", "inf"),
+])
+def test_fmt_writes_engineering_units(value, kind, text):
+    assert fmt(value, kind) == text
+
+
+def test_fmt_fixed_unit_and_the_conversion_is_pints():
+    import pint
+    ureg = pint.UnitRegistry()
+    assert fmt(0.0123, "time", unit="ms") == "12.3 ms"
+    assert fmt(0.025, "speed", unit="mm/min") == f"{ureg.Quantity(0.025, 'm/s').to('mm/min').magnitude:.4g} mm/min"
+    assert fmt(2.5, "speed", unit="mm/min") == "150000 mm/min"        # no e-notation for large values
+
+
+@pytest.mark.parametrize("value, sigma, rounded, decimals", [
+    (40.0912, 0.0374, 40.091, 3), (2.23456, 0.00012, 2.23456, 5), (12345.6, 230.0, 12350.0, -1),
+    (1.5, None, 1.5, None), (1.5, float("nan"), 1.5, None)])
+def test_rounded_to_two_digits_of_the_uncertainty(value, sigma, rounded, decimals):
+    r, d = round_to_uncertainty(value, sigma)
+    assert r == pytest.approx(rounded) and d == decimals
+
+
+def test_fmt_uncertain():
+    assert fmt_uncertain(40.0912, 0.0374, "damping") == "40.091 +- 0.037 N s/m"
+    assert fmt_uncertain(1.2e-4, 3e-6, "length") == "120.0 +- 3.0 um"
+
+
+# --- the standard error of a fit ----------------------------------------------------------------
+
+def test_standard_errors_match_linear_regression():
+    """A straight line fitted by least_squares: the Jacobian's standard errors are the closed form
+    of linear regression, sqrt(diag(s^2 (X^T X)^-1)), s^2 = RSS / (n - 2)."""
+    from scipy.optimize import least_squares
+
+    from hil.ident.fit import standard_errors
+    rng = np.random.default_rng(4)
+    x = np.linspace(0.0, 2.0, 200)
+    y = 3.0 * x - 0.5 + rng.normal(0.0, 0.1, x.size)
+    scale = np.array([2.0, 0.25])          # fitted in scaled parameters, as hil.ident.fit does
+    sol = least_squares(lambda z: (z[0] * scale[0]) * x + z[1] * scale[1] - y, [1.0, 1.0])
+    X = np.column_stack([x, np.ones_like(x)])
+    coef, rss, *_ = np.linalg.lstsq(X, y, rcond=None)
+    want = np.sqrt(np.diag(rss[0] / (x.size - 2) * np.linalg.inv(X.T @ X)))
+    assert sol.x * scale == pytest.approx(coef, rel=1e-6)
+    assert standard_errors(sol, scale) == pytest.approx(want, rel=1e-4)
+
+
+# --- the config edited, not rewritten --------------------------------------------------------
+
+def _changed_lines(a: str, b: str) -> tuple[list[str], list[str]]:
+    diff = list(difflib.unified_diff(a.splitlines(), b.splitlines(), lineterm="", n=0))
+    return ([ln[1:] for ln in diff if ln.startswith("-") and not ln.startswith("---")],
+            [ln[1:] for ln in diff if ln.startswith("+") and not ln.startswith("+++")])
+
+
+def test_edit_keeps_comments_units_and_layout():
+    from hil.io.config_write import changed_keys, edit_config_text
+    text = Path(BENCH).read_text(encoding="utf-8")
+    old = loads(text, BENCH)
+    new = old.with_values({"plant.c2": 40.0912, "plant.k2": 3.1e4, "effects.coulomb_friction.level": 2.2345})
+    keys = changed_keys(old, new)
+    assert set(keys) == {"plant.c2", "plant.k2", "effects.coulomb_friction.level"}
+    out = edit_config_text(text, new, keys, stderr={"plant.c2": 0.0374}, note="test")
+    removed, added = _changed_lines(text, out)
+    assert removed == ['k2 = "3.7060e4 N/m"   # thin plates', 'c2 = "11.80 N*s/m"']
+    assert added[0].startswith('k2 = "31000 N/m"') and added[0].endswith("thin plates")   # its comment kept
+    assert added[1] == 'c2 = "40.091 N*s/m" # test; +- 0.037 N*s/m (standard error); was "11.80 N*s/m"'
+    assert '[effects.coulomb_friction]' in added and any(a.startswith('level = "2.2345') for a in added)
+    back = loads(out, "edited")
+    assert back["plant.c2"] == 40.091 and back["plant.k2"] == 3.1e4
+    assert back["effects.coulomb_friction.level"] == pytest.approx(2.2345)
+    for k in old.keys():                      # everything else reads as before
+        if k not in keys:
+            assert back.get(k) == old.get(k), k
+
+
+@pytest.fixture(scope="module")
+def c2_record(tmp_path_factory):
+    """The README's worked case: the paper bench with c2 = 40 N s/m (synth, shorter)."""
+    out = tmp_path_factory.mktemp("c2") / "c2.csv"
+    assert main(["synth", "--config", BENCH, "--effect", "parameter:plant.c2", "--param", "value=40 N*s/m",
+                 "--duration", "4s", "--out", str(out)]) == 0
+    return out
+
+
+def test_fit_changes_only_the_fitted_key(c2_record, tmp_path, capsys):
+    capsys.readouterr()
+    out = tmp_path / "fitted.toml"
+    assert main(["fit", str(c2_record), "--config", BENCH, "--add", "parameter:plant.c2", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    before, after = Path(BENCH).read_text(encoding="utf-8"), out.read_text(encoding="utf-8")
+    removed, added = _changed_lines(before, after)
+    assert removed == ['c2 = "11.80 N*s/m"'] and len(added) == 1          # one line, the comments kept
+    m = re.fullmatch(r'c2 = "(?P<v>[0-9.]+) N\*s/m" # hil fit on c2\.csv; \+- (?P<s>[0-9.]+) N\*s/m '
+                     r'\(standard error\); was "11\.80 N\*s/m"', added[0])
+    assert m, added[0]
+    value, sigma = float(m["v"]), float(m["s"])
+    assert value == pytest.approx(40.0, rel=0.02) and 0 < sigma < 1.0
+    # rounded to its uncertainty: as many decimals as the error's second significant digit
+    assert len(m["v"].split(".")[1]) == len(m["s"].split(".")[1]) == 1 - math.floor(math.log10(sigma))
+    assert load(out)["plant.c2"] == value
+    # the text: the value with its error and unit, the errors in engineering units
+    line = next(ln for ln in text.splitlines() if ln.startswith("plant.c2 = "))
+    assert line == f"plant.c2 = {m['v']} +- {m['s']} N s/m  (standard error)"
+    rms = [ln for ln in text.splitlines() if "RMS" in ln]
+    assert any(re.search(r"x_tip: RMS [0-9.]+ (um|mm) -> [0-9.]+ (nm|um)", ln) for ln in rms), rms
+    assert any(re.search(r"torque: RMS [0-9.]+ N m -> [0-9.]+ N m", ln) for ln in rms), rms
+
+
+def test_fit_json_has_the_uncertainty_and_the_units(c2_record, tmp_path, capsys):
+    capsys.readouterr()
+    out = tmp_path / "fitted.toml"
+    assert main(["fit", str(c2_record), "--config", BENCH, "--add", "parameter:plant.c2", "--out", str(out),
+                 "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    f = d["fitted"]["plant.c2"]
+    assert f["unit"] == "N*s/m" and f["value"] == pytest.approx(40.0, rel=0.02) and 0 < f["stderr"] < 1.0
+    assert d["steps"][0]["stderr"]["value"] == pytest.approx(f["stderr"])
+    assert d["units"]["error_before"]["x_tip"] == "m" and d["units"]["error_after"]["torque"] == "N*m"
+
+
+# --- diagnose reads top down ------------------------------------------------------------------
+
+def _cand(effect, score, significant=True):
+    return SimpleNamespace(effect=effect, score=score, significant=significant, evidence=f"evidence of {effect}")
+
+
+def test_diagnose_text_verdict_first_also_missing_once_rest_by_score():
+    from hil.commands.diagnose import ranking_text
+    cands = [_cand("coulomb_friction", 812.5), _cand("asymmetric_friction", 10196.2), _cand("constant_force", -3.0),
+             _cand("viscous_friction", 40.0), _cand("parameter:plant.c2", 2.0, False)]
+    combo = {"effects": ["coulomb_friction", "constant_force"], "explains": "asymmetric_friction", "preferred": True,
+             "score": 10100.4, "explained": 0.98, "rich_against_combination": 3.1}
+    d = {"verdict": "coulomb_friction", "candidates": cands, "combinations": [combo],
+         "also_missing": [{"effect": "constant_force", "score": 950.0, "evidence": "an offset"}]}
+    lines = ranking_text(d)
+    assert lines[0].startswith("verdict: coulomb_friction (with constant_force: combination score 10100.4")
+    assert lines[2].startswith("also missing: constant_force (score 950.0")       # its marginal score
+    ranked = [ln for ln in lines if re.match(r"\s*\d+[* ] ", ln)]
+    names = [ln.split()[1] for ln in ranked]
+    assert names == ["asymmetric_friction", "viscous_friction", "parameter:plant.c2"]   # by score, each once
+    scores = [float(re.search(r"score\s+(-?[0-9.]+)", ln).group(1)) for ln in ranked]
+    assert scores == sorted(scores, reverse=True)
+    assert "mimicked by coulomb_friction + constant_force" in ranked[0]
+    text = "\n".join(lines)
+    for name in ("coulomb_friction", "constant_force"):     # named in the verdict lines, not ranked again
+        assert not any(n == name for n in names)
+    assert text.count("combination coulomb_friction + constant_force") == 0   # the lead is in the verdict
+
+
+def test_diagnose_command_text(c2_record, tmp_path, capsys):
+    capsys.readouterr()
+    out = tmp_path / "diag.toml"
+    assert main(["diagnose", str(c2_record), "--config", BENCH, "--candidates",
+                 "parameter:plant.c2,coulomb_friction", "--jobs", "1", "--max-steps", "2", "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("verdict: parameter:plant.c2 (score ")
+    assert re.search(r"x_tip [0-9.]+ (um|mm) \(", "\n".join(lines))       # the chain in engineering units
+    removed, added = _changed_lines(Path(BENCH).read_text(encoding="utf-8"), out.read_text(encoding="utf-8"))
+    assert removed == ['c2 = "11.80 N*s/m"'] and added[0].startswith('c2 = "') and "hil diagnose on c2.csv" in added[0]
+
+
+# --- logging -----------------------------------------------------------------------------------
+
+def test_log_level(capsys, tmp_path):
+    assert main(["--log-level", "debug", "model", "--config", BENCH, "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"^DEBUG hil\.config: reading the configuration .*paper_bench\.toml", err, re.M), err
+    assert logging.getLogger("canopen").level == logging.NOTSET        # no longer forced to CRITICAL
+    assert main(["model", "--config", BENCH, "--out", str(tmp_path)]) == 0
+    assert "DEBUG" not in capsys.readouterr().err
+    assert logging.getLogger("canopen").level == logging.CRITICAL       # without --log-level: quiet bus libraries
+    with pytest.raises(SystemExit):
+        main(["--log-level", "verbose", "model", "--config", BENCH])
+    assert "invalid choice: 'verbose'" in capsys.readouterr().err
+
+
+# --- the CAN options -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("suffix", [".asc", ".blf"])
+def test_can_log_records_the_bus_and_python_can_reads_it(tmp_path, capsys, suffix):
+    from drivers.canopen.drive_sim import DriveSim
+    ch = channel("canlog")
+    cfg = load(CANOPEN, {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch})
+    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    trace = tmp_path / f"bus{suffix}"
+    try:
+        rc = main(["move", "--config", CANOPEN, "--set", "canopen.lockstep=true", "-i", "virtual", "-c", ch,
+                   "--backend", "canopen", "--stroke", "2mm", "--feed", "6000mm/min", "--amax", "2m/s^2",
+                   "--dwell", "0.1s", "--out", str(tmp_path / "m"), "--json", "--can-log", str(trace)])
+    finally:
+        sim.close()
+    assert rc == 0, capsys.readouterr().err
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["status"] == "complete"
+    assert summary["units"]["peak_torque"] == "N*m" and summary["units"]["settling_time_tip"] == "s"
+    reader = can.ASCReader(str(trace)) if suffix == ".asc" else can.BLFReader(str(trace))
+    frames = list(reader)
+    node = cfg.get("canopen.node_id", 1)
+    sent = {m.arbitration_id for m in frames if not m.is_rx}
+    got = {m.arbitration_id for m in frames if m.is_rx}
+    assert 0x80 in sent and 0x200 + node in sent and 0x600 + node in sent     # SYNC, RPDO1, SDO requests
+    assert 0x180 + node in got and 0x580 + node in got                      # TPDO1, SDO answers
+    from hil.io.measurement import read as read_measurement
+    rows = read_measurement(tmp_path / "m" / "move.csv").t.size
+    syncs = sum(1 for m in frames if m.arbitration_id == 0x80)
+    assert syncs >= 0.9 * rows > 20                    # every cycle of the move, not the start-up only
+
+
+def test_can_log_refuses_an_unknown_format(tmp_path, capsys):
+    rc = main(["--can-log", str(tmp_path / "bus.xyz"), "model", "--config", BENCH, "--out", str(tmp_path)])
+    assert rc == 2 and ".asc" in capsys.readouterr().err
+
+
+def test_interface_channel_bitrate_options_and_python_can_config(monkeypatch):
+    from hil.commands.move import load_config
+    args = SimpleNamespace(config=BENCH, set=[], backend="canopen", interface="socketcan", channel="can1",
+                           bitrate=500000)
+    cfg = load_config(args)
+    assert (cfg["canopen.interface"], cfg["canopen.channel"], cfg["canopen.bitrate"]) == ("socketcan", "can1", 500000)
+    # python-can's own configuration (here its environment variables) for what neither gives
+    monkeypatch.setenv("CAN_INTERFACE", "virtual")
+    monkeypatch.setenv("CAN_CHANNEL", "fromenv")
+    monkeypatch.setenv("CAN_BITRATE", "250000")
+    args = SimpleNamespace(config=BENCH, set=[], backend="canopen", interface=None, channel=None, bitrate=None)
+    cfg = load_config(args)
+    assert (cfg["canopen.interface"], cfg["canopen.channel"], cfg["canopen.bitrate"]) == ("virtual", "fromenv", 250000)
+    args.channel = "given"                # the option wins over python-can's configuration
+    assert load_config(args)["canopen.channel"] == "given"
+
+
+def test_drive_sim_offers_only_what_works(capsys):
+    with pytest.raises(SystemExit):
+        main(["drive-sim", "--config", CANOPEN, "--interface", "slcan"])
+    assert "invalid choice: 'slcan'" in capsys.readouterr().err
+
+
+# --- did you mean ------------------------------------------------------------------------------
+
+def test_did_you_mean_for_commands(capsys):
+    with pytest.raises(SystemExit):
+        main(["diagnos", "x.csv"])
+    assert "did you mean 'diagnose'?" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("key, want", [("plant.c22", None), ("plant.pich", "plant.pitch"),
+                                       ("control.kvv", "control.kv"), ("supervisor.stp", "supervisor.stop"),
+                                       ("effects.coulomb_friction.levl", "effects.coulomb_friction.level")])
+def test_did_you_mean_for_config_keys(key, want):
+    with pytest.raises(ConfigError) as e:
+        load(BENCH, {key: 1.0})
+    msg = str(e.value)
+    if want:
+        assert f"did you mean {want!r}?" in msg
+    else:
+        assert "did you mean" not in msg or "plant.c2" in msg
+
+
+def test_did_you_mean_in_a_config_file(tmp_path):
+    p = tmp_path / "typo.toml"
+    p.write_text(Path(BENCH).read_text(encoding="utf-8").replace("pitch =", "pich ="), encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"unknown key 'plant\.pich' \(known keys in \[plant\]: .*\); "
+                                          r"did you mean 'plant\.pitch'\?$"):
+        load(p)
+
+
+def test_did_you_mean_for_effects(capsys, tmp_path):
+    rc = main(["synth", "--config", BENCH, "--effect", "colomb_friction", "--out", str(tmp_path / "s.csv")])
+    assert rc == 2 and "did you mean 'coulomb_friction'?" in capsys.readouterr().err
+    rc = main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--param", "levle=2Nm",
+               "--out", str(tmp_path / "s.csv")])
+    assert rc == 2 and "did you mean 'level'?" in capsys.readouterr().err
+
+
+# --- units on the options, and in the text ----------------------------------------------------
+
+def test_synth_takes_units_and_prints_no_dict(tmp_path, capsys):
+    out = tmp_path / "f.csv"
+    assert main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--param", "level=2Nm",
+                 "--duration", "2s", "--sample-period", "8ms", "--out", str(out)]) == 0
+    text = capsys.readouterr().out.strip()
+    assert text == f"wrote {out}: 250 samples every 8 ms (2 s), hidden effect coulomb_friction: level = 2 N m"
+    assert "{" not in text
+    assert main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--param", "level=2000 N*mm",
+                 "--duration", "2000ms", "--out", str(out), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["params"]["level"] == pytest.approx(2.0) and d["samples"] == 500 and d["duration"] == pytest.approx(2.0)
+    assert d["units"]["params"]["level"] == "N*m" and d["units"]["duration"] == "s"
+    rc = main(["synth", "--config", BENCH, "--duration", "5 mm", "--out", str(out)])
+    assert rc == 2 and "--duration" in capsys.readouterr().err
+
+
+def test_move_text_in_engineering_units(tmp_path, capsys):
+    assert main(["move", "--config", BENCH, "--stroke", "20mm", "--feed", "6000mm/min", "--tacc", "200ms",
+                 "--dwell", "0.3s", "--out", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert re.search(r"^move 20 mm at 6000 mm/min on sim: j_max [0-9.]+ m/s\^3, a_max [0-9.]+ m/s\^2$", text, re.M)
+    assert re.search(r"peak torque [0-9.]+ N m$", text, re.M), text
+    assert re.search(r"settling \(\+-1 um\) table ([0-9.]+ ms|not settled)", text)
+    assert not re.search(r"\d\.\d{5,}", text)            # no raw SI floats
+
+
+def test_model_closed_loop_is_text_not_json(tmp_path, capsys):
+    assert main(["model", "--config", BENCH, "--out", str(tmp_path), "--closed-loop"]) == 0
+    text = capsys.readouterr().out
+    assert "{" not in text and '"' not in text
+    assert re.search(r"^  -3 dB bandwidth, table, with feed-forward: [0-9.]+ Hz$", text, re.M), text
+    assert re.search(r"k1 = [0-9.]+ N/um", text) and re.search(r"m3 = 4\.228 kg", text)
+
+
+def test_compare_text_in_engineering_units(c2_record, tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["compare", str(c2_record), "--config", BENCH, "--out", str(tmp_path)]) == 0
+    lines = {ln.split()[0]: ln for ln in capsys.readouterr().out.splitlines() if " RMS " in ln}
+    assert re.search(r"RMS +[0-9.]+ (um|mm)  peak +[0-9.]+ (um|mm)", lines["x_tip"]), lines["x_tip"]
+    assert re.search(r"RMS +[0-9.]+ N m", lines["torque"])
