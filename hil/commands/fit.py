@@ -103,11 +103,10 @@ def run(args) -> int:
     refused = worse_effects(rp, steps, new)
     if refused:
         out.update(written=False, refused=refused)
-        line = (f"hil fit: not written: {refused['message']} (drop it from --add; "
-                f"`hil diagnose` says what the record lacks)")
+        line = f"not written: {refused['message']} (drop it from --add; `hil diagnose` says what the record lacks)"
         if args.json:
             print(dumps(out, indent=1))
-            print(line, file=sys.stderr)
+            print(f"hil fit: refused: {line}", file=sys.stderr)
             return 2
         raise UserError(line)
     from hil.io.safe_write import write_atomic

@@ -38,6 +38,7 @@ import numpy as np
 
 from hil.ident.evidence import evidence
 from hil.ident.fit import Candidate, evaluate
+from hil.ident.joint import JOINT_REFINE, screen_pairs
 from hil.ident.parallel import evaluate_many
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
@@ -248,7 +249,6 @@ def _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names) -> 
     """The pairs of friction and force effects screened by the inverse model (hil.ident.joint),
     the best few whose screen pays against their better member refined by simulation; pairs
     already fitted as a combination against a richer effect are left out."""
-    from hil.ident.joint import JOINT_REFINE, screen_pairs
     by_name = {c.effect: c for c in out}
     taken = {frozenset(m["effect"] for m in c.members) for c in combos}
     pool = [n for n in names if n in by_name]
