@@ -74,23 +74,29 @@ def test_pair_that_only_helps_together_is_found(level, v0):
 
 # --- modes from the residual, not the command's line --------------------------------------------
 
-def _coupled_mode(rich, near):
-    ch = plant_from_config(rich).chain
+def _first_mode(cfg):
+    """The lowest elastic mode (Hz) of a config's chain, sqrt(eig(M^-1 K)) / 2 pi."""
+    ch = plant_from_config(cfg).chain
     ev = np.linalg.eigvals(np.linalg.solve(np.array(ch.M), np.array(ch.K))).real
-    f = np.sqrt(np.maximum(ev, 0.0)) / (2 * math.pi)
-    return float(f[np.argmin(np.abs(f - near))])
+    f = np.sort(np.sqrt(np.maximum(ev, 0.0)) / (2 * math.pi))
+    return float(f[f > 0.1][0])
 
 
-@pytest.mark.parametrize("mass,freq,line", [(2.0, 25.0, 0.8), (1.0, 40.0, 1.25)])
-def test_mode_starts_from_residual_peaks_not_the_command_line(mass, freq, line):
+@pytest.mark.parametrize("mass,freq,line,amp", [(2.0, 25.0, 1.25, 20e-6), (1.0, 40.0, 1.2, 60e-6),
+                                                (3.0, 20.0, 1.25, 60e-6)])
+def test_mode_starts_from_residual_peaks_not_the_command_line(mass, freq, line, amp):
+    # the extra mode pulls the chain's first mode down (14.9 Hz -> 10.6 .. 13.3 Hz): the residual
+    # rings there; the command carries a sine just above it, whose forced response is the
+    # residual's strongest peak
     from hil.ident.residual import spectrum_peaks
     from hil.ident.starts import mode_targets
     rich = candidate("compliant_mode", CFG).configure(CFG, {"mass": mass, "frequency": freq, "damping_ratio": 0.02})
-    f_mode = _coupled_mode(rich, freq)
+    f_mode = _first_mode(rich)
+    assert f_mode < 0.92 * _first_mode(CFG)
     f_line = line * f_mode
     x = move_sequence(6.0, TP, seed=4)
     t = np.arange(x.size) * TP
-    x = x + 20e-6 * np.sin(2 * math.pi * f_line * t)        # a strong line of the command near the mode
+    x = x + amp * np.sin(2 * math.pi * f_line * t)        # a strong line of the command near the mode
     ch, _ = synthesize(rich, None, x_cmd=x, seed=4)
     rp = Replay(Measurement(ch, source="synth: line near the mode"), CFG)
     res = rp.base_residuals
@@ -99,5 +105,5 @@ def test_mode_starts_from_residual_peaks_not_the_command_line(mass, freq, line):
     top = spectrum_peaks(res[chan], rp.sample_period, n=1)[0][0]
     assert abs(top - f_line) <= 0.03 * f_line              # the residual's strongest peak is the command's line
     targets = mode_targets(rp, res)
-    assert targets and abs(targets[0] - f_mode) <= 0.08 * f_mode, (targets, f_mode, f_line)
-    assert all(abs(f - f_line) > 0.05 * f_line for f in targets)
+    assert targets and abs(targets[0] - f_mode) <= 0.03 * f_mode, (targets, f_mode, f_line)
+    assert all(abs(f - f_line) > 0.03 * f_line for f in targets)      # the line (its window: +-3 bins)
