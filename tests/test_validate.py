@@ -69,11 +69,13 @@ def test_fit_validate_reports_estimation_and_validation(tmp_path, capsys, level)
         assert row["after"]["above_floor"]["torque"] < 3.0
     assert es["after"]["error"]["torque"] == pytest.approx(d["error_after"]["torque"], rel=1e-9)
     # a second path: the written config replayed on the validation record
-    rp = Replay(Measurement(val, source=v), CFG)
+    from hil.io.measurement import read
+    m = read(v)
+    rp = Replay(m, CFG)
     res = rp.residuals(load(out))
     for c in ("x_motor", "torque"):
         assert va["after"]["error"][c] == pytest.approx(float(np.sqrt(np.mean(res[c] ** 2))), rel=1e-9)
-        y = val[c]
+        y = m[c]
         assert va["after"]["relative_error"][c] == pytest.approx(100 * np.linalg.norm(res[c]) / np.linalg.norm(y),
                                                                  rel=1e-9)
     assert load(out)["effects.coulomb_friction.level"] == pytest.approx(level, rel=0.05)
