@@ -22,9 +22,17 @@ with the command and with v, a, x. Writes overlay/residual/spectrum/scatter PNGs
 """
 
 
-def add_common(parser) -> None:
-    parser.add_argument("data", help="measurement: CSV in the project's format, a text log, an Excel .xlsx sheet, "
-                                     "or a MATLAB .mat record (v7.3 too)")
+def add_common(parser, records: bool = False) -> None:
+    """The record(s), config, --set, --map, --channels, --align, --json; ``records``: any number of
+    records of one axis, fitted together, and ``--validate RECORD...`` (hil fit, hil diagnose)."""
+    formats = "CSV in the project's format, a text log, an Excel .xlsx sheet, or a MATLAB .mat record (v7.3 too)"
+    if records:
+        parser.add_argument("data", nargs="+", help=f"measurement(s) of one axis, fitted together: {formats}")
+        parser.add_argument("--validate", action="extend", nargs="+", default=[], metavar="RECORD",
+                            help="records not used for the fit: their errors are reported beside the "
+                                 "estimation records' (the same --map)")
+    else:
+        parser.add_argument("data", help=f"measurement: {formats}")
     parser.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a parameter")
     parser.add_argument("--map", action="append", default=[], metavar="SOURCE=CHANNEL[unit]",
@@ -48,21 +56,51 @@ def add_arguments(parser) -> None:
 
 def load_inputs(args):
     """The config (``--config`` with ``--set``) and the record (``data`` with ``--map``)."""
+    from hil.config import load, parse_assignment
+    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    return cfg, _read_record(args, cfg, args.data)
+
+
+def _read_record(args, cfg, path):
     import sys
 
-    from hil.config import load, parse_assignment
     from hil.io.importers import data_warnings, parse_mapping, read_any
     from hil.io.measurement import check_usable
-    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
-    meas = read_any(args.data, parse_mapping(args.map) or None, sheet=getattr(args, "sheet", None))
+    meas = read_any(path, parse_mapping(args.map) or None, sheet=getattr(args, "sheet", None))
     # degenerate records are refused, never diagnosed
     check_usable(meas, (cfg["limits.travel_min"], cfg["limits.travel_max"]), cfg["control.position_period"],
                  cfg["control.velocity_period"], open_loop=getattr(args, "open_loop", False))
     # what can still be replayed but deserves a look: outliers, gaps, a slow log
     meas.warnings = data_warnings(meas, cfg["control.position_period"])
     for w in meas.warnings:
-        print(f"warning: {w}", file=sys.stderr)
-    return cfg, meas
+        print(f"warning: {path}: {w}", file=sys.stderr)
+    return meas
+
+
+def load_records(args):
+    """The config, the estimation records (``data``: one or more) and the ``--validate`` records,
+    each read with the same ``--map``."""
+    from hil.config import load, parse_assignment
+    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    paths = [args.data] if isinstance(args.data, str) else list(args.data)
+    est = [_read_record(args, cfg, p) for p in paths]
+    val = [_read_record(args, cfg, p) for p in getattr(args, "validate", None) or []]
+    return cfg, est, val
+
+
+def make_records(args, cfg, measurements):
+    """One record: its Replay; several: :class:`hil.ident.records.Records`, fitted as one, on the
+    channels every record has (or ``--channels``)."""
+    from hil.ident.records import Records, common_channels
+    if len(measurements) == 1:
+        return make_replay(args, cfg, measurements[0])
+    parts = [make_replay(args, cfg, m) for m in measurements]
+    chans = common_channels(parts)
+    if any(p.channels != chans for p in parts):
+        from hil.ident.replay import Replay
+        parts = [Replay(m, cfg, chans, align=getattr(args, "align", False),
+                        open_loop=getattr(args, "open_loop", False)) for m in measurements]
+    return Records(parts)
 
 
 def make_replay(args, cfg, meas):

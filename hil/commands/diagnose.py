@@ -1,7 +1,7 @@
 """``hil diagnose``: which physical effect is the model missing?"""
 from __future__ import annotations
 
-from hil.commands.compare import add_common, load_inputs, make_replay
+from hil.commands.compare import add_common, load_records, make_records, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import dumps
 
@@ -25,11 +25,18 @@ and no candidate closes half of the gap (with the evidence of where the residual
   hil diagnose data.csv --config config/paper_bench.toml --json
   hil diagnose data.csv --config config/paper_bench.toml --candidates coulomb_friction,parameter:plant.c2
   hil diagnose data.csv --config config/paper_bench.toml --out fitted.toml   (the config with the chain)
+
+Several records of one axis (both directions, several speeds) are diagnosed and fitted together
+(one objective over all of them, each record with its own noise floor); --validate RECORD...
+replays records the chain did not use, and prints their errors (start -> the chain's model)
+beside the estimation records' ("estimation" and "validation" in the JSON).
+
+  hil diagnose up.csv down.csv --config axis.toml --validate mixed.csv --json
 """
 
 
 def add_arguments(parser) -> None:
-    add_common(parser)
+    add_common(parser, records=True)
     parser.add_argument("--candidates", metavar="EFFECTS", default=None, help="comma-separated candidates (default: the whole catalogue)")
     parser.add_argument("--jobs", metavar="N", type=int, default=None, help="processes (default: the CPUs)")
     parser.add_argument("--max-steps", "--steps", dest="max_steps", type=int, default=4, metavar="N",
@@ -42,6 +49,7 @@ def add_arguments(parser) -> None:
 def candidates_json(d):
     out = {"candidates": [c.as_json() for c in d["candidates"]], "verdict": d["verdict"],
            "also_missing": d.get("also_missing", []), "combinations": d.get("combinations", []),
+           "joint_candidates": d.get("joint_candidates", []),
            "noise_floor": d["noise_floor"], "error_before": d["error_before"],
            "noise_floor_source": d.get("noise_floor_source", {}), "gap_closed": d.get("gap_closed")}
     # the convention of every command's JSON: SI, and a units map where a key does not carry its unit
@@ -50,6 +58,9 @@ def candidates_json(d):
     out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
+    for k in ("estimation", "validation"):
+        if k in d:
+            out[k] = d[k]
     if "chain" in d:
         from hil.ident.chain import chain_json
         out["chain"] = chain_json(d["chain"])
@@ -62,8 +73,8 @@ def run(args) -> int:
     from hil.ident.diagnosis import diagnose
     from hil.ident.unexplained import HALF_GAP, describe
     from hil.plant_config import candidate
-    cfg, meas = load_inputs(args)
-    rp = make_replay(args, cfg, meas)
+    cfg, metas, vals = load_records(args)
+    rp = make_records(args, cfg, metas)
     names = args.candidates.split(",") if args.candidates else None
     for n in names or []:
         try:
@@ -78,8 +89,17 @@ def run(args) -> int:
             d = diagnose(rp, names, progress=prog, jobs=args.jobs, min_gap=HALF_GAP)
         else:
             d = diagnose_chain(rp, names, max_steps=args.max_steps, progress=prog, jobs=args.jobs)
+    table = None
+    if len(metas) > 1 or vals:
+        from hil.ident.records import estimation_validation
+        fitted = d.get("config")
+        if fitted is None:        # the single diagnosis: its verdict's fit
+            lead = next((c for c in d["candidates"] if c.effect == d["verdict"]), None)
+            fitted = lead.cfg if lead is not None else cfg
+        table = estimation_validation(getattr(rp, "parts", [rp]), [make_replay(args, cfg, m) for m in vals], fitted)
+        d.update(table)
     if args.out and "config" in d:
-        _write_config(args, d, meas.source)
+        _write_config(args, d, ", ".join(str(m.source) for m in metas))
     if args.json:
         print(dumps(candidates_json(d), indent=1))
         return 0
@@ -91,6 +111,10 @@ def run(args) -> int:
     elif "residual" in d:
         for line in describe(d["residual"]):
             print("  " + line)
+    if table is not None:
+        from hil.ident.records import errors_text
+        for line in errors_text(table, rp.unit):
+            print(line)
     if args.out and "config" in d:
         print(f"wrote {args.out}")
     return 0
@@ -144,6 +168,10 @@ def ranking_text(d) -> list[str]:
                      f"{100 * cb['explained']:.0f} % of its gain, {cb['explains']} against it "
                      f"{cb['rich_against_combination']:.1f} -> "
                      f"{'named first' if cb['preferred'] else cb['explains'] + ' first'}")
+    for j in d.get("joint_candidates", []):
+        lines.append(f"joint candidate {' + '.join(j['effects'])} (fitted together): score {j['score']:.1f}, "
+                     f"{100 * j['gain']:.0f} % of the weighted error removed, the second member "
+                     f"{j['second_member_score']:.1f} on top -> {'named first' if j['preferred'] else 'not named'}")
     return lines
 
 
@@ -181,5 +209,6 @@ def _write_config(args, d, source) -> None:
 
     from hil.io.config_write import write_config
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    write_config(args.out, args.config, d["config"], note=f"hil diagnose on {Path(str(source)).name}",
-                 inputs=(args.config, args.data))
+    data = [args.data] if isinstance(args.data, str) else list(args.data)
+    write_config(args.out, args.config, d["config"], note=f"hil diagnose on {source}",
+                 inputs=(args.config, *data, *(getattr(args, "validate", None) or [])))

@@ -20,6 +20,12 @@ of the position qm, of the velocity the controller sees (backward difference of 
 filtered position) and of the force gtau*vir.
 
   hil emps --data ../shared/data/emps/DATA_EMPS.mat --out out/emps
+
+--validate DATA_EMPS_PULSES.mat (the benchmark's validation record, when you have it) replays it
+through the models fitted on --data, its pulses entering as the u_add input, and sets its errors
+beside the published validation figures (position 0.0080 %, force 8.94 %).
+
+  hil emps --data DATA_EMPS.mat --validate DATA_EMPS_PULSES.mat --out out/emps
 """
 
 
@@ -31,16 +37,30 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis rankings (faster)")
     parser.add_argument("--docs", metavar="DIR", default=None,
                         help="also copy the figures as emps_*.png into DIR (e.g. docs)")
+    parser.add_argument("--validate", action="extend", nargs="+", default=[], metavar="RECORD",
+                        help="validation record(s) (DATA_EMPS_PULSES.mat): errors of the fitted models on them, beside "
+                             "the published validation figures")
     parser.add_argument("--json", action="store_true")
 
 
 def run(args) -> int:
     from hil.ident.compare import analyse
-    from hil.ident.emps import PUBLISHED, diagnosis_markdown, run_emps, table_markdown
+    from hil.ident.emps import (
+        PUBLISHED,
+        PUBLISHED_VALIDATION,
+        diagnosis_markdown,
+        run_emps,
+        table_markdown,
+        validate_emps,
+        validation_markdown,
+    )
     from hil.plots.compare import comparison_figures, error_fall_figure
     from hil.plots.report import write_report
     if not Path(args.data).exists():
         raise UserError(f"{args.data}: no such file (the EMPS record, see ../shared/data/emps/PROVENANCE.md)")
+    for v in args.validate:
+        if not Path(v).exists():
+            raise UserError(f"--validate {v}: no such file (the EMPS validation record DATA_EMPS_PULSES.mat)")
     from hil.commands.progress import bar
     with bar("emps", args) as prog:
         res = run_emps(args.data, args.config, args.quick, progress=prog, diagnose_steps=not args.no_diagnose)
@@ -55,20 +75,30 @@ def run(args) -> int:
     md = table_markdown(rows)
     chk = res.check
     diag_md = diagnosis_markdown(diags)
-    write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n")
+    from hil.ident.emps import with_rigid
+    val = []
+    for v in args.validate:
+        val += validate_emps(v, {"published reference (our loop)": with_rigid(cfgs["start"], PUBLISHED),
+                                 "output-error refit of M, Fv, Fc, offset": cfgs["fitted"],
+                                 "+ asymmetric_friction": cfgs["asymmetric"]})
+    val_md = validation_markdown(val) if val else ""
+    write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n" + (f"\n{val_md}\n" if val_md else ""))
     write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
-                 notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."] + diag_md.splitlines())
+                 notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."] + diag_md.splitlines()
+                 + (["Validation (records not used for the fit):"] + val_md.splitlines() if val_md else []))
     if args.docs:
         d = Path(args.docs)
         d.mkdir(parents=True, exist_ok=True)
         for f in figs:
             shutil.copy(f, d / f"emps_{Path(f).name}")
     if args.json:
-        print(dumps({"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out)},
-                    indent=1))
+        print(dumps({"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out),
+                     "validation": val, "published_validation": PUBLISHED_VALIDATION}, indent=1))
     else:
         print(md)
         print(diag_md)
+        if val_md:
+            print(val_md)
         dev = chk["deviation"]
         print(f"output-error fit against published: M {dev['M']:+.2f} %, Fv {dev['Fv']:+.2f} %, Fc {dev['Fc']:+.2f} %, "
               f"offset {dev['offset_N']:+.3f} N; within 5 % / 0.5 N: {chk['within_5_percent_and_0.5_N']}; "

@@ -1,9 +1,10 @@
 """``hil fit``: add effects with fitted parameters and write the new config."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
-from hil.commands.compare import add_common, load_inputs, make_replay
+from hil.commands.compare import add_common, load_records, make_records, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import dumps
 
@@ -21,11 +22,21 @@ frf.json that `hil frf` writes: the effects are then fitted to the measured freq
   hil fit data.csv --config config/paper_bench.toml --add parameter:plant.c2 --out fitted.toml
   hil fit out/frf/frf.json --config config/paper_bench.toml --add parameter:plant.c2 --out fitted.toml
   hil fit DATA_EMPS.mat --config config/emps.toml --map ... --add coulomb_friction --add constant_force --out emps_fit.toml
+
+Several records of one axis (both directions, several speeds) are fitted together: one objective
+sums each record's residuals, weighted by its own error and noise floor. --validate RECORD...
+replays records the fit did not use: their errors (start -> fitted) are printed beside the
+estimation records' (System Identification practice: estimation and validation data).
+
+  hil fit up.csv down.csv --config axis.toml --add asymmetric_friction --validate mixed.csv --out fitted.toml
+
+An effect that makes the (weighted) error worse is refused: nothing is written, one line says
+which and by how much, and the exit status is 2 (with --json the object says "written": false).
 """
 
 
 def add_arguments(parser) -> None:
-    add_common(parser)
+    add_common(parser, records=True)
     parser.add_argument("--add", action="append", required=True, metavar="EFFECT",
                         help="catalogue effect or parameter:<dotted key> (repeatable)")
     parser.add_argument("--refit", metavar="KEYS", default=None, help="comma-separated config keys to refit jointly at the end")
@@ -36,9 +47,13 @@ def _check_out(args) -> None:
     """--out: never the input config or data (checked before the fit's minutes, and again when
     writing), never a folder."""
     from hil.io.safe_write import refuse_inputs
-    refuse_inputs(args.out, (args.config, args.data))
+    refuse_inputs(args.out, (args.config, *_paths(args.data), *(getattr(args, "validate", None) or [])))
     if Path(args.out).is_dir():
         raise UserError(f"--out {args.out}: is a folder, expected the new config's file name")
+
+
+def _paths(data) -> list:
+    return [data] if isinstance(data, str) else list(data)
 
 
 def _refit_keys(text: str | None) -> list[str]:
@@ -56,11 +71,16 @@ def _refit_keys(text: str | None) -> list[str]:
 
 def run(args) -> int:
     from hil.ident.frf_fit import is_frf_file
-    if is_frf_file(args.data):
+    paths = _paths(args.data)
+    if any(is_frf_file(p) for p in paths):
+        if len(paths) > 1 or getattr(args, "validate", None):
+            raise UserError(f"{paths[0]}: frequency responses are fitted one file at a time, without --validate")
+        args.data = paths[0]
         return _run_frequency(args)
     from hil.ident.fit import fit_effects, joint_refit
+    from hil.ident.records import errors_text, estimation_validation
     from hil.plant_config import candidate
-    cfg, meas = load_inputs(args)
+    cfg, metas, vals = load_records(args)
     _check_out(args)
     for n in args.add:
         try:
@@ -69,7 +89,7 @@ def run(args) -> int:
             raise UserError(str(exc).strip("'\"")) from None
     refit = _refit_keys(args.refit)
     refit_se: dict = {}
-    rp = make_replay(args, cfg, meas)
+    rp = make_records(args, cfg, metas)
     before = {c: float((rp.base_residuals[c] ** 2).mean() ** 0.5) for c in rp.channels}
     from hil.commands.progress import bar
     with bar("fit", args, total=len(args.add) + (len(args.add) > 1)) as prog:
@@ -84,13 +104,25 @@ def run(args) -> int:
     after = {c: float((res[c] ** 2).mean() ** 0.5) for c in rp.channels}
     stderr = fitted_stderr(cfg, steps)
     stderr.update(refit_se)
-    written = _write(args, new, stderr, f"hil fit on {Path(str(meas.source)).name}",
-                     inputs=(args.config, args.data, args.after if hasattr(args, "after") else None))
-    fitted = {k: {"value": new.get(k), "stderr": stderr.get(k), "unit": _si_unit(k, new)} for k in written}
-    out = {"config": args.out, "steps": [s.as_json() for s in steps], "fitted": fitted,
-           "error_before": before, "error_after": after,
-           "units": {"error_before": {c: rp.unit(c) for c in rp.channels},
-                     "error_after": {c: rp.unit(c) for c in rp.channels}}}
+    parts = getattr(rp, "parts", [rp])
+    table = estimation_validation(parts, [make_replay(args, cfg, m) for m in vals], new)
+    units = {c: rp.unit(c) for c in rp.channels}
+    out = {"config": args.out, "written": True, "steps": [s.as_json() for s in steps], "fitted": {},
+           "error_before": before, "error_after": after, "records": [m.source for m in metas], **table,
+           "units": {"error_before": units, "error_after": units}}
+    refused = worse_effects(rp, steps, new)
+    if refused:
+        out.update(written=False, refused=refused)
+        line = f"not written: {refused['message']} (drop it from --add; `hil diagnose` says what the record lacks)"
+        if args.json:
+            print(dumps(out, indent=1))
+            print(f"hil fit: refused: {line}", file=sys.stderr)
+            return 2
+        raise UserError(line)
+    names = ", ".join(Path(str(m.source)).name for m in metas)
+    written = _write(args, new, stderr, f"hil fit on {names}",
+                     inputs=(args.config, *paths, *(getattr(args, "validate", None) or [])))
+    out["fitted"] = {k: {"value": new.get(k), "stderr": stderr.get(k), "unit": _si_unit(k, new)} for k in written}
     if args.json:
         print(dumps(out, indent=1))
     else:
@@ -99,6 +131,9 @@ def run(args) -> int:
             print(line)
         for c in rp.channels:
             print(f"  {c}: RMS {fmt_si(before[c], rp.unit(c))} -> {fmt_si(after[c], rp.unit(c))}")
+        if len(metas) > 1 or vals:
+            for line in errors_text(table, rp.unit):
+                print(line)
         print(f"wrote {args.out} (changed: {', '.join(written) or 'nothing'})")
     return 0
 
@@ -161,6 +196,27 @@ def _write(args, new, stderr, note, inputs) -> list[str]:
     """--out as an edit of --config: the changed keys only (hil.io.config_write)."""
     from hil.io.config_write import write_config
     return write_config(args.out, args.config, new, stderr=stderr, note=note, inputs=inputs)
+
+
+def worse_effects(rp, steps, new) -> dict | None:
+    """The effects that made the weighted error of the estimation records worse (each greedy step
+    against the model before it, and the whole fit against the start), or None when none did."""
+    import numpy as np
+    obj = rp.objective
+    e0 = float(np.sum(obj.vector(rp.base_residuals) ** 2))
+    e1 = float(np.sum(obj.vector(rp.residuals(new)) ** 2))
+    bad = [s for s in steps if "+" not in s.effect and s.gain < 0]
+    if not bad and e1 <= e0:
+        return None
+    names = [s.effect for s in bad] or [s.effect for s in steps if "+" not in s.effect]
+    if bad:
+        s = bad[0]
+        chans = ", ".join(f"{c} RMS {s.errors_after[c]:.3g}" for c in s.errors_after)
+        msg = (f"{' and '.join(names)} make{'s' if len(names) == 1 else ''} the error worse (weighted error "
+               f"x{1 - s.gain:.3g} when {s.effect} is added; after it: {chans})")
+    else:
+        msg = f"{' and '.join(names)} make the error worse (weighted error x{e1 / max(e0, 1e-300):.3g})"
+    return {"effects": names, "weighted_error_ratio": e1 / max(e0, 1e-300), "message": msg}
 
 
 def _run_frequency(args) -> int:

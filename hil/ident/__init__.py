@@ -9,14 +9,16 @@ Modules, each importing only those above it:
 - ``noise``: the noise floor of a record (a given figure, the encoder grid, settled standstills);
 - ``objective``: the weighted residual vector the fits minimise;
 - ``replay``: :class:`Replay`, a record replayed through a config's model;
+- ``records``: several records of one axis fitted as one, estimation and validation errors;
 - ``compare``: the metrics and residual analysis that ``hil compare`` reports;
 - ``evidence``, ``starts``: the evidence text and the starting values of a candidate's fit;
 - ``fit``: fitting and scoring one candidate (:func:`evaluate`), greedy and joint fits;
 - ``parallel``: many candidates in worker processes;
+- ``inverse``: the inverse dynamic model by least squares (:func:`idim_ls`);
+- ``joint``: pairs of friction and force effects screened together by the inverse model;
 - ``unexplained``: at the noise floor, the share of the gap a fit closed, where a residual lives;
 - ``diagnosis``: every candidate fitted, ranked, the verdict (:func:`diagnose`);
 - ``chain``: diagnose, add the verdict, refit all, diagnose again (:func:`diagnose_chain`);
-- ``inverse``: the inverse dynamic model by least squares (:func:`idim_ls`);
 - ``emps``: the EMPS benchmark end to end;
 - ``frf_fit``: the same effects fitted to measured frequency responses;
 - ``synth``: records of a richer plant with a hidden effect.

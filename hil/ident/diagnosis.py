@@ -19,6 +19,14 @@ coulomb_friction + constant_force) is compared with them fitted jointly (:class:
 combination is named first (verdict, then ``also_missing``) when the richer effect's extra
 parameters do not pay against it, or when it explains at least :data:`EXPLAINED` of the richer
 effect's fall of the log weighted error.
+
+Joint candidates (hil.ident.joint): the pairs of friction and force effects that are linear in
+their parameters through the inverse model are screened together by least squares on the force
+residual; the :data:`~hil.ident.joint.JOINT_REFINE` pairs whose screen pays against their better
+member alone are fitted by simulation (:class:`Joint`). A pair leads the ranking, named as its
+members (verdict, then ``also_missing``), when it is significant, its score beats every single
+candidate's, and its second member pays on top of the better one (:func:`pair_score` above
+MIN_SCORE): effects that only help together are found.
 """
 from __future__ import annotations
 
@@ -31,6 +39,7 @@ import numpy as np
 
 from hil.ident.evidence import evidence
 from hil.ident.fit import Candidate, evaluate
+from hil.ident.joint import JOINT_REFINE, screen_pairs
 from hil.ident.parallel import evaluate_many
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
@@ -40,7 +49,7 @@ from sim_plant.effects import CATALOGUE
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["diagnose", "candidate_names", "Combo", "pair_score", "EXPLAINED"]
+__all__ = ["diagnose", "candidate_names", "Combo", "Joint", "pair_score", "EXPLAINED"]
 
 EXPLAINED = 0.8          # a combination of simpler effects explaining this share of a richer one's gain goes first
 
@@ -86,7 +95,8 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
         better = {c.effect: c for c in evaluate_many(replay, work, res0, jobs, progress) if c is not None}
         out = [better.get(c.effect, c) if better.get(c.effect, c).score >= c.score else c for c in out]
     combos = _combinations(replay, out, res0, jobs, progress, max_nfev, refine)
-    ranked, lead = _rank(out, combos, replay.noise)
+    joints = _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names)
+    ranked, lead = _rank(out, combos + joints, replay.noise)
     also = []
     if lead is not None:
         verdict = lead.leader if lead.significant else "none"
@@ -103,7 +113,8 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     elif verdict == "none" or closed < min_gap:
         verdict, also = "unexplained", []
     d = {"candidates": ranked, "verdict": verdict, "also_missing": also,
-         "combinations": [c.as_json() for c in combos], "noise_floor": dict(replay.noise),
+         "combinations": [c.as_json() for c in combos], "joint_candidates": [j.as_json() for j in joints],
+         "noise_floor": dict(replay.noise),
          "error_before": err0, "gap_closed": closed,
          "noise_floor_source": {c: replay.noise_sources[c]["source"] for c in replay.noise}}
     if verdict == "unexplained":
@@ -178,26 +189,90 @@ def _combinations(replay, out, res0, jobs, progress, max_nfev, refine) -> list[C
     if not work:
         return []
     fits = [c for c in evaluate_many(replay, work, res0, jobs, progress) if c is not None]
-    chans = list(replay.objective.weights)
     combos = []
     for fc in fits:
-        eff = candidate(fc.effect, replay.cfg)
-        res1 = replay.residuals(fc.cfg)
-        members = []
-        for m, vals in zip(eff.members, eff.split(fc.params)):
-            others = [o.name for o in eff.members if o is not m]
-            if len(others) == 1:
-                without = by_name[others[0]]
-            else:
-                without = evaluate(replay, "+".join(others), res0, max_nfev,
-                                   start={k: v for k, v in fc.params.items() if not k.startswith(m.name + ".")})
-            sc = bic_score(replay.residuals(without.cfg), res1, chans, len(m.params), replay.noise)
-            members.append({"effect": m.name, "params": vals, "score": float(sc), "significant": sc > MIN_SCORE,
-                            "evidence": evidence(m.name, vals, replay, res0, fc.channel, fc.error_before,
-                                                  fc.error_after, [])})
+        members = _members(replay, fc, by_name, res0, max_nfev)
         lead = max(members, key=lambda d: d["score"])["effect"]
         combos.append(Combo(fc, rich_of[fc.effect], members, lead))
     return combos
+
+
+def _members(replay, fc, by_name, res0, max_nfev) -> list:
+    """Each member of a jointly fitted combination with its marginal score: the BIC score of the
+    joint fit against the fit without that member."""
+    chans = list(replay.objective.weights)
+    eff = candidate(fc.effect, replay.cfg)
+    res1 = replay.residuals(fc.cfg)
+    members = []
+    for m, vals in zip(eff.members, eff.split(fc.params)):
+        others = [o.name for o in eff.members if o is not m]
+        if len(others) == 1:
+            without = by_name[others[0]]
+        else:
+            without = evaluate(replay, "+".join(others), res0, max_nfev,
+                               start={k: v for k, v in fc.params.items() if not k.startswith(m.name + ".")})
+        sc = bic_score(replay.residuals(without.cfg), res1, chans, len(m.params), replay.noise)
+        members.append({"effect": m.name, "params": vals, "score": float(sc), "significant": sc > MIN_SCORE,
+                        "evidence": evidence(m.name, vals, replay, res0, fc.channel, fc.error_before,
+                                              fc.error_after, [])})
+    return members
+
+
+class Joint(Combo):
+    """A pair of friction or force effects fitted together because the inverse model's screen
+    (hil.ident.joint) says the pair explains more than its better member alone: its candidate, no
+    richer effect, its members with their marginal scores, the screen's figures, and the best
+    single candidate it is ranked against (``single``)."""
+
+    def __init__(self, cand, members, leader, screen, single):
+        super().__init__(cand, None, members, leader)
+        self.screen = screen
+        self.single = single
+
+    def prefer(self, floor=None) -> bool:
+        """Named first: significant, a higher score than the best single candidate, and its
+        second member pays on top of the better one (its marginal score above MIN_SCORE)."""
+        best = self.single
+        self.pair = min(m["score"] for m in self.members)
+        self.explained = 1.0
+        self.preferred = bool(self.significant and (best is None or self.score > best.score)
+                              and self.pair > MIN_SCORE)
+        return self.preferred
+
+    def as_json(self) -> dict:
+        return {"effects": [m["effect"] for m in self.members], "preferred": bool(self.preferred),
+                "score": float(self.cand.score), "second_member_score": float(self.pair),
+                "best_single": self.single.effect if self.single is not None else None,
+                "best_single_score": float(self.single.score) if self.single is not None else None,
+                "screen_synergy": float(self.screen["synergy"]), "params": {k: float(v) for k, v in self.cand.params.items()},
+                "channel": self.cand.channel, "error_before": float(self.cand.error_before),
+                "error_after": float(self.cand.error_after), "gain": float(self.cand.gain),
+                "evidence": self.cand.evidence,
+                "members": [{k: (float(v) if isinstance(v, float) else v) for k, v in m.items()} for m in self.members]}
+
+
+def _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names) -> list[Joint]:
+    """The pairs of friction and force effects screened by the inverse model (hil.ident.joint),
+    the best few whose screen pays against their better member refined by simulation; pairs
+    already fitted as a combination against a richer effect are left out."""
+    by_name = {c.effect: c for c in out}
+    taken = {frozenset(m["effect"] for m in c.members) for c in combos}
+    pool = [n for n in names if n in by_name]
+    screened = [s for s in screen_pairs(replay, res0, pool)
+                if frozenset(s["effects"]) not in taken and s["synergy"] > MIN_SCORE][:JOINT_REFINE]
+    if not screened:
+        return []
+    work = [("+".join(s["effects"]), max_nfev, s["start"], 1) for s in screened]
+    fits = evaluate_many(replay, work, res0, jobs, progress)
+    best = max(out, key=lambda c: c.score) if out else None
+    joints = []
+    for s, fc in zip(screened, fits):
+        if fc is None:
+            continue
+        members = _members(replay, fc, by_name, res0, max_nfev)
+        lead = max(members, key=lambda d: by_name[d["effect"]].score)["effect"]
+        joints.append(Joint(fc, members, lead, s, best))
+    return joints
 
 
 def _rank(cands: list[Candidate], combos: list | None = None, floor=None):
@@ -208,7 +283,8 @@ def _rank(cands: list[Candidate], combos: list | None = None, floor=None):
     themselves) or it leaves no more error (:func:`_close`); a preferred combination takes the
     richer effect's place if that is higher, and stands in the ranking for its leading member (the
     one whose removal costs the most)."""
-    entries = _rank_single(list(cands) + [c for c in combos or () if _prefer(c, floor=floor)])
+    entries = _rank_single(list(cands) + [c for c in combos or ()
+                                          if (c.prefer(floor) if isinstance(c, Joint) else _prefer(c, floor=floor))])
     out, lead = [], None
     for e in entries:
         if isinstance(e, Combo):
@@ -217,8 +293,14 @@ def _rank(cands: list[Candidate], combos: list | None = None, floor=None):
             single = next((c for c in cands if c.effect == e.leader), None)
             if single is not None and single not in out:
                 rest = [m["effect"] for m in e.members if m["effect"] != e.leader]
-                single.evidence += (f"; with {' and '.join(rest)} it explains {100 * e.explained:.0f} % of the gain of "
-                                    f"{e.rich.effect} (whose remainder scores {e.pair:.1f}: judged once these are fitted)")
+                if isinstance(e, Joint):
+                    single.evidence += (f"; fitted together with {' and '.join(rest)} (a joint candidate: score "
+                                        f"{e.score:.1f}, {100 * e.cand.gain:.0f} % of the weighted error removed, "
+                                        f"{' and '.join(rest)} scoring {e.pair:.1f} on top)")
+                else:
+                    single.evidence += (f"; with {' and '.join(rest)} it explains {100 * e.explained:.0f} % of the gain "
+                                        f"of {e.rich.effect} (whose remainder scores {e.pair:.1f}: judged once these "
+                                        f"are fitted)")
                 out.append(single)
         elif e not in out:
             out.append(e)
@@ -255,7 +337,7 @@ def _rank_single(cands: list) -> list:
             if changed:
                 break
     # a preferred combination before the richer effect it mimics
-    for c in [c for c in cands if isinstance(c, Combo)]:
+    for c in [c for c in cands if isinstance(c, Combo) and c.rich is not None]:
         i, j = cands.index(c.rich), cands.index(c)
         if j > i:
             cands.insert(i, cands.pop(j))

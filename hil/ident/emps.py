@@ -9,6 +9,13 @@ error (M, Fv, Fc and the offset jointly, simulation in the loop), and asymmetric
 inverse model. Errors are relative 2-norm errors in %, 100 ||y - y_sim|| / ||y||, of the position
 qm, of the velocity the controller sees (backward difference of the two-tap filtered position)
 and of the force gtau*vir. Published: Janot et al. 2019.
+
+Validation (:func:`validate_emps`): the benchmark's validation record DATA_EMPS_PULSES.mat (the
+same reference trajectory, with 0/5 V pulses added to the drive command after the controller; its
+``vir`` includes them) is replayed through the models fitted on DATA_EMPS.mat, the pulses entering
+as the ``u_add`` input (:data:`VALIDATION_MAPPING`, a table: a record with other names is read
+with another), and its errors set beside the published validation figures
+(:data:`PUBLISHED_VALIDATION`: position 0.0080 %, force 8.94 %).
 """
 from __future__ import annotations
 
@@ -28,12 +35,17 @@ from hil.plant_config import candidate
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["PUBLISHED", "MAPPING", "DIAGNOSE_CANDIDATES", "EmpsResult", "run_emps", "velocity", "errors",
+__all__ = ["PUBLISHED", "MAPPING", "VALIDATION_MAPPING", "PUBLISHED_VALIDATION", "validate_emps",
+           "validation_markdown", "DIAGNOSE_CANDIDATES", "EmpsResult", "run_emps", "velocity", "errors",
            "params_of", "with_rigid", "check_published", "table_markdown", "diagnosis_markdown"]
 
 PUBLISHED = {"M": 95.1089, "Fv": 203.5034, "Fc": 20.3935, "offset": -3.1648,
              "errors": {"position": 0.0138, "velocity": 0.229, "force": 5.85}}
 MAPPING = {"t": "t", "qg": "x_cmd", "qm": "x_motor", "vir*gtau": "force"}     # source = channel
+# the validation record: the pulses (V, the drive command's unit) added after the controller are an
+# input of the replay (u_add); vir, and so the force, includes them
+VALIDATION_MAPPING = dict(MAPPING, pulses_N="u_add")
+PUBLISHED_VALIDATION = {"position": 0.0080, "force": 8.94}      # % (Janot et al. 2019, on DATA_EMPS_PULSES)
 DIAGNOSE_CANDIDATES = ["coulomb_friction", "stribeck_friction", "asymmetric_friction", "constant_force",
                        "viscous_friction", "time_delay", "mass_change", "parameter:actuator.gain"]
 
@@ -243,4 +255,32 @@ def diagnosis_markdown(diags) -> str:
                          + ("the pair named first" if c["preferred"] else f"{c['explains']} first"))
         lines.append("  - ranking: " + "; ".join(f"{c['effect']} {c['score']:.1f}{' *' if c['significant'] else ''}"
                                                    for c in d["ranking"]))
+    return "\n".join(lines)
+
+
+def validate_emps(path, configs: dict, mapping: dict | None = None) -> list[dict]:
+    """The errors % (position, velocity, force) of each of ``configs`` ({label: config}, fitted on
+    DATA_EMPS.mat) on the validation record ``path``, read with ``mapping`` (default
+    :data:`VALIDATION_MAPPING`). Refused with one line when this version has no ``u_add`` input
+    (the pulses would be left out of the replay, the residual would be the pulse train)."""
+    from hil.errors import UserError
+    from hil.io.measurement import CHANNELS
+    mapping = dict(mapping or VALIDATION_MAPPING)
+    if "u_add" in mapping.values() and "u_add" not in CHANNELS:
+        raise UserError(f"{path}: the validation record's pulses need the u_add input channel, which this version "
+                        f"does not have: not validated")
+    meas = read_mat(path, mapping)
+    cfg0 = next(iter(configs.values()))
+    rp = Replay(meas, cfg0)
+    return [{"model": label, "record": str(path), **errors(rp, cfg)} for label, cfg in configs.items()]
+
+
+def validation_markdown(rows) -> str:
+    """The validation errors beside the published validation figures."""
+    lines = ["| model (fitted on DATA_EMPS.mat), on the validation record | position % | velocity % | force % |",
+             "|---|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['model']} | {r['position']:.4f} | {r['velocity']:.3f} | {r['force']:.2f} |")
+    p = PUBLISHED_VALIDATION
+    lines.append(f"| **published** validation (Janot et al. 2019) | {p['position']} | | {p['force']} |")
     return "\n".join(lines)

@@ -10,7 +10,18 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import butter, decimate, filtfilt
 
-__all__ = ["idim_ls"]
+__all__ = ["idim_ls", "motion"]
+
+
+def motion(t, x, cutoff: float = 100.0, order: int = 4):
+    """Velocity and acceleration of a measured position: low-pass filtered forward and backward
+    (Butterworth, ``order``, ``cutoff`` Hz), then central differences (the IDIM recipe)."""
+    t, x = np.asarray(t, float), np.asarray(x, float)
+    dt = float(np.median(np.diff(t)))
+    b, a = butter(order, cutoff / (0.5 / dt))
+    xf = filtfilt(b, a, x)
+    v = np.gradient(xf, dt)
+    return v, np.gradient(v, dt)
 
 
 def idim_ls(t, x, force, *, cutoff: float = 100.0, order: int = 4, decimation: int = 10,
@@ -25,11 +36,7 @@ def idim_ls(t, x, force, *, cutoff: float = 100.0, order: int = 4, decimation: i
     the EMPS benchmark's reference recipe. Returns the parameters (SI), the relative 2-norm force
     error % and the condition number of the column-scaled regressor."""
     t, x, force = (np.asarray(a, float) for a in (t, x, force))
-    dt = float(np.median(np.diff(t)))
-    b, a = butter(order, cutoff / (0.5 / dt))
-    xf = filtfilt(b, a, x)
-    v = np.gradient(xf, dt)
-    acc = np.gradient(v, dt)
+    v, acc = motion(t, x, cutoff, order)
     if asymmetric:
         pos = v > 0
         cols = {"M": acc, "Fv+": v * pos, "Fv-": v * ~pos, "Fc+": pos * 1.0, "Fc-": -1.0 * (v < 0)}

@@ -11,7 +11,12 @@ the fit (SI units).
   position (x_motor - x_table for the lead error) at four phases; the cheapest two kept.
 * compliant_mode: for modal masses of 0.05 to 1.5 times the tip mass, the natural frequency that
   puts a mode of the coupled chain within 3 % of a peak of the residual spectrum; the cheapest
-  two kept.
+  two kept. The peaks are the residual's own, above the command's lines (:func:`mode_targets`):
+  the inputs' spectra (the commanded acceleration, and ``u_add`` when the record has it) have
+  lines, peaks :data:`LINE_ABOVE` times above their running median (:data:`LINE_BINS` bins); a
+  residual peak within :data:`LINE_TOL` (or three bins) of a line is the command's forced
+  response, not a mode, unless its ratio to the input there stands :data:`LINE_ABOVE` times above
+  the median ratio over the input's lines (a mode amplifies the lines near it).
 * Effects with a grid (:meth:`sim_plant.effects.Effect.grid`: the delays, the channel skews; the
   error is not convex in a delay): one simulation per grid point over the physically possible
   range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
@@ -28,7 +33,12 @@ from hil.ident.replay import Replay
 from hil.ident.residual import periodic_in_position, spectrum_peaks
 from sim_plant.effects import Combination, Effect
 
-__all__ = ["record_scales", "starting_values"]
+__all__ = ["record_scales", "starting_values", "mode_targets", "command_lines", "LINE_ABOVE", "LINE_TOL",
+           "LINE_BINS"]
+
+LINE_ABOVE = 10.0    # a line stands this many times above the spectrum's running median
+LINE_TOL = 0.05      # a residual peak this close (relative) to an input's line is that line
+LINE_BINS = 21       # bins of the running median
 
 
 def record_scales(replay: Replay, res0: dict) -> dict:
@@ -114,10 +124,7 @@ def _mode_starts(eff, replay, res0, g) -> list[dict]:
     tip mass) solve for the natural frequency that puts one of the coupled chain's modes on a
     peak of the residual spectrum (the strongest channel, weighted), with a low damping."""
     fmax = 0.45 / replay.sample_period
-    w = replay.objective.weights
-    chan = max((c for c in res0 if c in w), key=lambda c: float(np.mean(res0[c] ** 2)) * w[c] ** 2)
-    peaks = [f for f, _ in spectrum_peaks(res0[chan], replay.sample_period, n=6) if 0.5 < f < fmax]
-    targets = list(dict.fromkeys(round(f, 2) for f in peaks))[:2] or [g["frequency"]]
+    targets = mode_targets(replay, res0)[:2] or [g["frequency"]]
     plant = replay.plant
     m_tip = plant.chain.m[plant.tip]
     f_grid = np.geomspace(0.5, fmax, 240)
@@ -137,6 +144,64 @@ def _mode_starts(eff, replay, res0, g) -> list[dict]:
                 starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01})
         starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01})
     return starts
+
+
+def _spectrum(y, dt):
+    """Hann-windowed amplitude spectrum of the mean-free ``y`` (as hil.ident.residual) and its
+    frequencies."""
+    y = np.asarray(y, float) - np.mean(y)
+    w = np.hanning(y.size)
+    return np.abs(np.fft.rfft(y * w)) * 2 / w.sum(), np.fft.rfftfreq(y.size, dt)
+
+
+def command_lines(replay) -> list[tuple[str, np.ndarray, list[int]]]:
+    """The lines of the record's inputs: per input (the commanded acceleration; ``u_add`` when
+    measured) its name, its amplitude spectrum and the bins of its lines (peaks :data:`LINE_ABOVE`
+    times above the running median over :data:`LINE_BINS` bins)."""
+    from scipy.ndimage import median_filter
+    from scipy.signal import find_peaks
+    m = replay.meas
+    inputs = [("x_cmd", np.gradient(np.gradient(m["x_cmd"], m.t), m.t))]
+    if "u_add" in m:
+        inputs.append(("u_add", m["u_add"]))
+    out = []
+    for name, y in inputs:
+        spec, _ = _spectrum(y, replay.sample_period)
+        med = median_filter(spec, size=LINE_BINS, mode="nearest")
+        idx, _ = find_peaks(spec)
+        lines = [int(i) for i in idx if i > 0 and spec[i] > LINE_ABOVE * max(med[i], 1e-300)]
+        out.append((name, spec, lines))
+    return out
+
+
+def mode_targets(replay, res0: dict, chan: str | None = None, n: int = 6) -> list[float]:
+    """The frequencies (Hz) of the residual's spectral peaks that are not the command's own lines
+    (see the module's definitions), strongest first; ``chan``: the residual channel (default: the
+    strongest weighted)."""
+    if chan is None:
+        w = replay.objective.weights
+        chan = max((c for c in res0 if c in w), key=lambda c: float(np.mean(res0[c] ** 2)) * w[c] ** 2)
+    dt = replay.sample_period
+    fmax = 0.45 / dt
+    spec_r, f = _spectrum(res0[chan], dt)
+    df = float(f[1] - f[0]) if f.size > 1 else 1.0
+    inputs = []
+    for _, spec_u, lines in command_lines(replay):
+        if lines:
+            ratio = [spec_r[i] / max(spec_u[i], 1e-300) for i in lines]
+            inputs.append((spec_u, lines, float(np.median(ratio))))
+    out = []
+    for fp, amp in spectrum_peaks(res0[chan], dt, n=4 * n):
+        if not 0.5 < fp < fmax:
+            continue
+        own = False
+        for spec_u, lines, med in inputs:
+            for i in lines:
+                if abs(fp - f[i]) <= max(LINE_TOL * f[i], 3 * df) and amp / max(spec_u[i], 1e-300) <= LINE_ABOVE * med:
+                    own = True
+        if not own:
+            out.append(round(fp, 2))
+    return list(dict.fromkeys(out))[:n]
 
 
 def _costs(eff, replay, starts, cfg) -> list[float]:

@@ -1,0 +1,53 @@
+"""``hil emps --validate``: the models fitted on DATA_EMPS.mat replayed on a validation record, its
+pulses as the u_add input, beside the published validation figures (skipped without the record;
+the path that needs u_add skipped where this version has no such channel)."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hil.io.measurement import CHANNELS
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "emps" / "DATA_EMPS.mat"
+pytestmark = pytest.mark.skipif(not DATA.exists(), reason=f"EMPS record not present at {DATA}")
+
+
+def _pulses_record(tmp_path):
+    """The training record written as a validation record with no pulses (pulses_N all 0): its
+    validation errors must be the training record's own errors of the same models."""
+    import scipy.io
+    d = scipy.io.loadmat(DATA)
+    out = {k: d[k] for k in ("t", "qm", "qg", "vir", "gtau", "kp", "kv")}
+    out["pulses_N"] = np.zeros_like(d["vir"])
+    p = tmp_path / "DATA_EMPS_PULSES.mat"
+    scipy.io.savemat(p, out)
+    return p
+
+
+@pytest.mark.skipif("u_add" not in CHANNELS, reason="no u_add input channel in this version (issue 15 item 1)")
+def test_emps_validate_json(tmp_path, capsys):
+    from hil.cli import main
+    from hil.ident.emps import PUBLISHED_VALIDATION
+    val = _pulses_record(tmp_path)
+    rc = main(["emps", "--data", str(DATA), "--validate", str(val), "--quick", "--no-diagnose", "--out",
+               str(tmp_path / "emps"), "--json"])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["published_validation"] == PUBLISHED_VALIDATION == {"position": 0.0080, "force": 8.94}
+    rows = {r["step"]: r for r in d["rows"]}
+    for v in d["validation"]:
+        assert v["record"] == str(val)
+        r = rows[v["model"]]          # no pulses: the same record, the same errors
+        for k in ("position", "velocity", "force"):
+            assert v[k] == pytest.approx(r[k], rel=1e-9)
+    assert "published** validation" in (tmp_path / "emps" / "table.md").read_text()
+
+
+@pytest.mark.skipif("u_add" in CHANNELS, reason="this version has the u_add input channel")
+def test_emps_validate_refused_without_u_add(tmp_path, capsys):
+    from hil.config import load
+    from hil.errors import HilError
+    from hil.ident.emps import validate_emps
+    with pytest.raises(HilError, match="u_add input channel"):
+        validate_emps(_pulses_record(tmp_path), {"start": load("config/emps.toml")})
