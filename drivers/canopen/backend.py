@@ -629,6 +629,8 @@ class CanopenBackend(Backend):
         self.receive_until(0.0)
         self.cycling = False
         net.notifier = can.Notifier(net.bus, net.listeners, net.NOTIFIER_CYCLE)
+        if self._recorder is not None:           # hil --can-log: the trace goes on with the new notifier
+            self._recorder.follow(net.notifier)
 
     def receive_until(self, t_end: float) -> None:
         """Take the frames from the bus on the calling thread (the loop's) until ``t_end``
@@ -654,6 +656,8 @@ class CanopenBackend(Backend):
                 self.events.append(f"cycle {self.syncs}: {self._rx_error}")
 
     def _take(self, msg) -> None:
+        if self._recorder is not None:           # hil --can-log: the frames the loop's thread takes
+            self._recorder.on_message_received(msg)
         if msg.is_error_frame or msg.is_remote_frame:
             return
         cob = msg.arbitration_id
@@ -878,7 +882,7 @@ class CanopenBackend(Backend):
         except Exception as exc:
             self.events.append(f"close: {exc}")
         if self._recorder is not None:
-            self._recorder.stop()
+            self._recorder.close()
             self._recorder = None
         self.network = None
         self.started = False

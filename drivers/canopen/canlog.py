@@ -5,15 +5,15 @@ binary, ``.log``, ``.csv``, ...), the files every CAN tool reads. The recorder i
 ``can.Listener``:
 
 * received frames: attached to the canopen network's notifier (the thread that already takes every
-  received frame and hands it to canopen's subscribers), so nothing is added to the receive path
-  but one call per frame;
+  received frame and hands it to canopen's subscribers) during start-up, SDO and shutdown, and
+  handed over by the loop's own thread during the cyclic phase (drivers.canopen.backend takes its
+  frames itself then), so nothing is added to the receive path but one call per frame;
 * sent frames: the bus's ``send`` is wrapped, each frame written after it went out, marked as
   transmitted (``is_rx = False``; ``Tx`` in an ASC file).
 
 Writing is the logger's (a buffered file write under a lock, the notifier and the cycle thread
 both write). It is for commissioning and fault finding, not for timing figures: a run with a trace
-does a little more per frame. A receive path that bypasses the notifier (a loop that reads the bus
-itself) is not seen; the frames it sends still are.
+does a little more per frame.
 
 The command line asks for it once (:func:`request`, ``hil --can-log FILE``); the canopen backend
 attaches a recorder when it connects (:func:`attach`) and stops it when it closes.
@@ -93,6 +93,17 @@ class BusRecorder(can.Listener):
         return self
 
     def stop(self) -> None:
+        """python-can's notifier calls this when it stops; the canopen backend stops its notifier
+        for the cyclic phase (the loop's thread then hands its frames here) and starts a new one
+        after it, so a notifier's stop does not end the trace: :meth:`close` does."""
+
+    def follow(self, notifier) -> None:
+        """Listen on ``notifier`` from now on (a new one, after the cyclic phase)."""
+        if notifier is not None and self._writer is not None:
+            notifier.add_listener(self)
+            self._notifier = notifier
+
+    def close(self) -> None:
         """Detach and close the file (safe to call twice)."""
         if self._notifier is not None:
             try:

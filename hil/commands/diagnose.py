@@ -99,7 +99,8 @@ def run(args) -> int:
         table = estimation_validation(getattr(rp, "parts", [rp]), [make_replay(args, cfg, m) for m in vals], fitted)
         d.update(table)
     if args.out and "config" in d:
-        _write_config(args, d, ", ".join(str(m.source) for m in metas))
+        from pathlib import Path
+        _write_config(args, d, ", ".join(Path(str(m.source)).name for m in metas))
     if args.json:
         print(dumps(candidates_json(d), indent=1))
         return 0

@@ -105,14 +105,14 @@ def run(args) -> int:
     stderr = fitted_stderr(cfg, steps)
     stderr.update(refit_se)
     parts = getattr(rp, "parts", [rp])
-    table = estimation_validation(parts, [make_replay(args, cfg, m) for m in vals], new)
+    checks = [make_replay(args, cfg, m) for m in vals]
     units = {c: rp.unit(c) for c in rp.channels}
     out = {"config": args.out, "written": True, "steps": [s.as_json() for s in steps], "fitted": {},
-           "error_before": before, "error_after": after, "records": [m.source for m in metas], **table,
+           "error_before": before, "error_after": after, "records": [m.source for m in metas],
            "units": {"error_before": units, "error_after": units}}
     refused = worse_effects(rp, steps, new)
     if refused:
-        out.update(written=False, refused=refused)
+        out.update(estimation_validation(parts, checks, new), written=False, refused=refused)
         line = f"not written: {refused['message']} (drop it from --add; `hil diagnose` says what the record lacks)"
         if args.json:
             print(dumps(out, indent=1))
@@ -123,6 +123,13 @@ def run(args) -> int:
     written = _write(args, new, stderr, f"hil fit on {names}",
                      inputs=(args.config, *paths, *(getattr(args, "validate", None) or [])))
     out["fitted"] = {k: {"value": new.get(k), "stderr": stderr.get(k), "unit": _si_unit(k, new)} for k in written}
+    # the errors of the config as written (its values rounded to their standard errors)
+    from hil.config import load
+    saved = load(args.out)
+    res = rp.residuals(saved)
+    after = out["error_after"] = {c: float((res[c] ** 2).mean() ** 0.5) for c in rp.channels}
+    table = estimation_validation(parts, checks, saved)
+    out.update(table)
     if args.json:
         print(dumps(out, indent=1))
     else:
