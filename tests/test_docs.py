@@ -8,8 +8,8 @@ The commands are taken from the fenced code blocks of README.md and docs/**/*.md
 - in a ```` ```console ```` block, the same for the lines that start with ``$ `` (the lines after
   one, up to the next ``$``, are the output shown: not checked here, they are examples).
 
-Each command runs as ``python -m hil ...`` (the installed package, or the checkout named by
-PYTHONPATH), without a shell, in a temporary folder of its own page: the commands of one page run
+Each command runs as ``hil ...`` through ``hil.cli.main`` of the package these tests import (the
+installed one, or the checkout named by PYTHONPATH), without a shell, in a temporary folder of its own page: the commands of one page run
 in the order written and see each other's files (the tutorial's record is the next command's
 input). That folder has no ``config/``: ``config/paper_bench.toml`` is found among the shipped
 examples, as it is for a user outside a clone. ``../shared`` is the project's shared folder
@@ -46,6 +46,8 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
 MARKER = re.compile(r"^<!--\s*(no-test|slow|exit|background)\s*(?::\s*(.*?))?\s*-->$")
 FENCE = re.compile(r"^(\s*)```+\s*([A-Za-z]*)")
 COMMAND_TIMEOUT = 600
+# the `hil` entry point of the package imported here (the installed one, or PYTHONPATH's)
+HIL = [sys.executable, "-c", "import sys; from hil.cli import main; sys.exit(main(sys.argv[1:]))"]
 
 
 @dataclass
@@ -202,7 +204,7 @@ def test_doc_command(cmd: DocCommand, page_runs, tmp_path_factory):
         _start_background(cmd, argv, run)
         return
     try:
-        r = subprocess.run([sys.executable, "-m", "hil", *argv], cwd=run.work, env=run.env, capture_output=True,
+        r = subprocess.run([*HIL, *argv], cwd=run.work, env=run.env, capture_output=True,
                            text=True, timeout=COMMAND_TIMEOUT, stdin=subprocess.DEVNULL)
     finally:
         if cmd is _last_of_page(cmd.page):
@@ -222,7 +224,7 @@ def _start_background(cmd: DocCommand, argv: list[str], run: PageRun) -> None:
     is_drive_sim = argv[:1] == ["drive-sim"]
     if is_drive_sim and "--port" not in argv:
         argv += ["--port", "0"]
-    proc = subprocess.Popen([sys.executable, "-m", "hil", *argv], cwd=run.work, env=run.env, text=True,
+    proc = subprocess.Popen([*HIL, *argv], cwd=run.work, env=run.env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
     run.background.append(proc)
     first = proc.stdout.readline()
