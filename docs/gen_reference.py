@@ -90,10 +90,10 @@ def _serial_fields() -> dict:
 
 
 def config_reference() -> str:
-    from hil.config import SCHEMA, field_for
     import drivers.canopen.backend as canopen_backend
     import hil.plant_config as plant_config
     import hil.supervisor as supervisor
+    from hil.config import SCHEMA, field_for
     from sim_plant.effects import CATALOGUE
 
     out = ["# Configuration keys", "", GENERATED_NOTE,

@@ -27,6 +27,9 @@ An HTML comment right before a block says how its commands run:
   for a free port (``--port 0``), reads it from the first line it prints, and adds
   ``--set canopen.port=PORT`` to the page's later commands that use the socketcand interface, so
   that two test runs on one machine never share a port.
+
+A slow command runs after its page's earlier fast commands that the session left out (``pytest -m
+slow`` alone still has the tutorial's record); a fast command never builds on a slow one.
 """
 from __future__ import annotations
 
@@ -138,6 +141,7 @@ class PageRun:
     env: dict
     background: list = field(default_factory=list)
     canopen_port: int | None = None
+    done: set = field(default_factory=set)      # the ids of the commands run so far
 
 
 _RUNS: dict[str, PageRun] = {}
@@ -192,23 +196,41 @@ def test_the_docs_have_commands():
 
 @pytest.mark.parametrize("cmd", [_param(c) for c in ALL])
 def test_doc_command(cmd: DocCommand, page_runs, tmp_path_factory):
-    if cmd.no_test is not None:
-        pytest.skip(f"marked no-test in the docs: {cmd.no_test or 'no reason given'}")
-    if any("DATA_EMPS.mat" in a for a in cmd.argv) and not (_shared() / "data" / "emps" / "DATA_EMPS.mat").is_file():
-        pytest.skip("needs the EMPS record, ../shared/data/emps/DATA_EMPS.mat (docs/how-to/emps-data.md)")
+    why = _runnable(cmd)
+    if why:
+        pytest.skip(why)
     run = _page_run(cmd.page, tmp_path_factory)
+    # a slow command's page may build on its earlier commands that this session deselected (the
+    # tutorial's record): run those first (never a slow one: a fast command builds on fast ones only)
+    for earlier in [c for c in ALL if c.page == cmd.page][:[c for c in ALL if c.page == cmd.page].index(cmd)]:
+        if earlier.id not in run.done and not earlier.slow and _runnable(earlier) is None:
+            _run_one(earlier, run)
+    try:
+        _run_one(cmd, run)
+    finally:
+        if cmd is _last_of_page(cmd.page):
+            _stop_background(run)
+
+
+def _runnable(cmd: DocCommand) -> str | None:
+    """Why the command cannot run here, or None."""
+    if cmd.no_test is not None:
+        return f"marked no-test in the docs: {cmd.no_test or 'no reason given'}"
+    if any("DATA_EMPS.mat" in a for a in cmd.argv) and not (_shared() / "data" / "emps" / "DATA_EMPS.mat").is_file():
+        return "needs the EMPS record, ../shared/data/emps/DATA_EMPS.mat (docs/how-to/emps-data.md)"
+    return None
+
+
+def _run_one(cmd: DocCommand, run: PageRun) -> None:
+    run.done.add(cmd.id)
     argv = list(cmd.argv)
     if run.canopen_port is not None and any("canopen.interface=socketcand" in a for a in argv):
         argv += ["--set", f"canopen.port={run.canopen_port}"]
     if cmd.background:
         _start_background(cmd, argv, run)
         return
-    try:
-        r = subprocess.run([*HIL, *argv], cwd=run.work, env=run.env, capture_output=True,
-                           text=True, timeout=COMMAND_TIMEOUT, stdin=subprocess.DEVNULL)
-    finally:
-        if cmd is _last_of_page(cmd.page):
-            _stop_background(run)
+    r = subprocess.run([*HIL, *argv], cwd=run.work, env=run.env, capture_output=True,
+                       text=True, timeout=COMMAND_TIMEOUT, stdin=subprocess.DEVNULL)
     assert r.returncode == cmd.exit_code, (
         f"{cmd.id}: hil {shlex.join(argv)}\nexit {r.returncode}, the docs expect {cmd.exit_code}\n"
         f"--- stdout\n{r.stdout[-3000:]}\n--- stderr\n{r.stderr[-3000:]}")
