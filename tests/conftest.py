@@ -7,6 +7,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "config"
 SHARED = ROOT.parent / "shared"
+
+
+def _keep_checkout_off_path() -> None:
+    """Test the installed package, not the source tree: ``python -m pytest`` puts the working
+    directory (the clone's root) first on sys.path, where the checkout's ``hil/`` would shadow
+    the installed one and hide a file missing from the wheel. That entry goes; a PYTHONPATH given
+    on purpose (a checkout being worked on, an editable install) stays."""
+    given = {os.path.realpath(p) for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p}
+    if str(ROOT) in given:
+        return
+    sys.path[:] = [p for p in sys.path if os.path.realpath(p or os.curdir) != str(ROOT)]
+
+
+_keep_checkout_off_path()
 sys.path.insert(0, str(ROOT / "benchmarks"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 

@@ -40,14 +40,16 @@ def test_help_and_version_import_no_heavy_module(capsys):
 
 
 def test_missing_config_lists_the_shipped_examples(tmp_path, monkeypatch):
-    from hil.config import ConfigError, example_names, load
+    from hil.config import ConfigError, example_names, examples_dir, load
     assert "paper_bench.toml" in example_names()
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ConfigError, match=r"nope.toml: no such configuration file .*paper_bench_canopen.toml"):
         load("nope.toml")
     # a shipped name, bare or as the README writes it, where the working directory has no such file
+    # (config/ of a source tree, hil/examples of the installed package the tests run against)
+    assert (examples_dir() / "paper_bench.toml").read_bytes() == (CONFIG / "paper_bench.toml").read_bytes()
     for name in ("paper_bench.toml", "config/paper_bench.toml"):
-        assert Path(load(name).source) == CONFIG / "paper_bench.toml"
+        assert Path(load(name).source) == examples_dir() / "paper_bench.toml"
     shutil.copy(CONFIG / "paper_bench.toml", tmp_path)
     assert load("paper_bench.toml").source == "paper_bench.toml"    # a file of the user's comes first
 

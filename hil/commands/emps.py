@@ -31,7 +31,10 @@ beside the published validation figures (position 0.0080 %, force 8.94 %).
 
 def add_arguments(parser) -> None:
     parser.add_argument("--data", metavar="FILE", default="../shared/data/emps/DATA_EMPS.mat", help="the EMPS .mat record")
-    parser.add_argument("--config", metavar="FILE", default=str(Path(__file__).resolve().parents[2] / "config" / "emps.toml"))
+    # by name: the clone's config/emps.toml, else the shipped example (an installed package has no
+    # config/ beside it: the path of this file's grandparent was site-packages/config/emps.toml)
+    parser.add_argument("--config", default="config/emps.toml", metavar="FILE",
+                        help="the EMPS axis (default config/emps.toml, shipped)")
     parser.add_argument("--out", default="out/emps", metavar="DIR")
     parser.add_argument("--quick", action="store_true", help="fewer iterations (tests)")
     parser.add_argument("--no-diagnose", action="store_true", help="skip the diagnosis rankings (faster)")
