@@ -57,7 +57,9 @@ def run(args) -> int:
     diag_md = diagnosis_markdown(diags)
     write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n")
     write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
-                 notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."] + diag_md.splitlines())
+                 record=args.data, configs=[("start model", args.config), ("fitted model", out / "emps_fitted.toml")],
+                 emps={"rows": rows, "published": PUBLISHED, "check": chk, "diagnoses": diags},
+                 names=("start model", "fitted model"))
     if args.docs:
         d = Path(args.docs)
         d.mkdir(parents=True, exist_ok=True)
