@@ -42,6 +42,19 @@ def test_one_unit_for_a_column():
     assert display_unit("m") == ("m", 1.0)
 
 
+@pytest.mark.parametrize("text,expected", [
+    ("RMS x_motor error 4.51e-05 -> 2.1e-06 m (95 % less)", "RMS x_motor error 45.1 -> 2.1 um (95 % less)"),
+    ("a mean of 0.0203 N*m in both directions", "a mean of 20.3 mN m in both directions"),
+    ("k1 1.2e+08 N/m with the nut at 350 mm", "k1 120 N/um with the nut at 350 mm"),
+    ("peak at 15.2 Hz, 3 samples, 0.5 mm, 2 m/s^2", "peak at 15.2 Hz, 3 samples, 0.5 mm, 2 m/s^2"),
+    ("ratio 3.3e-05", "ratio 0.000033"),
+])
+def test_library_sentences_in_engineering_units(text, expected):
+    from hil.plots.engineering import engineering_text
+    assert engineering_text(text) == expected
+    assert engineering_text(expected) == expected          # already engineering units: unchanged
+
+
 # --- spectral peaks ---------------------------------------------------------------------------------
 
 DT, N = 4e-3, 3000

@@ -10,7 +10,8 @@ per kind:
 * in Chromium (Debian's package; skipped with the reason when none is installed, .ci/run installs
   it): a copy of the report with a probe script appended is loaded with ``--dump-dom``; the probe
   writes into the DOM whether every image decoded (naturalWidth > 0) and whether the title and the
-  verdict have a box on the page; the text must hold no raw Markdown. A screenshot of each report
+  verdict have a box on the page; the text must hold no raw Markdown (verbatim config text in
+  <pre>, where TOML's # starts a comment, aside). A screenshot of each report
   (the file as written) is kept under out/browser/ (a CI artefact).
 """
 from __future__ import annotations
@@ -28,7 +29,10 @@ from conftest import CONFIG, ROOT, SHARED
 import hil
 
 BENCH = CONFIG / "paper_bench.toml"
-EMPS = SHARED / "data" / "emps" / "DATA_EMPS.mat"
+# the shared record beside the clone (CI), or beside the folder of the work trees
+EMPS = next((p for p in (SHARED / "data" / "emps" / "DATA_EMPS.mat",
+                         ROOT.parents[1] / "shared" / "data" / "emps" / "DATA_EMPS.mat") if p.exists()),
+            SHARED / "data" / "emps" / "DATA_EMPS.mat")
 SCREENSHOTS = ROOT / "out" / "browser"
 KINDS = ("compare", "diagnose", "emps", "sweep", "frf")
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
@@ -52,7 +56,15 @@ window.addEventListener("load", function () {
     loaded: imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length,
     broken: imgs.filter(function (i) { return !(i.complete && i.naturalWidth > 0); }).map(function (i) {
       return i.alt; }),
-    text: document.body.innerText
+    // the text a reader sees, less the verbatim config text (<pre>: TOML, where # starts a comment)
+    text: (function () {
+      var c = document.body.cloneNode(true);
+      Array.prototype.slice.call(c.querySelectorAll("pre")).forEach(function (e) { e.remove(); });
+      document.body.appendChild(c);
+      var t = c.innerText;
+      c.remove();
+      return t;
+    })()
   };
   var pre = document.createElement("pre");
   pre.id = "browser-probe";
@@ -140,12 +152,13 @@ class _Page(HTMLParser):
 
     def __init__(self):
         super().__init__(convert_charrefs=True)
-        self.text, self.images, self.fetching, self._skip = [], [], [], 0
+        self.text, self.verbatim, self.images, self.fetching, self._skip, self._pre = [], [], [], [], 0, 0
 
     def handle_starttag(self, tag, attrs):
         a = dict(attrs)
         if tag in ("style", "script", "title"):
             self._skip += 1
+        self._pre += tag == "pre"
         if tag == "img":
             self.images.append(a.get("src", ""))
         if tag in ("script", "link", "iframe", "object", "embed") or (tag != "img" and a.get("src")):
@@ -154,10 +167,11 @@ class _Page(HTMLParser):
     def handle_endtag(self, tag):
         if tag in ("style", "script", "title"):
             self._skip -= 1
+        self._pre -= tag == "pre"
 
     def handle_data(self, data):
         if not self._skip:
-            self.text.append(data)
+            (self.verbatim if self._pre else self.text).append(data)
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -175,9 +189,15 @@ def test_report_is_one_self_contained_file(kind, reports):
     assert re.search(r"date \d{4}-\d\d-\d\d \d\d:\d\d UTC", " ".join(text.split()))
     for n in names:
         assert n in text, f"{kind}: {n} not named"
-    assert not E_NOTATION.search(text), f"{kind}: e-notation {E_NOTATION.search(text).group()!r}"
+    everything = text + " ".join(page.verbatim)
+    assert not E_NOTATION.search(everything), f"{kind}: e-notation {E_NOTATION.search(everything).group()!r}"
     assert not MARKDOWN.search(text), f"{kind}: raw Markdown {MARKDOWN.search(text).group()!r}"
     assert "&lt;coulomb&gt;" in html or kind not in ("compare", "diagnose")     # escaped, not markup
+    if kind in ("compare", "diagnose", "emps"):
+        # MATLAB resid's figure in the residual analysis, and that analysis for both models
+        sec = html[html.index('<section id="residual-analysis">'):html.index('<section id="figures">')]
+        assert '<img src="data:image/png;base64,' in sec and 'alt="correlation"' in sec
+        assert sec.count("<h3>") == 2
 
 
 # --- in the browser ---------------------------------------------------------------------------------

@@ -12,7 +12,7 @@ Replays the measured command (x_cmd) through the config's model with the same lo
 simulated channels against the measured ones: RMS, peak, NRMSE fit %, relative error %, overshoot
 difference, error per motion phase, residual spectrum peaks, whiteness (99 % band), correlation
 with the command and with v, a, x, for the model and (--after) the fitted one. Writes the
-overlay/residual/spectrum/scatter/resid PNGs and report.html (one self-contained file, the figures
+overlay/residual/spectrum/scatter/correlation PNGs and report.html (one self-contained file, the figures
 embedded).
 
   hil compare data.csv --config config/paper_bench.toml

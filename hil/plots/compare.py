@@ -39,7 +39,7 @@ def _channel_units(analysis: dict, key: str, chans, extra: dict | None = None) -
 
 
 def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | None = None) -> list[Path]:
-    """Write overlay, residual, spectrum, scatter and resid PNGs; ``after``: a second analysis
+    """Write overlay, residual, spectrum, scatter and correlation (resid's figure) PNGs; ``after``: a second analysis
     (the fitted model) drawn beside the first. Returns the paths."""
     plt = _plt()
     out.mkdir(parents=True, exist_ok=True)
@@ -110,7 +110,7 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
     paths.append(out / f"scatter{tag}.png")
     save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
-    paths.append(resid_figure(analysis, out / f"resid{tag}.png", after=after))
+    paths.append(resid_figure(analysis, out / f"correlation{tag}.png", after=after))
     return paths
 
 

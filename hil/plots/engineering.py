@@ -6,12 +6,16 @@ Everything inside the project is SI (``hil.units``); only the display changes he
 its family in which the largest magnitude reads at least 1 (0.000203 m -> 203.3 um, 0.0103 m ->
 10.3 mm, 0.35 s -> 350 ms), and :func:`fmt` writes the number with ``digits`` significant digits
 in fixed-point notation. A unit with no family here (%, dB, m/s^3) is kept as it is.
+:func:`engineering_text` rewrites the sentences the library writes in SI (the diagnosis's
+evidence, "RMS x_motor error 4.51e-05 -> 2.1e-06 m") in the same units, keeping each number's
+significant digits.
 """
 from __future__ import annotations
 
 import math
+import re
 
-__all__ = ["display_unit", "fmt", "eng", "unit_label"]
+__all__ = ["display_unit", "fmt", "eng", "unit_label", "engineering_text"]
 
 # SI unit (as the project writes it) -> its display units, smallest first: (name, SI per unit)
 FAMILIES = {
@@ -24,6 +28,7 @@ FAMILIES = {
     "rad": (("mrad", 1e-3), ("rad", 1.0)),
     "rad/s": (("mrad/s", 1e-3), ("rad/s", 1.0)),
     "Hz": (("Hz", 1.0), ("kHz", 1e3)),
+    "N/m": (("N/m", 1.0), ("N/mm", 1e3), ("N/um", 1e6)),
 }
 # other spellings of the same SI units
 ALIASES = {"N m": "N*m", "Nm": "N*m", "N.m": "N*m", "m s^-1": "m/s", "1/s": "Hz"}
@@ -48,7 +53,7 @@ def display_unit(unit: str, *values) -> tuple[str, float]:
     top = max(mags)
     chosen = fam[0]
     for name, scale in fam:
-        if top / scale >= 1.0 - 1e-12:
+        if top / scale >= 1.0 - 1e-6:     # 0.000999999 s is 1.000 ms
             chosen = (name, scale)
     return chosen
 
@@ -73,7 +78,7 @@ def fmt(value, digits: int = 4, scale: float = 1.0) -> str:
     x = float(value) / scale
     if not math.isfinite(x):
         return str(x)
-    if x == 0:
+    if abs(x) < 1e-9:                  # below the last decimal shown
         return "0"
     mag = math.floor(math.log10(abs(x)))
     decimals = max(0, min(9, digits - 1 - mag))
@@ -92,3 +97,34 @@ def eng(value, unit: str, digits: int = 4) -> str:
 def unit_label(unit: str) -> str:
     """How an SI unit is written on an axis or in a table header (N*m -> N m)."""
     return PLAIN.get(unit, unit.replace("*", " "))
+
+
+_NUM = r"[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
+_UNIT = "|".join(sorted((re.escape(u) for u in (*FAMILIES, *ALIASES)), key=len, reverse=True))
+_END = r"(?![\w/*^])"                     # not the start of a longer unit (mm, m/s^2, samples)
+_PAIR = re.compile(rf"(?<![\w.])({_NUM}) -> ({_NUM}) ({_UNIT}){_END}")
+_ONE = re.compile(rf"(?<![\w.])({_NUM}) ({_UNIT}){_END}")
+_BARE = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?[eE][-+]?\d+\b")
+
+
+def _digits(number: str) -> int:
+    """Significant digits of a number as written (at least 2, at most 6)."""
+    mantissa = re.split("[eE]", number)[0].lstrip("+-").replace(".", "").lstrip("0")
+    return min(max(len(mantissa), 2), 6)
+
+
+def engineering_text(text: str) -> str:
+    """``text`` with each SI quantity ("4.51e-05 m", "0.0203 N*m", "a -> b m") written in the
+    unit an engineer reads, and any other e-notation as a plain number; the significant digits
+    of each number kept."""
+    def pair(m):
+        a, b, unit = m.group(1), m.group(2), m.group(3)
+        name, k = display_unit(unit, float(a), float(b))
+        return f"{fmt(float(a), _digits(a), k)} -> {fmt(float(b), _digits(b), k)} {name}"
+
+    def one(m):
+        return eng(float(m.group(1)), m.group(2), _digits(m.group(1)))
+
+    text = _PAIR.sub(pair, text)
+    text = _ONE.sub(one, text)
+    return _BARE.sub(lambda m: fmt(float(m.group(0)), _digits(m.group(0))), text)

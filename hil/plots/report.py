@@ -23,7 +23,7 @@ import struct
 from pathlib import Path
 
 from hil.io.safe_write import write_atomic
-from hil.plots.engineering import display_unit, eng, fmt, unit_label
+from hil.plots.engineering import display_unit, eng, engineering_text, fmt, unit_label
 
 __all__ = ["write_report", "write_diagnosis_report", "write_sweep_report", "write_frf_report", "render",
            "report_meta", "embed_png"]
@@ -38,7 +38,7 @@ CAPTIONS = {
     "scatter": "The residual against the commanded velocity, acceleration and position: a pattern names "
                "the effect (a step at v = 0: Coulomb friction; a slope against v: viscous; against x: "
                "position-dependent).",
-    "resid": "MATLAB resid: the residual's autocorrelation (left) and its cross-correlation with the commanded "
+    "correlation": "MATLAB resid: the residual's autocorrelation (left) and its cross-correlation with the commanded "
              "velocity (right); shaded: the 99 % confidence band of a white residual independent of the input.",
     "error_fall": "Relative errors as the effects are added one by one.",
     "sweep": "Overshoot against the maximum commanded jerk: table (left) and tool tip (right).",
@@ -201,7 +201,7 @@ def _compare_context(title, analysis, figures, after, names, notes, record, conf
     if shifts:
         extra.append(("aligned by", ", ".join(f"{c} {eng(s, 's')}" for c, s in shifts.items())))
     figs = [embed_png(f) for f in figures]
-    resid = next((f for f, p in zip(figs, figures) if Path(p).stem.startswith("resid")), None)
+    resid = next((f for f, p in zip(figs, figures) if Path(p).stem.startswith("correlation")), None)
     band = analysis["channels"][next(iter(analysis["channels"]))]["whiteness"]["band_99"] if analysis["channels"] else 0
     return dict(
         title=title, verdict=verdict or compare_verdict(analysis, after), verdict_label=verdict_label,
@@ -230,8 +230,8 @@ def write_report(path: Path, title: str, analysis: dict, figures: list[Path], af
     analysis, after : dict
         hil.ident.compare.analyse of the model, and of the fitted model (or None).
     figures : list of Path
-        PNGs to embed (hil.plots.compare.comparison_figures: the resid figure goes to the residual
-        analysis, the others to the figures).
+        PNGs to embed (hil.plots.compare.comparison_figures: the correlation figure, MATLAB resid's,
+        goes to the residual analysis, the others to the figures).
     diagnosis : dict, optional
         The diagnosis as ``hil diagnose --json`` prints it (the verdict, the ranking, the chain).
     notes : list of str, optional
@@ -300,10 +300,11 @@ def _diagnosis_context(d: dict, cfg=None) -> dict:
 
     ranking = _table(["rank", "effect", "score (BIC fall)", "significant", "parameters", "evidence"],
                      [[i + 1, c["effect"], f"{c['score']:.1f}", "*" if c.get("significant") else "",
-                       _params_text(c.get("params", {}), u(c["effect"])), c.get("evidence", "")]
+                       _params_text(c.get("params", {}), u(c["effect"])), engineering_text(c.get("evidence", ""))]
                       for i, c in enumerate(d["candidates"])], numeric=(0, 2))
     also = _table(["effect", "score (BIC fall) beside the verdict", "evidence"],
-                  [[m["effect"], f"{m['score']:.1f}", m.get("evidence", "")] for m in d.get("also_missing", [])],
+                  [[m["effect"], f"{m['score']:.1f}", engineering_text(m.get("evidence", ""))]
+                   for m in d.get("also_missing", [])],
                   numeric=(1,))
     combos = _table(["effects", "against", "score", "share of its gain", "the richer one against the pair",
                      "named first"],
@@ -333,11 +334,21 @@ def _diagnosis_context(d: dict, cfg=None) -> dict:
         res = d.get("residual")
     if res:
         from hil.ident.unexplained import describe
-        lines = describe(res)
+        lines = [engineering_text(x) for x in describe(res)]
     return dict(ranking=ranking, also_missing=also if also["rows"] else None,
                 combinations=combos if combos["rows"] else None, chain=chain, chain_end=end, unexplained=lines,
-                min_score=f"{MIN_SCORE:g}", verdict=VERDICT_WORDS.get(d["verdict"], d["verdict"]),
+                min_score=f"{MIN_SCORE:g}", verdict=_diagnosis_verdict(d, u),
                 verdict_label="Verdict (the effect the model misses)")
+
+
+def _diagnosis_verdict(d: dict, units) -> str:
+    """The verdict, with its score and fitted parameters when it is a candidate."""
+    v = d["verdict"]
+    top = next((c for c in d["candidates"] if c["effect"] == v), None)
+    if top is None:
+        return VERDICT_WORDS.get(v, v)
+    par = _params_text(top.get("params", {}), units(v))
+    return f"{v} (score {top['score']:.1f}{'; ' + par if par else ''})"
 
 
 def _floor_cell(before, after, floor, unit) -> str:
@@ -407,8 +418,9 @@ def _emps_context(e: dict) -> dict:
                   for c in d.get("combinations", [])]
         diagnoses.append({
             "on": d["on"], "verdict": d["verdict"],
-            "evidence": top["evidence"] if top and top["effect"] == d["verdict"] else "",
-            "also_missing": [{"effect": m["effect"], "score": f"{m['score']:.1f}", "evidence": m["evidence"]}
+            "evidence": engineering_text(top["evidence"]) if top and top["effect"] == d["verdict"] else "",
+            "also_missing": [{"effect": m["effect"], "score": f"{m['score']:.1f}",
+                              "evidence": engineering_text(m["evidence"])}
                              for m in d.get("also_missing", [])],
             "combinations": combos,
             "ranking": _table(["rank", "effect", "score (BIC fall)", "significant"],
@@ -453,7 +465,7 @@ def sweep_verdict(r: dict) -> str:
         return (f"largest jerk keeping the tip within {fmt(r['tolerance_um'], 3)} um: "
                 + (f"{fmt(mj, 4)} m/s^3" if mj else "none in the swept range"))
     if p.get("note"):
-        return p["note"]
+        return engineering_text(p["note"])
     runs = r.get("runs") or []
     if not runs:
         return "no run"
@@ -487,9 +499,10 @@ def write_sweep_report(path: Path, report: dict, figures=(), *, validation: list
                                     if report.get("estimate_error_pct") is not None else "")])
     p = report.get("proposal") or {}
     if p:
-        answers_rows.append(["proposal", sweep_verdict({"proposal": p}) if p.get("j_max") else p.get("note", "")])
+        answers_rows.append(["proposal", sweep_verdict({"proposal": p}) if p.get("j_max")
+                             else engineering_text(p.get("note", ""))])
     if report.get("note"):
-        answers_rows.append(["note", report["note"]])
+        answers_rows.append(["note", engineering_text(report["note"])])
     run_tables = [dict(_table(RUN_HEADER, _run_rows(report["runs"]), numeric=range(9)), title=f"{name}, {an}")]
     for key, title in (("runs_transmission", f"{name}, transmission (Section 3)"),
                        ("compare_runs", f"{report.get('compare_name') or report.get('compare_config')}, {an}"),
@@ -498,7 +511,8 @@ def write_sweep_report(path: Path, report: dict, figures=(), *, validation: list
         if report.get(key):
             run_tables.append(dict(_table(RUN_HEADER, _run_rows(report[key]), numeric=range(9)), title=title))
     minima = [f"j_max {fmt(m['j_max'], 4)} m/s^3: tip overshoot {fmt(m['overshoot_tip_um'], 3)} um"
-              + (f"; {m['explanation']}" if m.get("explanation") else "") for m in report.get("local_minima") or []]
+              + (f"; {engineering_text(m['explanation'])}" if m.get("explanation") else "")
+              for m in report.get("local_minima") or []]
     configs = [("config", report.get("config")), ("compared config", report.get("compare_config"))]
     st = report.get("stats", {})
     extra = [("runs", f"{st.get('computed', 0)} computed, {st.get('reused', 0)} taken from earlier runs")]
@@ -517,7 +531,7 @@ def frf_verdict(report: dict) -> str:
     d = report.get("discrepancies") or []
     if not d:
         return "the measured modes agree with the model's (within 2 % in frequency and 20 % in damping)"
-    return f"{len(d)} discrepanc{'y' if len(d) == 1 else 'ies'}: " + " ".join(d)
+    return f"{len(d)} discrepanc{'y' if len(d) == 1 else 'ies'}: " + engineering_text(" ".join(d))
 
 
 def _opt(v, unit, digits=3):
@@ -550,7 +564,9 @@ def write_frf_report(path: Path, report: dict, figures=(), *, config: str | None
           f"{fmt(a['error_per_acc_with_ff'] * 1e6, 3)} um/(m/s^2) with acc_ff = 1." if a else "")
     ctx = dict(title=title or f"Frequency responses: {config or 'model'}", verdict=frf_verdict(report),
                verdict_label="Verdict", meta=report_meta(None, [("config", config)]), notes=[],
-               excitation=excitation, modes=modes, discrepancies=report.get("discrepancies") or [], loops=loops,
-               feed_forward=ff, warnings=report.get("warnings") or [], config_diff=config_diff or "(none)",
+               excitation=excitation, modes=modes,
+               discrepancies=[engineering_text(x) for x in report.get("discrepancies") or []], loops=loops,
+               feed_forward=ff, warnings=[engineering_text(w) for w in report.get("warnings") or []],
+               config_diff=config_diff or "(none)",
                figures=[embed_png(f) for f in figures], validation=validation or [])
     return _write(path, render("frf.html.j2", **ctx))
