@@ -143,7 +143,8 @@ def resid_figure(analysis: dict, path: Path, after: dict | None = None) -> Path:
             ax.set_xlim(lo, lag.max() * 1e3)
             ax.set_title(what, fontsize=8)
             ax.set_ylabel("correlation [-]")
-            ax.legend(fontsize=6, loc="upper right")
+            if i == 0:
+                ax.legend(fontsize=6, loc="upper right")
     for ax in axes[-1]:
         ax.set_xlabel("lag [ms]")
     fig.tight_layout()
