@@ -77,6 +77,8 @@ def test_wheel_holds_every_module_eds_file_and_example_config(wheel):
     assert {"drivers/canopen/eds/cia402_generic.eds", "drivers/canopen/eds/tip_encoder_cia406.eds"} <= names
     shipped = {f"hil/examples/{p.name}" for p in CONFIG.iterdir() if p.suffix in (".toml", ".md")}
     assert "hil/examples/paper_bench.toml" in shipped and shipped <= names
+    templates = {f"hil/plots/templates/{p.name}" for p in (ROOT / "hil" / "plots" / "templates").glob("*.j2")}
+    assert "hil/plots/templates/base.html.j2" in templates and templates <= names, "the report templates"
     assert not any(n.startswith(("tests/", "benchmarks/", "config/")) for n in names)
 
 

@@ -11,7 +11,9 @@ DESCRIPTION = """\
 Replays the measured command (x_cmd) through the config's model with the same loops and sets the
 simulated channels against the measured ones: RMS, peak, NRMSE fit %, relative error %, overshoot
 difference, error per motion phase, residual spectrum peaks, whiteness (99 % band), correlation
-with the command and with v, a, x. Writes overlay/residual/spectrum/scatter PNGs and report.html.
+with the command and with v, a, x, for the model and (--after) the fitted one. Writes the
+overlay/residual/spectrum/scatter/correlation PNGs and report.html (one self-contained file, the figures
+embedded).
 
   hil compare data.csv --config config/paper_bench.toml
   hil compare DATA_EMPS.mat --config config/emps.toml --map t=t,qg=x_cmd,qm=x_motor,vir*gtau=force
@@ -165,7 +167,8 @@ def run(args) -> int:
     out = Path(args.out)
     figs = comparison_figures(a, out, after=b)
     notes = a["inputs"] + [f"warning: {w}" for w in meas.warnings]
-    rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b, notes=notes)
+    rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b, notes=notes,
+                       record=meas.source, configs=[("model", cfg.source), ("fitted model", after and after.source)])
     if args.json:
         print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
                      "figures": [str(f) for f in figs], "warnings": meas.warnings}, indent=1))

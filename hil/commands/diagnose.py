@@ -25,6 +25,7 @@ and no candidate closes half of the gap (with the evidence of where the residual
   hil diagnose data.csv --config config/paper_bench.toml --json
   hil diagnose data.csv --config config/paper_bench.toml --candidates coulomb_friction,parameter:plant.c2
   hil diagnose data.csv --config config/paper_bench.toml --out fitted.toml   (the config with the chain)
+  hil diagnose data.csv --config config/paper_bench.toml --report out/diagnose.html   (one HTML file)
 
 Several records of one axis (both directions, several speeds) are diagnosed and fitted together
 (one objective over all of them, each record with its own noise floor); --validate RECORD...
@@ -44,6 +45,9 @@ def add_arguments(parser) -> None:
                              "1: the single diagnosis, as --no-chain)")
     parser.add_argument("--no-chain", action="store_true", help="the single diagnosis, nothing added")
     parser.add_argument("--out", default=None, metavar="FILE", help="write the config with the whole chain (TOML)")
+    parser.add_argument("--report", default=None, metavar="FILE",
+                        help="write an HTML report (one self-contained file): the verdict, the ranking, the chain, "
+                             "and the residual analysis of the start model and of the model with the chain")
 
 
 def candidates_json(d):
@@ -101,8 +105,13 @@ def run(args) -> int:
     if args.out and "config" in d:
         from pathlib import Path
         _write_config(args, d, ", ".join(Path(str(m.source)).name for m in metas))
+    if args.report:
+        write_html_report(args.report, d, rp, cfg, args, ", ".join(str(m.source) for m in metas))
     if args.json:
-        print(dumps(candidates_json(d), indent=1))
+        out = candidates_json(d)
+        if args.report:
+            out["report"] = str(args.report)
+        print(dumps(out, indent=1))
         return 0
     for line in ranking_text(d):
         print(line)
@@ -118,6 +127,8 @@ def run(args) -> int:
             print(line)
     if args.out and "config" in d:
         print(f"wrote {args.out}")
+    if args.report:
+        print(f"report: {args.report}")
     return 0
 
 
@@ -174,6 +185,29 @@ def ranking_text(d) -> list[str]:
                      f"{100 * j['gain']:.0f} % of the weighted error removed, the second member "
                      f"{j['second_member_score']:.1f} on top -> {'named first' if j['preferred'] else 'not named'}")
     return lines
+
+
+def write_html_report(path, d, rp, cfg, args, record) -> None:
+    """The diagnosis as one HTML file: the residual analysis of the start model and of the model with
+    the chain (when the chain added something), the figures embedded (drawn in a temporary folder)."""
+    import tempfile
+    from pathlib import Path
+
+    from hil.ident.compare import analyse
+    from hil.io.safe_write import refuse_inputs
+    from hil.plots.compare import comparison_figures
+    from hil.plots.report import write_diagnosis_report
+    data = [args.data] if isinstance(args.data, str) else list(args.data)
+    refuse_inputs(path, (*data, args.config, *(getattr(args, "validate", None) or [])))
+    a = analyse(rp)
+    fitted = d.get("config") if d.get("chain") else None
+    b = analyse(rp, fitted) if fitted is not None else None
+    with tempfile.TemporaryDirectory(prefix="hil-diagnose-") as tmp:
+        figs = comparison_figures(a, Path(tmp), after=b)
+        write_diagnosis_report(Path(path), f"Diagnosis of {record} against {cfg.source}", candidates_json(d), a, figs,
+                               after=b, record=record,
+                               configs=[("model", cfg.source), ("model with the chain", args.out if b else None)],
+                               cfg=cfg)
 
 
 def chain_text(d, rp) -> list[str]:

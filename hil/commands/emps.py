@@ -87,8 +87,9 @@ def run(args) -> int:
     val_md = validation_markdown(val) if val else ""
     write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n" + (f"\n{val_md}\n" if val_md else ""))
     write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
-                 notes=["Errors: relative 2-norm, 100 ||y - y_sim|| / ||y||."] + diag_md.splitlines()
-                 + (["Validation (records not used for the fit):"] + val_md.splitlines() if val_md else []))
+                 record=args.data, configs=[("start model", args.config), ("fitted model", out / "emps_fitted.toml")],
+                 emps={"rows": rows, "published": PUBLISHED, "check": chk, "diagnoses": diags},
+                 names=("start model", "fitted model"), validation=_validation_tables(val))
     if args.docs:
         d = Path(args.docs)
         d.mkdir(parents=True, exist_ok=True)
@@ -108,3 +109,17 @@ def run(args) -> int:
               f"errors match or beat the published: {chk['errors_match_or_beat_published']}")
         print(f"report: {out / 'report.html'}")
     return 0
+
+
+def _validation_tables(rows) -> list:
+    """The EMPS validation errors (hil.ident.emps.validate_emps) beside the published validation
+    figures, as the report's validation table (hil.plots.report)."""
+    if not rows:
+        return []
+    from hil.ident.emps import PUBLISHED_VALIDATION as p
+    body = [[r["model"], f"{r['position']:.4f}", f"{r['velocity']:.3f}", f"{r['force']:.2f}"] for r in rows]
+    body.append(["published validation (Janot et al. 2019)", str(p["position"]), "", str(p["force"])])
+    return [{"title": "Validation on DATA_EMPS_PULSES.mat (not used for the fit)",
+             "note": "relative 2-norm errors, 100 ||y - y_sim|| / ||y||, %",
+             "header": ["model (fitted on DATA_EMPS.mat)", "position %", "velocity %", "force %"],
+             "rows": body, "numeric": [1, 2, 3]}]

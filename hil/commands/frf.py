@@ -197,7 +197,11 @@ def run(args) -> int:
         plt.close(fig)
         write_atomic(out / "frf.json", dumps(report, indent=None))
         write_atomic(out / "config_diff.txt", _diff_text(result) + "\n")
+        from hil.plots.report import write_frf_report
+        write_frf_report(out / "report.html", report, list(paths.values()), config=cfg.source, title=title,
+                         config_diff=_diff_text(result))
         report["plots"] = paths
+        report["report"] = str(out / "report.html")
     except OSError as exc:
         raise UserError(f"--out {args.out}: cannot write ({exc.strerror or exc})") from None
     if args.json:
@@ -254,5 +258,7 @@ def _text(result, report) -> str:
     lines += ["  " + ln for ln in _diff_text(result).splitlines()[1:]] or ["  (none)"]
     if "plots" in report:
         lines.append("plots: " + ", ".join(report["plots"].values()))
+    if "report" in report:
+        lines.append(f"report: {report['report']}")
     return "\n".join(lines)
 

@@ -295,7 +295,10 @@ def run(args) -> int:
         import matplotlib.pyplot as plt
         plt.close(fig)
         files["plot"] = str(out / "sweep.png")
+    from hil.plots.report import write_sweep_report
+    files["report"] = str(out / "report.html")
     report["files"] = files
+    write_sweep_report(out / "report.html", report, [out / "sweep.png"] if "plot" in files else [])
     write_atomic(out / "sweep.json", dumps(report, indent=2))
     if args.json:
         print(dumps(report, indent=2))

@@ -11,6 +11,9 @@ of the residual r = y_measured - y_simulated (every figure in SI units).
   +-2.576/sqrt(N), white when at most 1 % of the lags fall outside; the cross-correlation with
   the commanded velocity against the same band, its largest magnitude and lag (s);
 * the correlation coefficient of r with v, a, x_cmd and sign(v).
+
+The spectrum's peaks are merged (hil.ident.residual.REPORT_MERGE_BINS) and interpolated; the
+correlation functions themselves (for MATLAB ``resid``'s figure) are in ``_arrays``.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ import math
 import numpy as np
 
 from hil.ident.replay import POSITION_CHANNELS, UNITS, Replay
-from hil.ident.residual import motion_phases, overshoots, spectrum_peaks, xcorr
+from hil.ident.residual import REPORT_MERGE_BINS, motion_phases, overshoots, spectrum_peaks, xcorr
 from hil.ident.scores import noise_floor, nrmse_fit, relative_error
 
 __all__ = ["metrics", "analyse"]
@@ -53,6 +56,7 @@ def analyse(replay: Replay, cfg=None) -> dict:
     n = t.size
     band = 2.576 / math.sqrt(n)
     maxlag = min(200, n // 4)
+    acf, ccf = {}, {}          # the correlation functions (lag s, value) for the resid figure
     for c in replay.channels:
         y = m[c]
         r = res[c]
@@ -60,12 +64,15 @@ def analyse(replay: Replay, cfg=None) -> dict:
         d["noise_floor"] = noise_floor(r)
         d["phase_rms"] = {p: (float(np.sqrt(np.mean(r[mask] ** 2))) if mask.any() else None)
                           for p, mask in phases.items()}
-        d["spectrum_peaks"] = [{"frequency": f, "amplitude": amp} for f, amp in spectrum_peaks(r, replay.sample_period)]
+        d["spectrum_peaks"] = [{"frequency": f, "amplitude": amp} for f, amp in
+                               spectrum_peaks(r, replay.sample_period, merge_bins=REPORT_MERGE_BINS)]
         lags, ac = xcorr(r, r, maxlag)
+        acf[c] = (lags * replay.sample_period, ac)
         outside = np.abs(ac[lags > 0]) > band
         d["whiteness"] = {"band_99": band, "fraction_outside": float(outside.mean()) if outside.size else 0.0,
                           "white": bool(outside.mean() <= 0.01) if outside.size else True}
         lags, cc = xcorr(r, v, maxlag)
+        ccf[c] = (lags * replay.sample_period, cc)
         d["cross_correlation_command"] = {"max": float(np.max(np.abs(cc))), "lag_s": float(lags[np.argmax(np.abs(cc))]
                                                                                             * replay.sample_period),
                                           "band_99": band}
@@ -74,5 +81,6 @@ def analyse(replay: Replay, cfg=None) -> dict:
                                          ("sign_velocity", np.sign(v)))}
         out["channels"][c] = d
     out["_arrays"] = {"t": t, "x_cmd": xc, "v": v, "a": a, "measured": {c: m[c] for c in replay.channels},
-                      "simulated": sim, "residual": res, "phases": phases}
+                      "simulated": sim, "residual": res, "phases": phases,
+                      "autocorrelation": acf, "cross_correlation": ccf, "band_99": band}
     return out

@@ -3,7 +3,8 @@
 Definitions (SI units; t in s, positions in m):
 
 * spectrum: the Hann-windowed amplitude spectrum 2 |FFT(r w)| / sum w of the mean-free residual;
-  its peaks above ``fmin``, strongest first;
+  its peaks above ``fmin``, strongest first (for the reports: neighbouring maxima of one peak
+  merged, its frequency interpolated between bins);
 * periodic in position: the Lomb-Scargle periodogram of the residual against the position where
   the axis moves (|v| > 5 % of max|v|), after subtracting a running mean over 25 samples (the slow
   part, a function of velocity and time); periods from three position steps to a third of the
@@ -23,13 +24,35 @@ import math
 import numpy as np
 from scipy.signal import find_peaks, lombscargle
 
-__all__ = ["spectrum_peaks", "periodic_in_position", "motion_phases", "overshoots", "xcorr"]
+__all__ = ["REPORT_MERGE_BINS", "spectrum_peaks", "periodic_in_position", "motion_phases", "overshoots", "xcorr"]
 
 MAX_SAMPLES = 2500      # moving samples the position periodogram uses at most (every s-th beyond)
+REPORT_MERGE_BINS = 3   # spectral maxima this many bins or closer to a stronger one are one peak
 
 
-def spectrum_peaks(r, dt: float, n: int = 3, fmin: float = 0.5):
-    """The ``n`` strongest peaks (frequency Hz, amplitude) of the residual's spectrum."""
+def spectrum_peaks(r, dt: float, n: int = 3, fmin: float = 0.5, merge_bins: float = 0.0):
+    """The ``n`` strongest peaks (frequency Hz, amplitude) of the residual's spectrum.
+
+    Parameters
+    ----------
+    r : array
+        The residual, sampled every ``dt`` s.
+    dt : float
+        Sample period, s.
+    n : int
+        How many peaks at most, strongest first.
+    fmin : float
+        Lowest frequency considered, Hz.
+    merge_bins : float
+        0 (the default, as the diagnosis's starting values use it): every local maximum of the
+        spectrum is a peak, at its bin's frequency. Above 0 (the reports): a local maximum within
+        ``merge_bins`` bin widths of a stronger one, or joined to it by a valley that never falls
+        below half of its own amplitude, is the same peak (the Hann window's main lobe is 4 bins
+        wide, and noise on a peak makes local maxima of its neighbouring bins), listed once, at
+        the frequency and amplitude of the parabola through the log amplitudes of its bin and the
+        two beside it (interpolated between bins: within 0.02 bin and +4 % in amplitude for the
+        Hann window's lobe, against 0.5 bin and -15 % at the bin itself).
+    """
     r = np.asarray(r, float) - np.mean(r)
     if r.size < 16:
         return []
@@ -38,8 +61,38 @@ def spectrum_peaks(r, dt: float, n: int = 3, fmin: float = 0.5):
     f = np.fft.rfftfreq(r.size, dt)
     sel = f >= fmin
     idx, _ = find_peaks(np.where(sel, spec, 0.0))
-    idx = idx[np.argsort(spec[idx])[::-1]][:n]
-    return [(float(f[i]), float(spec[i])) for i in idx]
+    idx = idx[np.argsort(spec[idx])[::-1]]
+    if merge_bins <= 0:
+        return [(float(f[i]), float(spec[i])) for i in idx[:n]]
+    kept = []
+    for i in idx:
+        if all(not _same_peak(spec, int(i), k, merge_bins) for k in kept):
+            kept.append(int(i))
+        if len(kept) == n:
+            break
+    return [_interpolated_peak(f, spec, i) for i in kept]
+
+
+def _same_peak(spec, i: int, k: int, merge_bins: float) -> bool:
+    """Whether the maximum at bin ``i`` belongs to the stronger one at bin ``k``: within
+    ``merge_bins`` bins of it, or joined to it by a valley that stays above half of its amplitude
+    (a ripple on one peak's flank, not a peak of its own)."""
+    if abs(i - k) <= merge_bins:
+        return True
+    lo, hi = sorted((i, k))
+    return bool(np.min(spec[lo:hi + 1]) >= 0.5 * spec[i])
+
+
+def _interpolated_peak(f, spec, i: int) -> tuple[float, float]:
+    """(frequency, amplitude) of the vertex of the parabola through the log amplitudes at bins
+    i - 1, i, i + 1 (the bin itself at either end of the spectrum)."""
+    if i <= 0 or i >= spec.size - 1 or min(spec[i - 1], spec[i], spec[i + 1]) <= 0:
+        return float(f[i]), float(spec[i])
+    a, b, c = np.log(spec[i - 1:i + 2])
+    den = a - 2 * b + c
+    delta = 0.5 * (a - c) / den if den < 0 else 0.0
+    delta = float(np.clip(delta, -0.5, 0.5))
+    return float(f[i] + delta * (f[1] - f[0])), float(np.exp(b - 0.25 * (a - c) * delta))
 
 
 def periodic_in_position(x, r, t, n: int = 2):

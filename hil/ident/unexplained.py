@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hil.ident.residual import motion_phases, spectrum_peaks
+from hil.ident.residual import REPORT_MERGE_BINS, motion_phases, spectrum_peaks
 
 __all__ = ["AT_FLOOR", "HALF_GAP", "rms", "at_noise_floor", "gap_closed", "residual_evidence", "describe"]
 
@@ -80,7 +80,8 @@ def residual_evidence(replay, res: dict, best=None) -> dict:
         out["channels"].append({
             "channel": c, "unit": replay.unit(c), "rms": err[c], "noise_floor": float(floor.get(c, 0.0)),
             "above_floor": err[c] / max(floor.get(c, 0.0), 1e-300),
-            "spectral_peaks": [{"frequency": f, "amplitude": amp} for f, amp in spectrum_peaks(r, replay.sample_period)],
+            "spectral_peaks": [{"frequency": f, "amplitude": amp} for f, amp in
+                               spectrum_peaks(r, replay.sample_period, merge_bins=REPORT_MERGE_BINS)],
             "correlation": {"position": _corr(r, xc), "speed": _corr(r, v), "acceleration": _corr(r, a),
                             "direction": _corr(r, np.sign(v))},
             "along_travel": _along_travel(xc, r),

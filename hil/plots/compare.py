@@ -1,4 +1,10 @@
-"""Figures of model against measurement (PNG): overlay, residual, spectrum, residual scatter."""
+"""Figures of model against measurement (PNG): overlay, residual, spectrum, residual scatter, and
+MATLAB ``resid``'s figure (the residual's autocorrelation and its cross-correlation with the
+input, with the 99 % confidence band +-2.576/sqrt(N)).
+
+Every axis names its quantity and its unit; lengths, speeds, times and torques are drawn in the
+unit an engineer reads (um, mm, mm/s, ms, N m: hil.plots.engineering), never in SI e-notation.
+"""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,6 +12,11 @@ from pathlib import Path
 import numpy as np
 
 from hil.io.safe_write import save_figure
+from hil.plots.engineering import display_unit
+
+# the input MATLAB's resid correlates the residual with: here the commanded velocity (the
+# derivative of x_cmd, the record's input), as hil.ident.compare's cross-correlation
+INPUT_NAME = "commanded velocity"
 
 
 def _plt():
@@ -15,9 +26,21 @@ def _plt():
     return plt
 
 
+def _channel_units(analysis: dict, key: str, chans, extra: dict | None = None) -> dict:
+    """Per channel (display unit, SI per display unit) of the arrays ``_arrays[key]`` (and of
+    ``extra``'s, drawn on the same axis)."""
+    A = analysis["_arrays"]
+    out = {}
+    for c in chans:
+        unit = analysis["channels"][c]["unit"]
+        vals = [np.max(np.abs(A[key][c]))] + ([np.max(np.abs(extra[key][c]))] if extra else [])
+        out[c] = display_unit(unit, *vals)
+    return out
+
+
 def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | None = None) -> list[Path]:
-    """Write overlay, residual, spectrum and scatter PNGs; ``after``: a second analysis (the fitted
-    model) drawn beside the first. Returns the paths."""
+    """Write overlay, residual, spectrum, scatter and correlation (resid's figure) PNGs; ``after``: a second analysis
+    (the fitted model) drawn beside the first. Returns the paths."""
     plt = _plt()
     out.mkdir(parents=True, exist_ok=True)
     A = analysis["_arrays"]
@@ -25,27 +48,31 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
     t = A["t"]
     chans = list(A["measured"])
     paths = []
+    sig_u = _channel_units(analysis, "measured", chans)
+    res_u = _channel_units(analysis, "residual", chans, B)
     fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.6 * len(chans)), sharex=True, squeeze=False)
     for ax, c in zip(axes[:, 0], chans):
-        ax.plot(t, A["measured"][c], "k", lw=1, label="measured")
-        ax.plot(t, A["simulated"][c], "C0", lw=0.8, label="model")
+        name, k = sig_u[c]
+        ax.plot(t, A["measured"][c] / k, "k", lw=1, label="measured")
+        ax.plot(t, A["simulated"][c] / k, "C0", lw=0.8, label="model")
         if B:
-            ax.plot(t, B["simulated"][c], "C3--", lw=0.8, label="fitted model")
-        ax.set_ylabel(c)
+            ax.plot(t, B["simulated"][c] / k, "C3--", lw=0.8, label="fitted model")
+        ax.set_ylabel(f"{c} [{name}]")
         ax.legend(loc="upper right", fontsize=7)
-    axes[-1, 0].set_xlabel("t [s]")
+    axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
     paths.append(out / f"overlay{tag}.png")
     save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
     fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.4 * len(chans)), sharex=True, squeeze=False)
     for ax, c in zip(axes[:, 0], chans):
-        ax.plot(t, A["residual"][c], "C0", lw=0.7, label="residual, model")
+        name, k = res_u[c]
+        ax.plot(t, A["residual"][c] / k, "C0", lw=0.7, label="residual, model")
         if B:
-            ax.plot(t, B["residual"][c], "C3", lw=0.7, label="residual, fitted")
-        ax.set_ylabel(f"{c} residual")
+            ax.plot(t, B["residual"][c] / k, "C3", lw=0.7, label="residual, fitted")
+        ax.set_ylabel(f"{c} residual [{name}]")
         ax.legend(loc="upper right", fontsize=7)
-    axes[-1, 0].set_xlabel("t [s]")
+    axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
     paths.append(out / f"residual{tag}.png")
     save_figure(fig, paths[-1], dpi=90)
@@ -53,31 +80,78 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
     dt = analysis["sample_period"]
     fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.4 * len(chans)), squeeze=False)
     for ax, c in zip(axes[:, 0], chans):
+        name, k = res_u[c]
         for arr, col, lab in ((A, "C0", "model"), (B, "C3", "fitted")):
             if arr is None:
                 continue
             r = arr["residual"][c] - np.mean(arr["residual"][c])
             w = np.hanning(r.size)
-            ax.semilogy(np.fft.rfftfreq(r.size, dt), np.abs(np.fft.rfft(r * w)) * 2 / w.sum() + 1e-30, col, lw=0.7,
-                        label=lab)
-        ax.set_ylabel(f"|{c} residual|")
+            ax.semilogy(np.fft.rfftfreq(r.size, dt), np.abs(np.fft.rfft(r * w)) * 2 / w.sum() / k + 1e-30, col,
+                        lw=0.7, label=lab)
+        ax.set_ylabel(f"|{c} residual| [{name}]")
         ax.legend(fontsize=7)
     axes[-1, 0].set_xlabel("frequency [Hz]")
     fig.tight_layout()
     paths.append(out / f"spectrum{tag}.png")
     save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
+    v_name, v_k = display_unit("m/s", np.max(np.abs(A["v"])))
+    x_name, x_k = display_unit("m", np.max(np.abs(A["x_cmd"])))
     fig, axes = plt.subplots(len(chans), 3, figsize=(11, 2.6 * len(chans)), squeeze=False)
     for i, c in enumerate(chans):
-        for j, (k, lab) in enumerate((("v", "velocity [m/s]"), ("a", "acceleration [m/s^2]"), ("x_cmd", "position [m]"))):
-            axes[i, j].plot(A[k], A["residual"][c], ".", ms=1, alpha=0.4)
+        name, k = res_u[c]
+        for j, (key, lab, scale) in enumerate((("v", f"commanded velocity [{v_name}]", v_k),
+                                               ("a", "commanded acceleration [m/s^2]", 1.0),
+                                               ("x_cmd", f"commanded position [{x_name}]", x_k))):
+            axes[i, j].plot(A[key] / scale, A["residual"][c] / k, ".", ms=1, alpha=0.4)
             axes[i, j].set_xlabel(lab)
-            axes[i, j].set_ylabel(f"{c} residual" if j == 0 else "")
+            axes[i, j].set_ylabel(f"{c} residual [{name}]" if j == 0 else f"[{name}]")
     fig.tight_layout()
     paths.append(out / f"scatter{tag}.png")
     save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)
+    paths.append(resid_figure(analysis, out / f"correlation{tag}.png", after=after))
     return paths
+
+
+def resid_figure(analysis: dict, path: Path, after: dict | None = None) -> Path:
+    """MATLAB ``resid``'s figure, per channel: left the residual's autocorrelation at lags > 0,
+    right its cross-correlation with the input (the commanded velocity) at lags of both signs,
+    each with the 99 % confidence band +-2.576/sqrt(N) of a white residual independent of the
+    input (shaded); the model in blue, the fitted model (``after``) in red. A model that
+    explains the record leaves both inside the band."""
+    plt = _plt()
+    A = analysis["_arrays"]
+    B = after["_arrays"] if after else None
+    chans = list(A["measured"])
+    band = A["band_99"]
+    fig, axes = plt.subplots(len(chans), 2, figsize=(11, 2.5 * len(chans)), squeeze=False)
+    for i, c in enumerate(chans):
+        for j, (key, what) in enumerate((("autocorrelation", f"autocorrelation of {c} residual"),
+                                         ("cross_correlation", f"{INPUT_NAME} x {c} residual"))):
+            ax = axes[i, j]
+            for arr, col, lab in ((A, "C0", "model"), (B, "C3", "fitted model")):
+                if arr is None:
+                    continue
+                lag, val = arr[key][c]
+                keep = lag > 0 if key == "autocorrelation" else slice(None)
+                ax.plot(lag[keep] * 1e3, val[keep], col, lw=0.8, marker=".", ms=2, label=lab)
+            lag = A[key][c][0]
+            lo = 0.0 if key == "autocorrelation" else lag.min() * 1e3
+            ax.axhspan(-band, band, color="0.85", zorder=0, label="99 % confidence band")
+            ax.axhline(0, color="0.5", lw=0.5)
+            ax.set_xlim(lo, lag.max() * 1e3)
+            ax.set_title(what, fontsize=8)
+            ax.set_ylabel("correlation [-]")
+            if i == 0:
+                ax.legend(fontsize=6, loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("lag [ms]")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_figure(fig, path, dpi=90)
+    plt.close(fig)
+    return path
 
 
 def error_fall_figure(rows: list[dict], out: Path, keys=("position", "velocity", "force")) -> Path:
@@ -86,9 +160,10 @@ def error_fall_figure(rows: list[dict], out: Path, keys=("position", "velocity",
     fig, ax = plt.subplots(figsize=(9, 4.2))
     x = np.arange(len(rows))
     for i, k in enumerate(keys):
-        ax.bar(x + (i - 1) * 0.27, [r[k] for r in rows], 0.27, label=f"{k} error %")
+        ax.bar(x + (i - 1) * 0.27, [r[k] for r in rows], 0.27, label=f"{k} error")
     ax.set_xticks(x, [r.get("short", r["step"]) for r in rows], rotation=30, ha="right", fontsize=7)
-    ax.set_ylabel("relative 2-norm error %")
+    ax.set_ylabel("relative 2-norm error [%]")
+    ax.set_xlabel("model (effects added one by one)")
     ax.grid(axis="y", which="both", alpha=0.3)
     ax.set_yscale("log")
     ax.legend(fontsize=7)

@@ -68,7 +68,7 @@ def coherence_figure(result, title: str = ""):
         ax.semilogx(r.f, r.coherence, label=TITLES[name], linewidth=1.0)
     ax.set_ylim(0, 1.05)
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("coherence")
+    ax.set_ylabel("coherence [-]")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     if title:
