@@ -96,10 +96,15 @@ def test_diagnose_validate_json(tmp_path, capsys):
     est, _ = synthesize(truth, None, duration=4.0, seed=2)
     val, _ = synthesize(truth, None, duration=4.0, seed=5)
     e, v = _csv(tmp_path, "est.csv", est), _csv(tmp_path, "val.csv", val)
+    report = tmp_path / "diagnose.html"
     rc = main(["diagnose", e, "--config", "config/paper_bench.toml", "--candidates", "coulomb_friction,constant_force",
-               "--jobs", "1", "--validate", v, "--json"])
+               "--jobs", "1", "--validate", v, "--json", "--report", str(report)])
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
+    # the report holds the same table: estimation and validation records side by side
+    html = report.read_text(encoding="utf-8")
+    section = html[html.index('id="validation"'):]
+    assert "val.csv" in section and "est.csv" in section and "validation" in section
     (es,), (va,) = d["estimation"], d["validation"]
     assert es["after"]["error"]["torque"] == pytest.approx(d["final"]["error"]["torque"], rel=1e-6)
     for c in ("x_motor", "torque"):            # the chain's model holds on the record it never saw

@@ -199,15 +199,35 @@ def write_html_report(path, d, rp, cfg, args, record) -> None:
     from hil.plots.report import write_diagnosis_report
     data = [args.data] if isinstance(args.data, str) else list(args.data)
     refuse_inputs(path, (*data, args.config, *(getattr(args, "validate", None) or [])))
-    a = analyse(rp)
+    first = getattr(rp, "parts", [rp])[0]          # several records: the residual analysis of the first
+    a = analyse(first)
     fitted = d.get("config") if d.get("chain") else None
-    b = analyse(rp, fitted) if fitted is not None else None
+    b = analyse(first, fitted) if fitted is not None else None
     with tempfile.TemporaryDirectory(prefix="hil-diagnose-") as tmp:
         figs = comparison_figures(a, Path(tmp), after=b)
         write_diagnosis_report(Path(path), f"Diagnosis of {record} against {cfg.source}", candidates_json(d), a, figs,
                                after=b, record=record,
                                configs=[("model", cfg.source), ("model with the chain", args.out if b else None)],
-                               cfg=cfg)
+                               cfg=cfg, validation=validation_tables(d, rp.unit))
+
+
+def validation_tables(d, unit) -> list:
+    """The estimation and validation records' errors (``estimation``/``validation`` of the
+    diagnosis, hil.ident.records) as the report's table; none with one record and no --validate."""
+    from hil.units import fmt_si
+    rows = []
+    for kind in ("estimation", "validation"):
+        for r in d.get(kind, []):
+            b, a = r["before"], r["after"]
+            rows += [[kind, str(r["record"]), c, fmt_si(b["error"][c], unit(c)), fmt_si(a["error"][c], unit(c)),
+                      f"{a['above_floor'][c]:.1f}", f"{a['relative_error'][c]:.3g}"] for c in a["error"]]
+    if not rows:
+        return []
+    return [{"title": "Estimation and validation records",
+             "note": "RMS error of the start model and of the model the diagnosis found; x floor: the ratio "
+                     "to the record's own noise floor",
+             "header": ["data", "record", "channel", "start", "found model", "x floor", "relative error %"],
+             "rows": rows, "numeric": [3, 4, 5, 6]}]
 
 
 def chain_text(d, rp) -> list[str]:

@@ -156,11 +156,12 @@ def estimation_validation(estimation: list[Replay], validation: list[Replay], fi
 def errors_text(table: dict, unit) -> list[str]:
     """The estimation and validation errors side by side, one line per record: per channel the RMS
     before -> after (its ratio to the record's noise floor) and the relative error % after."""
+    from hil.units import fmt_si
     lines = ["errors per record (RMS start -> fitted, x floor = ratio to the record's noise floor, rel % fitted):"]
     for kind in ("estimation", "validation"):
         for r in table.get(kind, []):
             b, a = r["before"], r["after"]
-            parts = [f"{c} {b['error'][c]:.3g} -> {a['error'][c]:.3g} {unit(c)} ({a['above_floor'][c]:.1f} x floor, "
-                     f"{a['relative_error'][c]:.3g} %)" for c in a["error"]]
+            parts = [f"{c} {fmt_si(b['error'][c], unit(c))} -> {fmt_si(a['error'][c], unit(c))} "
+                     f"({a['above_floor'][c]:.1f} x floor, {a['relative_error'][c]:.3g} %)" for c in a["error"]]
             lines.append(f"  {kind:10s} {r['record']}: " + ", ".join(parts))
     return lines
