@@ -34,7 +34,8 @@ from hil.plant_config import plant_from_config
 from sim_plant.kernel import plant_step
 from sim_plant.plant import Plant
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "per_velocity_period"]
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "per_velocity_period",
+           "external_forces"]
 
 
 @dataclass
@@ -311,6 +312,20 @@ def per_velocity_period(t_samples, y, t0: float, velocity_period: float, steps: 
     # a relative tolerance: sample instants that fall on a period's start belong to it
     idx = np.searchsorted(t_samples, tj + 1e-9 * velocity_period, side="right") - 1
     return np.ascontiguousarray(np.asarray(y, float)[np.clip(idx, 0, t_samples.size - 1)])
+
+
+def external_forces(plant, t_samples, channels, velocity_period: float, steps: int) -> np.ndarray | None:
+    """The measured external forces of ``channels`` (``f_ext_table``, ``f_ext_tip``: samples at
+    ``t_samples``, N) on the loop's clock, one column per mass of the plant (its table and tip
+    masses); None where the record has neither."""
+    if "f_ext_table" not in channels and "f_ext_tip" not in channels:
+        return None
+    t_samples = np.asarray(t_samples, float)
+    fe = np.zeros((steps, plant.n))
+    for c, mass in (("f_ext_table", plant.table), ("f_ext_tip", plant.tip)):
+        if c in channels:
+            fe[:, mass] += per_velocity_period(t_samples, channels[c], t_samples[0], velocity_period, steps)
+    return fe
 
 
 def simulate_config(cfg, x_cmd, **kw) -> SimulationResult:

@@ -46,7 +46,7 @@ from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
 from hil.ident.synth import extend_command
 from hil.plant_config import plant_from_config, record_effects
-from hil.simulate import per_velocity_period, simulate
+from hil.simulate import external_forces, per_velocity_period, simulate
 
 logger = logging.getLogger(__name__)
 
@@ -158,11 +158,8 @@ class Replay:
                                                                   t[0], tv, steps)
         elif "u_add" in m:
             out["u_add"] = per_velocity_period(t, _in_controller_units(m, "u_add", plant, "u_add"), t[0], tv, steps)
-        if "f_ext_table" in m or "f_ext_tip" in m:
-            fe = np.zeros((steps, plant.n))
-            for c, mass in (("f_ext_table", plant.table), ("f_ext_tip", plant.tip)):
-                if c in m:
-                    fe[:, mass] += per_velocity_period(t, m[c], t[0], tv, steps)
+        fe = external_forces(plant, t, m, tv, steps)
+        if fe is not None:
             out["f_ext"] = fe
         self._inputs[key] = out
         return out

@@ -189,7 +189,7 @@ def _loop_inputs(cfg, ins: dict, t_rec, ticks: int, open_loop: bool) -> dict:
     as hil.ident.replay holds a record's."""
     from hil.control import controller_from_config
     from hil.plant_config import plant_from_config
-    from hil.simulate import per_velocity_period
+    from hil.simulate import external_forces, per_velocity_period
     if not ins and not open_loop:
         return {}
     plant = plant_from_config(cfg)
@@ -201,10 +201,7 @@ def _loop_inputs(cfg, ins: dict, t_rec, ticks: int, open_loop: bool) -> dict:
         out["u_add"] = per_velocity_period(t_rec, ins["u_add"], t_rec[0], tv, steps)
     if open_loop:
         out["open_loop"] = True
-    if "f_ext_table" in ins or "f_ext_tip" in ins:
-        fe = np.zeros((steps, plant.n))
-        for c, mass in (("f_ext_table", plant.table), ("f_ext_tip", plant.tip)):
-            if c in ins:
-                fe[:, mass] += per_velocity_period(t_rec, ins[c], t_rec[0], tv, steps)
+    fe = external_forces(plant, t_rec, ins, tv, steps)
+    if fe is not None:
         out["f_ext"] = fe
     return out
