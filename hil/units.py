@@ -18,8 +18,8 @@ from functools import lru_cache
 
 from hil.errors import UnitError
 
-__all__ = ["UnitError", "parse", "parse_list", "parse_bounded", "DIMENSIONS", "fmt", "fmt_uncertain",
-           "round_to_uncertainty", "display_unit", "DISPLAY_UNITS", "SI_UNIT"]
+__all__ = ["UnitError", "parse", "parse_list", "parse_bounded", "parse_angle_deg", "parse_gain_db", "DIMENSIONS",
+           "fmt", "fmt_uncertain", "round_to_uncertainty", "display_unit", "DISPLAY_UNITS", "SI_UNIT"]
 
 
 # Expected kinds of quantity, by name, as pint dimensionalities written as strings.
@@ -182,6 +182,38 @@ def parse_bounded(value, kind: str, what: str, *, positive: bool = False, nonneg
         raise UnitError(f"{what}: expected a {kind} of at most {maximum:g} {unit}, got {value!r}")
     return x
 
+
+
+def parse_angle_deg(value, what: str = "value") -> float:
+    """An angle in degrees, for the options that are read in degrees (a phase margin): ``"45deg"``,
+    ``"45 °"``, ``"0.785rad"``; a bare number is taken in degrees (the unit such a figure is always
+    quoted in, not radians). One clear line (a UnitError) for anything else, inf or NaN."""
+    text = _normalise(str(value)).replace("°", " deg")
+    try:
+        deg = float(text)
+    except ValueError:
+        try:
+            q = _registry().Quantity(text)
+            deg = float(q.to("deg").magnitude)
+        except Exception:      # pint: not readable, or not an angle
+            raise UnitError(f"{what}: expected an angle (e.g. 45deg or 0.785rad), got {value!r}") from None
+        if not re.search(r"[A-Za-z]", text):          # "2*3": a number, not an angle
+            raise UnitError(f"{what}: expected an angle (e.g. 45deg or 0.785rad), got {value!r}")
+    if not math.isfinite(deg):
+        raise UnitError(f"{what}: expected a finite angle (e.g. 45deg), got {value!r}")
+    return float(f"{deg:.15g}")
+
+
+_DB = re.compile(r"^\s*([+\-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+\-]?[0-9]+)?)\s*(dB|db|)\s*$")
+
+
+def parse_gain_db(value, what: str = "value") -> float:
+    """A gain in decibels, for the options that are read in dB (a gain margin): ``"6dB"``,
+    ``"6 dB"``; a bare number is taken in dB. One clear line (a UnitError) for anything else."""
+    m = _DB.match(str(value))
+    if m is None:
+        raise UnitError(f"{what}: expected a gain in dB (e.g. 6dB), got {value!r}")
+    return float(m.group(1))
 
 # The units a person reads, per kind: (unit as printed, as pint reads it, the largest |SI value| it
 # is used up to). The first rung whose limit the magnitude stays below is taken; the last is the

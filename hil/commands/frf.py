@@ -9,7 +9,7 @@ from hil.errors import BackendError, BackendFault, RunStopped, UnitError, UserEr
 from hil.io.jsonout import dumps
 from hil.io.safe_write import save_figure, write_atomic
 from hil.supervisor import Supervisor, refuse_if_tripped
-from hil.units import parse
+from hil.units import parse, parse_angle_deg, parse_gain_db
 
 HELP = "measure frequency responses (TF1', TF2, TF3, velocity and position loops) against the model"
 DESCRIPTION = """\
@@ -54,8 +54,10 @@ def add_arguments(p) -> None:
     p.add_argument("--speed", metavar="SPEED", default="10mm/s", help="speed of the working point (default 10 mm/s)")
     p.add_argument("--noise", metavar="QUANTITY", default="0 rad/s", help="simulated speed measurement noise, rms, in rad/s "
                                                 "(simulated backend only; default 0)")
-    p.add_argument("--pm", metavar="DEG", type=float, default=45.0, help="phase margin to keep, deg (default 45)")
-    p.add_argument("--gm", metavar="DB", type=float, default=6.0, help="gain margin to keep, dB (default 6)")
+    p.add_argument("--pm", metavar="ANGLE", default="45deg",
+                   help="phase margin to keep, e.g. 45deg or 0.785rad; a bare number in degrees (default 45deg)")
+    p.add_argument("--gm", metavar="GAIN", default="6dB",
+                   help="gain margin to keep, e.g. 6dB; a bare number in dB (default 6dB)")
     p.add_argument("--out", metavar="DIR", default="out/frf", help="folder for plots and data (default out/frf)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -119,6 +121,7 @@ def run(args) -> int:
     from hil.commands.move import load_config
     from hil.control import controller_from_config
     from hil.plant_config import plant_from_config
+    pm_min, gm_min_db = parse_angle_deg(args.pm, "--pm"), parse_gain_db(args.gm, "--gm")
     overrides = dict(parse_assignment(s) for s in args.set)
     cfg = load_config(args)            # --set, and -i/-c/-b or python-can's configuration for canopen
     plant_model = plant_from_config(cfg)
@@ -167,7 +170,7 @@ def run(args) -> int:
     progress = frf.stderr_progress if shown(args) else None      # silent with --json or off a terminal
     try:
         result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
-                             pm_min=args.pm, gm_min_db=args.gm, supervisor=supervisor)
+                             pm_min=pm_min, gm_min_db=gm_min_db, supervisor=supervisor)
     except RunStopped:
         raise                     # stopped in the middle: the exit code of how (hil.errors.STOP_EXIT_CODES)
     except (ValueError, RuntimeError) as exc:
