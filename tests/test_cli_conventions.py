@@ -18,7 +18,7 @@ from canopen_rig import channel
 from hil.cli import main
 from hil.config import load, loads
 from hil.errors import ConfigError
-from hil.units import fmt, fmt_uncertain, round_to_uncertainty
+from hil.units import fmt, fmt_uncertain, parse_angle_deg, parse_gain_db, round_to_uncertainty
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = str(ROOT / "config" / "paper_bench.toml")
@@ -323,6 +323,34 @@ def test_synth_takes_units_and_prints_no_dict(tmp_path, capsys):
     rc = main(["synth", "--config", BENCH, "--duration", "5 mm", "--out", str(out)])
     assert rc == 2 and "--duration" in capsys.readouterr().err
 
+
+
+@pytest.mark.parametrize("text, deg", [("45", 45.0), ("45deg", 45.0), ("45 °", 45.0), ("30 degree", 30.0),
+                                       (f"{math.pi / 4!r}rad", 45.0), ("0.5rad", math.degrees(0.5))])
+def test_phase_margin_reads_angles(text, deg):
+    assert parse_angle_deg(text, "--pm") == pytest.approx(deg, rel=1e-12)
+
+
+@pytest.mark.parametrize("text, db", [("6", 6.0), ("6dB", 6.0), ("6 dB", 6.0), ("-3.5dB", -3.5), ("1e1 dB", 10.0)])
+def test_gain_margin_reads_decibels(text, db):
+    assert parse_gain_db(text, "--gm") == db
+
+
+def test_frf_margins_take_units_and_refuse_others(tmp_path, capsys, monkeypatch):
+    from hil import frf
+    seen = {}
+
+    def measure(*args, pm_min, gm_min_db, **kw):       # what the command hands the tuning
+        seen.update(pm=pm_min, gm=gm_min_db)
+        raise RuntimeError("stopped after the margins were read")
+    monkeypatch.setattr(frf, "measure", measure)
+    rc = main(["frf", "--config", BENCH, "--pm", "0.75rad", "--gm", "8 dB", "--out", str(tmp_path)])
+    assert rc == 2 and seen == {"pm": pytest.approx(math.degrees(0.75)), "gm": 8.0}
+    capsys.readouterr()
+    for opt, bad in (("--pm", "45mm"), ("--gm", "6 N")):
+        rc = main(["frf", "--config", BENCH, opt, bad, "--out", str(tmp_path)])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and err.count("\n") == 0 and opt in err and "Traceback" not in err
 
 def test_move_text_in_engineering_units(tmp_path, capsys):
     assert main(["move", "--config", BENCH, "--stroke", "20mm", "--feed", "6000mm/min", "--tacc", "200ms",
