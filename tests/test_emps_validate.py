@@ -42,6 +42,17 @@ def test_emps_validate_json(tmp_path, capsys):
         for k in ("position", "velocity", "force"):
             assert v[k] == pytest.approx(r[k], rel=1e-9)
     assert "published** validation" in (tmp_path / "emps" / "table.md").read_text()
+    # the fitted models are edits of the start config: its comments kept, the fitted values in it
+    from hil.config import load
+    start = Path("config/emps.toml").read_text()
+    for name, step in (("emps_fitted.toml", "output-error refit of M, Fv, Fc, offset"),
+                       ("emps_asymmetric.toml", "+ asymmetric_friction")):
+        text = (tmp_path / "emps" / name).read_text()
+        assert start.splitlines()[0] in text and "published IDIM-LS mass M" in text and "hil emps on DATA_EMPS.mat" in text
+        cfg, want = load(tmp_path / "emps" / name), rows[step]["params"]
+        assert cfg["plant.m1"] == pytest.approx(want["M"], rel=1e-8)
+        assert cfg["friction.viscous"] == pytest.approx(want["Fv"], rel=1e-8)
+        assert cfg["effects.coulomb_friction.level"] == pytest.approx(want["Fc"], rel=1e-8)
 
 
 @pytest.mark.skipif("u_add" in CHANNELS, reason="this version has the u_add input channel")

@@ -70,8 +70,13 @@ def run(args) -> int:
     rows, cfgs, diags = res.rows, res.configs, res.diagnoses
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    write_atomic(out / "emps_fitted.toml", cfgs["fitted"].to_toml())
-    write_atomic(out / "emps_asymmetric.toml", cfgs["asymmetric"].to_toml())
+    # the fitted models as edits of the start config: its comments, layout and units kept, only the
+    # fitted keys changed (hil.io.config_write, as hil fit and hil diagnose --out write theirs)
+    from hil.io.config_write import write_config
+    note = f"hil emps on {Path(args.data).name}"
+    write_config(out / "emps_fitted.toml", args.config, cfgs["fitted"], note=note, inputs=(args.data, args.config))
+    write_config(out / "emps_asymmetric.toml", args.config, cfgs["asymmetric"], note=note,
+                 inputs=(args.data, args.config))
     a, b = analyse(res.replay, cfgs["start"]), analyse(res.replay, cfgs["fitted"])
     figs = comparison_figures(a, out, after=b)
     figs.append(error_fall_figure(rows[1:], out / "error_fall.png"))
