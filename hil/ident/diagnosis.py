@@ -322,43 +322,37 @@ def _rank_single(cands: list) -> list:
     # a candidate that leaves less error in every channel with no more parameters goes first: the
     # scores count the effective samples of each one's own residual, and a smoother residual after
     # the better fit can score lower (comparing scores rewards a whiter residual twice)
-    changed = True
-    while changed:
-        changed = False
-        for i in range(len(cands)):
-            for j in range(i + 1, len(cands)):
-                a, b = cands[i], cands[j]
-                if isinstance(a, Combo) or isinstance(b, Combo) or not b.significant:
-                    continue
-                if _dominates(b, a):
-                    cands.insert(i, cands.pop(j))
-                    changed = True
-                    break
-            if changed:
-                break
+    _move_first(cands, lambda b, a: b.significant and _dominates(b, a))
     # a preferred combination before the richer effect it mimics
     for c in [c for c in cands if isinstance(c, Combo) and c.rich is not None]:
         i, j = cands.index(c.rich), cands.index(c)
         if j > i:
             cands.insert(i, cands.pop(j))
     # a simpler nested effect first when it explains most of the richer one's gain
+    def nested_simpler(simple, rich) -> bool:
+        eff = CATALOGUE.get(rich.effect)
+        return bool(eff) and simple.effect in getattr(eff, "nests", ()) and simple.significant \
+            and (rich.score - simple.score < MIN_SCORE or _close(simple, rich))
+    _move_first(cands, nested_simpler)
+    return cands
+
+
+def _move_first(cands: list, goes_before) -> None:
+    """Reorder ``cands`` in place until no single effect ``b`` listed after ``a`` has
+    ``goes_before(b, a)``: the first such pair found, scanning from the top, moves ``b`` just
+    before ``a``, and the scan starts again (combinations keep their places)."""
     changed = True
     while changed:
         changed = False
         for i in range(len(cands)):
             for j in range(i + 1, len(cands)):
-                rich, simple = cands[i], cands[j]
-                if isinstance(rich, Combo) or isinstance(simple, Combo):
-                    continue
-                eff = CATALOGUE.get(rich.effect)
-                if eff and simple.effect in getattr(eff, "nests", ()) and simple.significant \
-                        and (rich.score - simple.score < MIN_SCORE or _close(simple, rich)):
+                a, b = cands[i], cands[j]
+                if not isinstance(a, Combo) and not isinstance(b, Combo) and goes_before(b, a):
                     cands.insert(i, cands.pop(j))
                     changed = True
                     break
             if changed:
                 break
-    return cands
 
 
 def _dominates(b: Candidate, a: Candidate) -> bool:
