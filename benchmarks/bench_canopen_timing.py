@@ -2,7 +2,9 @@
 as a user of a real axis sees it: lateness p50/p99/max of the loop's wake-ups, cycles without
 their answer (the TPDOs of a SYNC not in when the next cycle reads its feedback), the longest
 run of consecutive misses and whether the supervisor would have tripped on it
-(``canopen.pdo_miss_limit`` consecutive misses), late answers (they come after the next SYNC:
+(``canopen.pdo_miss_limit`` consecutive misses), the host stalls (wake-ups of the loop more than
+1 ms late) and the misses within 5 cycles behind one, the share of the CPU time the hypervisor took
+from the virtual machine during the run (``/proc/stat`` steal; 0 on bare metal), late answers (they come after the next SYNC:
 counted by the SYNC counter echo), the SYNC-to-answer time as the host takes it and, for the
 drive in its own process, as the drive sends it.
 
@@ -45,6 +47,7 @@ CONFIG = ROOT / "config/paper_bench_canopen.toml"
 DEFAULT_SECONDS = {250: 600.0, 1000: 60.0}
 # the goals of issue 14: (most cycles without answer per cycle, p99 lateness us); never two in a row
 GOALS = {250: (1e-4, 200.0), 1000: (1e-3, 200.0)}
+STALL_S, STALL_WINDOW = 1e-3, 5
 
 
 def _pct(a, q):
@@ -59,7 +62,7 @@ def loop(cfg, seconds, spin):
     try:
         be.enable()
         clock = RealTimeClock(be.cycle_time, spin=spin, priority=cfg.get("runtime.priority", 0),
-                              idle=be.receive_until)
+                              idle=be.receive_until, cpu_latency=cfg.get("runtime.cpu_latency", 0.0))
         spin = clock.spin
         n = int(round(seconds / be.cycle_time))
         pos = be.read_feedback().x_motor
@@ -68,9 +71,13 @@ def loop(cfg, seconds, spin):
         gc.freeze()
         gc.disable()
         clock.start()
+        missed_at = []
         try:
-            for _ in range(n):
+            for i in range(n):
+                before = be.missed_total
                 fb = be.read_feedback()
+                if be.missed_total != before:     # the answer to the SYNC of cycle i - 1 is not in
+                    missed_at.append(i)
                 if fb.fault and not tripped:
                     tripped = fb.fault
                 be.write_setpoint(Setpoint(position=pos))
@@ -86,19 +93,38 @@ def loop(cfg, seconds, spin):
         be.close()
     lat = np.array(clock.lateness)
     ans = np.array(be.answer_latency)
+    # a host stall: a wake-up of the loop's thread more than 1 ms late (with --priority nothing in the
+    # machine outranks it: the virtual CPU itself did not run); a miss behind one: a stall within the
+    # STALL_WINDOW cycles before it
+    stalls = np.flatnonzero(lat > STALL_S)
+    behind = sum(1 for i in missed_at if np.any((stalls >= i - STALL_WINDOW) & (stalls < i)))
     limit = int(cfg.get("canopen.pdo_miss_limit", 2))
     rate = round(1 / be.cycle_time)
     out = {"rate_hz": rate, "seconds": seconds, "cycles": n,
            "lateness_p50_us": _pct(lat, 50), "lateness_p99_us": _pct(lat, 99), "lateness_max_us": _pct(lat, 100),
            "overruns": clock.overruns, "cycles_without_answer": be.missed_total,
+           "host_stalls_over_1ms": int(stalls.size), "misses_behind_a_host_stall": int(behind),
            "longest_miss_run": be.miss_run_max, "late_answers": be.late_total,
            "supervisor_would_trip": be.miss_run_max >= limit, "pdo_miss_limit": limit, "first_fault": tripped,
            "sync_to_answer_p50_us": _pct(ans, 50), "sync_to_answer_p99_us": _pct(ans, 99),
-           "sync_to_answer_max_us": _pct(ans, 100), "spin_us": spin * 1e6}
+           "sync_to_answer_max_us": _pct(ans, 100), "spin_us": spin * 1e6,
+           "cpu_latency_held": clock.cpu_latency.was_held}
     if rate in GOALS:
         ratio, p99 = GOALS[rate]
         out["goals_met"] = bool(be.missed_total <= ratio * n and be.miss_run_max < 2 and out["lateness_p99_us"] < p99)
     return out
+
+
+def steal_seconds() -> float | None:
+    """CPU time the hypervisor took from this virtual machine so far, all CPUs (``/proc/stat``,
+    the ``steal`` column; None off Linux): a run's share of it says whether the machine itself
+    stalled under the loop."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()
+        return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
 
 
 def _free_port() -> int:
@@ -125,12 +151,13 @@ def start_burner(seconds):
     return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-def run_one(transport, rate, seconds, burner, spin, priority):
+def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us"):
     period = f"{1000.0 / rate:g} ms"
     # start-up over SDO is not what is measured: a generous answer time, so that a loaded machine (the
     # burner, a test run beside it) does not abort the configuration before the cycle starts
-    over = {"control.position_period": period, "runtime.priority": priority, "canopen.sdo_timeout": "5 s"}
-    load_before = os.getloadavg()
+    over = {"control.position_period": period, "runtime.priority": priority, "runtime.cpu_latency": cpu_latency,
+            "canopen.sdo_timeout": "5 s"}
+    load_before, steal_before, t_before = os.getloadavg(), steal_seconds(), time.monotonic()
     burn, drive, sim, drive_stats = None, None, None, {}
     try:
         if burner:
@@ -150,7 +177,7 @@ def run_one(transport, rate, seconds, burner, spin, priority):
             port = _free_port()
             drive = subprocess.Popen([sys.executable, "-m", "hil.cli", "drive-sim", "--config", str(CONFIG), "--set",
                                       f"control.position_period={period}", "--port", str(port), "--json",
-                                      "--priority", str(priority)],
+                                      "--priority", str(priority), "--cpu-latency", str(cpu_latency)],
                                      cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                      env=dict(os.environ, PYTHONPATH=str(ROOT)))
             if not drive.stdout.readline():               # the server is up
@@ -165,7 +192,10 @@ def run_one(transport, rate, seconds, burner, spin, priority):
             sim.close()
         _stop(drive)
         _stop(burn, wait=5.0)
-    res.update({"transport": "virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)",
+    steal_after, wall = steal_seconds(), time.monotonic() - t_before
+    steal = None if steal_before is None or steal_after is None else steal_after - steal_before
+    res.update({"steal_s": steal, "steal_pct": None if steal is None else 100.0 * steal / (wall * (os.cpu_count() or 1)),
+                "transport": "virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)",
                 "load": "one core busy" if burner else "idle",
                 "drive_answer_p50_us": drive_stats.get("answer_p50_us"),
                 "drive_answer_p99_us": drive_stats.get("answer_p99_us"),
@@ -178,7 +208,7 @@ def run_one(transport, rate, seconds, burner, spin, priority):
 def _table(results) -> str:
     head = (f"{'transport':31s} {'rate':>5s} {'load':13s} {'s':>5s} {'lateness p50/p99/max us':>24s} "
             f"{'no answer':>11s} {'run':>3s} {'trip':>4s} {'SYNC->ans p50/p99 us':>20s} {'drive p99':>9s} "
-            f"{'goals':>5s} {'loadavg before/after':>21s}")
+            f"{'goals':>5s} {'loadavg before/after':>21s} {'steal':>6s} {'stalls/behind':>13s}")
     rows = [head]
     for r in results:
         lat = f"{r['lateness_p50_us']:.0f}/{r['lateness_p99_us']:.0f}/{r['lateness_max_us']:.0f}"
@@ -187,9 +217,11 @@ def _table(results) -> str:
         drv = "-" if r["drive_answer_p99_us"] is None else f"{r['drive_answer_p99_us']:.0f}"
         goals = {True: "met", False: "NOT", None: "-"}[r.get("goals_met")]
         la = f"{r['load_average_before'][0]:.2f}/{r['load_average_after'][0]:.2f}"
+        steal = "-" if r.get("steal_pct") is None else f"{r['steal_pct']:.1f}%"
+        stalls = f"{r['host_stalls_over_1ms']}/{r['misses_behind_a_host_stall']}"
         rows.append(f"{r['transport']:31s} {r['rate_hz']:5d} {r['load']:13s} {r['seconds']:5.0f} {lat:>24s} "
                     f"{miss:>11s} {r['longest_miss_run']:3d} {'yes' if r['supervisor_would_trip'] else 'no':>4s} "
-                    f"{ans:>20s} {drv:>9s} {goals:>5s} {la:>21s}")
+                    f"{ans:>20s} {drv:>9s} {goals:>5s} {la:>21s} {steal:>6s} {stalls:>13s}")
     return "\n".join(rows)
 
 
@@ -210,6 +242,9 @@ def main(argv=None):
                          "the period, at most 200 us)")
     ap.add_argument("--priority", type=int, default=0,
                     help="runtime.priority: SCHED_FIFO priority of the loop thread (0 = normal scheduling)")
+    ap.add_argument("--cpu-latency", default="0us", metavar="TIME",
+                    help="with --priority: runtime.cpu_latency of the loop and hil drive-sim --cpu-latency, the CPUs' "
+                         "wake-up latency held during the run (default 0us: idle CPUs poll; inf: no request)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
     if args.all:
@@ -222,7 +257,7 @@ def main(argv=None):
         seconds = args.duration if args.duration is not None else DEFAULT_SECONDS.get(rate, 60.0)
         for transport in transports:
             for burner in loads:
-                results.append(run_one(transport, rate, seconds, burner, spin, args.priority))
+                results.append(run_one(transport, rate, seconds, burner, spin, args.priority, args.cpu_latency))
                 if not args.json:
                     print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
                           flush=True)
@@ -233,7 +268,8 @@ def main(argv=None):
     else:
         print(f"{info['cpus']} CPUs, kernel {info['kernel']}; run: longest run of consecutive cycles without "
               f"their answer; trip: the supervisor would have tripped (canopen.pdo_miss_limit); drive p99: the "
-              f"drive's own SYNC-to-answer; spin (us) " + ", ".join(f"{r['spin_us']:.0f}" for r in results))
+              f"drive's own SYNC-to-answer; stalls/behind: wake-ups of the loop over 1 ms late, misses within 5 cycles "
+              f"behind one; spin (us) " + ", ".join(f"{r['spin_us']:.0f}" for r in results))
     return 0
 
 

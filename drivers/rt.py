@@ -1,10 +1,25 @@
 """Small helpers for the threads that keep a wall-clock cycle (the host's loop, a simulated drive's
-cycle): nothing here blocks or allocates in a cycle."""
+cycle): nothing here blocks or allocates in a cycle.
+
+- :func:`fine_timer_slack`: a timed wait ends at its time, not up to 50 us later.
+- :class:`CpuLatencyRequest`: the CPUs kept out of idle states deeper than a wake-up latency
+  while a cycle runs (Linux PM QoS, ``/dev/cpu_dma_latency``; what ``cyclictest`` does by
+  default). An idle CPU that halts takes its idle state's exit latency to wake; a virtual CPU
+  that halts is handed back to the hypervisor and wakes when the host schedules it again, now and
+  then milliseconds later. A request of 0 us keeps idle CPUs polling: every wake-up (the drive's
+  answer, the next deadline) costs microseconds, for the price of CPUs that never sleep while the
+  loop runs.
+"""
 from __future__ import annotations
 
-__all__ = ["fine_timer_slack"]
+import math
+import os
+import struct
+
+__all__ = ["fine_timer_slack", "CpuLatencyRequest", "CPU_DMA_LATENCY"]
 
 PR_SET_TIMERSLACK = 29          # linux/prctl.h
+CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
 
 
 def fine_timer_slack() -> bool:
@@ -17,3 +32,58 @@ def fine_timer_slack() -> bool:
         return libc.prctl(PR_SET_TIMERSLACK, 1, 0, 0, 0) == 0
     except (OSError, AttributeError):
         return False
+
+
+class CpuLatencyRequest:
+    """A PM QoS request on the CPUs' wake-up latency, held while the file stays open (not real-time:
+    made before the cycle starts, released after it ends).
+
+    Parameters
+    ----------
+    latency : float
+        The largest wake-up latency allowed, s (0: idle CPUs poll); ``inf`` or None: no request.
+    path : str
+        The PM QoS device (Linux ``/dev/cpu_dma_latency``; writable by root, or by a user a udev
+        rule or ``chmod`` allows).
+
+    :meth:`hold` returns None when the request holds (or none was asked), else the reason it was
+    refused (no such device, no permission), for the caller to warn with; :meth:`release` is safe
+    to call twice, and the kernel drops the request when the process ends however it ends.
+    """
+
+    def __init__(self, latency: float | None = 0.0, path: str = CPU_DMA_LATENCY):
+        self.latency = latency
+        self.path = path
+        self._fd: int | None = None
+        self.refused: str | None = None     # why the last hold() was refused
+        self.was_held = False               # whether a request has held (for figures after release)
+
+    @property
+    def held(self) -> bool:
+        return self._fd is not None
+
+    def hold(self) -> str | None:
+        if self._fd is not None or self.latency is None or not math.isfinite(self.latency):
+            return None
+        us = max(0, int(round(self.latency * 1e6)))
+        try:
+            fd = os.open(self.path, os.O_WRONLY)
+        except OSError as exc:
+            self.refused = f"{self.path}: {exc.strerror}"
+            return self.refused
+        try:
+            os.write(fd, struct.pack("=i", us))          # the kernel's format: a 32-bit integer, us
+        except OSError as exc:
+            os.close(fd)
+            self.refused = f"{self.path}: {exc.strerror}"
+            return self.refused
+        self._fd, self.refused, self.was_held = fd, None, True
+        return None
+
+    def release(self) -> None:
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            try:
+                os.close(fd)
+            except OSError:
+                pass

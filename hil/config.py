@@ -169,6 +169,11 @@ SCHEMA: dict[str, Field] = {
     "runtime.priority": Field("int", "real-time (SCHED_FIFO) priority of the loop's thread on hardware, 1..99 "
                               "(Linux, needs CAP_SYS_NICE); 0 = normal scheduling", default=0, nonnegative=True,
                               maximum=99),
+    "runtime.cpu_latency": Field("time", "with runtime.priority: the CPUs' wake-up latency asked of the kernel "
+                                 "while the loop runs (Linux PM QoS /dev/cpu_dma_latency, as cyclictest; needs "
+                                 "write access to it): 0 keeps idle CPUs polling, so that no wake-up waits for a "
+                                 "halted (virtual) CPU; \"inf\" = no request", default=0.0, nonnegative=True,
+                                 allow_inf=True),
     # --- backend -------------------------------------------------------------------------------
     "backend.type": Field("str", "sim (embedded plant model), canopen, serial", default="sim"),
     "meta.name": Field("str", "a name for the axis", default=""),

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.base import Backend, BackendFault, Feedback, Setpoint
-from drivers.rt import fine_timer_slack
+from drivers.rt import CpuLatencyRequest, fine_timer_slack
 from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
 
 __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]
@@ -86,14 +86,20 @@ class RealTimeClock:
     50 us, 0 / 15 us with 200 us; at 250 Hz 27-30 / 91-94 us with 50 us, 0 / 0-7 us with 200 us;
     the answers missed do not change with it. A timed wait ends on time at the median but now and
     then a few hundred microseconds late (the virtual machine's wake-ups): the spin covers that
-    for a twentieth of a core."""
+    for a twentieth of a core.
+
+    ``cpu_latency`` (s): with a priority, the CPUs' wake-up latency asked of the kernel while the
+    loop runs (``runtime.cpu_latency``, :class:`drivers.rt.CpuLatencyRequest`; default 0: idle
+    CPUs poll; None or inf: no request)."""
     real_time = True
 
-    def __init__(self, period: float, spin: float | None = None, priority: int = 0, idle=None):
+    def __init__(self, period: float, spin: float | None = None, priority: int = 0, idle=None,
+                 cpu_latency: float | None = 0.0):
         self.period = period
         self.spin = min(200e-6, 0.05 * period) if spin is None else spin
         self.idle = idle
         self.priority = int(priority)
+        self.cpu_latency = CpuLatencyRequest(cpu_latency if self.priority > 0 else None)
         self.k = 0
         self.t0 = 0.0
         self.lateness: list[float] = []
@@ -115,12 +121,19 @@ class RealTimeClock:
                 self.stop()
                 warnings.warn(f"runtime.priority {self.priority}: real-time scheduling refused ({exc}); "
                               f"running with normal priority", RuntimeWarning, stacklevel=2)
+            # idle CPUs kept from deep (halting) idle states: the wake-up on the drive's answer or on
+            # the deadline does not wait for a halted (virtual) CPU to be woken
+            refused = self.cpu_latency.hold()
+            if refused:
+                warnings.warn(f"runtime.cpu_latency: the wake-up latency request was refused ({refused}); "
+                              f"idle CPUs may sleep deeper", RuntimeWarning, stacklevel=2)
         fine_timer_slack()
         self.t0 = time.perf_counter()
         self.k = 0
 
     def stop(self) -> None:
-        """Back to the thread's former scheduling."""
+        """Back to the thread's former scheduling (and the CPUs' idle states)."""
+        self.cpu_latency.release()
         for tid, policy, param in self._policy or ():
             try:
                 os.sched_setscheduler(tid, policy, param)
@@ -208,13 +221,15 @@ class ControlLoop:
     is enabled."""
 
     def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True,
-                 priority: int = 0, injection: Injection | None = None, progress=None):
+                 priority: int = 0, injection: Injection | None = None, progress=None,
+                 cpu_latency: float | None = 0.0):
         self.backend = backend
         self.ctrl = ctrl
         self.p = ctrl.as_array()
         period = backend.cycle_time
         self.clock = clock or (SimulatedClock(period) if backend.simulated else
-                               RealTimeClock(period, priority=priority, idle=getattr(backend, "receive_until", None)))
+                               RealTimeClock(period, priority=priority, idle=getattr(backend, "receive_until", None),
+                                             cpu_latency=cpu_latency))
         self.recorder = recorder
         self.supervisor = supervisor
         self.rotary = rotary

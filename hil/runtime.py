@@ -141,7 +141,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         supervisor = Supervisor(cfg, real_time=not backend.simulated)
         supervisor.arm()           # refuses motion while an earlier trip is not reset
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary,
-                       priority=cfg.get("runtime.priority", 0))
+                       priority=cfg.get("runtime.priority", 0), cpu_latency=cfg.get("runtime.cpu_latency", 0.0))
     started = {"planned_m": float(traj.start), "mode": start}
     try:
         with backend:                    # opened here; shut down (disabled, closed) however the run ends

@@ -3,6 +3,7 @@ takes the answer from the bus (no notifier thread handles a PDO), start-up and S
 after it run on canopen's notifier; benchmarks/bench_canopen_timing.py's ``--json`` output, from a
 short run. No timing is asserted here (that is the benchmark's job)."""
 import json
+import math
 import os
 import subprocess
 import sys
@@ -143,6 +144,10 @@ def test_timing_benchmark_json_from_a_short_run():
         assert r["sync_to_answer_p50_us"] > 0 and r["drive_answer_p50_us"] > 0
         assert isinstance(r["goals_met"], bool)
         assert len(r["load_average_before"]) == 3
+        assert 0 <= r["misses_behind_a_host_stall"] <= r["cycles_without_answer"]
+        assert 0 <= r["host_stalls_over_1ms"] <= r["cycles"]
+        if os.path.exists("/proc/stat"):            # the hypervisor's share of the run: a share of all CPUs
+            assert r["steal_s"] >= 0 and 0 <= r["steal_pct"] <= 100
     assert rep["machine"]["cpus"] == os.cpu_count()
     assert not _drive_sims() - before          # the benchmark stopped the drive it started
 
@@ -184,3 +189,33 @@ def test_a_bus_that_fails_in_the_cyclic_phase_is_the_feedbacks_fault():
         be.network.bus = None                     # already shut down
         be.close()
         sim.close()
+
+
+def test_the_cpu_latency_request_is_the_kernels_format_and_released(tmp_path):
+    """drivers.rt.CpuLatencyRequest writes the PM QoS value as the kernel reads it (a native 32-bit
+    integer of microseconds: Documentation/power/pm_qos_interface.rst) and holds it while open."""
+    import struct
+
+    from drivers.rt import CpuLatencyRequest
+    dev = tmp_path / "cpu_dma_latency"           # a file stands in for the device
+    dev.write_bytes(b"")
+    req = CpuLatencyRequest(20e-6, path=str(dev))
+    assert req.hold() is None and req.held
+    assert struct.unpack("=i", dev.read_bytes()) == (20,)
+    req.release()
+    req.release()                                # safe twice
+    assert not req.held and req.was_held
+    assert CpuLatencyRequest(math.inf, path=str(dev)).hold() is None        # inf: no request made
+    gone = CpuLatencyRequest(0.0, path=str(tmp_path / "no" / "device"))
+    assert "No such file" in gone.hold() and not gone.held and gone.refused
+
+
+def test_the_clock_asks_for_the_latency_only_with_a_priority(tmp_path, monkeypatch):
+    from hil.loop import RealTimeClock
+    assert RealTimeClock(4e-3, priority=0, cpu_latency=0.0).cpu_latency.latency is None
+    clock = RealTimeClock(4e-3, priority=0, cpu_latency=0.0)
+    clock.start()
+    clock.stop()
+    assert not clock.cpu_latency.was_held
+    assert RealTimeClock(4e-3, priority=50, cpu_latency=0.0).cpu_latency.latency == 0.0
+    assert RealTimeClock(4e-3, priority=50, cpu_latency=math.inf).cpu_latency.latency == math.inf

@@ -64,6 +64,9 @@ def add_arguments(p) -> None:
                    help="SCHED_FIFO priority 1..99 of the drive's thread (Linux, CAP_SYS_NICE; default 0: normal "
                         "scheduling): a drive is a real-time device; on a loaded machine the scheduler otherwise "
                         "holds its answer back by milliseconds now and then")
+    p.add_argument("--cpu-latency", default="0us", metavar="TIME",
+                   help="with --priority: the CPUs' wake-up latency held while the drive runs (Linux PM QoS "
+                        "/dev/cpu_dma_latency, as runtime.cpu_latency; default 0 us: idle CPUs poll; inf: no request)")
     p.add_argument("--json", action="store_true", help="print the connection settings as one JSON line, and at the "
                    "end the drive's SYNC-to-answer times")
 
@@ -154,9 +157,13 @@ def run(args) -> int:
     if any(k == "tip_missing_pdo" for k, _, _ in faults) and not int(cfg.get("canopen.tip_node_id", 0) or 0):
         raise UserError("--fault tip_missing_pdo: the simulated drive has no tip sensor node "
                         "(--set canopen.tip_node_id=2)")
-    from hil.units import parse_bounded
+    from drivers.rt import CpuLatencyRequest
+    from hil.units import parse, parse_bounded
     args.seconds = parse_bounded(args.seconds, "time", "--seconds", nonnegative=True)
     args.switch_interval = parse_bounded(args.switch_interval, "time", "--switch-interval", nonnegative=True)
+    cpu_latency = parse(args.cpu_latency, "time", "--cpu-latency")
+    if not cpu_latency >= 0:
+        raise UserError(f"--cpu-latency {args.cpu_latency}: expected a time >= 0 (or inf: no request)")
     if args.switch_interval > 0:
         sys.setswitchinterval(args.switch_interval)
     port = args.port if args.port is not None else int(cfg.get("canopen.port", 29536))
@@ -191,12 +198,18 @@ def run(args) -> int:
         for kind, at in schedule.fired[before:]:
             print(f"drive-sim: {kind} injected {at:.3f} s after the drive was enabled", file=sys.stderr, flush=True)
 
+    latency = CpuLatencyRequest(None)
     if args.priority > 0:
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.priority))
         except (AttributeError, PermissionError, OSError) as exc:
             print(f"hil drive-sim: --priority {args.priority}: real-time scheduling refused ({exc}); running with "
                   f"normal priority", file=sys.stderr, flush=True)
+        latency = CpuLatencyRequest(cpu_latency)
+        refused = latency.hold()
+        if refused:
+            print(f"hil drive-sim: --cpu-latency: the wake-up latency request was refused ({refused})",
+                  file=sys.stderr, flush=True)
 
     def _terminate(signum, frame):      # SIGTERM ends the drive as Ctrl-C does (a parent that stops it)
         raise KeyboardInterrupt
@@ -218,6 +231,7 @@ def run(args) -> int:
         except Exception:
             pass
         bus.shutdown()
+        latency.release()
         if args.json:                    # how soon the drive answered each SYNC
             print(dumps(answer_stats(sim.answer_times)), flush=True)
     return 0
