@@ -63,14 +63,15 @@ JSON_KEYS = {
     "joint_candidates": JsonKey("", "pairs of friction or force effects fitted together: effects, preferred, score, "
                                     "second_member_score, best_single, best_single_score, gain (fraction), params"),
     "noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the RMS noise floor of the record (units: units.noise_floor)"),
-    "noise_floor_source": JsonKey("", "per channel, where the floor comes from (standstill, quantization, config, "
-                                      "file header)"),
+    "noise_floor_source": JsonKey("", "per channel, where the floor comes from: `given` (config or file header), "
+                                      "`quantization`, `standstill (N samples)` or the third-difference fallback"),
     "error_before": JsonKey(CHANNEL_UNIT, "per channel, the RMS error of the start model"),
     "gap_closed": JsonKey("1", "fraction of the gap between the error and the noise floor the leading candidate "
                                "closes"),
     "units": JsonKey("", "the SI unit of each channel of noise_floor and error_before"),
-    "residual": JsonKey("", "where the residual lives, per channel (rms, noise_floor, above_floor, spectral_peaks, "
-                            "correlation, along_travel, rms_moving, rms_standstill)",
+    "residual": JsonKey("", "where the residual lives: channels, worst first (channel, unit, rms, noise_floor, "
+                            "above_floor, spectral_peaks, correlation, along_travel, rms_moving, rms_standstill), "
+                            "best_candidate, best_gap_closed",
                         when="the verdict is `unexplained`"),
     "estimation": JsonKey("", "per estimation record: record, samples, errors before (start model) and after "
                               "(the model found)", when="several records or --validate"),
@@ -92,7 +93,8 @@ JSON_KEYS = {
     "final.noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the noise floor"),
     "final.above_floor": JsonKey("1", "per channel, ratio of the error to the noise floor"),
     "final.at_noise_floor": JsonKey("", "every channel at its noise floor"),
-    "final.end": JsonKey("", "why the chain ended (noise floor reached, no effect pays for its parameters, ...)"),
+    "final.end": JsonKey("", "why the chain ended: `noise floor reached`, `no effect pays for its parameters`, "
+                             "`unexplained`, `no candidate left`, `max steps (N)`"),
     "final.steps": JsonKey("", "number of steps that added effects"),
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
     "report": JsonKey("", "path of the HTML report", when="with --report"),

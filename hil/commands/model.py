@@ -28,7 +28,7 @@ JSON_KEYS = {
     "config": JsonKey("", "path of the config"),
     "actuator": JsonKey("", "`rotary` or `linear`"),
     "pitch_m": JsonKey("m", "screw pitch (table travel per motor turn); null for a linear actuator"),
-    "masses_kg": JsonKey("kg", "the chain's masses m1..mN (the motor's inertia as a mass)"),
+    "masses_kg": JsonKey("kg", "the chain's masses m1..mN (plant.m1..)"),
     "stiffness_N_per_m": JsonKey("N/m", "stiffnesses k1..k(N-1)"),
     "damping_N_s_per_m": JsonKey("N*s/m", "dampings c1..c(N-1)"),
     "viscous_friction_N_s_per_m": JsonKey("N*s/m", "the motor's viscous friction on mass 1, in linear units"),
