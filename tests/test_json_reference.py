@@ -13,6 +13,7 @@ import argparse
 import importlib
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -104,6 +105,8 @@ def test_every_command_with_json_documents_its_keys():
         assert keys and all(isinstance(k, JsonKey) for k in keys.values()), name
         for key, k in keys.items():
             assert k.text.strip() and "\n" not in k.text, (name, key)
+            # Markdown: <word> would be read as an HTML tag, {...} as attributes, outside `code`
+            assert not re.search(r"[<{]", re.sub(r"`[^`]*`", "", k.text + (k.when or ""))), (name, key)
             assert key.split(".")[0].removesuffix("[]") in keys, (name, key)      # a nested key's parent too
 
 

@@ -40,11 +40,11 @@ beside the estimation records' ("estimation" and "validation" in the JSON).
 # checks them against what run() prints)
 CHANNEL_UNIT = "the channel's (m, N*m, N, V)"
 JSON_KEYS = {
-    "verdict": JsonKey("", "the effect the model misses (a catalogue name or parameter:<key>), `none` (the "
+    "verdict": JsonKey("", "the effect the model misses (a catalogue name or `parameter:<key>`), `none` (the "
                            "model matches down to the noise floor) or `unexplained` (above it, and no candidate "
                            "explains it)"),
     "candidates": JsonKey("", "every candidate fitted, best score first (entries candidates[].*)"),
-    "candidates[].effect": JsonKey("", "catalogue effect, a+b combination or parameter:<key>"),
+    "candidates[].effect": JsonKey("", "catalogue effect, `a+b` combination or `parameter:<key>`"),
     "candidates[].params": JsonKey("SI", "fitted parameters by name (units: reference/effects.md)"),
     "candidates[].stderr": JsonKey("SI", "standard error of each fitted parameter (null: none, e.g. at a bound)"),
     "candidates[].channel": JsonKey("", "the channel where the effect shows most (its RMS error falls the most)"),
@@ -81,7 +81,7 @@ JSON_KEYS = {
     "chain[].step": JsonKey("", "step number, from 1"),
     "chain[].effect": JsonKey("", "the step's verdict"),
     "chain[].effects": JsonKey("", "the effects the step added"),
-    "chain[].params": JsonKey("SI", "{effect: {parameter: value}} of everything found so far, after the step"),
+    "chain[].params": JsonKey("SI", "`{effect: {parameter: value}}` of everything found so far, after the step"),
     "chain[].error_before": JsonKey(CHANNEL_UNIT, "per channel, RMS error before the step"),
     "chain[].error_after": JsonKey(CHANNEL_UNIT, "per channel, RMS error after the step"),
     "chain[].gap_closed": JsonKey("1", "per channel, fraction of the gap to the noise floor the step closed"),
