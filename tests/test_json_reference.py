@@ -163,8 +163,12 @@ def test_sweep(capsys, tmp_path):
                             "--no-progress"))
 
 
-def test_frf(capsys, tmp_path):
+def test_frf_and_a_fit_to_its_responses(capsys, tmp_path):
     check("frf", run_json(capsys, "frf", "--config", BENCH, "--periods", "2", "--out", tmp_path))
+    out = run_json(capsys, "fit", tmp_path / "frf.json", "--config", BENCH, "--add", "parameter:plant.c2", "--out",
+                   tmp_path / "c2.toml")
+    assert out["domain"] == "frequency"
+    check("fit", out)
 
 
 def test_compare(capsys, tmp_path, record):
