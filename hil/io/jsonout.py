@@ -3,9 +3,9 @@ numbers to null, so that what a command prints is strict JSON for any parser.
 
 The keys each command prints are data beside the code that prints them: a module-level
 ``JSON_KEYS`` dict of the command's module, key -> :class:`JsonKey` (unit, meaning, when it is
-present). The reference page docs/reference/json.md is generated from those dicts
-(docs/gen_reference.py), and tests/test_json_reference.py runs every command with ``--json`` and
-checks its output against them.
+present). The documentation's page reference/json.md is generated from those dicts when the site
+is built (docs/gen_reference.py), and tests/test_json_reference.py runs every command with
+``--json`` and checks its output against them.
 
 Key names: a top-level key as printed (``verdict``); a key of the entries of a list
 ``candidates[].effect``; a key of a nested object ``final.end``. The convention of every command:
