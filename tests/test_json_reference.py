@@ -6,8 +6,9 @@ Each command runs once through ``hil.cli.main`` on small inputs: the simulated p
 (config/paper_bench.toml), a short record written by ``hil synth``, the simulated CiA 402 drive
 in lockstep on a private virtual CAN channel for ``home``, ``jog``, ``status`` and ``reset`` (as
 tests/test_axis_start.py), ``hil drive-sim`` as a process of its own, and the EMPS record where
-it is present (``--quick --no-diagnose``). Nested keys are checked where they are documented:
-``candidates[].effect`` against every entry of ``candidates``, ``final.end`` against ``final``.
+it is present (``--quick --no-diagnose``; marked slow: about 20 s). Nested keys are checked where
+they are documented: ``candidates[].effect`` against every entry of ``candidates``, ``final.end``
+against ``final``.
 """
 import argparse
 import importlib
@@ -188,6 +189,7 @@ def test_fit(capsys, tmp_path, record):
     check("fit", out)
 
 
+@pytest.mark.slow                  # about 20 s even --quick: the whole chain on 25 000 samples
 @pytest.mark.skipif(not EMPS.exists(), reason=f"EMPS record not present at {EMPS}")
 def test_emps(capsys, tmp_path):
     check("emps", run_json(capsys, "emps", "--data", EMPS, "--config", CONFIG / "emps.toml", "--quick",
