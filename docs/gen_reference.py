@@ -7,6 +7,8 @@
   parameters, their units, bounds and starting guesses;
 - ``reference/commands.md``: every command's usage and options, from the argparse parsers of
   :mod:`hil.cli` and ``hil/commands/*``;
+- ``reference/json.md``: every key each command prints with ``--json``, its unit and when it is
+  there, from the ``JSON_KEYS`` of the command modules (:class:`hil.io.jsonout.JsonKey`);
 - ``changelog.md``: the project's ``CHANGELOG.md``, so that the site shows it.
 
 Two ways to run it: as an MkDocs hook (``hooks:`` in mkdocs.yml; the pages are added to the build,
@@ -257,13 +259,83 @@ def commands_reference() -> str:
             os.environ["COLUMNS"] = old
 
 
+# -- JSON output ---------------------------------------------------------------------------------------
+
+# where the guide explains a command's output in words (a link beside its keys)
+JSON_GUIDES = {
+    "compare": ("Model against measurement", "../guide/model-against-measurement.md"),
+    "diagnose": ("Model against measurement, JSON", "../guide/model-against-measurement.md#json-hil-diagnose-json"),
+    "fit": ("Model against measurement", "../guide/model-against-measurement.md"),
+    "synth": ("Model against measurement on a record", "../tutorials/model-against-measurement.md"),
+    "emps": ("EMPS, end to end", "../background/emps.md"),
+    "frf": ("Frequency responses", "../guide/frf.md"),
+    "model": ("The model", "../guide/model.md"),
+    "move": ("Safety (the status and reason of a run)", "../guide/safety.md"),
+    "sweep": ("Jerk sweeps", "../guide/sweep.md"),
+    "jog": ("CANopen", "../guide/canopen.md"),
+    "home": ("CANopen", "../guide/canopen.md"),
+    "status": ("CANopen", "../guide/canopen.md"),
+    "reset": ("CANopen", "../guide/canopen.md"),
+    "drive-sim": ("CANopen", "../guide/canopen.md"),
+}
+
+
+def json_keys() -> dict:
+    """{command: (its JSON_KEYS, its JSON_NOTE or "")} of every command whose module documents its
+    ``--json`` output, in the order of ``hil --help``."""
+    import importlib
+
+    from hil.cli import COMMANDS
+    out = {}
+    for name, modname in COMMANDS.items():
+        mod = importlib.import_module(modname)
+        keys = getattr(mod, "JSON_KEYS", None)
+        if keys:
+            out[name] = (keys, getattr(mod, "JSON_NOTE", ""))
+    return out
+
+
+def json_reference() -> str:
+    docs = json_keys()
+    out = ["# JSON output", "", GENERATED_NOTE,
+           "Every command prints its result as one JSON object on stdout with `--json` (progress and messages "
+           "go to stderr; errors stay one line on stderr, with the exit code of their kind: "
+           "[Safety](../guide/safety.md)). Values are SI unless the key carries its unit "
+           "(`overshoot_tip_um`, `modes_hz`, `estimate_error_pct`, `answer_p99_us`); the unit column says it "
+           "for every number (for a list or an object, the units of its members). A number that is not "
+           "finite is `null`.", "",
+           "A run that did not complete says so in `status` (`tripped`, `fault`, `aborted`) and `reason`, "
+           "and its record's `<name>.json` beside the CSV says the same.", "",
+           "How to read the tables: `candidates[].effect` is a key of every entry of the list `candidates`, "
+           "`final.end` a key of the object `final`; *when* says when a key is there (blank: in every "
+           "run of the command). The keys are data beside the code that prints them (`JSON_KEYS` in "
+           "`hil/commands/*.py`), and a test runs every command with `--json` against them.", "",
+           "| command | explained in |", "|---|---|"]
+    for name in docs:
+        guide = JSON_GUIDES.get(name)
+        link = f"[{guide[0]}]({guide[1]})" if guide else "-"
+        out.append(f"| [`hil {name} --json`](#hil-{name}) | {link} |")
+    for name, (keys, note) in docs.items():
+        out += ["", f"## hil {name}", ""]
+        guide = JSON_GUIDES.get(name)
+        if guide:
+            out += [f"Explained in [{guide[0]}]({guide[1]}).", ""]
+        if note:
+            out += [note.strip(), ""]
+        out += ["| key | unit | when | meaning |", "|---|---|---|---|"]
+        for key, k in keys.items():
+            out.append(f"| `{key}` | {_cell(k.unit) or '-'} | {_cell(k.when or '')} | {_cell(k.text)} |")
+    return "\n".join(out) + "\n"
+
+
 def changelog() -> str:
     text = (ROOT / "CHANGELOG.md").read_text(encoding="utf-8")
     return text.replace("](docs/", "](")
 
 
 PAGES = {"reference/config.md": config_reference, "reference/effects.md": effects_reference,
-         "reference/commands.md": commands_reference, "changelog.md": changelog}
+         "reference/commands.md": commands_reference, "reference/json.md": json_reference,
+         "changelog.md": changelog}
 
 
 # -- MkDocs hook -----------------------------------------------------------------------------------------

@@ -4,7 +4,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 from pathlib import Path
 
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 
 HELP = "model against measurement: errors per channel and motion phase, residual analysis, plots, HTML report"
 DESCRIPTION = """\
@@ -22,6 +22,29 @@ embedded).
   hil compare log.txt --config lina.toml --map "data[:,0]=t[ms],data[:,1]=x_cmd[mm],data[:,3]=x_motor[mm]"
   hil compare data.csv --config old.toml --after new.toml     (before and after side by side)
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+CHANNEL_UNIT = "the channel's (m, N*m, N, V)"
+JSON_KEYS = {
+    "before": JsonKey("", "the analysis of the --config model against the record (keys before.*)"),
+    "after": JsonKey("", "the same analysis of the --after model; null without --after"),
+    "report": JsonKey("", "path of the self-contained report.html"),
+    "figures": JsonKey("", "paths of the PNG figures written to --out"),
+    "warnings": JsonKey("", "what deserves a look in the record (outliers, gaps, a slow log), one sentence each"),
+    "before.channels": JsonKey(CHANNEL_UNIT, "per compared channel: rms, peak and noise_floor of the residual (the "
+                                             "channel's SI unit, named by unit), fit (NRMSE fit, %), relative_error "
+                                             "(%), for positions overshoot_difference, following_error_rms_measured "
+                                             "and _simulated (m); phase_rms (per motion phase), spectrum_peaks "
+                                             "(frequency Hz, amplitude), whiteness (band_99, fraction_outside, white), "
+                                             "cross_correlation_command (max, lag_s, band_99), correlation "
+                                             "coefficients with velocity, acceleration, position, sign_velocity"),
+    "before.phases": JsonKey("", "the motion phases the error is split into (names)"),
+    "before.sample_period": JsonKey("s", "sample period of the record"),
+    "before.shifts": JsonKey("samples", "per channel, the time shift --align applied (empty without it)"),
+    "before.inputs": JsonKey("", "what drives the replay besides the command (open loop, u_add), in words"),
+}
 
 
 def add_common(parser, records: bool = False) -> None:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from hil.commands.compare import add_common, load_records, make_records, make_replay
 from hil.errors import UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 
 HELP = "rank the catalogue's effects by how much of the model error each explains"
 DESCRIPTION = """\
@@ -34,6 +34,71 @@ beside the estimation records' ("estimation" and "validation" in the JSON).
 
   hil diagnose up.csv down.csv --config axis.toml --validate mixed.csv --json
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+CHANNEL_UNIT = "the channel's (m, N*m, N, V)"
+JSON_KEYS = {
+    "verdict": JsonKey("", "the effect the model misses (a catalogue name or `parameter:<key>`), `none` (the "
+                           "model matches down to the noise floor) or `unexplained` (above it, and no candidate "
+                           "explains it)"),
+    "candidates": JsonKey("", "every candidate fitted, best score first (entries candidates[].*)"),
+    "candidates[].effect": JsonKey("", "catalogue effect, `a+b` combination or `parameter:<key>`"),
+    "candidates[].params": JsonKey("SI", "fitted parameters by name (units: reference/effects.md)"),
+    "candidates[].stderr": JsonKey("SI", "standard error of each fitted parameter (null: none, e.g. at a bound)"),
+    "candidates[].channel": JsonKey("", "the channel where the effect shows most (its RMS error falls the most)"),
+    "candidates[].error_before": JsonKey(CHANNEL_UNIT, "RMS error of that channel before the fit"),
+    "candidates[].error_after": JsonKey(CHANNEL_UNIT, "RMS error of that channel after the fit"),
+    "candidates[].score": JsonKey("", "the fall of the BIC (significant above 6)"),
+    "candidates[].evidence": JsonKey("", "where the effect shows in the residual, one sentence"),
+    "candidates[].gain": JsonKey("1", "fraction of the weighted residual energy removed"),
+    "candidates[].significant": JsonKey("", "score above 6 and the error above the noise floor"),
+    "also_missing": JsonKey("", "effects missing beside the verdict (a preferred combination's other members): "
+                                "effect, params (SI), score (the BIC fall when it is left out), significant, "
+                                "evidence"),
+    "combinations": JsonKey("", "simpler effects fitted jointly against a richer one they can mimic: effects, "
+                                "explains, preferred, score, rich_against_combination, explained (fraction), "
+                                "rich_score, params (SI), channel, error_before, error_after, evidence, members"),
+    "joint_candidates": JsonKey("", "pairs of friction or force effects fitted together: effects, preferred, score, "
+                                    "second_member_score, best_single, best_single_score, gain (fraction), params"),
+    "noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the RMS noise floor of the record (units: units.noise_floor)"),
+    "noise_floor_source": JsonKey("", "per channel, where the floor comes from: `given` (config or file header), "
+                                      "`quantization`, `standstill (N samples)` or the third-difference fallback"),
+    "error_before": JsonKey(CHANNEL_UNIT, "per channel, the RMS error of the start model"),
+    "gap_closed": JsonKey("1", "fraction of the gap between the error and the noise floor the leading candidate "
+                               "closes"),
+    "units": JsonKey("", "the SI unit of each channel of noise_floor and error_before"),
+    "residual": JsonKey("", "where the residual lives: channels, worst first (channel, unit, rms, noise_floor, "
+                            "above_floor, spectral_peaks, correlation, along_travel, rms_moving, rms_standstill), "
+                            "best_candidate, best_gap_closed",
+                        when="the verdict is `unexplained`"),
+    "estimation": JsonKey("", "per estimation record: record, samples, errors before (start model) and after "
+                              "(the model found)", when="several records or --validate"),
+    "validation": JsonKey("", "the same for each --validate record", when="several records or --validate"),
+    "chain": JsonKey("", "one entry per step that added effects (entries chain[].*)",
+                     when="the chain (not --no-chain or --max-steps 1)"),
+    "chain[].step": JsonKey("", "step number, from 1"),
+    "chain[].effect": JsonKey("", "the step's verdict"),
+    "chain[].effects": JsonKey("", "the effects the step added"),
+    "chain[].params": JsonKey("SI", "`{effect: {parameter: value}}` of everything found so far, after the step"),
+    "chain[].error_before": JsonKey(CHANNEL_UNIT, "per channel, RMS error before the step"),
+    "chain[].error_after": JsonKey(CHANNEL_UNIT, "per channel, RMS error after the step"),
+    "chain[].gap_closed": JsonKey("1", "per channel, fraction of the gap to the noise floor the step closed"),
+    "chain[].score": JsonKey("", "the step's BIC fall"),
+    "chain[].evidence": JsonKey("", "the verdict's evidence, one sentence"),
+    "chain[].refitted_together": JsonKey("", "everything found so far was refitted together at this step"),
+    "final": JsonKey("", "the end of the chain (keys final.*)", when="the chain (not --no-chain or --max-steps 1)"),
+    "final.error": JsonKey(CHANNEL_UNIT, "per channel, RMS error of the model with the chain"),
+    "final.noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the noise floor"),
+    "final.above_floor": JsonKey("1", "per channel, ratio of the error to the noise floor"),
+    "final.at_noise_floor": JsonKey("", "every channel at its noise floor"),
+    "final.end": JsonKey("", "why the chain ended: `noise floor reached`, `no effect pays for its parameters`, "
+                             "`unexplained`, `no candidate left`, `max steps (N)`"),
+    "final.steps": JsonKey("", "number of steps that added effects"),
+    "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
+    "report": JsonKey("", "path of the HTML report", when="with --report"),
+}
 
 
 def add_arguments(parser) -> None:

@@ -8,7 +8,7 @@ import sys
 import time
 
 from hil.errors import UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 
 HELP = "run the simulated CiA 402 drive on a socketcand server on 127.0.0.1 (for --backend canopen)"
 DESCRIPTION = """Run the simulated CiA 402 servo drive (the config's plant as its shaft, the object
@@ -41,6 +41,27 @@ no heartbeat, ever).
 CiA 406-like linear encoder (drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
 its TPDO1 on every SYNC.
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints): two JSON lines, the connection settings when the drive
+# is up, the answer times when it stops
+_LAST = "the last line, when the drive stops"
+JSON_NOTE = ("Two lines: the first, as soon as the drive is up, says where to connect; the last, when it stops, "
+             "how soon it answered each SYNC.")
+JSON_KEYS = {
+    "interface": JsonKey("", "`socketcand` (python-can's interface for the host)"),
+    "host": JsonKey("", "127.0.0.1"),
+    "port": JsonKey("", "the TCP port served (--port 0: the free one taken)"),
+    "channel": JsonKey("", "the bus name clients open"),
+    "node_id": JsonKey("", "the drive's node id"),
+    "tip_node_id": JsonKey("", "the tip sensor's node id (null: none)"),
+    "syncs": JsonKey("", "SYNCs answered", when=_LAST),
+    "answer_p50_us": JsonKey("us", "median time from a SYNC taken off the bus to its TPDOs written",
+                             when=_LAST + ", after a SYNC"),
+    "answer_p99_us": JsonKey("us", "99th percentile of that time", when=_LAST + ", after a SYNC"),
+    "answer_max_us": JsonKey("us", "largest", when=_LAST + ", after a SYNC"),
+}
 
 
 def add_arguments(p) -> None:

@@ -6,7 +6,7 @@ import shutil
 from pathlib import Path
 
 from hil.errors import UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.io.safe_write import write_atomic
 
 HELP = "EMPS record: effects added one by one, fitted parameters and errors beside the published reference"
@@ -27,6 +27,36 @@ beside the published validation figures (position 0.0080 %, force 8.94 %).
 
   hil emps --data DATA_EMPS.mat --validate DATA_EMPS_PULSES.mat --out out/emps
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints). The errors are the benchmark's: relative 2-norm errors in %.
+_PARAMS = ("M (kg), Fv (N*s/m), Fc (N), offset (N), and level_pos, level_neg (N), viscous_pos, "
+           "viscous_neg (N*s/m) when the model has asymmetric friction")
+JSON_KEYS = {
+    "rows": JsonKey("", "the table: one row per model, from the published reference to the fitted ones "
+                        "(entries rows[].*)"),
+    "rows[].step": JsonKey("", "the model, in words"),
+    "rows[].short": JsonKey("", "a short label (figures)", when="every row but the published reference"),
+    "rows[].params": JsonKey("kg, N*s/m, N", "the rigid model's parameters in the benchmark's names: " + _PARAMS),
+    "rows[].position": JsonKey("%", "relative error of the position qm"),
+    "rows[].velocity": JsonKey("%", "relative error of the velocity the controller sees"),
+    "rows[].force": JsonKey("%", "relative error of the force gtau*vir"),
+    "rows[].inverse_force": JsonKey("%", "relative error of the inverse model on the force",
+                                    when="the inverse-model rows (IDIM-LS, + asymmetric_friction)"),
+    "rows[].inverse_params": JsonKey("kg, N*s/m, N", "the asymmetric inverse model's M, Fv+, Fv-, Fc+, Fc-",
+                                     when="the + asymmetric_friction row"),
+    "published": JsonKey("kg, N*s/m, N, %", "the published IDIM-LS model (Janot et al. 2019): M, Fv, Fc, offset, "
+                                            "and its errors (position, velocity, force, %)"),
+    "check": JsonKey("%, N", "the output-error fit against the published: deviation (M, Fv, Fc in %, offset_N in N), "
+                             "within_5_percent_and_0.5_N, errors_match_or_beat_published"),
+    "diagnosis": JsonKey("", "each diagnosis of the chain: on (the model), verdict, ranking (effect, score, "
+                             "significant, evidence), also_missing, combinations; empty with --no-diagnose"),
+    "out": JsonKey("", "the output folder (--out)"),
+    "validation": JsonKey("%", "per fitted model on each --validate record: model, record, position, velocity, "
+                               "force; empty without --validate"),
+    "published_validation": JsonKey("%", "the published validation errors: position, force"),
+}
 
 
 def add_arguments(parser) -> None:

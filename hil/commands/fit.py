@@ -6,7 +6,7 @@ from pathlib import Path
 
 from hil.commands.compare import add_common, load_records, make_records, make_replay
 from hil.errors import UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 
 HELP = "fit one or more effects (or parameter:<key>) to a measurement and write the new config"
 DESCRIPTION = """\
@@ -33,6 +33,37 @@ estimation records' (System Identification practice: estimation and validation d
 An effect that makes the (weighted) error worse is refused: nothing is written, one line says
 which and by how much, and the exit status is 2 (with --json the object says "written": false).
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+CHANNEL_UNIT = "the channel's (m, N*m, N, V)"
+_RECORD = "records (not an frf.json)"
+_FRF = "an frf.json of hil frf"
+JSON_KEYS = {
+    "config": JsonKey("", "path of the new config (--out)"),
+    "error_before": JsonKey(CHANNEL_UNIT, "per channel, RMS error of the start model (frf.json: a number, the RMS "
+                                          "weighted log error, dimensionless)"),
+    "error_after": JsonKey(CHANNEL_UNIT, "the same for the config as written (its values rounded to their standard "
+                                         "errors)"),
+    "written": JsonKey("", "the config was written (false: an effect made the error worse, exit 2)", when=_RECORD),
+    "steps": JsonKey("", "each --add fit in turn, then the joint refit: effect, params (SI), stderr (SI), channel, "
+                         "error_before, error_after, score, evidence, gain, significant (as diagnose's "
+                         "candidates[])", when=_RECORD),
+    "fitted": JsonKey("SI", "per written config key: value, stderr (standard error) and unit (its SI unit)",
+                      when=_RECORD),
+    "records": JsonKey("", "the estimation records", when=_RECORD),
+    "units": JsonKey("", "the SI unit of each channel of error_before and error_after", when=_RECORD),
+    "estimation": JsonKey("", "per estimation record: record, samples, errors before and after (as diagnose's)",
+                          when=_RECORD),
+    "validation": JsonKey("", "the same for each --validate record (empty without)", when=_RECORD),
+    "refused": JsonKey("", "the effects that made the error worse: effects, weighted_error_ratio, message",
+                       when="the fit was refused (written false)"),
+    "domain": JsonKey("", "`frequency`", when=_FRF),
+    "effect": JsonKey("", "the effects fitted together", when=_FRF),
+    "params": JsonKey("SI", "fitted parameters by name", when=_FRF),
+    "per_response": JsonKey("1", "per response, the RMS log error before and after", when=_FRF),
+}
 
 
 def add_arguments(parser) -> None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from hil.config import load, parse_assignment
 from hil.errors import BackendError, BackendFault, RunStopped, UnitError, UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.io.safe_write import save_figure, write_atomic
 from hil.supervisor import Supervisor, refuse_if_tripped
 from hil.units import parse, parse_angle_deg, parse_gain_db
@@ -30,6 +30,33 @@ filter suggestions, acceleration feed-forward effect; a config diff (never appli
 --set changes the config (the model and, on the simulated backend, the plant); --sim-set
 changes only the simulated plant (to rehearse finding a wrong parameter).
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints). frf.json in --out holds the same, without plots and report.
+JSON_KEYS = {
+    "responses": JsonKey("", "per response (TF1p, TF2, TF3, tip, Lv, Tv, Lp, Tp, those measured): frequency_hz, "
+                             "magnitude and magnitude_std (in its unit), phase_deg, coherence, derived, title, "
+                             "unit (rad/s per N m, m/s per N m, or 1), model_magnitude, model_phase_deg"),
+    "modes": JsonKey("", "one entry per fitted mode (entries modes[].*)"),
+    "modes[].mode": JsonKey("", "the mode's number in the chain (2: the first elastic one)"),
+    "modes[].response": JsonKey("", "the response it was fitted in"),
+    "modes[].measured": JsonKey("Hz, 1", "fit of the measured peak: frequency_hz, damping_ratio, frequency_std_hz, "
+                                         "damping_std, response"),
+    "modes[].model": JsonKey("Hz, 1", "the same fit on the model's response: frequency_hz, damping_ratio"),
+    "modes[].model_eigen": JsonKey("Hz, 1", "the model's eigenvalue: frequency_hz, damping_ratio"),
+    "discrepancies": JsonKey("", "one sentence per discrepancy, naming the parameter to change"),
+    "suggested_changes": JsonKey("SI", "config key -> [present value, suggested value] (never applied)"),
+    "tuning": JsonKey("Hz, deg, dB", "velocity_loop and position_loop (crossover_hz, phase_margin_deg, "
+                                     "gain_margin_db, phase_crossover_hz, bandwidth_hz, kp_max N*m*s/rad or kv_max "
+                                     "1/s with at_kp_max/at_kv_max), filters (mode_hz, loop_gain_db, notch_hz, ...), "
+                                     "acceleration_feed_forward (error_per_acc_now, error_per_acc_with_ff in "
+                                     "m/(m/s^2), acc_ff_now), config_diff (text)"),
+    "warnings": JsonKey("", "what limits the measurement (saturation, low coherence), one sentence each"),
+    "excitation": JsonKey("s", "signal, input, period_s, periods, lines, saturated_periods, backend"),
+    "plots": JsonKey("", "paths of the figures: bode_plant, bode_loops, coherence"),
+    "report": JsonKey("", "path of report.html"),
+}
 
 
 def add_arguments(p) -> None:

@@ -1,7 +1,7 @@
 """``hil home``: CiA 402 homing (mode 6) on the drive."""
 from __future__ import annotations
 
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.units import parse
 
 HELP = "home the CANopen drive (homing mode 6; method 37: the present position becomes --offset)"
@@ -9,6 +9,16 @@ DESCRIPTION = """Home the drive: homing mode (6) with the method given (default 
 on the present position': no motion, the present position becomes the home offset 0x607C).
 Other methods are the drive's own; the simulated drive knows 35 and 37.
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+JSON_KEYS = {
+    "homed": JsonKey("", "true: homing attained"),
+    "method": JsonKey("", "the homing method used (0x6098)"),
+    "position_m": JsonKey("m", "the drive's position after homing"),
+    "tip_m": JsonKey("m", "the tip sensor's position after homing", when="with a tip sensor node"),
+}
 
 
 def add_arguments(p) -> None:

@@ -1,7 +1,7 @@
 """``hil jog``: a short relative move from where the axis is, supervised."""
 from __future__ import annotations
 
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.units import parse
 
 HELP = "jog the axis by a distance from its present position (CANopen backend by default, supervised)"
@@ -11,6 +11,18 @@ motion, the supervisor watching every cycle). A latched trip refuses it until 'h
 
   hil jog --config config/paper_bench_canopen.toml --distance 5mm --speed 600mm/min
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+JSON_KEYS = {
+    "start_m": JsonKey("m", "where the axis stood"),
+    "end_m": JsonKey("m", "where the table stopped"),
+    "status": JsonKey("", "`complete`, `tripped`, `fault` or `aborted`"),
+    "reason": JsonKey("", "why it did not complete (empty when complete)"),
+    "ok": JsonKey("", "true: nothing to move", when="a distance below the axis resolution"),
+    "moved": JsonKey("", "false: nothing was sent", when="a distance below the axis resolution"),
+}
 
 
 def add_arguments(p) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.io.safe_write import save_figure
 
 HELP = "model summary: modes, damping ratios, Bode plots of TF1, TF2, TF3"
@@ -18,6 +18,30 @@ and TF3 = x3/x2 (no TF3 for a 2-dof chain) to --out.
   hil model --config config/paper_bench.toml
   hil model --config config/paper_bench.toml --set plant.c2=33 --json
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+_CHAIN = "a chain of 2 masses or more"
+JSON_KEYS = {
+    "name": JsonKey("", "meta.name of the config"),
+    "config": JsonKey("", "path of the config"),
+    "actuator": JsonKey("", "`rotary` or `linear`"),
+    "pitch_m": JsonKey("m", "screw pitch (table travel per motor turn); null for a linear actuator"),
+    "masses_kg": JsonKey("kg", "the chain's masses m1..mN (plant.m1..)"),
+    "stiffness_N_per_m": JsonKey("N/m", "stiffnesses k1..k(N-1)"),
+    "damping_N_s_per_m": JsonKey("N*s/m", "dampings c1..c(N-1)"),
+    "viscous_friction_N_s_per_m": JsonKey("N*s/m", "the motor's viscous friction on mass 1, in linear units"),
+    "modes_hz": JsonKey("Hz", "undamped frequencies of the elastic modes"),
+    "damping_ratios": JsonKey("1", "modal damping ratios of the chain alone"),
+    "damping_ratios_with_friction": JsonKey("1", "the same with the motor's viscous friction"),
+    "damped_modes_hz": JsonKey("Hz", "frequencies of the damped eigenvalues, friction included", when=_CHAIN),
+    "damped_ratios": JsonKey("1", "damping ratios of the damped eigenvalues", when=_CHAIN),
+    "plot": JsonKey("", "path of the Bode plots of TF1, TF2, TF3"),
+    "closed_loop": JsonKey("Hz, dB", "the closed position loop: stable, spectral_radius, bandwidth_hz and "
+                                     "peak_gain_db (table_ff, table_no_ff, tip_ff, ...), plot",
+                           when="with --closed-loop"),
+}
 
 
 def add_arguments(parser) -> None:

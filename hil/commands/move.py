@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 from hil import config as config_mod
 from hil.errors import UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.units import parse
 
 if TYPE_CHECKING:
@@ -29,6 +29,48 @@ stand within limits.start_window (0.1 mm) of it, else the move is refused. A tri
 example:
   hil move --config config/paper_bench.toml --stroke 100mm --feed 7000mm/min --tacc 200ms
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+_DONE = "the move completed"
+_STOPPED = "the move did not complete"
+JSON_NOTE = ("`--check` prints only `ok`, `j_max`, `a_max`, `peak_speed`, `duration`, `reduced_peak_speed` and "
+             "`units`; a stroke below the axis resolution prints `ok`, `moved` (false) and `reason`.")
+JSON_KEYS = {
+    "status": JsonKey("", "`complete`, or how the run ended: `tripped`, `fault`, `aborted`"),
+    "reason": JsonKey("", "why it did not complete (empty when complete)"),
+    "record": JsonKey("", "path of the record (move.csv)"),
+    "plot": JsonKey("", "path of move.png"),
+    "backend": JsonKey("", "the backend it ran on"),
+    "start_m": JsonKey("m", "where the move started (on an axis: where it stood)"),
+    "overshoot_table_um": JsonKey("um", "overshoot of the table past the target", when=_DONE),
+    "overshoot_tip_um": JsonKey("um", "overshoot of the tool tip past the target", when=_DONE),
+    "peak_following_error_table_um": JsonKey("um", "largest |x_cmd - x_table|", when=_DONE),
+    "peak_following_error_tip_um": JsonKey("um", "largest |x_cmd - x_tip|", when=_DONE),
+    "residual_tip_um": JsonKey("um", "half the peak-to-peak tip motion after the command ended", when=_DONE),
+    "settling_time_table": JsonKey("s", "from the end of the command until the table stays within --band; null: "
+                                        "never settled in the record", when=_DONE),
+    "settling_time_tip": JsonKey("s", "the same for the tip", when=_DONE),
+    "settle_band_um": JsonKey("um", "the settling band (--band)", when=_DONE),
+    "peak_torque": JsonKey("N*m or N", "largest motor torque (rotary) or force (linear)", when=_DONE),
+    "j_max": JsonKey("m/s^3", "peak jerk of the move", when=_DONE + ", or --check"),
+    "a_max": JsonKey("m/s^2", "peak acceleration", when=_DONE + ", or --check"),
+    "peak_speed": JsonKey("m/s", "peak speed (below the feed when the stroke is too short)",
+                          when=_DONE + ", or --check"),
+    "t_acc": JsonKey("s", "NC acceleration time (null when not given by --tacc)", when=_DONE),
+    "units": JsonKey("", "the SI unit of each key that does not name its own", when=_DONE + ", or --check"),
+    "stop": JsonKey("", "the kind of stop: `drive_fault`, `trip` (the supervisor), `link` (lost communication), "
+                        "`overrun`, `interrupt`",
+                    when=_STOPPED),
+    "exit_code": JsonKey("", "the exit code of that kind: 1, 3, 4, 5, 130", when=_STOPPED),
+    "stopped_at_s": JsonKey("s", "time of the record's last sample", when=_STOPPED),
+    "ok": JsonKey("", "true: the move fits the limits (or there is nothing to move)",
+                  when="with --check, or a stroke below the resolution"),
+    "duration": JsonKey("s", "duration of the whole trajectory", when="with --check"),
+    "reduced_peak_speed": JsonKey("", "the stroke is too short to reach the feed", when="with --check"),
+    "moved": JsonKey("", "false: nothing was sent", when="a stroke below the resolution"),
+}
 
 
 def add_common(p, backend: bool = True, can: bool = True) -> None:

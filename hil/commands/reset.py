@@ -1,7 +1,7 @@
 """``hil reset``: CiA 402 fault reset on the drive and the supervisor's latch cleared."""
 from __future__ import annotations
 
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 
 HELP = "reset a drive fault (controlword bit 7) and clear the supervisor's latched trip"
 DESCRIPTION = """Send FAULT RESET (controlword 0x0080, rising edge) to the drive and clear the
@@ -9,6 +9,16 @@ supervisor's latch (latch.json in the state directory, $HIL_STATE_DIR or
 $XDG_STATE_HOME/compliant-axis-hil, or supervisor.latch_file), so that motion is allowed again. Find and fix
 the cause first: 'hil status' shows the error code and the trip reason.
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+_CO = "the canopen backend, without --supervisor-only"
+JSON_KEYS = {
+    "supervisor_was": JsonKey("", "the latch before the reset: `clear` or `tripped at TIME: REASON`"),
+    "error_code": JsonKey("", "the drive's error code 0x603F before the reset, hexadecimal", when=_CO),
+    "state": JsonKey("", "the drive's CiA 402 state after the fault reset", when=_CO),
+}
 
 
 def add_arguments(p) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 
 from hil.errors import ConfigError, UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 
 HELP = "show the supervisor's latched trip and the CANopen drive's state, position, error code (no motion)"
 DESCRIPTION = """Connect to the drive (the config's [canopen] section, or --set canopen.*) without
@@ -14,6 +14,26 @@ backend).
 
   hil status --config config/paper_bench_canopen.toml --set canopen.interface=socketcand --set canopen.channel=can0
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+_CO = "the canopen backend"
+JSON_KEYS = {
+    "supervisor": JsonKey("", "the supervisor's latch: tripped, reason, time (UTC), latch_file"),
+    "node": JsonKey("", "the drive's node id", when=_CO),
+    "nmt": JsonKey("", "its NMT state", when=_CO),
+    "state": JsonKey("", "its CiA 402 state (OPERATION ENABLED, FAULT, ...)", when=_CO),
+    "statusword": JsonKey("", "statusword 0x6041, hexadecimal", when=_CO),
+    "mode": JsonKey("", "the backend's mode of operation (csp, cst, ...)", when=_CO),
+    "position_m": JsonKey("m", "position actual value 0x6064 (motor)", when=_CO),
+    "table_m": JsonKey("m", "the table's position (0x60E4)", when=_CO),
+    "error_code": JsonKey("", "error code 0x603F, hexadecimal", when=_CO),
+    "emcy": JsonKey("", "the last EMCY messages received", when=_CO),
+    "tip_node": JsonKey("", "the tip sensor's node id", when=_CO + ", with a tip sensor node"),
+    "tip_m": JsonKey("m", "the tip sensor's position (or why it did not answer)",
+                     when=_CO + ", with a tip sensor node"),
+}
 
 
 def add_arguments(p) -> None:

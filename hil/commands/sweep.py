@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from hil.errors import LimitError, UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.io.safe_write import save_figure, write_atomic
 from hil.units import SI_UNIT, parse, parse_list
 
@@ -42,6 +42,68 @@ CSV_FIELDS = ("model", "analysis", "grid", "j_max", "a_max", "t_acc", "peak_spee
               "overshoot_table_um", "overshoot_tip_um", "peak_following_error_table_um",
               "peak_following_error_tip_um", "residual_tip_um", "settling_time_table", "settling_time_tip",
               "peak_torque", "f_dom_tip_hz")
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints). sweep.json in --out holds the same.
+_TOL = "with --tolerance"
+_CMP = "with --compare"
+_CMP_TOL = "with --compare and --tolerance"
+_RUN = "runs[]"
+JSON_KEYS = {
+    "config": JsonKey("", "path of the config"),
+    "name": JsonKey("", "meta.name of the config"),
+    "move": JsonKey("m, m/s, s", "the moves: stroke_m, feed_m_per_s, g0_m_per_s, dwell_s, record_period_s, swept "
+                                 "(`j_max` or `t_acc`)"),
+    "analysis": JsonKey("", "`mechatronic`, `transmission` or `both` (--analysis)"),
+    "runs": JsonKey("", "one entry per run of the primary analysis, by jerk (entries runs[].*); refinement and "
+                        "proposal runs are not in it"),
+    f"{_RUN}.j_max": JsonKey("m/s^3", "peak jerk"),
+    f"{_RUN}.a_max": JsonKey("m/s^2", "peak acceleration"),
+    f"{_RUN}.t_acc": JsonKey("s", "NC acceleration time (from G0; null without G0)"),
+    f"{_RUN}.peak_speed": JsonKey("m/s", "peak speed"),
+    f"{_RUN}.ramp_time": JsonKey("s", "duration of one acceleration ramp"),
+    f"{_RUN}.duration": JsonKey("s", "duration of the move"),
+    f"{_RUN}.overshoot_table_um": JsonKey("um", "overshoot of the table (whole move and dwell, floored at 0)"),
+    f"{_RUN}.overshoot_tip_um": JsonKey("um", "overshoot of the tool tip"),
+    f"{_RUN}.peak_following_error_table_um": JsonKey("um", "largest |x_cmd - x_table|"),
+    f"{_RUN}.peak_following_error_tip_um": JsonKey("um", "largest |x_cmd - x_tip|"),
+    f"{_RUN}.residual_tip_um": JsonKey("um", "half the peak-to-peak tip motion in the dwell"),
+    f"{_RUN}.settling_time_table": JsonKey("s", "until the table stays within 1 um (null: not settled)"),
+    f"{_RUN}.settling_time_tip": JsonKey("s", "the same for the tip"),
+    f"{_RUN}.peak_torque": JsonKey("N*m or N", "largest motor torque (rotary) or force (linear)"),
+    f"{_RUN}.f_dom_tip_hz": JsonKey("Hz", "dominant frequency of the tip's residual vibration (null: too little)"),
+    f"{_RUN}.refine": JsonKey("", "a refinement or proposal run (false in runs: the grid)"),
+    "runs_transmission": JsonKey("", "the transmission analysis' runs, as runs", when="--analysis both"),
+    "tolerance_um": JsonKey("um", "the tip overshoot tolerance", when=_TOL),
+    "max_jerk": JsonKey("m/s^3", "the most conservative largest jerk keeping the tip overshoot within the "
+                                 "tolerance (null: none in the range)", when=_TOL),
+    "max_jerk_t_acc": JsonKey("s", "the NC acceleration time of max_jerk (null without G0)", when=_TOL),
+    "admissible": JsonKey("m/s^3", "every admissible jerk interval [low, high]", when=_TOL),
+    "verification": JsonKey("um", "the check of max_jerk by runs just below it: runs, spacing_rel, "
+                                  "largest_overshoot_um, moved, peaks (j_max, overshoot_tip_um), bracket_rel; "
+                                  "null when not checked", when=_TOL),
+    "compare_config": JsonKey("", "path of the compared config", when=_CMP),
+    "compare_name": JsonKey("", "its meta.name", when=_CMP),
+    "compare_runs": JsonKey("", "its runs, as runs", when=_CMP),
+    "compare_runs_transmission": JsonKey("", "its transmission runs", when="--compare and --analysis both"),
+    "max_jerk_compare": JsonKey("m/s^3", "max_jerk of the compared model", when=_CMP_TOL),
+    "admissible_compare": JsonKey("m/s^3", "its admissible intervals", when=_CMP_TOL),
+    "verification_compare": JsonKey("um", "its verification", when=_CMP_TOL),
+    "estimate_error_pct": JsonKey("%", "100 (max_jerk_compare - max_jerk) / max_jerk_compare: how far the compared "
+                                       "model's estimate is off", when=_CMP_TOL),
+    "dominant_frequency_hz": JsonKey("Hz", "median dominant tip frequency of the runs (null: no vibration)"),
+    "local_minima": JsonKey("m/s^3, um, s", "overshoot dips: j_max, t_acc, overshoot_tip_um, ramp_time, and f_dom_hz, "
+                                            "cycles, explanation (f_dom T_r = k + 1/2)"),
+    "predicted_cancellation": JsonKey("m/s^3, s", "jerks where the ramp cancels the dominant vibration: k, cycles, "
+                                                  "ramp_time, j_max"),
+    "proposal": JsonKey("m/s^3, s, um", "the jerk minimizing the tip overshoot within the time budget: j_max, t_acc, "
+                                        "a_max, duration, overshoot_tip_um, overshoot_table_um, residual_tip_um, "
+                                        "budget_s, fastest_s, analysis (or j_max null and a note)"),
+    "note": JsonKey("", "what could not be answered, in words (null: nothing)"),
+    "stats": JsonKey("", "computed and reused (from runs.jsonl) runs"),
+    "files": JsonKey("", "paths written: csv, json, runs, plot (unless --no-plot), report"),
+}
 
 
 def add_arguments(p) -> None:

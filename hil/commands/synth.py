@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from hil.errors import UserError
-from hil.io.jsonout import dumps
+from hil.io.jsonout import JsonKey, dumps
 from hil.units import DIMENSIONS, SI_UNIT
 
 HELP = "synthetic measurement with a hidden effect (0.5 um quantization, noise, 4 ms sampling)"
@@ -22,6 +22,21 @@ from 0.5 s. --pulses: a command added after the controller, written as the u_add
 torque on a rotary axis, a command in V or a force in N on a linear one); with --open-loop the
 pulses are the actuator's whole command (torque steps), no position loop.
 """
+
+
+# the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
+# checks them against what run() prints)
+JSON_KEYS = {
+    "out": JsonKey("", "path of the record written"),
+    "effect": JsonKey("", "the hidden effect (null: none)"),
+    "params": JsonKey("SI", "its parameters by name (units in units.params)"),
+    "samples": JsonKey("", "number of samples"),
+    "duration": JsonKey("s", "length of the record"),
+    "sample_period": JsonKey("s", "sampling period"),
+    "inputs": JsonKey("", "the added inputs: u_add (--pulses), f_ext_table or f_ext_tip (--external-force)"),
+    "open_loop": JsonKey("", "no position loop (--open-loop)"),
+    "units": JsonKey("", "the SI unit of each parameter (params), of duration and of sample_period"),
+}
 
 
 def add_arguments(parser) -> None:

@@ -1,12 +1,42 @@
 """JSON output of the commands (``--json``): numpy values to plain ones, and NaN or infinite
-numbers to null, so that what a command prints is strict JSON for any parser."""
+numbers to null, so that what a command prints is strict JSON for any parser.
+
+The keys each command prints are data beside the code that prints them: a module-level
+``JSON_KEYS`` dict of the command's module, key -> :class:`JsonKey` (unit, meaning, when it is
+present). The documentation's page reference/json.md is generated from those dicts when the site
+is built (docs/gen_reference.py), and tests/test_json_reference.py runs every command with
+``--json`` and checks its output against them.
+
+Key names: a top-level key as printed (``verdict``); a key of the entries of a list
+``candidates[].effect``; a key of a nested object ``final.end``. The convention of every command:
+values are SI unless the key names its unit (``_um``, ``_hz``, ``_pct``, ``_us``, ``_deg``,
+``_db``); the unit column says it for every numeric key.
+"""
 from __future__ import annotations
 
 import json
 import math
 from pathlib import Path
+from typing import NamedTuple
 
-__all__ = ["plain", "dumps"]
+__all__ = ["plain", "dumps", "JsonKey"]
+
+
+class JsonKey(NamedTuple):
+    """One documented key of a command's ``--json`` object.
+
+    Parameters
+    ----------
+    unit : str
+        The unit of its value ("" for text, flags, counts, lists and objects without one unit).
+    text : str
+        What it is, one line.
+    when : str or None
+        When the key is present (``"with --report"``); None: in every ordinary run of the command.
+    """
+    unit: str
+    text: str
+    when: str | None = None
 
 
 def plain(x):
