@@ -11,14 +11,15 @@ The commands are taken from the fenced code blocks of README.md and docs/**/*.md
 
 The shown output of a ```` ```console ```` command is compared with its stdout (and its stderr too
 when the block expects a non-zero exit: the error line); blank lines are ignored, and so is
-whitespace within a line: the two are compared token by token (split at whitespace), so that a
+whitespace within a line: the two are compared token by token (split at whitespace and punctuation), so that a
 missing unit, a renamed or an added line fails, and floating-point noise does not:
 
 - a token equal as text matches; otherwise its numbers (``-1.5``, ``1044.23``, ``2.644e+04``,
   also inside a token: ``c2=33,``) must agree within a relative 1e-3 or one unit of the last digit
   shown, whichever is larger (``8.94`` matches 8.93 to 8.95), and the text around them exactly;
-- a line ``...`` alone stands for any number of lines (the output abbreviated); a token ``...``
-  within a line for any number of tokens of that line;
+- a line ``...`` alone stands for any number of lines (the output abbreviated); a ``...`` within a
+  line for any number of tokens of that line (``,;()[]`` are tokens of their own, so
+  ``(1.2 x floor), ..., torque`` and ``(with constant_force: ...)`` abbreviate a list);
 - paths: the commands run in a temporary folder (below), so the absolute path of that folder (then
   ``out/move/move.csv`` reads as in the docs) and of the shared folder (read as ``../shared``) are
   taken out of the printed output before the comparison, and the folder of the shipped example
@@ -325,8 +326,17 @@ def _seq_match(shown: list, printed: list, same) -> bool:
     return len(printed) in reach
 
 
+TOKEN = re.compile(r"\.\.\.|[,;()\[\]]|[^\s,;()\[\]]+")
+
+
+def _tokens(line: str) -> list[str]:
+    """The tokens of a line: split at whitespace, with ``...`` and the punctuation ``,;()[]`` tokens
+    of their own (``floor), ..., torque`` abbreviates a list)."""
+    return TOKEN.findall(line)
+
+
 def _line_match(shown: str, printed: str) -> bool:
-    return _seq_match(shown.split(), printed.split(), _tokens_match)
+    return _seq_match(_tokens(shown), _tokens(printed), _tokens_match)
 
 
 def output_mismatch(shown: list[str], printed: str) -> str | None:
@@ -427,3 +437,6 @@ def test_the_shown_output_is_compared_token_by_token():
     assert output_mismatch(["move 100 mm", "residual tip vibration ...", "record out/move/move.csv"], printed) is None
     assert output_mismatch(["j 2.644e+04 m/s^3"], "j 2.6445e+04 m/s^3") is None
     assert output_mismatch(["j 2.644e+04 m/s^3"], "j 2.66e+04 m/s^3")
+    assert output_mismatch(["a (1 x floor), ..., t 2 N m (0.9 x floor)"],
+                           "a (1 x floor), b 3 um (2 x floor), t 2 N m (0.9 x floor)") is None
+    assert output_mismatch(["verdict: c (with k: ...)"], "verdict: c (with k: score 4.2, 100 %)") is None
