@@ -5,8 +5,26 @@ The commands are taken from the fenced code blocks of README.md and docs/**/*.md
 - in a ```` ```bash ```` or ```` ```sh ```` block, every line that starts with ``hil `` (with its
   ``\\`` continuation lines; ``#`` starts a comment), and the ``hil`` part of a line joined by
   ``&&`` (``pip install . && hil move ...``);
-- in a ```` ```console ```` block, the same for the lines that start with ``$ `` (the lines after
-  one, up to the next ``$``, are the output shown: not checked here, they are examples).
+- in a ```` ```console ```` block, the same for the lines that start with ``$ ``; the lines after
+  one (after its continuation lines), up to the next ``$`` or the end of the block, are the output
+  shown, and the test checks them against what the command printed (below).
+
+The shown output of a ```` ```console ```` command is compared with its stdout (and its stderr too
+when the block expects a non-zero exit: the error line); blank lines are ignored, and so is
+whitespace within a line: the two are compared token by token (split at whitespace and punctuation), so that a
+missing unit, a renamed or an added line fails, and floating-point noise does not:
+
+- a token equal as text matches; otherwise its numbers (``-1.5``, ``1044.23``, ``2.644e+04``,
+  also inside a token: ``c2=33,``) must agree within a relative 1e-3 or one unit of the last digit
+  shown, whichever is larger (``8.94`` matches 8.93 to 8.95), and the text around them exactly;
+- a line ``...`` alone stands for any number of lines (the output abbreviated); a ``...`` within a
+  line for any number of tokens of that line (``,;()[]`` are tokens of their own, so
+  ``(1.2 x floor), ..., torque`` and ``(with constant_force: ...)`` abbreviate a list);
+- paths: the commands run in a temporary folder (below), so the absolute path of that folder (then
+  ``out/move/move.csv`` reads as in the docs) and of the shared folder (read as ``../shared``) are
+  taken out of the printed output before the comparison, and the folder of the shipped example
+  configurations (``config/paper_bench.toml`` found in the package) reads ``config``;
+- a command with no output shown, and a ``<!-- background -->`` command, is not checked.
 
 Each command runs as ``hil ...`` through ``hil.cli.main`` of the package these tests import (the
 installed one, or the checkout named by PYTHONPATH), without a shell, in a temporary folder of its own page: the commands of one page run
@@ -22,6 +40,9 @@ An HTML comment right before a block says how its commands run:
 - ``<!-- no-test: REASON -->``: not run (a second terminal, hardware); the reason is reported;
 - ``<!-- slow -->``: marked slow (deselected by default, run by CI: ``pytest -m slow``);
 - ``<!-- exit: N -->``: the commands must end with exit code N (a refused move: 2);
+- ``<!-- output: varies -->``: the output shown is not compared (figures that truly vary from run
+  to run or machine to machine: lateness, durations, ports, dates, load); the command still runs.
+  Markers combine, one per line before the block;
 - ``<!-- background -->``: the block's one command is started and left running until the page's
   last command has run (``hil drive-sim`` in "terminal 1"). For ``hil drive-sim`` the test asks
   for a free port (``--port 0``), reads it from the first line it prints, and adds
@@ -46,7 +67,7 @@ import pytest
 from conftest import ROOT, SHARED
 
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
-MARKER = re.compile(r"^<!--\s*(no-test|slow|exit|background)\s*(?::\s*(.*?))?\s*-->$")
+MARKER = re.compile(r"^<!--\s*(no-test|slow|exit|background|output)\s*(?::\s*(.*?))?\s*-->$")
 FENCE = re.compile(r"^(\s*)```+\s*([A-Za-z]*)")
 COMMAND_TIMEOUT = 600
 # the `hil` entry point of the package imported here (the installed one, or PYTHONPATH's)
@@ -62,6 +83,8 @@ class DocCommand:
     slow: bool = False
     exit_code: int = 0
     background: bool = False
+    shown: list[str] = field(default_factory=list)  # the output shown after it (console blocks)
+    output_varies: bool = False
 
     @property
     def id(self) -> str:
@@ -69,7 +92,8 @@ class DocCommand:
 
 
 def _logical_lines(body: list[tuple[int, str]], console: bool):
-    """(line number, command text) of the block's commands, continuation lines joined."""
+    """(line number, command text, output lines shown after it) of the block's commands,
+    continuation lines joined; the shown output is that of a console block's ``$`` line."""
     i = 0
     while i < len(body):
         n, text = body[i]
@@ -84,10 +108,14 @@ def _logical_lines(body: list[tuple[int, str]], console: bool):
             parts[-1] = parts[-1][:-1]
             parts.append(body[i][1].strip())
             i += 1
+        shown = []
+        while console and i < len(body) and not body[i][1].strip().startswith("$ "):
+            shown.append(body[i][1])
+            i += 1
         # "pip install . && hil move ...": the hil part
         for segment in " ".join(parts).split(" && "):
             if segment.strip().startswith("hil "):
-                yield n, segment.strip()
+                yield n, segment.strip(), shown
 
 
 def extract(path: Path) -> list[DocCommand]:
@@ -118,10 +146,11 @@ def extract(path: Path) -> list[DocCommand]:
             i += 1
         i += 1
         if lang in ("bash", "sh", "shell", "console"):
-            for n, text in _logical_lines(body, console=lang == "console"):
+            for n, text, shown in _logical_lines(body, console=lang == "console"):
                 argv = shlex.split(text, comments=True)
                 out.append(DocCommand(rel, n, argv[1:], no_test=markers.get("no-test"), slow="slow" in markers,
-                                      exit_code=int(markers.get("exit") or 0), background="background" in markers))
+                                      exit_code=int(markers.get("exit") or 0), background="background" in markers,
+                                      shown=shown, output_varies=markers.get("output") == "varies"))
         markers = {}
     return out
 
@@ -236,6 +265,92 @@ def _run_one(cmd: DocCommand, run: PageRun) -> None:
         f"--- stdout\n{r.stdout[-3000:]}\n--- stderr\n{r.stderr[-3000:]}")
     if cmd.exit_code == 0:
         assert "Traceback" not in r.stderr, r.stderr[-3000:]
+    if cmd.shown and not cmd.output_varies:
+        printed = r.stdout if cmd.exit_code == 0 else r.stdout + "\n" + r.stderr
+        problem = output_mismatch(cmd.shown, _normalise_paths(printed, run))
+        assert problem is None, (
+            f"{cmd.id}: hil {shlex.join(argv)}\nthe output shown in the docs is not what the command prints: "
+            f"{problem}\n--- shown\n" + "\n".join(cmd.shown) + f"\n--- printed\n{printed}")
+
+
+# -- the shown output against the printed one ------------------------------------------------------------
+
+NUMBER = re.compile(r"[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?")
+ELLIPSIS = "..."
+
+
+def _normalise_paths(text: str, run: PageRun) -> str:
+    """The printed output with the page's temporary folder taken out (paths read relative to it, as
+    in the docs), the shared folder written ``../shared`` and the shipped examples ``config``."""
+    from hil.config import examples_dir
+
+    shared = run.work.parent / "shared"
+    for folder, name in [(shared, "../shared"), (_shared(), "../shared"), (examples_dir(), "config"), (run.work, ".")]:
+        for form in {str(folder), str(folder.resolve()) if folder.exists() else str(folder)}:
+            text = text.replace(form + os.sep, "" if name == "." else name + "/").replace(form, name)
+    return text
+
+
+def _numbers_match(shown: str, printed: str) -> bool:
+    """Two numbers written as text agree within rel 1e-3 or one unit of the shown last digit."""
+    a, b = float(shown), float(printed)
+    mantissa = re.split(r"[eE]", shown)[0]
+    exponent = int(re.split(r"[eE]", shown)[1]) if re.search(r"[eE]", shown) else 0
+    decimals = len(mantissa.split(".")[1]) if "." in mantissa else 0
+    last_digit = 10.0 ** (exponent - decimals)
+    return abs(a - b) <= max(1e-3 * max(abs(a), abs(b)), last_digit * (1 + 1e-9))
+
+
+def _tokens_match(shown: str, printed: str) -> bool:
+    if shown == printed:
+        return True
+    s_nums, p_nums = NUMBER.findall(shown), NUMBER.findall(printed)
+    if len(s_nums) != len(p_nums) or not s_nums:
+        return False
+    if NUMBER.split(shown) != NUMBER.split(printed):     # the text around the numbers, exactly
+        return False
+    return all(_numbers_match(s, p) for s, p in zip(s_nums, p_nums))
+
+
+def _seq_match(shown: list, printed: list, same) -> bool:
+    """Whether the shown items match the printed ones in order, ``...`` standing for any run of
+    printed items (dynamic programming over the two positions)."""
+    reach = {0}                 # printed positions reachable after the shown items so far
+    for item in shown:
+        if item == ELLIPSIS:
+            reach = set(range(min(reach), len(printed) + 1)) if reach else set()
+        else:
+            reach = {j + 1 for j in reach if j < len(printed) and same(item, printed[j])}
+        if not reach:
+            return False
+    return len(printed) in reach
+
+
+TOKEN = re.compile(r"\.\.\.|[,;()\[\]]|[^\s,;()\[\]]+")
+
+
+def _tokens(line: str) -> list[str]:
+    """The tokens of a line: split at whitespace, with ``...`` and the punctuation ``,;()[]`` tokens
+    of their own (``floor), ..., torque`` abbreviates a list)."""
+    return TOKEN.findall(line)
+
+
+def _line_match(shown: str, printed: str) -> bool:
+    return _seq_match(_tokens(shown), _tokens(printed), _tokens_match)
+
+
+def output_mismatch(shown: list[str], printed: str) -> str | None:
+    """None where the shown lines match the printed output, else what differs first (for the
+    failure message)."""
+    want = [line.strip() for line in shown if line.strip()]
+    got = [line.strip() for line in printed.split("\n") if line.strip()]
+    if _seq_match(want, got, _line_match):
+        return None
+    # the first shown line (other than "...") that no printed line matches, for the message
+    for line in want:
+        if line != ELLIPSIS and not any(_line_match(line, g) for g in got):
+            return f"no printed line matches {line!r}"
+    return "the lines are all printed, but not in this order or with more lines between them (use ...)"
 
 
 def _last_of_page(page: str) -> DocCommand:
@@ -306,3 +421,22 @@ def test_the_site_builds_without_warnings(tmp_path):
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert (tmp_path / "site" / "reference" / "config" / "index.html").is_file()
+
+
+def test_the_shown_output_is_compared_token_by_token():
+    """The comparison of shown and printed output: numbers within tolerance, text exact, ``...``."""
+    printed = "move 100 mm\n  residual tip vibration 1044.2312 um, peak torque 8.9413 N m\n  record out/move/move.csv\n"
+    assert output_mismatch(["move 100 mm", "residual   tip vibration 1044.23 um, peak torque 8.94 N m", "..."],
+                           printed) is None
+    # a missing unit, a renamed line, a wrong figure fail
+    assert output_mismatch(["...", "residual tip vibration 1044.23 um, peak torque 8.94", "..."], printed)
+    assert output_mismatch(["...", "residual tip motion 1044.23 um, peak torque 8.94 N m", "..."], printed)
+    assert output_mismatch(["...", "residual tip vibration 1052.0 um, peak torque 8.94 N m", "..."], printed)
+    # an extra printed line needs "..."; a token "..." stands for the rest of a line
+    assert output_mismatch(["move 100 mm", "record out/move/move.csv"], printed)
+    assert output_mismatch(["move 100 mm", "residual tip vibration ...", "record out/move/move.csv"], printed) is None
+    assert output_mismatch(["j 2.644e+04 m/s^3"], "j 2.6445e+04 m/s^3") is None
+    assert output_mismatch(["j 2.644e+04 m/s^3"], "j 2.66e+04 m/s^3")
+    assert output_mismatch(["a (1 x floor), ..., t 2 N m (0.9 x floor)"],
+                           "a (1 x floor), b 3 um (2 x floor), t 2 N m (0.9 x floor)") is None
+    assert output_mismatch(["verdict: c (with k: ...)"], "verdict: c (with k: score 4.2, 100 %)") is None
