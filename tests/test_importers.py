@@ -165,3 +165,24 @@ def test_warnings_name_the_samples(tmp_path):
     assert any("10 times the position loop" in s for s in w), w
     clean = Measurement({"t": t[:1000], "x_cmd": x[:1000], "torque": cur[:1000]})
     assert data_warnings(clean, position_period=4e-3) == []
+
+
+def test_compare_prints_each_warning_with_its_file_once(tmp_path, capsys):
+    """The warnings name their file themselves: the command prints them as they are."""
+    from hil.cli import main
+    from hil.config import examples_dir
+    cfg = str(examples_dir() / "paper_bench.toml")
+    rec = tmp_path / "r.csv"
+    assert main(["synth", "--config", cfg, "--duration", "2s", "--out", str(rec)]) == 0
+    lines = rec.read_text().split("\n")
+    head = next(i for i, s in enumerate(lines) if s.startswith("t "))
+    row = lines[head + 251].split(",")
+    row[-1] = str(float(row[-1]) + 500.0)          # one corrupt torque sample
+    lines[head + 251] = ",".join(row)
+    bad = tmp_path / "spike.csv"
+    bad.write_text("\n".join(lines))
+    capsys.readouterr()
+    assert main(["compare", str(bad), "--config", cfg, "--out", str(tmp_path / "o")]) == 0
+    warned = [s for s in capsys.readouterr().err.splitlines() if s.startswith("warning:")]
+    assert warned and all(s.count("spike.csv") == 1 for s in warned), warned
+    assert any("channel 'torque'" in s and "sample(s) 251" in s for s in warned), warned

@@ -98,7 +98,7 @@ def _read_record(args, cfg, path):
     # what can still be replayed but deserves a look: outliers, gaps, a slow log
     meas.warnings = data_warnings(meas, cfg["control.position_period"])
     for w in meas.warnings:
-        print(f"warning: {path}: {w}", file=sys.stderr)
+        print(f"warning: {w}", file=sys.stderr)        # each warning names its file already
     return meas
 
 
