@@ -32,7 +32,7 @@ in the order written and see each other's files (the tutorial's record is the ne
 input). That folder has no ``config/``: ``config/paper_bench.toml`` is found among the shipped
 examples, as it is for a user outside a clone. ``../shared`` is the project's shared folder
 beside the checkout (the EMPS record; ``HIL_SHARED_DIR`` names another); a command that names
-``DATA_EMPS.mat`` is skipped where it is absent. Each page has its own supervisor state folder (``HIL_STATE_DIR``), so a trip latched by
+``DATA_EMPS.mat``, or a file under ``../shared/`` (a record of the shared folder), is skipped where it is absent. Each page has its own supervisor state folder (``HIL_STATE_DIR``), so a trip latched by
 one command is seen by the next, as on a real machine.
 
 An HTML comment right before a block says how its commands run:
@@ -247,6 +247,9 @@ def _runnable(cmd: DocCommand) -> str | None:
         return f"marked no-test in the docs: {cmd.no_test or 'no reason given'}"
     if any("DATA_EMPS.mat" in a for a in cmd.argv) and not (_shared() / "data" / "emps" / "DATA_EMPS.mat").is_file():
         return "needs the EMPS record, ../shared/data/emps/DATA_EMPS.mat (docs/how-to/emps-data.md)"
+    for a in cmd.argv:
+        if a.startswith("../shared/") and not (_shared() / a.removeprefix("../shared/")).exists():
+            return f"needs {a}, a record of the project's shared folder, absent here"
     return None
 
 
