@@ -223,6 +223,19 @@ def test_the_docs_have_commands():
         assert c.argv and not c.argv[0].startswith("-"), c.id
 
 
+def test_a_command_naming_an_absent_shared_file_is_skipped(monkeypatch, tmp_path):
+    """A docs command that names a file under ../shared skips, with its path, where the shared
+    folder lacks it, and runs where it is there."""
+    monkeypatch.setenv("HIL_SHARED_DIR", str(tmp_path))
+    path = "../shared/data/hsm150-servo-motor/idf_pos_0.06_1.mat"
+    cmd = DocCommand("docs/x.md", 1, ["compare", path, "--open-loop"])
+    assert path in _runnable(cmd)
+    record = tmp_path / "data" / "hsm150-servo-motor" / "idf_pos_0.06_1.mat"
+    record.parent.mkdir(parents=True)
+    record.write_bytes(b"")
+    assert _runnable(cmd) is None
+
+
 @pytest.mark.parametrize("cmd", [_param(c) for c in ALL])
 def test_doc_command(cmd: DocCommand, page_runs, tmp_path_factory):
     why = _runnable(cmd)
