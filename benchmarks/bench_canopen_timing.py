@@ -38,9 +38,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from drivers.base import Setpoint  # noqa: E402
-from drivers.canopen.backend import CanopenBackend  # noqa: E402
 from hil import config  # noqa: E402
+from hil.drivers.base import Setpoint  # noqa: E402
+from hil.drivers.canopen.backend import CanopenBackend  # noqa: E402
 from hil.loop import RealTimeClock  # noqa: E402
 
 CONFIG = ROOT / "config/paper_bench_canopen.toml"
@@ -166,7 +166,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us")
         if transport == "virtual":
             import can
 
-            from drivers.canopen.drive_sim import DriveSim
+            from hil.drivers.canopen.drive_sim import DriveSim
             over.update({"canopen.interface": "virtual", "canopen.channel": f"bench{os.getpid()}"})
             cfg = config.load(CONFIG, over)
             sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=over["canopen.channel"]), lockstep=False)

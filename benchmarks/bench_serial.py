@@ -20,11 +20,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from drivers.base import Setpoint  # noqa: E402
-from drivers.serial.backend import SerialBackend  # noqa: E402
-from drivers.serial.drive_sim import SimulatedSerialDrive  # noqa: E402
-from drivers.serial.protocol import CommandSet, render_reply  # noqa: E402
 from hil.config import load  # noqa: E402
+from hil.drivers.base import Setpoint  # noqa: E402
+from hil.drivers.serial.backend import SerialBackend  # noqa: E402
+from hil.drivers.serial.drive_sim import SimulatedSerialDrive  # noqa: E402
+from hil.drivers.serial.protocol import CommandSet, render_reply  # noqa: E402
 
 
 def bytes_per_cycle(cs: CommandSet, worst: bool) -> int:

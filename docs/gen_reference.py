@@ -3,7 +3,7 @@
 - ``reference/config.md``: every configuration key, from the schema as data (:data:`hil.config.SCHEMA`)
   and the sections other modules register (``[supervisor]``, ``[canopen]``, ``[serial]``,
   ``[noise]``, ``[effects.<name>]``);
-- ``reference/effects.md``: every effect of :data:`sim_plant.effects.CATALOGUE` with its
+- ``reference/effects.md``: every effect of :data:`hil.sim_plant.effects.CATALOGUE` with its
   parameters, their units, bounds and starting guesses;
 - ``reference/commands.md``: every command's usage and options, from the argparse parsers of
   :mod:`hil.cli` and ``hil/commands/*``;
@@ -79,7 +79,7 @@ def _field_rows(fields: dict) -> list[str]:
 
 
 def _serial_fields() -> dict:
-    import drivers.serial.backend as serial_backend
+    import hil.drivers.serial.backend as serial_backend
     section = getattr(serial_backend, "SECTION", None)
     if section is not None:
         return dict(section)
@@ -92,11 +92,11 @@ def _serial_fields() -> dict:
 
 
 def config_reference() -> str:
-    import drivers.canopen.backend as canopen_backend
+    import hil.drivers.canopen.backend as canopen_backend
     import hil.plant_config as plant_config
     import hil.supervisor as supervisor
     from hil.config import SCHEMA, field_for
-    from sim_plant.effects import CATALOGUE
+    from hil.sim_plant.effects import CATALOGUE
 
     out = ["# Configuration keys", "", GENERATED_NOTE,
            "An axis is one TOML file; every key below is a dotted name (`plant.c2`) that `--set KEY=VALUE` "
@@ -111,10 +111,10 @@ def config_reference() -> str:
     out += ["## `[supervisor]`: the safety supervisor", "",
             "Read by `hil/supervisor.py`; see [Safety](../guide/safety.md).", ""] + _field_rows(supervisor.SECTION)
     out += ["", "## `[canopen]`: the CiA 402 backend and the simulated drive", "",
-            "Read by `drivers/canopen/backend.py`; see [CANopen](../guide/canopen.md) and the "
+            "Read by `hil/drivers/canopen/backend.py`; see [CANopen](../guide/canopen.md) and the "
             "[commissioning tutorial](../tutorials/commissioning.md).", ""] + _field_rows(canopen_backend.SECTION)
     out += ["", "## `[serial]`: drives with an ASCII command interface", "",
-            "Read by `drivers/serial/backend.py`; see [Serial drives](../guide/serial.md). Besides these, "
+            "Read by `hil/drivers/serial/backend.py`; see [Serial drives](../guide/serial.md). Besides these, "
             "`serial.commands.<op>` (a Python format template of the command) and `serial.replies.<op>` "
             "(a regular expression its reply must match) for each operation.", ""] + _field_rows(_serial_fields())
     noise_channels = getattr(plant_config, "_NOISE_KINDS", {})
@@ -140,13 +140,13 @@ def config_reference() -> str:
 # -- effects -------------------------------------------------------------------------------------------
 
 def effects_reference() -> str:
-    from sim_plant.effects import ALIASES, CATALOGUE, RecordEffect
+    from hil.sim_plant.effects import ALIASES, CATALOGUE, RecordEffect
 
     aliases: dict[str, list[str]] = {}
     for old, new in ALIASES.items():
         aliases.setdefault(new, []).append(old)
     out = ["# Effects", "", GENERATED_NOTE,
-           "The catalogue of `sim_plant/effects.py`: the physical effects that `hil diagnose` looks for, "
+           "The catalogue of `hil/sim_plant/effects.py`: the physical effects that `hil diagnose` looks for, "
            "`hil fit --add NAME` fits, `hil synth --effect NAME --param P=VALUE` hides in a synthetic record "
            "and a configuration switches on with an `[effects.NAME]` section. Parameter values are SI "
            "(`--param` takes SI numbers; a config section may write units). Bounds and the starting "

@@ -10,11 +10,11 @@ refused moves), 1 for a drive fault, 130 for an interrupt. Never a traceback.
 
 Global options (before the command): ``--version``; ``--log-level LEVEL`` (the library logs
 through ``logging``, one logger per module named after it: ``hil.ident.diagnosis``,
-``drivers.canopen.backend``; the level applies to them and to the bus libraries, canopen and
+``hil.drivers.canopen.backend``; the level applies to them and to the bus libraries, canopen and
 python-can; without it the project's loggers show warnings and the bus libraries only critical
 messages, since the backends already report their failures as one clear line);
 ``--can-log FILE.asc|.blf`` (python-can's trace of the CAN bus of every canopen backend the command
-connects, drivers.canopen.canlog; also accepted after the CAN commands).
+connects, hil.drivers.canopen.canlog; also accepted after the CAN commands).
 An unknown command gets a "did you mean" (difflib).
 """
 from __future__ import annotations
@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         if args.can_log:
-            from drivers.canopen import canlog
+            from hil.drivers.canopen import canlog
             try:
                 canlog.request(args.can_log)
             except ValueError as exc:
@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     finally:
         if args.can_log:
-            from drivers.canopen import canlog
+            from hil.drivers.canopen import canlog
             canlog.request(None)
 
 

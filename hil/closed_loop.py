@@ -17,7 +17,7 @@ import numpy as np
 from hil.control import controller_from_config
 from hil.errors import UnstableLoopError
 from hil.plant_config import plant_from_config
-from sim_plant.transfer import chain_tfs
+from hil.sim_plant.transfer import chain_tfs
 
 logger = logging.getLogger(__name__)
 
@@ -241,7 +241,7 @@ def _extra_terms(cfg) -> list[str]:
         out.append("control.velocity_feedback")
     if cfg.get("actuator.current_loop_time_constant", 0.0):
         out.append("actuator.current_loop_time_constant")
-    from sim_plant.kernel import time_delay
+    from hil.sim_plant.kernel import time_delay
     if time_delay(plant_from_config(cfg)) > 0:
         out.append("the plant's transport delay")
     return out

@@ -183,7 +183,7 @@ SCHEMA: dict[str, Field] = {
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {}
 # The module that registers each such section, imported the first time one of its keys is read.
-SECTION_PROVIDERS = {"effects": "hil.plant_config", "serial": "drivers.serial.backend", "canopen": "drivers.canopen.backend",
+SECTION_PROVIDERS = {"effects": "hil.plant_config", "serial": "hil.drivers.serial.backend", "canopen": "hil.drivers.canopen.backend",
                      "supervisor": "hil.supervisor", "noise": "hil.plant_config"}
 
 

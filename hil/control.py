@@ -30,8 +30,8 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from sim_plant.kernel import effect_table, feedback_delay, time_delay
-from sim_plant.plant import Plant
+from hil.sim_plant.kernel import effect_table, feedback_delay, time_delay
+from hil.sim_plant.plant import Plant
 
 __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
            "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "history_push", "history_read", "LoopTerms",
@@ -236,7 +236,7 @@ def lag_alpha(plant: Plant, ctrl: ControllerSettings) -> float:
 class LoopTerms:
     """The terms between the control law and the plant step of one plant and controller.
 
-    ``codes``, ``params``: the effect table (:func:`sim_plant.kernel.effect_table`; ``codes`` is
+    ``codes``, ``params``: the effect table (:func:`hil.sim_plant.kernel.effect_table`; ``codes`` is
     None without effects, which the compiled loops leave out). ``delay``: velocity periods from
     the law's output to the current loop. ``lag_alpha``: the current loop's step factor.
     ``feedback_delay``: velocity periods by which the position loop's feedback is late."""
@@ -279,7 +279,7 @@ def loop_terms(plant: Plant, ctrl: ControllerSettings, with_output_delay: bool =
 
     Parameters
     ----------
-    plant : sim_plant.plant.Plant
+    plant : hil.sim_plant.plant.Plant
         The plant: its effect rows (transport and feedback delays included) and current-loop time
         constant.
     ctrl : ControllerSettings

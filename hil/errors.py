@@ -38,7 +38,7 @@ Tree::
     +-- RunStopped               a run that moved ended early (exit code: how, STOP_EXIT_CODES)
 
 The library never raises the CLI's errors and the CLI adds no classes of its own. The physics
-(``sim_plant``) sits below this module and raises plain ``ValueError``; the layer that reads
+(``hil.sim_plant``) sits below this module and raises plain ``ValueError``; the layer that reads
 a configuration into it turns those into :class:`ConfigError` naming the key.
 """
 from __future__ import annotations
@@ -57,7 +57,7 @@ STOP_EXIT_CODES = {
     "interrupt": 130,
 }
 
-# the first words of a stop reason, as the backends (drivers.base's fault rule), the loop and the
+# the first words of a stop reason, as the backends (hil.drivers.base's fault rule), the loop and the
 # supervisor write them -> the kind of stop
 _REASON_KINDS = (("drive fault", "drive_fault"), ("lost communication", "link"), ("loop overrun", "overrun"),
                  ("interrupted", "interrupt"))

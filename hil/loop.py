@@ -20,7 +20,7 @@ frequency responses through it).
 Real-time: the methods marked "(real-time)" run inside the cycle, between reading the feedback
 and ending the cycle; they, and the hooks they call, must be short and must not block.
 
-How a run ends follows the fault rule of :mod:`drivers.base`: a ``Feedback.fault`` trips the
+How a run ends follows the fault rule of :mod:`hil.drivers.base`: a ``Feedback.fault`` trips the
 supervisor (at a position tick through its check, between ticks here), a trip commands the
 configured controlled stop in the same cycle and ends the run ``tripped``; a
 :class:`~hil.errors.BackendFault` raised in the cycle ends it ``fault`` (latched in the supervisor
@@ -40,9 +40,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.base import Backend, BackendFault, Feedback, Setpoint
-from drivers.rt import CpuLatencyRequest, fine_timer_slack
 from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
+from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
+from hil.drivers.rt import CpuLatencyRequest, fine_timer_slack
 
 __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]
 
@@ -89,7 +89,7 @@ class RealTimeClock:
     for a twentieth of a core.
 
     ``cpu_latency`` (s): with a priority, the CPUs' wake-up latency asked of the kernel while the
-    loop runs (``runtime.cpu_latency``, :class:`drivers.rt.CpuLatencyRequest`; default 0: idle
+    loop runs (``runtime.cpu_latency``, :class:`hil.drivers.rt.CpuLatencyRequest`; default 0: idle
     CPUs poll; None or inf: no request)."""
     real_time = True
 

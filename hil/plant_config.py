@@ -1,4 +1,4 @@
-"""Reading a configuration into the plant: the one place where config keys meet sim_plant.
+"""Reading a configuration into the plant: the one place where config keys meet hil.sim_plant.
 
 * :func:`plant_from_config`: the chain, actuator, motor friction and sensors of a validated
   :class:`hil.config.Config`, with the effects its ``[effects.<name>]`` sections switch on
@@ -9,9 +9,9 @@
   with :func:`hil.config.register_section` on import), and the ``parameter:<key>`` effects that
   re-identify a value the config already has (:class:`ParameterEffect`, :func:`candidate`).
 * The components file (catalogue data with units, Appendix 2 and 3) read into SI values for
-  :func:`sim_plant.components.equivalents` (:func:`load_components`).
+  :func:`hil.sim_plant.components.equivalents` (:func:`load_components`).
 
-sim_plant knows no configuration and raises ValueError or KeyError; here they become
+hil.sim_plant knows no configuration and raises ValueError or KeyError; here they become
 :class:`hil.errors.ConfigError` naming the file and the key.
 """
 from __future__ import annotations
@@ -23,11 +23,11 @@ from pathlib import Path
 
 from hil.config import Config, Field, field_for, register_section
 from hil.errors import ConfigError, UnitError
+from hil.sim_plant.chain import Chain
+from hil.sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
+from hil.sim_plant.effects import ALIASES, CATALOGUE, Combination, Effect, Param, RecordEffect, effect
+from hil.sim_plant.plant import Friction, Plant
 from hil.units import parse
-from sim_plant.chain import Chain
-from sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
-from sim_plant.effects import ALIASES, CATALOGUE, Combination, Effect, Param, RecordEffect, effect
-from sim_plant.plant import Friction, Plant
 
 __all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "default_parameters",
            "load_components", "components_from_dict"]
@@ -175,7 +175,7 @@ class ParameterEffect(Effect):
 
 def candidate(name: str, cfg: Config | None = None) -> Effect:
     """The effect of a catalogue name or ``parameter:<dotted name>``, or several joined by ``+``
-    (a :class:`~sim_plant.effects.Combination`, fitted together)."""
+    (a :class:`~hil.sim_plant.effects.Combination`, fitted together)."""
     if "+" in name:
         names = name.split("+")
         return Combination([candidate(n, cfg) for n in names], [candidate(n, cfg).name if n.startswith("parameter:")

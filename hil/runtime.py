@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers import open_backend
-from drivers.base import BackendFault
-from drivers.sim import SimulatedPlant
 from hil.closed_loop import check_loop_stability
 from hil.control import controller_from_config
+from hil.drivers import open_backend
+from hil.drivers.base import BackendFault
+from hil.drivers.sim import SimulatedPlant
 from hil.errors import HilError, UserError
 from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder

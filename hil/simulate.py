@@ -4,7 +4,7 @@ Tv, the plant advanced by its exact zero-order-hold discretization over each Tv.
 The control law is hil.control's (the same functions the real-time loop calls), and so are the
 terms between the law and the plant (delays, current-loop lag, effect table:
 :func:`hil.control.loop_terms`); the plant step and its forces (dry friction, effects) are
-sim_plant.kernel's. :func:`simulate` returns a
+hil.sim_plant.kernel's. :func:`simulate` returns a
 :class:`SimulationResult`, a plain data object (plotting lives in hil.plots). The
 frequency-response experiment (hil.frf.run) runs the same compiled loop, :func:`closed_loop_kernel`,
 with its excitation, measurement noise and per-period record, which the simulation leaves out.
@@ -31,8 +31,8 @@ from hil.control import (
     quantize,
 )
 from hil.plant_config import plant_from_config
-from sim_plant.kernel import plant_step
-from sim_plant.plant import Plant
+from hil.sim_plant.kernel import plant_step
+from hil.sim_plant.plant import Plant
 
 __all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "per_velocity_period",
            "external_forces"]

@@ -4,9 +4,9 @@ import itertools
 
 import can
 
-from drivers.canopen.backend import CanopenBackend
-from drivers.canopen.drive_sim import DriveSim
 from hil import config
+from hil.drivers.canopen.backend import CanopenBackend
+from hil.drivers.canopen.drive_sim import DriveSim
 
 _ids = itertools.count()
 

@@ -1,10 +1,10 @@
 """The test doubles of a drive that goes wrong, shared by the runtime and backend tests: the
 embedded plant in torque mode (the host closes both loops, one exchange per velocity cycle) whose
-feedback goes wrong from one velocity cycle on, either as the fault rule of drivers.base asks
+feedback goes wrong from one velocity cycle on, either as the fault rule of hil.drivers.base asks
 (reported in ``Feedback.fault``) or by raising :class:`BackendFault` from ``read_feedback`` (a
 backend that breaks the rule: the loop still ends the run ``fault``)."""
-from drivers.base import Backend, BackendFault
-from drivers.sim import SimulatedPlant
+from hil.drivers.base import Backend, BackendFault
+from hil.drivers.sim import SimulatedPlant
 
 
 class FaultyPlant(Backend):

@@ -10,9 +10,9 @@ import can
 import pytest
 from canopen_rig import channel
 
-from drivers.canopen.drive_sim import DriveSim
 from hil import config
 from hil.cli import main
+from hil.drivers.canopen.drive_sim import DriveSim
 from hil.io.measurement import read as read_measurement
 
 CANOPEN = "config/paper_bench_canopen.toml"
@@ -134,7 +134,7 @@ def test_a_sweep_starts_where_the_axis_stands_and_finds_it_back_before_each_run(
 def test_a_serial_move_starts_where_the_last_one_left_the_axis(capsys, tmp_path):
     """The serial backend reads the position (one ``read``) before it enables the drive: a second
     10 mm move starts at 10 mm, and a move planned from 0 mm is refused."""
-    from drivers.serial.drive_sim import SimulatedSerialDrive
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
     serial_cfg = "config/serial_ascii_example.toml"
     with SimulatedSerialDrive(config.load(serial_cfg)) as drive:
         common = ["--config", serial_cfg, "--set", f'serial.port="{drive.port}"', "--set",

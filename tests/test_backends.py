@@ -1,4 +1,4 @@
-"""What every backend shares (drivers.base): the lifecycle's end (``shutdown``, safe twice, never
+"""What every backend shares (hil.drivers.base): the lifecycle's end (``shutdown``, safe twice, never
 raising; the context manager), the one fault rule of the cycle (a serial in-cycle fault and a
 CANopen one end a ``hil move`` the same way), and configuration mistakes named as such (one line,
 exit 2), never as drive faults."""
@@ -13,12 +13,12 @@ import pytest
 from canopen_rig import channel, rig
 from fault_backends import FaultyPlant
 
-from drivers.base import Backend, Feedback
-from drivers.canopen.backend import CanopenBackend
-from drivers.canopen.drive_sim import DriveSim
-from drivers.sim import SimulatedPlant
 from hil import config
 from hil.cli import main
+from hil.drivers.base import Backend, Feedback
+from hil.drivers.canopen.backend import CanopenBackend
+from hil.drivers.canopen.drive_sim import DriveSim
+from hil.drivers.sim import SimulatedPlant
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 from hil.supervisor import Supervisor
@@ -61,7 +61,7 @@ class _Recording(Backend):
 
 def test_shutdown_never_raises_logs_and_closes(caplog):
     b = _Recording()
-    with caplog.at_level(logging.WARNING, logger="drivers.base"):
+    with caplog.at_level(logging.WARNING, logger="hil.drivers.base"):
         b.shutdown()
         b.shutdown()                      # twice: still no exception
     assert b.calls == ["disable", "close", "disable", "close"]
@@ -125,8 +125,8 @@ def test_connect_only_leaves_the_drive_alone():
 
 @linux
 def test_shutdown_twice_on_the_serial_backend():
-    from drivers.serial.backend import SerialBackend
-    from drivers.serial.drive_sim import SimulatedSerialDrive
+    from hil.drivers.serial.backend import SerialBackend
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
     cfg = config.load(SERIAL)
     with SimulatedSerialDrive(cfg) as drive:
         b = SerialBackend(cfg, port=drive.port, timeout=0.03, budget=0.1, free_run=True)
@@ -173,7 +173,7 @@ def _canopen_move(tmp_path, capsys, fault, value):
 
 
 def _serial_move(tmp_path, capsys, kind, count):
-    from drivers.serial.drive_sim import SimulatedSerialDrive
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
     with SimulatedSerialDrive(config.load(SERIAL)) as drive:
         drive.inject(kind, count=count, after=30, op="read")
         return _move(["--config", SERIAL, "--backend", "serial", "--set", f'serial.port="{drive.port}"',

@@ -11,11 +11,11 @@ import pytest
 from canopen.profiles.p402 import OperationMode, State402
 from canopen_rig import channel, rig
 
-from drivers.base import BackendFault
-from drivers.canopen import cia402
-from drivers.canopen.backend import CanopenBackend
-from drivers.canopen.drive_sim import DriveSim
 from hil import config
+from hil.drivers.base import BackendFault
+from hil.drivers.canopen import cia402
+from hil.drivers.canopen.backend import CanopenBackend
+from hil.drivers.canopen.drive_sim import DriveSim
 from hil.errors import ConfigError
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
@@ -168,14 +168,14 @@ def _free_port():
 
 
 def test_socketcand_server_refuses_other_addresses():
-    from drivers.canopen.drive_sim import SocketcandServerBus
+    from hil.drivers.canopen.drive_sim import SocketcandServerBus
     with pytest.raises(ValueError, match="127.0.0.1"):
         SocketcandServerBus(host="0.0.0.0", port=_free_port())
 
 
 def test_drive_over_socketcand_on_loopback():
     """The python-can socketcand client (the host) against the drive's own socketcand server."""
-    from drivers.canopen.drive_sim import SocketcandServerBus
+    from hil.drivers.canopen.drive_sim import SocketcandServerBus
     port = _free_port()
     cfg = config.load("config/paper_bench_canopen.toml", {"canopen.interface": "socketcand",
                                                             "canopen.channel": "can0", "canopen.port": port})

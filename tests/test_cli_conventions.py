@@ -213,7 +213,7 @@ def test_log_level(capsys, tmp_path):
 
 @pytest.mark.parametrize("suffix", [".asc", ".blf"])
 def test_can_log_records_the_bus_and_python_can_reads_it(tmp_path, capsys, suffix):
-    from drivers.canopen.drive_sim import DriveSim
+    from hil.drivers.canopen.drive_sim import DriveSim
     ch = channel("canlog")
     cfg = load(CANOPEN, {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch})
     sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)

@@ -403,12 +403,12 @@ def test_the_reference_names_every_key_effect_and_option():
     effect's parameters and every command's options: what the code accepts is what the docs list."""
     import argparse
 
-    import drivers.canopen.backend as canopen_backend
-    import drivers.serial.backend as serial_backend
+    import hil.drivers.canopen.backend as canopen_backend
+    import hil.drivers.serial.backend as serial_backend
     import hil.supervisor as supervisor
     from hil.cli import build_parser
     from hil.config import SCHEMA
-    from sim_plant.effects import CATALOGUE
+    from hil.sim_plant.effects import CATALOGUE
 
     gen = _gen()
     config, effects, commands = gen.config_reference(), gen.effects_reference(), gen.commands_reference()

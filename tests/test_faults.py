@@ -36,10 +36,10 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from canopen_rig import channel  # noqa: E402
 
-from drivers.canopen.drive_sim import DriveSim  # noqa: E402
 from hil import config  # noqa: E402
 from hil.cli import main  # noqa: E402
 from hil.commands.drive_sim import FaultSchedule, parse_fault  # noqa: E402
+from hil.drivers.canopen.drive_sim import DriveSim  # noqa: E402
 from hil.errors import STOP_EXIT_CODES  # noqa: E402
 from hil.io.measurement import read as read_measurement  # noqa: E402
 
@@ -131,8 +131,8 @@ def run_canopen_case(fault: str, out: Path) -> dict:
 
 
 def run_serial_case(fault: str, out: Path) -> dict:
-    from drivers.serial.drive_sim import SimulatedSerialDrive
-    from drivers.serial.drive_sim import parse_fault as parse_serial_fault
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    from hil.drivers.serial.drive_sim import parse_fault as parse_serial_fault
     cfg = config.load(SERIAL)
     with SimulatedSerialDrive(cfg, faults=[parse_serial_fault(fault)]) as drive:
         # the loop-overrun watchdog widened (2 -> 25 periods): on a loaded shared machine a 20 ms
@@ -289,7 +289,7 @@ class _Stalls:
 
 
 def _stalling_backend(cfg, at=30, stall=0.02, ctrl_c=False):
-    from drivers.sim import SimulatedPlant
+    from hil.drivers.sim import SimulatedPlant
 
     class Stalling(_Stalls, SimulatedPlant):
         name = "stalling"

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.sim import SimulatedPlant
 from hil import frf
 from hil.cli import main
 from hil.config import load
 from hil.control import controller_from_config
+from hil.drivers.sim import SimulatedPlant
 from hil.plant_config import plant_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -173,8 +173,8 @@ def test_canopen_torque_mode_backend():
     """Over the CANopen contract: the simulated CiA 402 drive in cyclic synchronous torque mode
     (lock-step), the host closing both loops at 1 ms."""
     can = pytest.importorskip("can")
-    from drivers.canopen.backend import CanopenBackend
-    from drivers.canopen.drive_sim import DriveSim
+    from hil.drivers.canopen.backend import CanopenBackend
+    from hil.drivers.canopen.drive_sim import DriveSim
     cfg = load(ROOT / "config" / "paper_bench_canopen.toml",
                {"canopen.lockstep": True, "control.velocity_period": "1 ms"})
     sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="frf-test"), lockstep=True)  # noqa: F841

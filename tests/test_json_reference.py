@@ -24,9 +24,9 @@ import pytest
 from canopen_rig import channel
 from conftest import CONFIG, ROOT, SHARED
 
-from drivers.canopen.drive_sim import DriveSim
 from hil import config
 from hil.cli import COMMANDS, build_parser, main
+from hil.drivers.canopen.drive_sim import DriveSim
 from hil.io.jsonout import JsonKey
 
 BENCH = str(CONFIG / "paper_bench.toml")

@@ -2,9 +2,9 @@
 
 Layers, lowest first (a module may import its own layer and the layers below it, never above):
 
-0. the physics (``sim_plant``) and the foundations every layer uses (``hil.errors``, ``hil.units``)
+0. the physics (``hil.sim_plant``) and the foundations every layer uses (``hil.errors``, ``hil.units``)
 1. the configuration, the one control law and the reading of a configuration into a plant
-2. the backends (``drivers``)
+2. the backends (``hil.drivers``)
 3. the runtime core: simulator, cycle loop, runtime, supervisor, profiles, measurement files
 4. the applications: identification, jerk sweeps, frequency responses
 5. figures and reports
@@ -23,13 +23,13 @@ from pathlib import Path
 
 import pytest
 
-PACKAGES = ("sim_plant", "drivers", "hil")
+PACKAGES = ("hil",)        # the one top-level package; physics and backends are hil.sim_plant, hil.drivers
 
 # module prefix -> layer; the longest matching prefix decides
 LAYERS = {
-    "sim_plant": 0, "hil.errors": 0, "hil.units": 0,
+    "hil.sim_plant": 0, "hil.errors": 0, "hil.units": 0,
     "hil": 1, "hil.config": 1, "hil.control": 1, "hil.plant_config": 1,
-    "drivers": 2,
+    "hil.drivers": 2,
     "hil.simulate": 3, "hil.loop": 3, "hil.runtime": 3, "hil.supervisor": 3, "hil.profiles": 3,
     "hil.closed_loop": 3, "hil.analysis": 3, "hil.io": 3,
     "hil.ident": 4, "hil.sweep": 4, "hil.frf": 4,
@@ -121,8 +121,8 @@ def test_no_upward_import(graph):
 
 
 def test_physics_imports_nothing_of_the_application(graph):
-    bad = [f"{n} -> {t}" for n, ts in graph.items() if n.startswith("sim_plant")
-           for t in ts if not t.startswith("sim_plant")]
+    bad = [f"{n} -> {t}" for n, ts in graph.items() if n.startswith("hil.sim_plant")
+           for t in ts if not t.startswith("hil.sim_plant")]
     assert not bad, bad
 
 
@@ -177,8 +177,8 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     would pass everything)."""
     mod = tmp_path / "probe.py"
     mod.write_text("def f():\n    from hil.commands.move import run\n    from .chain import Chain\n")
-    found = _imports("sim_plant.probe", mod, {"hil.commands.move", "sim_plant.chain"})
-    assert found == {"hil.commands.move", "sim_plant.chain"}
-    assert layer_of("hil.commands.move")[1] > layer_of("sim_plant.probe")[1]
+    found = _imports("hil.sim_plant.probe", mod, {"hil.commands.move", "hil.sim_plant.chain"})
+    assert found == {"hil.commands.move", "hil.sim_plant.chain"}
+    assert layer_of("hil.commands.move")[1] > layer_of("hil.sim_plant.probe")[1]
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": set()}) is None

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from conftest import CONFIG
 
-from drivers.base import Feedback
-from drivers.sim import SimulatedPlant
 from hil.control import controller_from_config
+from hil.drivers.base import Feedback
+from hil.drivers.sim import SimulatedPlant
 from hil.errors import LimitError
 from hil.loop import ControlLoop
 from hil.profiles import AxisLimits, MoveSpec, Trajectory, check_sampled, plan_move

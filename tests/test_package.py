@@ -7,17 +7,18 @@ import json
 import os
 import shutil
 import signal
+import site as site_module
 import subprocess
 import sys
+import sysconfig
 import zipfile
 from pathlib import Path
 
 import pytest
 from conftest import CONFIG, ROOT
 
-PACKAGES = ("hil", "drivers", "sim_plant")
 HEAVY = {"numpy", "scipy", "numba", "matplotlib", "pint", "can", "canopen", "serial", "dask", "control",
-         "sim_plant", "drivers"}
+         "hil.sim_plant", "hil.drivers"}
 
 
 def clean_env(**extra) -> dict:
@@ -28,7 +29,7 @@ def clean_env(**extra) -> dict:
 
 def test_help_and_version_import_no_heavy_module(capsys):
     code = ("import sys; from hil import cli, __version__; cli.build_parser(); "
-            "print(sorted({m.split('.')[0] for m in sys.modules} & set(sys.argv[1:])))")
+            "print(sorted({'.'.join(m.split('.')[:n]) for m in sys.modules for n in (1, 2)} & set(sys.argv[1:])))")
     out = subprocess.run([sys.executable, "-c", code, *HEAVY], cwd=ROOT, capture_output=True, text=True,
                          env=clean_env(PYTHONPATH=str(ROOT)), check=True).stdout
     assert out.strip() == "[]"
@@ -69,12 +70,11 @@ def wheel(tmp_path_factory) -> Path:
 
 def test_wheel_holds_every_module_eds_file_and_example_config(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
-    for top in PACKAGES:
-        for py in (ROOT / top).rglob("*.py"):
-            if "__pycache__" not in py.parts:
-                assert py.relative_to(ROOT).as_posix() in names, f"{py.relative_to(ROOT)} is not in the wheel " \
-                    "(a new package? add it to [tool.setuptools] packages in pyproject.toml)"
-    assert {"drivers/canopen/eds/cia402_generic.eds", "drivers/canopen/eds/tip_encoder_cia406.eds"} <= names
+    for py in (ROOT / "hil").rglob("*.py"):
+        if "__pycache__" not in py.parts:
+            assert py.relative_to(ROOT).as_posix() in names, f"{py.relative_to(ROOT)} is not in the wheel " \
+                "(a new package? add it to [tool.setuptools] packages in pyproject.toml)"
+    assert {"hil/drivers/canopen/eds/cia402_generic.eds", "hil/drivers/canopen/eds/tip_encoder_cia406.eds"} <= names
     shipped = {f"hil/examples/{p.name}" for p in CONFIG.iterdir() if p.suffix in (".toml", ".md")}
     assert "hil/examples/paper_bench.toml" in shipped and shipped <= names
     templates = {f"hil/plots/templates/{p.name}" for p in (ROOT / "hil" / "plots" / "templates").glob("*.j2")}
@@ -82,12 +82,26 @@ def test_wheel_holds_every_module_eds_file_and_example_config(wheel):
     assert not any(n.startswith(("tests/", "benchmarks/", "config/")) for n in names)
 
 
+def test_wheel_installs_one_top_level_package(wheel):
+    """Nothing beside ``hil`` at the top of site-packages: a generic name (``drivers``, ``sim_plant``)
+    would collide with another distribution or with a user's folder of that name."""
+    tops = {n.split("/")[0] for n in zipfile.ZipFile(wheel).namelist()}
+    assert {t for t in tops if not t.endswith(".dist-info")} == {"hil"}
+
+
 def test_wheel_installed_outside_the_clone_runs_the_canopen_walkthrough(wheel, tmp_path):
     venv = tmp_path / "venv"
-    # the dependencies come from this machine's site-packages (no network); the wheel goes into
-    # the venv even where this project is installed there too (e.g. /work/main, editable)
-    subprocess.run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], check=True)
+    # the dependencies come from the environment running the tests (no network), whether that is
+    # the system interpreter or a virtualenv: --system-site-packages would reach only the base
+    # interpreter's packages from inside a venv, so the venv gets this one's site-packages as a .pth
+    # instead. The wheel goes into the venv first on its path, even where the project is installed
+    # in the outer environment too (e.g. editable)
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     py, hil = venv / "bin" / "python", venv / "bin" / "hil"
+    inner = subprocess.run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                           capture_output=True, text=True, check=True).stdout.strip()
+    outer = dict.fromkeys([*site_module.getsitepackages(), sysconfig.get_paths()["purelib"], sysconfig.get_paths()["platlib"]])
+    Path(inner, "outer_environment.pth").write_text("".join(f"{p}\n" for p in outer if Path(p).is_dir()))
     subprocess.run([py, "-m", "pip", "install", "-q", "--no-deps", "--ignore-installed", "--no-index", wheel],
                    env=clean_env(), check=True)
     work = tmp_path / "work"              # the user's folder: no clone, no config/ in it
@@ -97,7 +111,7 @@ def test_wheel_installed_outside_the_clone_runs_the_canopen_walkthrough(wheel, t
         return subprocess.run([*cmd, *argv], cwd=work, env=clean_env(), capture_output=True, text=True,
                               timeout=300, **kw)
 
-    where = run("-c", "import hil, drivers, sim_plant; print(hil.__file__, drivers.__file__, sim_plant.__file__)",
+    where = run("-c", "import hil, hil.drivers, hil.sim_plant; print(hil.__file__, hil.drivers.__file__, hil.sim_plant.__file__)",
                 cmd=(py,))
     site = str(venv / "lib")
     assert all(p.startswith(site) for p in where.stdout.split()), where.stdout + where.stderr

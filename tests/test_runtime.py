@@ -8,8 +8,8 @@ import scipy.linalg
 from conftest import CONFIG
 from fault_backends import FaultyPlant
 
-from drivers.sim import SimulatedPlant
 from hil.control import ControllerSettings, new_velocity_state, velocity_law
+from hil.drivers.sim import SimulatedPlant
 from hil.io.measurement import read
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop
@@ -115,7 +115,7 @@ def test_stiction_holds_and_slips(bench):
     sim = SimulatedPlant(cfg, closes="none")
     sim.home_at(0.0)
     sim.enable()
-    from drivers.base import Setpoint
+    from hil.drivers.base import Setpoint
     for _ in range(16000):                      # 1 s at 2.0 N m < 2.2 N m
         sim.write_setpoint(Setpoint(output=2.0))
         sim.sync()

@@ -12,9 +12,16 @@ import pytest
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 
-from drivers.base import BackendFault, Setpoint  # noqa: E402
-from drivers.serial.protocol import ChecksumError, CommandSet, GarbledReply, ReplyError, UnexpectedReply, render_reply  # noqa: E402
 from hil.config import load  # noqa: E402
+from hil.drivers.base import BackendFault, Setpoint  # noqa: E402
+from hil.drivers.serial.protocol import (  # noqa: E402
+    ChecksumError,
+    CommandSet,
+    GarbledReply,
+    ReplyError,
+    UnexpectedReply,
+    render_reply,
+)
 from hil.errors import ConfigError, stop_kind  # noqa: E402
 
 CONFIG = "config/serial_ascii_example.toml"
@@ -29,14 +36,14 @@ def cfg():
 
 @pytest.fixture
 def drive(cfg):
-    from drivers.serial.drive_sim import SimulatedSerialDrive
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
     d = SimulatedSerialDrive(cfg)
     yield d
     d.stop()
 
 
 def _backend(cfg, drive, **kw):
-    from drivers.serial.backend import SerialBackend
+    from hil.drivers.serial.backend import SerialBackend
     opts = dict(FAST)
     opts.update(kw)
     b = SerialBackend(cfg, port=drive.port, **opts)
@@ -124,7 +131,7 @@ def test_move_end_to_end_hil_move(cfg, drive, tmp_path, capsys):
 
 
 def test_run_trajectory_free_run(cfg, drive):
-    from drivers.serial.backend import SerialBackend
+    from hil.drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -171,7 +178,7 @@ def test_persistent_fault_raises_backend_fault(cfg, drive, kind, words):
 
 
 def test_drive_fault_stops_the_loop(cfg, drive):
-    from drivers.serial.backend import SerialBackend
+    from hil.drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -184,7 +191,7 @@ def test_drive_fault_stops_the_loop(cfg, drive):
 
 
 def test_vanished_port(cfg, drive):
-    from drivers.serial.backend import SerialBackend
+    from hil.drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -217,8 +224,8 @@ def test_watchdog_stops_drive_when_host_falls_silent(cfg, drive):
 
 
 def test_no_port_is_a_clear_fault(cfg):
-    from drivers import BackendError
-    from drivers.serial.backend import SerialBackend
+    from hil.drivers import BackendError
+    from hil.drivers.serial.backend import SerialBackend
     with pytest.raises(BackendError, match="serial.port"):
         SerialBackend(cfg)
     # a device that does not exist is a configuration mistake (issue 16: exit 2; it was a BackendFault)
@@ -228,8 +235,8 @@ def test_no_port_is_a_clear_fault(cfg):
 
 def test_velocity_mode_host_closes_position_loop(cfg):
     """serial.mode = velocity: the host runs the position loop and sends speeds (set_speed)."""
-    from drivers.serial.backend import SerialBackend
-    from drivers.serial.drive_sim import SimulatedSerialDrive
+    from hil.drivers.serial.backend import SerialBackend
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     vcfg = cfg.with_values({"serial.mode": "velocity"})
@@ -245,7 +252,7 @@ def test_velocity_mode_host_closes_position_loop(cfg):
 
 def test_fuzz_simulated_drive_commands(cfg):
     """The simulated drive answers random command bytes with its error reply, never crashes."""
-    from drivers.serial.drive_sim import _Drive
+    from hil.drivers.serial.drive_sim import _Drive
     d = _Drive(cfg)
     rng = np.random.default_rng(7)
     for _ in range(1000):

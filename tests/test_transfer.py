@@ -4,8 +4,16 @@ import math
 import numpy as np
 import pytest
 
-from sim_plant.chain import Chain
-from sim_plant.transfer import TransferFunction, chain_tfs, drive_side, freqresp, table1_2dof, table1_3dof, to_control
+from hil.sim_plant.chain import Chain
+from hil.sim_plant.transfer import (
+    TransferFunction,
+    chain_tfs,
+    drive_side,
+    freqresp,
+    table1_2dof,
+    table1_3dof,
+    to_control,
+)
 
 M3 = (335.57, 392.97, 4.228)
 K3 = (5.362e7, 3.7060e4)

@@ -1,4 +1,4 @@
-"""``hil drive-sim``: the simulated CiA 402 drive (drivers.canopen.drive_sim) as a separate process, reachable
+"""``hil drive-sim``: the simulated CiA 402 drive (hil.drivers.canopen.drive_sim) as a separate process, reachable
 from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hil.io.jsonout import JsonKey, dumps
 
 HELP = "run the simulated CiA 402 drive on a socketcand server on 127.0.0.1 (for --backend canopen)"
 DESCRIPTION = """Run the simulated CiA 402 servo drive (the config's plant as its shaft, the object
-dictionary of drivers/canopen/eds/cia402_generic.eds) until Ctrl-C, reachable from any other process through
+dictionary of hil/drivers/canopen/eds/cia402_generic.eds) until Ctrl-C, reachable from any other process through
 python-can's socketcand interface: this process is a small socketcand server (raw mode) on
 127.0.0.1 only. Run the host against it in another shell:
 
@@ -23,7 +23,7 @@ python-can's socketcand interface: this process is a small socketcand server (ra
 
 The drive runs on the wall clock, as a drive: one thread (this process's main thread, --priority
 N: SCHED_FIFO) takes each frame off the bus itself and answers a SYNC at once, on that thread:
-one drive cycle (the plant advanced by the compiled step of drivers.sim; the targets of the last
+one drive cycle (the plant advanced by the compiled step of hil.drivers.sim; the targets of the last
 RPDO) and its TPDOs written in one segment. Answer time, SYNC taken off the bus to the TPDOs
 written: under 0.5 ms (at 250 Hz p50 0.24 ms, p99 0.34-0.41 ms; at 1 kHz p50 0.09 ms, p99
 0.16-0.18 ms; a 2-core machine at load average 2 to 5, --priority 50); with --json the last
@@ -38,7 +38,7 @@ freeze (seconds: the drive stops answering, 0.5 by default), kill (the drive is 
 no heartbeat, ever).
 
 --set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
-CiA 406-like linear encoder (drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
+CiA 406-like linear encoder (hil/drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
 its TPDO1 on every SYNC.
 """
 
@@ -171,14 +171,14 @@ class FaultSchedule:
 
 
 def run(args) -> int:
-    from drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
     from hil.commands.move import load_config
+    from hil.drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
     cfg = load_config(args)
     faults = [parse_fault(f) for f in args.fault]
     if any(k == "tip_missing_pdo" for k, _, _ in faults) and not int(cfg.get("canopen.tip_node_id", 0) or 0):
         raise UserError("--fault tip_missing_pdo: the simulated drive has no tip sensor node "
                         "(--set canopen.tip_node_id=2)")
-    from drivers.rt import CpuLatencyRequest
+    from hil.drivers.rt import CpuLatencyRequest
     from hil.units import parse, parse_bounded
     args.seconds = parse_bounded(args.seconds, "time", "--seconds", nonnegative=True)
     args.switch_interval = parse_bounded(args.switch_interval, "time", "--switch-interval", nonnegative=True)

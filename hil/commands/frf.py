@@ -143,10 +143,10 @@ def _check_travel(cfg, st, duration: float, x0: float) -> None:
 
 
 def run(args) -> int:
-    from drivers import open_backend
     from hil import frf
     from hil.commands.move import load_config
     from hil.control import controller_from_config
+    from hil.drivers import open_backend
     from hil.plant_config import plant_from_config
     pm_min, gm_min_db = parse_angle_deg(args.pm, "--pm"), parse_gain_db(args.gm, "--gm")
     overrides = dict(parse_assignment(s) for s in args.set)

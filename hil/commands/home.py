@@ -30,9 +30,9 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from drivers.base import BackendFault
-    from drivers.canopen.backend import CanopenBackend
     from hil.commands.move import load_config
+    from hil.drivers.base import BackendFault
+    from hil.drivers.canopen.backend import CanopenBackend
     from hil.errors import UserError
     from hil.supervisor import refuse_if_tripped
     cfg = load_config(args)

@@ -36,8 +36,8 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    from drivers import BackendError, open_backend
     from hil.commands.move import _no_move, load_config
+    from hil.drivers import BackendError, open_backend
     from hil.errors import UserError, stop_exit_code
     from hil.profiles import LimitError, MoveSpec, Trajectory
     from hil.runtime import run_trajectory

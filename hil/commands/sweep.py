@@ -342,7 +342,7 @@ def run(args) -> int:
         raise
     except Exception as exc:
         # a backend that cannot be opened, or a scheduler address that is not one
-        from drivers import BackendError
+        from hil.drivers import BackendError
         if isinstance(exc, BackendError) or (args.scheduler and isinstance(exc, (ValueError, TimeoutError))):
             raise UserError(str(exc)) from None
         raise

@@ -15,7 +15,7 @@ Two ways to run it, with the same numbers on the simulated plant:
 
 * :func:`run_sim`: hil.simulate's compiled closed loop with the excitation and optional
   measurement noise;
-* :func:`run_backend`: cycle by cycle through the backend contract (drivers.base), on
+* :func:`run_backend`: cycle by cycle through the backend contract (hil.drivers.base), on
   hil.loop's :class:`~hil.loop.ControlLoop` with an :class:`~hil.loop.Injection`; the host closes
   both loops, so the backend takes torque (a CiA 402 drive in cyclic torque mode, the
   simulated plant).
@@ -149,7 +149,7 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
 
 
 def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, plant=None, clock=None) -> FrfRecord:
-    """The same experiment cycle by cycle through the backend contract (drivers.base), on
+    """The same experiment cycle by cycle through the backend contract (hil.drivers.base), on
     :class:`hil.loop.ControlLoop` with the excitation as its :class:`~hil.loop.Injection`: the
     host closes both loops, so the backend must take torque (``closes == "none"``). Works on any
     such backend (the simulated plant, a CiA 402 drive in cyclic torque mode); slower than

@@ -13,7 +13,7 @@ Each step:
 2. the verdict and the effects ``also_missing`` beside it, fitted one after the other on top of
    the model, then together (hil.ident.fit.fit_effects);
 3. every effect found so far refitted together from those values (one
-   :class:`~sim_plant.effects.Combination`, bounded and scaled as any candidate's fit), kept when
+   :class:`~hil.sim_plant.effects.Combination`, bounded and scaled as any candidate's fit), kept when
    it lowers the weighted error; the step is kept when its BIC score on the record pays for the
    parameters it added.
 

@@ -45,7 +45,7 @@ from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import at_noise_floor, gap_closed, residual_evidence
 from hil.plant_config import candidate, default_parameters
-from sim_plant.effects import CATALOGUE
+from hil.sim_plant.effects import CATALOGUE
 
 logger = logging.getLogger(__name__)
 
@@ -56,7 +56,7 @@ EXPLAINED = 0.8          # a combination of simpler effects explaining this shar
 
 def candidate_names(cfg, plant, include_parameters: bool = True) -> list[str]:
     """The default candidates: the catalogue effects that apply to the plant, and the
-    ``parameter:<key>`` candidates of the config (sim_plant.effects.default_parameters)."""
+    ``parameter:<key>`` candidates of the config (hil.sim_plant.effects.default_parameters)."""
     names = [n for n, e in CATALOGUE.items() if e.applicable(plant)]
     if include_parameters:
         names += default_parameters(cfg)

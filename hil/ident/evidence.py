@@ -15,7 +15,7 @@ max|v|):
 * channel_skew, tip_skew: the skew in samples, said to be a logging artefact, not physics;
 * force_offset, position_offset: the offset, said to be a sensor's, not a load (the force
   residual's mean at rest and moving: a sensor offset is the same in both);
-* stiffness_along_travel: k1 and the transmission mode's frequency (sim_plant.modal) at both ends
+* stiffness_along_travel: k1 and the transmission mode's frequency (hil.sim_plant.modal) at both ends
   of the stretch, and whether the record can see the variation at all: a constant k1 (the best of
   the two end values and their middle) scored against the fit (BIC, hil.ident.scores); when it
   does as well, the variation cannot be seen over the stroke the record covers;
@@ -33,9 +33,9 @@ import numpy as np
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.plant_config import candidate, plant_from_config
+from hil.sim_plant.effects import ALIASES
+from hil.sim_plant.modal import transmission_mode
 from hil.units import fmt_si
-from sim_plant.effects import ALIASES
-from sim_plant.modal import transmission_mode
 
 __all__ = ["evidence", "model_modes"]
 

@@ -34,7 +34,7 @@ from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, SIGNIFICANT_ABOVE_NOISE, bic_score
 from hil.ident.starts import record_scales, starting_values
 from hil.plant_config import candidate
-from sim_plant.effects import Effect
+from hil.sim_plant.effects import Effect
 
 logger = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ the file header, the quantization, the settled standstills), the record's, kept 
 :meth:`Replay.with_config`; ``noise_sources`` says where each came from.
 
 Artefacts of the recording (``channel_skew``, ``tip_skew``, ``force_offset``, ``position_offset``:
-sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop; the last
+hil.sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop; the last
 simulation is kept, so that fitting such an artefact costs no simulation.
 
 Measured inputs besides the command enter the one compiled loop (hil.simulate), each held from
@@ -260,7 +260,7 @@ def _open_loop_view(meas, cfg):
 
 def _loop_key(cfg):
     """What the simulation depends on: the config's values less the recording's artefacts."""
-    from sim_plant.effects import CATALOGUE, RecordEffect
+    from hil.sim_plant.effects import CATALOGUE, RecordEffect
     items = []
     for k, v in cfg.values.items():
         parts = k.split(".")

@@ -17,7 +17,7 @@ the fit (SI units).
   residual peak within :data:`LINE_TOL` (or three bins) of a line is the command's forced
   response, not a mode, unless its ratio to the input there stands :data:`LINE_ABOVE` times above
   the median ratio over the input's lines (a mode amplifies the lines near it).
-* Effects with a grid (:meth:`sim_plant.effects.Effect.grid`: the delays, the channel skews; the
+* Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews; the
   error is not convex in a delay): one simulation per grid point over the physically possible
   range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
   cheapest two are the starts of the local fit.
@@ -31,7 +31,7 @@ import numpy as np
 from hil.control import controller_from_config
 from hil.ident.replay import Replay
 from hil.ident.residual import periodic_in_position, spectrum_peaks
-from sim_plant.effects import Combination, Effect
+from hil.sim_plant.effects import Combination, Effect
 
 __all__ = ["record_scales", "starting_values", "mode_targets", "command_lines", "LINE_ABOVE", "LINE_TOL",
            "LINE_BINS"]

@@ -24,8 +24,8 @@ import math
 import numpy as np
 
 from hil.plant_config import candidate, record_effects
+from hil.sim_plant.effects import ALIASES
 from hil.simulate import simulate_config
-from sim_plant.effects import ALIASES
 
 __all__ = ["move_sequence", "synthesize", "pulse_train", "HIDDEN_DEFAULTS"]
 

@@ -47,7 +47,7 @@ def model_of(cfg):
         plant = plant_from_config(cfg)
         ctrl = controller_from_config(cfg, plant)
         # the exact ZOH of the chain (a matrix exponential) once per model, not once per run: the
-        # chain caches its discretization (sim_plant.chain), so this warms that cache
+        # chain caches its discretization (hil.sim_plant.chain), so this warms that cache
         plant.chain.discretize(ctrl.velocity_period)
         _MODELS[fp] = (plant, ctrl)
     return _MODELS[fp]

@@ -29,8 +29,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from drivers import open_backend
 from hil.analysis import move_figures
+from hil.drivers import open_backend
 from hil.errors import RunStopped, UserError
 from hil.profiles import MoveSpec, Trajectory, plan_move
 from hil.runtime import run_trajectory
@@ -58,7 +58,7 @@ def _code_version() -> str:
     h = hashlib.sha1(str(getattr(hil, "__version__", "")).encode())
     for rel in ("hil/control.py", "hil/simulate.py", "hil/profiles.py", "hil/analysis.py", "hil/runtime.py",
                 "hil/plant_config.py", "hil/sweep/run.py", "hil/sweep/transmission.py", "hil/sweep/model.py",
-                "sim_plant/kernel.py", "sim_plant/chain.py", "sim_plant/plant.py"):
+                "hil/sim_plant/kernel.py", "hil/sim_plant/chain.py", "hil/sim_plant/plant.py"):
         try:
             h.update((root / rel).read_bytes())
         except OSError:

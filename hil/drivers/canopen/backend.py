@@ -2,7 +2,7 @@
 
 Start-up (:meth:`CanopenBackend.open`): NMT pre-operational, SDO configuration from config
 (mode, scaling, limits, drive-side guards), PDO mapping, NMT operational. :meth:`enable` walks
-the CiA 402 state machine (drivers.canopen.cia402's tables) up to OPERATION ENABLED over SDO. Then one
+the CiA 402 state machine (hil.drivers.canopen.cia402's tables) up to OPERATION ENABLED over SDO. Then one
 exchange per cycle: the host writes RPDO1 (controlword + the target of the mode) and sends the
 SYNC (:meth:`sync`); the drive answers with TPDO1 (statusword, position actual, torque actual)
 and TPDO2 (velocity actual, linear encoder 0x60E4.1), TPDO3 (tool-tip 0x60E4.2) where the
@@ -21,7 +21,7 @@ whose answer is not in when the next one reads its feedback is recorded as misse
 answer) and ``canopen.pdo_miss_limit`` consecutive misses are ``lost communication``.
 
 A tool-tip sensor on its own node (``canopen.tip_node_id``; object dictionary
-drivers/canopen/eds/tip_encoder_cia406.eds, a CiA 406-like linear encoder): configured at start-up over SDO
+hil/drivers/canopen/eds/tip_encoder_cia406.eds, a CiA 406-like linear encoder): configured at start-up over SDO
 (profile 406 checked, measuring step 0x6005.1 read, TPDO1 mapped to position value 0x6004 and
 sent on every SYNC), set OPERATIONAL with the drive, and its TPDO is part of each cycle's answer
 (a missing one counts as a missing answer). It has no SYNC counter echo: its TPDO counts when it
@@ -42,9 +42,9 @@ dies: heartbeat consumer 0x1016 (the host produces a heartbeat) with abort-conne
 
 Faults: EMCY messages are decoded and recorded (:attr:`CanopenBackend.emcy_log`), the drive's
 heartbeat is watched (consumer timeout), missing TPDOs are counted; each shows as
-``Feedback.fault`` (the fault rule of drivers.base); a bus that refuses the SYNC or the RPDO is a
-:class:`~drivers.base.BackendFault` from :meth:`sync`. :meth:`quick_stop`, :meth:`fault_reset`,
-clean shutdown (drivers.base's ``shutdown``) in :meth:`disable` and :meth:`close` (disable, NMT
+``Feedback.fault`` (the fault rule of hil.drivers.base); a bus that refuses the SYNC or the RPDO is a
+:class:`~hil.drivers.base.BackendFault` from :meth:`sync`. :meth:`quick_stop`, :meth:`fault_reset`,
+clean shutdown (hil.drivers.base's ``shutdown``) in :meth:`disable` and :meth:`close` (disable, NMT
 pre-operational), both of which leave a drive this backend did not start (``open``) alone: ``hil
 status`` and ``hil reset`` only connect.
 
@@ -66,11 +66,11 @@ import can
 import canopen
 from canopen.sdo.constants import REQUEST_UPLOAD, SDO_STRUCT
 
-from drivers.base import Backend, BackendFault, Feedback, Setpoint
-from drivers.canopen import canlog, cia402
-from drivers.canopen import eds as eds_files
 from hil.config import Field, register_section
 from hil.control import controller_from_config
+from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
+from hil.drivers.canopen import canlog, cia402
+from hil.drivers.canopen import eds as eds_files
 from hil.errors import ConfigError
 from hil.plant_config import plant_from_config
 
@@ -90,7 +90,7 @@ SECTION = {
     "canopen.port": Field("int", "socketcand server port", default=29536, nonnegative=True),
     "canopen.node_id": Field("int", "the drive's node id", default=1, nonnegative=True),
     "canopen.host_node_id": Field("int", "the node id of the host's heartbeat", default=127, nonnegative=True),
-    "canopen.eds": Field("str", "object dictionary of the drive (EDS); default drivers/canopen/eds/cia402_generic.eds",
+    "canopen.eds": Field("str", "object dictionary of the drive (EDS); default hil/drivers/canopen/eds/cia402_generic.eds",
                          default=""),
     "canopen.mode": Field("str", "mode of operation: csp (the drive closes both loops), csv (velocity), cst "
                           "(torque: the host closes both)", default="csp", choices=("csp", "csv", "cst")),
@@ -106,7 +106,7 @@ SECTION = {
                                  "0x6004 in TPDO1 on every SYNC); 0: none (the tip is the drive's 0x60E4.2 "
                                  "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True),
     "canopen.tip_eds": Field("str", "object dictionary of the tip sensor node; default "
-                             "drivers/canopen/eds/tip_encoder_cia406.eds", default=""),
+                             "hil/drivers/canopen/eds/tip_encoder_cia406.eds", default=""),
     "canopen.heartbeat": Field("time", "drive's heartbeat producer time (0x1017)", default=0.1, positive=True),
     "canopen.heartbeat_timeout": Field("time", "host: the drive's heartbeat is lost after this", default=0.35,
                                        positive=True),
@@ -230,7 +230,7 @@ class CanopenBackend(Backend):
         self.started = False         # open() has begun: the drive is this backend's to stop and release
         self.emcy_log: list[dict] = []
         self.events: list[str] = []
-        self._recorder = None          # the bus trace of hil --can-log (drivers.canopen.canlog)
+        self._recorder = None          # the bus trace of hil --can-log (hil.drivers.canopen.canlog)
         self._rx = {}
         self._fresh = set()
         self._want = set()
@@ -325,7 +325,7 @@ class CanopenBackend(Backend):
                 raise BackendFault(f"cannot open the CAN bus {self.interface}:{self.channel} ({exc})") from None
         else:
             self.network.connect()
-        # hil --can-log FILE: python-can's logger on the bus, received and sent frames (drivers.canopen.canlog)
+        # hil --can-log FILE: python-can's logger on the bus, received and sent frames (hil.drivers.canopen.canlog)
         self._recorder = canlog.attach(self.network)
         self.node = self.network.add_node(self.node_id, self._od)
         self.node.sdo.RESPONSE_TIMEOUT = cfg.get("canopen.sdo_timeout", 0.5)
@@ -777,7 +777,7 @@ class CanopenBackend(Backend):
 
     def _send(self, cob_id: int, data) -> None:
         """One frame; a bus that refuses it (the interface or the server is gone) is a BackendFault:
-        the setpoint could not be delivered (the fault rule of drivers.base)."""
+        the setpoint could not be delivered (the fault rule of hil.drivers.base)."""
         try:
             self.network.send_message(cob_id, data)
         except (can.CanError, OSError) as exc:

@@ -1,4 +1,4 @@
-"""The embedded simulated plant as a backend (the default): the sim_plant model advanced by its
+"""The embedded simulated plant as a backend (the default): the hil.sim_plant model advanced by its
 exact zero-order-hold discretization, one cycle per :meth:`sync`.
 
 It can stand in for a drive in any of the three loop arrangements: ``closes = "none"`` (the host
@@ -20,7 +20,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drivers.base import LOOPS, Backend, Feedback, Setpoint
 from hil.control import (
     controller_from_config,
     delay_line,
@@ -33,8 +32,9 @@ from hil.control import (
     quantize,
     velocity_law,
 )
+from hil.drivers.base import LOOPS, Backend, Feedback, Setpoint
 from hil.plant_config import plant_from_config
-from sim_plant.kernel import plant_step
+from hil.sim_plant.kernel import plant_step
 
 __all__ = ["SimulatedPlant"]
 

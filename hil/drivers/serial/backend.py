@@ -1,6 +1,6 @@
 """Servo drives with an ASCII command interface over RS-232 / RS-485 (pyserial).
 
-The command set is configuration (``[serial]``, see :mod:`drivers.serial.protocol`,
+The command set is configuration (``[serial]``, see :mod:`hil.drivers.serial.protocol`,
 ``config/serial_ascii_example.toml`` and the README (Serial drives)); a user adapts the backend to a drive
 without writing code.
 
@@ -13,9 +13,9 @@ echoes it. A missing reply (timeout), a partial or garbled line, a checksum erro
 reply or the drive's error reply is retried, at most ``serial.retries`` times and only while the
 transaction's time budget lasts (``serial.budget``, default: half the cycle); a port that vanished
 is reopened within the same budget. Then the transaction has failed, with the reason; following
-the fault rule of drivers.base, a failed ``read`` in the cycle is reported as ``Feedback.fault``
+the fault rule of hil.drivers.base, a failed ``read`` in the cycle is reported as ``Feedback.fault``
 (the supervisor trips on it), a setpoint the drive did not confirm raises
-:class:`~drivers.base.BackendFault` (the loop stops the axis), and so does anything that fails
+:class:`~hil.drivers.base.BackendFault` (the loop stops the axis), and so does anything that fails
 outside the cycle (``open``, ``enable``). Retrying is safe because every cyclic command is absolute
 (a target, not an increment): executing it twice is executing it once. The drive's own watchdog is
 armed at :meth:`open` where the command set has one (``watchdog``), so that the drive stops when
@@ -39,10 +39,10 @@ import time
 
 import serial
 
-from drivers.base import Backend, BackendFault, Feedback, Setpoint
-from drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError
 from hil.config import Field, register_section
 from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, velocity_law
+from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
+from hil.drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError
 from hil.errors import BackendError, ConfigError
 from hil.plant_config import plant_from_config
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim_plant.modal import frequencies_3dof, modal_matrix_2dof, modal_matrix_3dof, omega_2dof
+from hil.sim_plant.modal import frequencies_3dof, modal_matrix_2dof, modal_matrix_3dof, omega_2dof
 
 __all__ = ["c_2dof", "c2_from_c1", "modal_ratios_3dof", "c1_c2_from_ratio", "ratios_from_c"]
 

@@ -3,7 +3,7 @@ zero-order hold over one velocity period), dry friction on the motor (time-stepp
 stiction) and the force terms of plant effects.
 
 Effects reach the compiled loop as rows of a small table: a code and up to ``N_EFFECT_PARAMS``
-numbers. The Python side of each effect (sim_plant.effects) writes its rows into
+numbers. The Python side of each effect (hil.sim_plant.effects) writes its rows into
 ``Plant.effects``; :func:`effect_table` turns them into the arrays the loops take. This module is
 the only place that knows what the codes mean.
 """
@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-from sim_plant.plant import Plant
+from hil.sim_plant.plant import Plant
 
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
            "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "empty_effects", "effect_table", "time_delay",

@@ -1,6 +1,6 @@
 """A simulated CiA 402 servo drive on a CAN bus: a ``canopen`` LocalNode with the object dictionary
-of drivers/canopen/eds/cia402_generic.eds, answering SDO (canopen's server), NMT (canopen's NMT slave), SYNC,
-PDO, heartbeat and EMCY. Its shaft is the sim_plant model (drivers.sim.SimulatedPlant), advanced
+of hil/drivers/canopen/eds/cia402_generic.eds, answering SDO (canopen's server), NMT (canopen's NMT slave), SYNC,
+PDO, heartbeat and EMCY. Its shaft is the hil.sim_plant model (hil.drivers.sim.SimulatedPlant), advanced
 one cycle per SYNC, closing in the drive the loops the mode of operation gives it (CSP: both,
 CSV: velocity, CST: none).
 
@@ -9,7 +9,7 @@ so that runs are deterministic (canopen's notifier thread hands the drive its fr
 ``lockstep=False`` (``hil drive-sim`` in its own process, the in-process benchmark) runs the drive
 as a drive runs: one thread (:meth:`DriveSim.serve`) takes each frame from the bus itself, and a
 SYNC is answered at once with the TPDOs of the cycle it starts (the plant advanced by the
-compiled drive step of drivers.sim, about 5 us, in about 20 us of cycle work in all), so that
+compiled drive step of hil.drivers.sim, about 5 us, in about 20 us of cycle work in all), so that
 the answer leaves within a fixed, short time of the SYNC (the figure is in ``hil drive-sim
 --help``); the same thread produces the heartbeats on the wall clock and keeps the shaft moving
 on its own clock when SYNCs stop (the link died: the drive-side guards must stop it).
@@ -23,7 +23,7 @@ Fault injection (:meth:`DriveSim.inject`): ``emcy`` (a drive fault: EMCY + FAULT
 ``tip_missing_pdo`` (the tip sensor's TPDO withheld).
 
 A tool-tip sensor on its own node (``tip_node_id``, config ``canopen.tip_node_id``):
-:class:`TipSensorSim`, a CiA 406-like absolute linear encoder (drivers/canopen/eds/tip_encoder_cia406.eds) on
+:class:`TipSensorSim`, a CiA 406-like absolute linear encoder (hil/drivers/canopen/eds/tip_encoder_cia406.eds) on
 the same bus, whose position value 0x6004 is the plant's tip mass, sent in its TPDO1 on every SYNC.
 """
 from __future__ import annotations
@@ -40,12 +40,12 @@ from collections import deque
 import can
 import canopen
 
-from drivers.base import Setpoint
-from drivers.canopen import cia402
-from drivers.canopen import eds as eds_files
-from drivers.rt import fine_timer_slack
-from drivers.sim import SimulatedPlant
 from hil.control import new_velocity_state, velocity_law
+from hil.drivers.base import Setpoint
+from hil.drivers.canopen import cia402
+from hil.drivers.canopen import eds as eds_files
+from hil.drivers.rt import fine_timer_slack
+from hil.drivers.sim import SimulatedPlant
 from hil.errors import ConfigError
 
 __all__ = ["DriveSim", "TipSensorSim", "FAULTS", "SocketcandServerBus"]
@@ -607,7 +607,7 @@ class DriveSim:
 
 class TipSensorSim:
     """A tool-tip sensor on its own CANopen node: a CiA 406-like absolute linear encoder
-    (drivers/canopen/eds/tip_encoder_cia406.eds) on the drive's bus. Position value 0x6004 = the plant's tip mass
+    (hil/drivers/canopen/eds/tip_encoder_cia406.eds) on the drive's bus. Position value 0x6004 = the plant's tip mass
     in steps of 0x6005.1 nm, plus the preset 0x6003 (written at homing: the value the sensor
     shows there); TPDO1 (0x6004) on every SYNC while OPERATIONAL, sent before the drive's TPDOs in
     the same SYNC (in lockstep, the host's SDO barrier covers it too). It answers SDO and NMT

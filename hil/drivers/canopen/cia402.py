@@ -3,8 +3,8 @@ shows them, the controlword commands and how a drive recognises them, the transi
 power state machine, the host's way up to Operation Enabled, and the emergency (EMCY) error
 codes and how they read.
 
-Both sides read these tables: the host backend (drivers.canopen) to drive a real or simulated
-drive up and down, the simulated drive (drivers.canopen.drive_sim) to answer. They agree with
+Both sides read these tables: the host backend (hil.drivers.canopen) to drive a real or simulated
+drive up and down, the simulated drive (hil.drivers.canopen.drive_sim) to answer. They agree with
 ``canopen.profiles.p402.State402`` (checked in tests/test_canopen.py).
 """
 from __future__ import annotations

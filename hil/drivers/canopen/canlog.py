@@ -6,7 +6,7 @@ binary, ``.log``, ``.csv``, ...), the files every CAN tool reads. The recorder i
 
 * received frames: attached to the canopen network's notifier (the thread that already takes every
   received frame and hands it to canopen's subscribers) during start-up, SDO and shutdown, and
-  handed over by the loop's own thread during the cyclic phase (drivers.canopen.backend takes its
+  handed over by the loop's own thread during the cyclic phase (hil.drivers.canopen.backend takes its
   frames itself then), so nothing is added to the receive path but one call per frame;
 * sent frames: the bus's ``send`` is wrapped, each frame written after it went out, marked as
   transmitted (``is_rx = False``; ``Tx`` in an ASC file).

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sim_plant.chain import Chain
+from hil.sim_plant.chain import Chain
 
 __all__ = ["Plant", "Friction"]
 
@@ -46,7 +46,7 @@ class Plant:
     the drive gain for a linear actuator). ``speed_scale``: controller speed units per m/s of
     mass 1 (2 pi/p: rad/s of the motor; 1 for a linear actuator). ``table``, ``tip``: 0-based
     mass indices of the linear encoder and the tool tip. ``effects``: kernel terms of the plant
-    effects (see :mod:`sim_plant.effects`)."""
+    effects (see :mod:`hil.sim_plant.effects`)."""
     chain: Chain
     force_gain: float
     speed_scale: float

@@ -3,8 +3,8 @@
 An :class:`Effect` has a catalogue name (used on the command line, in JSON and as the config
 section ``[effects.<name>]``), a physical description, its parameters (with unit kind, bounds and
 a starting guess, SI) and :meth:`Effect.apply`, its contribution to the plant in the loop: it
-returns a new :class:`~sim_plant.plant.Plant` (changed masses, links or friction, or force terms
-for the compiled loop, see sim_plant.kernel).
+returns a new :class:`~hil.sim_plant.plant.Plant` (changed masses, links or friction, or force terms
+for the compiled loop, see hil.sim_plant.kernel).
 
 A configuration switches an effect on by giving its section, e.g.::
 
@@ -27,9 +27,9 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
-from sim_plant import kernel
-from sim_plant.chain import Chain
-from sim_plant.plant import Friction, Plant
+from hil.sim_plant import kernel
+from hil.sim_plant.chain import Chain
+from hil.sim_plant.plant import Friction, Plant
 
 __all__ = ["Param", "Effect", "CATALOGUE", "ALIASES", "register", "effect", "Combination", "RecordEffect"]
 
@@ -422,7 +422,7 @@ class StiffnessAlongTravel(Effect):
     nut position: the effect is fitted as k1 at the two ends of a stretch of travel
     (``x_start``, ``x_end``: settings, by default the stroke the record covers), and the kernel
     evaluates k1(x_nut) = 1 / (1/k_start + (x - x_start)/(x_end - x_start) (1/k_end - 1/k_start))
-    every step (sim_plant.components.k1_along_travel)."""
+    every step (hil.sim_plant.components.k1_along_travel)."""
     name = "stiffness_along_travel"
     description = ("the transmission stiffness k1 changes with the nut position (screw held at one end: EA/L "
                    "in series with the fixed compliances), given at both ends of the travel")
@@ -456,7 +456,7 @@ class StiffnessAlongTravel(Effect):
 class StiffnessFixedFixed(StiffnessAlongTravel):
     """k1 along the travel of a screw held axially at both ends (fixed-fixed): the nut at ``a`` from
     one bearing of ``L`` sees the two screw lengths in parallel, E A L / (a (L - a)) (Eq. 13 with
-    rigid bearings, sim_plant.components.k_screw_fixed_fixed), least in the middle. Its compliance
+    rigid bearings, hil.sim_plant.components.k_screw_fixed_fixed), least in the middle. Its compliance
     a (L - a) / (E A L), in series with the fixed ones, is quadratic in the nut position: fitted as
     k1 at both ends of the stretch and midway, wherever the bearings sit. A screw held at one end
     is the special case of a compliance linear along the travel (``stiffness_along_travel``)."""

@@ -2,7 +2,7 @@
 
 It speaks the command set of the config's ``[serial]`` section (commands recognised from their
 templates, replies rendered from their patterns: literal text and named groups) and its shaft is
-the sim_plant model (:class:`drivers.sim.SimulatedPlant`, ``closes="both"`` in position mode,
+the hil.sim_plant model (:class:`hil.drivers.sim.SimulatedPlant`, ``closes="both"`` in position mode,
 ``"velocity"`` in velocity mode).
 
 Time: with ``advance="setpoint"`` (the default) the plant advances one cycle (one position
@@ -46,10 +46,10 @@ import tty
 
 import numpy as np
 
-from drivers.base import Setpoint
-from drivers.serial.protocol import CommandSet, ReplyError, command_pattern, render_reply
-from drivers.sim import SimulatedPlant
 from hil.config import load
+from hil.drivers.base import Setpoint
+from hil.drivers.serial.protocol import CommandSet, ReplyError, command_pattern, render_reply
+from hil.drivers.sim import SimulatedPlant
 from hil.errors import ConfigError
 
 __all__ = ["SimulatedSerialDrive", "serve", "FAULTS", "parse_fault"]
@@ -397,5 +397,5 @@ class SimulatedSerialDrive:
         return False
 
 
-if __name__ == "__main__":      # pragma: no cover - python -m drivers.serial.drive_sim CONFIG
+if __name__ == "__main__":      # pragma: no cover - python -m hil.drivers.serial.drive_sim CONFIG
     serve(load(sys.argv[1]), announce=lambda p: print(p, flush=True))

@@ -121,7 +121,7 @@ class Backend(ABC):
         :meth:`enable`): the positions of a :class:`Feedback`. The runtime plans every move from
         here (or refuses one planned from elsewhere) before it enables the drive. ``None``: this
         backend puts the axis where the run starts itself (a simulated stand-in); every backend of
-        ``drivers.BACKENDS`` that drives an axis answers. Raises BackendFault where the drive does
+        ``hil.drivers.BACKENDS`` that drives an axis answers. Raises BackendFault where the drive does
         not answer."""
         return None
 

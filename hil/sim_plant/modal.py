@@ -1,7 +1,7 @@
 """Closed-form modes of the 2-dof and 3-dof free chains (Eq. 2, 4, 5 and Appendix 1).
 
 These are the paper's formulas, kept as a second computation next to the generic eigenproblem of
-:meth:`sim_plant.chain.Chain.modes`; the tests compare the two.
+:meth:`hil.sim_plant.chain.Chain.modes`; the tests compare the two.
 """
 from __future__ import annotations
 
