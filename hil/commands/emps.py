@@ -121,7 +121,10 @@ def run(args) -> int:
                                  "+ asymmetric_friction": cfgs["asymmetric"]})
     val_md = validation_markdown(val) if val else ""
     write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n" + (f"\n{val_md}\n" if val_md else ""))
-    write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
+    from hil.plots.interactive import write_interactive
+    title = "EMPS: start model against measurement, and the fitted model"
+    write_interactive(a, out / "interactive.html", title, after=b, names=("start model", "fitted model"))
+    write_report(out / "report.html", title, a, figs, after=b, interactive="interactive.html",
                  record=args.data, configs=[("start model", args.config), ("fitted model", out / "emps_fitted.toml")],
                  emps={"rows": rows, "published": PUBLISHED, "check": chk, "diagnoses": diags},
                  names=("start model", "fitted model"), validation=_validation_tables(val))
