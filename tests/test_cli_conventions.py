@@ -475,3 +475,40 @@ def test_synth_param_needs_its_unit(tmp_path, capsys):
                "--out", str(tmp_path / "s.csv")])
     err = capsys.readouterr().err
     assert rc == 2 and "--param level 2: a torque needs its unit (N*m)" in err, err
+
+
+# --- issue 29, item 5: progress with its total and the time left, under --json too ---------------
+
+def test_json_stdout_stays_pure_while_stderr_shows_progress_with_a_total(tmp_path, capsys):
+    """A long diagnosis (or a 100 s hil emps) under --json: stdout is the JSON alone; stderr (not a
+    terminal here: plain lines) counts the fits against their total, with the time left."""
+    from hil.ident.synth import synthesize
+    from hil.io.measurement import write
+    ch, _ = synthesize(load(BENCH), "coulomb_friction", duration=4.0, seed=3)
+    rec = write(tmp_path / "r.csv", ch)
+    rc = main(["diagnose", str(rec), "--config", BENCH, "--candidates", "coulomb_friction,constant_force,viscous_friction",
+               "--max-steps", "2", "--jobs", "1", "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0 and json.loads(cap.out)["verdict"] == "coulomb_friction"
+    lines = cap.err.strip().splitlines()
+    assert lines, "no progress under --json"
+    counts = [re.match(r"diagnose: (\d+)/(\d+) fits \((\d+) %\), [0-9:]+ s? ?elapsed, ETA [0-9:]+( s)?", ln)
+              for ln in lines]
+    assert all(counts), lines
+    done, total = int(counts[-1].group(1)), int(counts[-1].group(2))
+    assert done == total >= 3 and counts[0].group(2) == "3"      # the first diagnosis's three candidates
+
+
+def test_progress_lines_are_throttled_and_count_to_the_total(capsys, monkeypatch):
+    from hil.commands import progress
+    monkeypatch.setattr(progress, "LINE_INTERVAL", 3600.0)
+    with progress.bar("emps", None, total=4) as step:
+        for name in "abcd":
+            step(name)
+        step.expect(2)
+        step("e")
+        step("f")
+    err = capsys.readouterr().err.splitlines()
+    # the first, and each time the count reaches the total (the rest within the interval)
+    assert [ln.split(",")[0] for ln in err] == ["emps: 1/4 fits (25 %)", "emps: 4/4 fits (100 %)",
+                                                "emps: 6/6 fits (100 %)"]

@@ -194,7 +194,7 @@ def run(args) -> int:
         refuse_if_tripped(cfg)
         supervisor = None
     from hil.commands.progress import shown
-    progress = frf.stderr_progress if shown(args) else None      # silent with --json or off a terminal
+    progress = frf.stderr_progress if shown(args) else None      # on a terminal (stderr: --json too)
     try:
         result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
                              pm_min=pm_min, gm_min_db=gm_min_db, supervisor=supervisor)
