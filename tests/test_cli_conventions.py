@@ -512,3 +512,18 @@ def test_progress_lines_are_throttled_and_count_to_the_total(capsys, monkeypatch
     # the first, and each time the count reaches the total (the rest within the interval)
     assert [ln.split(",")[0] for ln in err] == ["emps: 1/4 fits (25 %)", "emps: 4/4 fits (100 %)",
                                                 "emps: 6/6 fits (100 %)"]
+
+
+def test_fit_progress_counts_each_fit_once(tmp_path, capsys, monkeypatch):
+    """hil fit --add A --add B: A, B and their joint refit, three steps of a total of three."""
+    from hil.commands import progress
+    from hil.ident.synth import synthesize
+    from hil.io.measurement import write
+    monkeypatch.setattr(progress, "LINE_INTERVAL", 0.0)
+    ch, _ = synthesize(load(BENCH), "coulomb_friction", duration=3.0, seed=3)
+    rec = write(tmp_path / "r.csv", ch)
+    assert main(["fit", str(rec), "--config", BENCH, "--add", "coulomb_friction", "--add", "constant_force",
+                 "--out", str(tmp_path / "f.toml"), "--json"]) == 0
+    cap = capsys.readouterr()
+    json.loads(cap.out)
+    assert [ln.split(" (")[0] for ln in cap.err.splitlines()] == ["fit: 1/3 fits", "fit: 2/3 fits", "fit: 3/3 fits"]
