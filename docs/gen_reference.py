@@ -149,7 +149,7 @@ def effects_reference() -> str:
            "The catalogue of `hil/sim_plant/effects.py`: the physical effects that `hil diagnose` looks for, "
            "`hil fit --add NAME` fits, `hil synth --effect NAME --param P=VALUE` hides in a synthetic record "
            "and a configuration switches on with an `[effects.NAME]` section. Parameter values are SI "
-           "(`--param` takes SI numbers; a config section may write units). Bounds and the starting "
+           "(`--param` takes each value with its unit, e.g. `level=2Nm`; a config section may write bare SI numbers). Bounds and the starting "
            "guess are those of the fit. Besides these, `parameter:<dotted key>` (e.g. "
            "`parameter:plant.c2`) re-identifies any numeric configuration key.", "",
            "| effect | parameters | what |", "|---|---|---|"]
@@ -237,7 +237,9 @@ def commands_reference() -> str:
                "Every command of `hil`, its usage and its options, from the command line's own parsers "
                "(`hil COMMAND --help` prints the same). Conventions shared by all: the axis is `--config FILE`; "
                "`--set KEY=VALUE` overrides a [configuration key](config.md) (repeatable); quantities take "
-               "units (`100mm`, `7000mm/min`, `200ms`; a bare number is SI); `--json` prints the result as "
+               "their unit (`100mm`, `7000mm/min`, `200ms`): a bare number is refused with the units it takes, "
+               "except zero, `inf` and counts (`--pm`/`--gm` of `hil frf` read bare numbers in degrees and "
+               "dB; a `--set` value follows the config's rule, a bare number is SI); `--json` prints the result as "
                "JSON ([JSON output](json.md)); errors are one line and the exit code says what kind "
                "([Safety](../guide/safety.md)).", "",
                "```text", parser.format_usage().strip(), "```", "",

@@ -318,6 +318,18 @@ class Config:
     def __init__(self, values: dict[str, Any], source: str = "<config>"):
         self.values = values
         self.source = source
+        self.overrides: dict[str, Any] = {}     # the --set values it was loaded with, as given
+
+    def command_line(self) -> str:
+        """``--config FILE --set KEY=VALUE ...``: the options that load this config again, for a
+        hint that names a command to run (``hil reset`` after a trip), quoted for a POSIX shell
+        with double quotes (the hint itself stands in single quotes)."""
+        import re
+        words = ["--config", self.source]
+        for key, value in self.overrides.items():
+            words += ["--set", f"{key}={_assignment_text(value)}"]
+        safe = re.compile(r"[\w@%+=:,./-]+")
+        return " ".join(w if safe.fullmatch(w) else '"' + re.sub(r'(["\\$`])', r"\\\1", w) + '"' for w in words)
 
     # -- access ------------------------------------------------------------------------------
     def __getitem__(self, key: str) -> Any:
@@ -484,7 +496,25 @@ def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None 
                 raise ConfigError(f"--set {k}: unknown key {k!r} (not a parameter of {source})"
                                   f"{did_you_mean(k)}")
             raw[k] = v
-    return _validate(raw, source)
+    cfg = _validate(raw, source)
+    cfg.overrides = dict(overrides or {})
+    return cfg
+
+
+def _assignment_text(value: Any) -> str:
+    """The VALUE of ``--set KEY=VALUE`` that :func:`parse_assignment` reads back as ``value``."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        try:
+            tomllib.loads(f"v = {value}")
+        except tomllib.TOMLDecodeError:
+            return value                      # read back as the same string
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    import json
+    return json.dumps(value)
 
 
 def examples_dir() -> Path:

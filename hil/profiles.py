@@ -248,11 +248,12 @@ class AxisLimits:
     speed: float
     acceleration: float
     jerk: float
+    g0: float | None = None     # the rapid speed (nc.g0): no feed above it, as on an NC
 
     @classmethod
     def from_config(cls, cfg) -> "AxisLimits":
         return cls(cfg["limits.travel_min"], cfg["limits.travel_max"], cfg["limits.speed"],
-                   cfg["limits.acceleration"], cfg["limits.jerk"])
+                   cfg["limits.acceleration"], cfg["limits.jerk"], cfg.get("nc.g0"))
 
 
 def _fit_hint(move: SineSquareMove, which: str, lim: AxisLimits) -> str:
@@ -279,6 +280,23 @@ def _fit_hint(move: SineSquareMove, which: str, lim: AxisLimits) -> str:
     return f"j_max <= {lim.jerk:g} m/s^3 would fit"
 
 
+def _feed_problems(move: SineSquareMove, lim: AxisLimits, label: str) -> list[str]:
+    """The feed asked for, above G0 or limits.speed: refused even where the stroke is too short to
+    reach it (the planned peak speed stays below; the move would silently run slower than asked)."""
+    spec = move.spec
+    if spec is None:
+        return []
+    g0 = spec.g0 or lim.g0
+    source = "nc.g0" if g0 == lim.g0 else "--g0"
+    if g0 and g0 <= lim.speed and spec.feed > g0 * (1 + 1e-9):       # G0 is the tighter limit
+        return [f"{label}: feed {spec.feed * 60e3:.0f} mm/min ({spec.feed:.4g} m/s) is above the rapid speed G0 "
+                f"{g0 * 60e3:.0f} mm/min ({g0:g} m/s, {source}); a feed of at most {g0 * 60e3:.0f} mm/min would fit"]
+    if spec.feed > lim.speed * (1 + 1e-9) and not move.peak_speed > lim.speed * (1 + 1e-9):
+        return [f"{label}: feed {spec.feed * 60e3:.0f} mm/min ({spec.feed:.4g} m/s) exceeds limits.speed "
+                f"{lim.speed:g} m/s (the stroke is too short to reach it); {_fit_hint(move, 'speed', lim)}"]
+    return []
+
+
 def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
     """Refuse a trajectory that would break a limit of the axis, before any motion."""
     problems = []
@@ -300,6 +318,7 @@ def check_limits(traj: Trajectory, lim: AxisLimits) -> None:
                                 f"{lim.travel_min * 1e3:.3f} mm by {(lim.travel_min - p) * 1e3:.3f} mm; "
                                 f"a stroke of at most {(seg.start - lim.travel_min) * 1e3:.3f} mm (negative) "
                                 f"from {seg.start * 1e3:.3f} mm would fit")
+        problems += _feed_problems(seg, lim, label)
         for which, value, limit, unit in (("speed", seg.peak_speed, lim.speed, "m/s"),
                                           ("acceleration", seg.a_max, lim.acceleration, "m/s^2"),
                                           ("jerk", seg.j_max, lim.jerk, "m/s^3")):

@@ -52,6 +52,22 @@ def state_dir() -> Path:
     return Path(base) / APP
 
 
+# the units of a length in a trip's reason, largest first (no pint in the real-time path)
+_LENGTH_UNITS = (("m", 1.0), ("mm", 1e-3), ("um", 1e-6), ("nm", 1e-9))
+
+
+def exceeds(value: float, limit: float) -> str:
+    """``"1.6 um > 1 um"``: a length past its limit, both in the limit's unit, with as many digits
+    as tell them apart (1.6 um past a 1 um window read ``0.002 mm > 0.001 mm``)."""
+    name, scale = next(((n, s) for n, s in _LENGTH_UNITS if abs(limit) >= s), _LENGTH_UNITS[-1])
+    a, b = value / scale, limit / scale
+    for digits in range(3, 12):
+        va, vb = f"{a:.{digits}g}", f"{b:.{digits}g}"
+        if va != vb:
+            break
+    return f"{va} {name} > {vb} {name}"
+
+
 def latch_path(cfg=None) -> Path:
     """The latch file: ``supervisor.latch_file`` where the configuration gives one, else
     ``latch.json`` in :func:`state_dir`."""
@@ -119,8 +135,13 @@ class Supervisor:
         if self.tripped:
             when = f" at {self.tripped_at}" if self.tripped_at else ""
             raise SupervisorTripped(f"motion refused: the supervisor tripped{when} ({self.reason}); find the cause, "
-                                    f"then 'hil reset --config {self.cfg.source}' clears it (latch {self.latch_file})")
+                                    f"then 'hil reset {self._config_options()}' clears it (latch {self.latch_file})")
         self.start()
+
+    def _config_options(self) -> str:
+        """The --config and --set options of the run refused, for the hint's ``hil reset``."""
+        line = getattr(self.cfg, "command_line", None)
+        return line() if callable(line) else f"--config {self.cfg.source}"
 
     def reset(self) -> None:
         if self.latch_file is not None:
@@ -207,10 +228,10 @@ class Supervisor:
             return f"torque limit: {abs(fb.output):.4g} > {tq:g}"
         w = cfg.get("limits.following_error_table")
         if w and abs(x_cmd - fb.x_table) > w:
-            return f"following error at the table: {abs(x_cmd - fb.x_table) * 1e3:.3f} mm > {w * 1e3:g} mm"
+            return f"following error at the table: {exceeds(abs(x_cmd - fb.x_table), w)}"
         w = cfg.get("limits.following_error_tip")
         if w and not math.isnan(fb.x_tip) and abs(x_cmd - fb.x_tip) > w:
-            return f"following error at the tool tip: {abs(x_cmd - fb.x_tip) * 1e3:.3f} mm > {w * 1e3:g} mm"
+            return f"following error at the tool tip: {exceeds(abs(x_cmd - fb.x_tip), w)}"
         # frozen feedback: the reading does not change while the command moves
         moving = len(c) >= 2 and abs(c[-1] - c[-2]) / T > 1e-3
         if self._last_x is not None and fb.x_table == self._last_x[0] and fb.x_motor == self._last_x[1] and moving:
@@ -334,12 +355,12 @@ def check_record(cfg, ch: dict, v_motor=None, period: float | None = None) -> tu
     w = cfg.get("limits.following_error_table")
     if w:
         et = np.abs(x - xt)
-        rules.append((et > w, lambda k: f"following error at the table: {et[k] * 1e3:.3f} mm > {w * 1e3:g} mm"))
+        rules.append((et > w, lambda k: f"following error at the table: {exceeds(et[k], w)}"))
     w2 = cfg.get("limits.following_error_tip")
     if w2:
         ep = np.abs(x - tip)
-        rules.append((~np.isnan(tip) & (ep > w2), lambda k: f"following error at the tool tip: {ep[k] * 1e3:.3f} mm "
-                      f"> {w2 * 1e3:g} mm"))
+        rules.append((~np.isnan(tip) & (ep > w2), lambda k: f"following error at the tool tip: "
+                      f"{exceeds(ep[k], w2)}"))
     # frozen feedback: readings unchanged (from the tick before) while the command moved
     frozen_n = int(cfg.get("supervisor.frozen_cycles", 10))
     same = nothing.copy()

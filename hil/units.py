@@ -18,7 +18,7 @@ from functools import lru_cache
 
 from hil.errors import UnitError
 
-__all__ = ["UnitError", "parse", "parse_list", "parse_bounded", "parse_angle_deg", "parse_gain_db", "DIMENSIONS",
+__all__ = ["UnitError", "parse", "parse_option", "parse_list", "parse_bounded", "parse_angle_deg", "parse_gain_db", "DIMENSIONS",
            "fmt", "fmt_uncertain", "round_to_uncertainty", "display_unit", "DISPLAY_UNITS", "SI_UNIT"]
 
 
@@ -139,9 +139,41 @@ def parse(value, kind: str, what: str = "value") -> float:
     return out
 
 
-def parse_list(text: str, kind: str, what: str = "value") -> list[float]:
+# The units a command-line option of each kind is usually written in, for the message that asks for
+# one (the first few of each kind; pint reads any other unit of the dimension as well).
+OPTION_UNITS = {
+    "length": "mm, um, m", "time": "s, ms, us", "frequency": "Hz, kHz",
+    "speed": "mm/min, m/min, mm/s, m/s", "acceleration": "m/s^2, mm/s^2", "jerk": "m/s^3, mm/s^3",
+    "angular_speed": "rad/s, rpm", "force": "N, kN", "torque": "N*m", "voltage": "V, mV",
+}
+
+_BARE_NUMBER = re.compile(r"[+\-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+\-]?[0-9]+)?")
+
+
+def option_units(kind: str) -> str:
+    """The units named in the message for a bare number given for ``kind`` (``"s, ms, us"``)."""
+    if kind in OPTION_UNITS:
+        return OPTION_UNITS[kind]
+    return ", ".join(dict.fromkeys([shown for shown, _, _ in DISPLAY_UNITS.get(kind, [])] + [SI_UNIT[kind]]))
+
+
+def parse_option(value, kind: str, what: str) -> float:
+    """:func:`parse` for a command-line option: the one rule of the command line is that a quantity
+    carries its unit, so a bare number is refused with one line naming the units it takes
+    (``--tacc 200: a time needs its unit (s, ms, us)``), where :func:`parse` (the config's rule,
+    config/SCHEMA.md) would read it as SI. Numbers whose meaning no unit changes stay bare: a
+    dimensionless kind, zero and ``inf``.
+    """
+    text = _normalise(value) if isinstance(value, str) else value
+    if kind != "dimensionless" and isinstance(text, str) and _BARE_NUMBER.fullmatch(text) and float(text) != 0.0:
+        raise UnitError(f"{what} {value}: a {kind.replace('_', ' ')} needs its unit ({option_units(kind)})")
+    return parse(value, kind, what)
+
+
+def parse_list(text: str, kind: str, what: str = "value", *, option: bool = False) -> list[float]:
     """Comma-separated quantities, e.g. ``"60ms,80ms,90ms"``; a unit on the last one applies to
-    the bare numbers before it (``"60,80,90ms"``)."""
+    the bare numbers before it (``"60,80,90ms"``). ``option``: a command-line option's list, whose
+    numbers need a unit (:func:`parse_option`): on the last one at least."""
     parts = [p.strip() for p in str(text).split(",") if p.strip()]
     if not parts:
         raise UnitError(f"{what}: empty list")
@@ -150,13 +182,13 @@ def parse_list(text: str, kind: str, what: str = "value") -> list[float]:
     for p in parts:
         if unit and re.fullmatch(r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?", p):
             p = p + " " + unit
-        out.append(parse(p, kind, what))
+        out.append(parse_option(p, kind, what) if option else parse(p, kind, what))
     return out
 
 
 def parse_bounded(value, kind: str, what: str, *, positive: bool = False, nonnegative: bool = False,
                   minimum: float | None = None, maximum: float | None = None) -> float:
-    """:func:`parse` for a command-line option that must be a finite number within bounds
+    """:func:`parse_option` for a command-line option that must be a finite number within bounds
     (SI): one clear line (a UnitError) for inf, a sign that does not fit, or a value out of range.
 
     Parameters
@@ -168,7 +200,7 @@ def parse_bounded(value, kind: str, what: str, *, positive: bool = False, nonneg
     minimum, maximum : float, optional
         Bounds, SI (inclusive); the message shows them in SI units.
     """
-    x = parse(value, kind, what)
+    x = parse_option(value, kind, what)
     unit = SI_UNIT[kind]
     if not math.isfinite(x):
         raise UnitError(f"{what}: expected a finite {kind} ({unit}), got {value!r}")

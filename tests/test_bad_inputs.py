@@ -128,14 +128,14 @@ def test_fit_refit_unknown_key_and_out_over_its_config(capsys, tmp_path, records
 def test_other_commands(capsys, tmp_path):
     _one_line(capsys, ["drive-sim", "--config", str(CONFIG / "paper_bench_canopen.toml"), "--port", "70000"],
               "--port 70000")
-    _one_line(capsys, ["synth", "--config", BENCH, "--sample-period", "100", "--out", str(tmp_path / "s.csv")],
+    _one_line(capsys, ["synth", "--config", BENCH, "--sample-period", "100s", "--out", str(tmp_path / "s.csv")],
               "--sample-period")
     _one_line(capsys, ["synth", "--config", BENCH, "--out", BENCH], "is an input")
-    _one_line(capsys, ["sweep", "--config", BENCH, "--stroke", "590mm", "--feed", "15m/min", "--jmax", "1..2000",
+    _one_line(capsys, ["sweep", "--config", BENCH, "--stroke", "590mm", "--feed", "15m/min", "--jmax", "1..2000m/s^3",
                        "--points", "100000000", "--out", str(tmp_path / "sw")], "--points")
 
 
 def test_sweep_refuses_an_unstable_loop(capsys, tmp_path):
-    _one_line(capsys, ["sweep", "--config", BENCH, "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500",
+    _one_line(capsys, ["sweep", "--config", BENCH, "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500m/s^3",
                        "--points", "3", "--set", "control.output_delay=40", "--out", str(tmp_path / "sw"),
                        "--no-plot", "--no-progress"], "unstable")

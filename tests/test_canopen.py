@@ -249,7 +249,7 @@ def test_hil_move_and_sweep_commands_on_the_canopen_backend(tmp_path, capsys):
         assert rc == 0, out
         assert (tmp_path / "move" / "move.csv").exists()
         rc = main(["sweep", "--config", "config/paper_bench_canopen.toml", *sets, "--backend", "canopen",
-                   "--stroke", "10mm", "--feed", "6000mm/min", "--jmax", "50,400", "--dwell", "0.2s",
+                   "--stroke", "10mm", "--feed", "6000mm/min", "--jmax", "50,400m/s^3", "--dwell", "0.2s",
                    "--out", str(tmp_path / "sweep"), "--no-plot", "--no-progress", "--json"])
         out = capsys.readouterr().out
         assert rc == 0, out

@@ -376,3 +376,154 @@ def test_compare_text_in_engineering_units(c2_record, tmp_path, capsys):
     lines = {ln.split()[0]: ln for ln in capsys.readouterr().out.splitlines() if " RMS " in ln}
     assert re.search(r"RMS +[0-9.]+ (um|mm)  peak +[0-9.]+ (um|mm)", lines["x_tip"]), lines["x_tip"]
     assert re.search(r"RMS +[0-9.]+ N m", lines["torque"])
+
+
+# --- issue 29, item 3: a quantity option without its unit is refused, on every command ---------------
+
+# what each command needs besides the option under test (a refusal comes before anything runs)
+_BASE = {
+    "move": ["--config", BENCH, "--stroke", "100mm", "--feed", "7000mm/min", "--tacc", "200ms", "--check"],
+    "jog": ["--config", BENCH, "--backend", "sim", "--distance", "5mm"],
+    "home": ["--config", CANOPEN],
+    "sweep": ["--config", BENCH, "--stroke", "590mm", "--feed", "15m/min", "--jmax", "50,100m/s^3", "--no-plot",
+              "--no-progress"],
+    "frf": ["--config", BENCH],
+    "synth": ["--config", BENCH],
+    "drive-sim": ["--config", CANOPEN, "--port", "0"],
+}
+_ONE_OF = {"--tacc", "--amax", "--jmax"}          # move's and sweep's exclusive group
+
+
+def _quantity_options():
+    """(command, option, kind) of every option whose metavar names a quantity, from the parsers."""
+    import argparse
+
+    from hil.cli import build_parser
+    kinds = {"LENGTH": "length", "SPEED": "speed", "TIME": "time", "ACCELERATION": "acceleration", "JERK": "jerk",
+             "TIMES": "time", "JERKS": "jerk", "FORCE": "force", "AMPLITUDE": "torque", "QUANTITY": "",
+             "FMIN..FMAX": "frequency", "TIME|PERCENT": "time"}
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    out = []
+    for name, parser in sub.choices.items():
+        for action in parser._actions:
+            if action.option_strings and action.metavar in kinds:
+                bare = {"FMIN..FMAX": "1..200", "TIMES": "60,80", "JERKS": "1..2000"}.get(action.metavar, "200")
+                out.append((name, action.option_strings[-1], bare, any("--out" in a.option_strings
+                                                                       for a in parser._actions)))
+    return out
+
+
+def test_every_quantity_option_is_found():
+    """The walk over the parsers sees the options the issue names (and no command is left without its base)."""
+    found = {(c, o) for c, o, _, _ in _quantity_options()}
+    assert {("move", "--tacc"), ("move", "--stroke"), ("move", "--feed"), ("sweep", "--jmax"), ("frf", "--band"),
+            ("synth", "--duration"), ("jog", "--distance"), ("home", "--offset"), ("drive-sim", "--seconds")} <= found
+    assert {c for c, _ in found} <= set(_BASE)
+    assert len(found) >= 30
+
+
+@pytest.mark.parametrize("command,option,bare,has_out", _quantity_options())
+def test_a_bare_number_is_refused_naming_the_units(command, option, bare, has_out, tmp_path, capsys, monkeypatch):
+    """``--tacc 200`` ran as 200 s: every quantity option refuses a bare number in one line that
+    names the units it takes (the config keeps its documented rule: a bare number is SI)."""
+    monkeypatch.chdir(tmp_path)
+    base = list(_BASE[command])
+    if option in _ONE_OF:                                  # the option under test replaces its sibling
+        for sibling in _ONE_OF & set(base):
+            i = base.index(sibling)
+            del base[i:i + 2]
+    out = tmp_path / ("s.csv" if command == "synth" else "out")
+    rc = main([command, *base, option, bare] + (["--out", str(out)] if has_out else []))
+    err = capsys.readouterr().err.strip()
+    first = bare.split(",")[0].split("..")[0]
+    assert rc == 2 and "\n" not in err, err
+    assert f"{option} {first}: a " in err and "needs its unit (" in err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("text, kind, units", [("200", "time", "s, ms, us"), ("100", "length", "mm, um, m"),
+                                               ("40", "speed", "mm/min"), ("1e3", "jerk", "m/s^3")])
+def test_parse_option_message(text, kind, units):
+    from hil.units import UnitError, parse, parse_option
+    with pytest.raises(UnitError) as exc:
+        parse_option(text, kind, "--x")
+    assert str(exc.value).startswith(f"--x {text}: a {kind} needs its unit (") and units in str(exc.value)
+    assert parse(text, kind, "x") == float(text)           # the config's rule: bare is SI (config/SCHEMA.md)
+
+
+@pytest.mark.parametrize("text, kind, si", [("200ms", "time", 0.2), ("0", "length", 0.0), ("inf", "time", math.inf),
+                                            ("-0", "length", 0.0), ("3", "dimensionless", 3.0),
+                                            ("7000mm/min", "speed", 7000e-3 / 60)])
+def test_parse_option_keeps_what_no_unit_changes(text, kind, si):
+    from hil.units import parse_option
+    assert parse_option(text, kind, "--x") == pytest.approx(si)
+
+
+def test_lists_and_ranges_take_the_unit_of_the_last_number(tmp_path, capsys):
+    from hil.commands.sweep import parse_values
+    from hil.errors import UserError
+    from hil.units import UnitError
+    assert parse_values("10,20,50m/s^3", "jerk", 40, "--jmax") == [10.0, 20.0, 50.0]
+    assert parse_values("60..300ms", "time", 3, "--tacc") == pytest.approx([0.06, math.sqrt(0.06 * 0.3), 0.3])
+    for text in ("10,20,50", "1..2000"):
+        with pytest.raises((UnitError, UserError), match="needs its unit"):
+            parse_values(text, "jerk", 40, "--jmax")
+
+
+def test_synth_param_needs_its_unit(tmp_path, capsys):
+    rc = main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--param", "level=2",
+               "--out", str(tmp_path / "s.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--param level 2: a torque needs its unit (N*m)" in err, err
+
+
+# --- issue 29, item 5: progress with its total and the time left, under --json too ---------------
+
+def test_json_stdout_stays_pure_while_stderr_shows_progress_with_a_total(tmp_path, capsys):
+    """A long diagnosis (or a 100 s hil emps) under --json: stdout is the JSON alone; stderr (not a
+    terminal here: plain lines) counts the fits against their total, with the time left."""
+    from hil.ident.synth import synthesize
+    from hil.io.measurement import write
+    ch, _ = synthesize(load(BENCH), "coulomb_friction", duration=4.0, seed=3)
+    rec = write(tmp_path / "r.csv", ch)
+    rc = main(["diagnose", str(rec), "--config", BENCH, "--candidates", "coulomb_friction,constant_force,viscous_friction",
+               "--max-steps", "2", "--jobs", "1", "--json"])
+    cap = capsys.readouterr()
+    assert rc == 0 and json.loads(cap.out)["verdict"] == "coulomb_friction"
+    lines = cap.err.strip().splitlines()
+    assert lines, "no progress under --json"
+    counts = [re.match(r"diagnose: (\d+)/(\d+) fits \((\d+) %\), [0-9:]+ s? ?elapsed, ETA [0-9:]+( s)?", ln)
+              for ln in lines]
+    assert all(counts), lines
+    done, total = int(counts[-1].group(1)), int(counts[-1].group(2))
+    assert done == total >= 3 and counts[0].group(2) == "3"      # the first diagnosis's three candidates
+
+
+def test_progress_lines_are_throttled_and_count_to_the_total(capsys, monkeypatch):
+    from hil.commands import progress
+    monkeypatch.setattr(progress, "LINE_INTERVAL", 3600.0)
+    with progress.bar("emps", None, total=4) as step:
+        for name in "abcd":
+            step(name)
+        step.expect(2)
+        step("e")
+        step("f")
+    err = capsys.readouterr().err.splitlines()
+    # the first, and each time the count reaches the total (the rest within the interval)
+    assert [ln.split(",")[0] for ln in err] == ["emps: 1/4 fits (25 %)", "emps: 4/4 fits (100 %)",
+                                                "emps: 6/6 fits (100 %)"]
+
+
+def test_fit_progress_counts_each_fit_once(tmp_path, capsys, monkeypatch):
+    """hil fit --add A --add B: A, B and their joint refit, three steps of a total of three."""
+    from hil.commands import progress
+    from hil.ident.synth import synthesize
+    from hil.io.measurement import write
+    monkeypatch.setattr(progress, "LINE_INTERVAL", 0.0)
+    ch, _ = synthesize(load(BENCH), "coulomb_friction", duration=3.0, seed=3)
+    rec = write(tmp_path / "r.csv", ch)
+    assert main(["fit", str(rec), "--config", BENCH, "--add", "coulomb_friction", "--add", "constant_force",
+                 "--out", str(tmp_path / "f.toml"), "--json"]) == 0
+    cap = capsys.readouterr()
+    json.loads(cap.out)
+    assert [ln.split(" (")[0] for ln in cap.err.splitlines()] == ["fit: 1/3 fits", "fit: 2/3 fits", "fit: 3/3 fits"]

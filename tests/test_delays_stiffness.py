@@ -329,23 +329,25 @@ def test_diagnose_names_the_effect(effect, values):
 
 # --- hil synth on the command line ---------------------------------------------------------------
 
-@pytest.mark.parametrize("effect,params", [("feedback_delay", ["delay=0.003"]), ("time_delay", []),
-                                           ("channel_skew", ["skew=-0.004"]),
-                                           ("stiffness_along_travel", ["k_start=6e7", "k_end=4.5e7", "x_start=0",
-                                                                       "x_end=0.08"])])
-def test_hil_synth_writes_records_with_the_new_effects(tmp_path, capsys, effect, params):
+# each --param with its unit, and the SI value it stands for (the command line refuses bare numbers)
+@pytest.mark.parametrize("effect,params,si", [
+    ("feedback_delay", ["delay=3ms"], {"delay": 0.003}), ("time_delay", [], {}),
+    ("channel_skew", ["skew=-4ms"], {"skew": -0.004}),
+    ("stiffness_along_travel", ["k_start=60N/um", "k_end=45N/um", "x_start=0", "x_end=80mm"],
+     {"k_start": 6e7, "k_end": 4.5e7, "x_start": 0.0, "x_end": 0.08})])
+def test_hil_synth_writes_records_with_the_new_effects(tmp_path, capsys, effect, params, si):
     import json
 
     from hil.cli import main
     from hil.io.measurement import read
     out = tmp_path / "rec.csv"
-    argv = ["synth", "--config", "config/paper_bench.toml", "--effect", effect, "--duration", "2", "--out", str(out),
+    argv = ["synth", "--config", "config/paper_bench.toml", "--effect", effect, "--duration", "2s", "--out", str(out),
             "--json"]
     for p in params:
         argv += ["--param", p]
     assert main(argv) == 0
     info = json.loads(capsys.readouterr().out)
-    want = {k: float(v) for k, _, v in (p.partition("=") for p in params)} or {"delay": 2e-3}
+    want = si or {"delay": 2e-3}
     assert info["effect"] == effect and {k: info["params"][k] for k in want} == want
     m = read(str(out))
     assert m.t.size == info["samples"] == 500

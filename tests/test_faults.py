@@ -248,7 +248,7 @@ def test_a_latched_trip_refuses_every_motion_command_on_every_backend(capsys, tm
     commands = [
         ["move", "--config", BENCH, "--stroke", "1mm", "--feed", "1m/min", "--amax", "1m/s^2", "--out", str(tmp_path)],
         ["jog", "--config", BENCH, "--backend", "sim", "--distance", "-1mm"],
-        ["sweep", "--config", BENCH, "--stroke", "1mm", "--feed", "1m/min", "--jmax", "50,100", "--out",
+        ["sweep", "--config", BENCH, "--stroke", "1mm", "--feed", "1m/min", "--jmax", "50,100m/s^3", "--out",
          str(tmp_path / "sw"), "--no-progress", "--no-plot"],
         ["frf", "--config", BENCH, "--out", str(tmp_path / "frf")],
         ["move", "--config", SERIAL, "--backend", "serial", "--set", "serial.port=/dev/null", "--stroke", "1mm",
@@ -334,13 +334,13 @@ def test_ctrl_c_ends_in_the_controlled_stop_and_a_closed_record(tmp_path):
 
 # -- mistakes named as mistakes: one line, exit 2, no traceback, never a drive fault ------------------
 @pytest.mark.parametrize("argv,words", [
-    (["drive-sim", "--config", CANOPEN, "--set", "canopen.eds=/nonexistent.eds", "--seconds", "1"],
+    (["drive-sim", "--config", CANOPEN, "--set", "canopen.eds=/nonexistent.eds", "--seconds", "1s"],
      "canopen.eds: cannot read"),
-    (["drive-sim", "--config", CANOPEN, "--fault", "tip_missing_pdo=5@0.1", "--seconds", "1"],
+    (["drive-sim", "--config", CANOPEN, "--fault", "tip_missing_pdo=5@0.1", "--seconds", "1s"],
      "has no tip sensor node"),
     (["drive-sim", "--config", CANOPEN, "--fault", "melt@1"], "unknown kind 'melt'"),
     (["drive-sim", "--config", "nope.toml"], "nope.toml: no such configuration file"),
-    (["sweep", "--config", BENCH, "--stroke", "20mm", "--feed", "6000mm/min", "--jmax", "50,200",
+    (["sweep", "--config", BENCH, "--stroke", "20mm", "--feed", "6000mm/min", "--jmax", "50,200m/s^3",
       "--scheduler", "127.0.0.1:35697x"], "--scheduler 127.0.0.1:35697x: expected [tcp://]HOST:PORT"),
     (["move", "--config", CANOPEN, "--backend", "canopen", "--set", "canopen.interface=socketcand",
       "--set", "canopen.port=1", "--stroke", "1mm", "--feed", "1m/min", "--amax", "1m/s^2"],

@@ -15,7 +15,7 @@ def measured(tmp_path_factory):
     speed noise on the simulated sensor."""
     out = tmp_path_factory.mktemp("frf")
     rc = main(["frf", "--config", str(CONFIG / "paper_bench.toml"), "--sim-set", "plant.c2=40",
-               "--noise", "3e-4", "--periods", "4", "--out", str(out), "--json"])
+               "--noise", "3e-4 rad/s", "--periods", "4", "--out", str(out), "--json"])
     assert rc == 0
     return out / "frf.json"
 

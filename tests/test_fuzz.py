@@ -162,8 +162,8 @@ def test_cli_move_check(capsys, stroke, feed, how, value, dwell, band):
 
 
 @SLOW
-@given(points=st.integers(-5, 10**9), jmax=st.one_of(QUANTITY_TEXT, st.sampled_from(["1..2000", "100..10", "5,6,7",
-                                                                                     "0..1", "1..inf"])),
+@given(points=st.integers(-5, 10**9), jmax=st.one_of(QUANTITY_TEXT, st.sampled_from(["1..2000m/s^3", "100..10m/s^3", "5,6,7m/s^3",
+                                                                                     "0..1m/s^3", "1..inf"])),
        tol=MOVE_Q)
 def test_cli_sweep_arguments(capsys, tmp_path_factory, points, jmax, tol, monkeypatch):
     """The sweep's argument checks (the sweep itself is not run: run_sweep is replaced)."""

@@ -26,7 +26,7 @@ def _rms(r):
 @pytest.mark.parametrize("amplitude", [0.3, 1.0])
 def test_pulses_after_the_controller_replay_to_the_noise_floor(tmp_path, capsys, amplitude):
     out = tmp_path / "pulses.csv"
-    assert main(["synth", "--config", BENCH, "--pulses", f"{amplitude} N*m", "--duration", "4", "--out", str(out),
+    assert main(["synth", "--config", BENCH, "--pulses", f"{amplitude} N*m", "--duration", "4s", "--out", str(out),
                  "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["samples"] == 1000 and info["inputs"] == ["u_add"] and info["open_loop"] is False
@@ -140,7 +140,7 @@ def test_open_loop_torque_steps_replay_and_fit_friction(tmp_path, capsys):
 def test_open_loop_record_from_hil_synth(tmp_path, capsys):
     out = tmp_path / "ol.csv"
     assert main(["synth", "--config", BENCH, "--open-loop", "--pulses", "3 N*m", "--pulse-period", "2 s",
-                 "--pulse-width", "1 s", "--duration", "3", "--out", str(out)]) == 0
+                 "--pulse-width", "1 s", "--duration", "3s", "--out", str(out)]) == 0
     m = read(out)
     assert np.ptp(m["torque"]) == pytest.approx(3.0) and np.all(m["x_cmd"] == 0)
     assert m.meta["open_loop"].startswith("true")

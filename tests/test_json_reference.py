@@ -160,7 +160,7 @@ def test_move_and_its_check(capsys, tmp_path):
 
 def test_sweep(capsys, tmp_path):
     check("sweep", run_json(capsys, "sweep", "--config", BENCH, "--stroke", "5mm", "--feed", "3m/min", "--jmax",
-                            "50,500", "--dwell", "0.2s", "--jobs", "1", "--out", tmp_path, "--no-plot",
+                            "50,500m/s^3", "--dwell", "0.2s", "--jobs", "1", "--out", tmp_path, "--no-plot",
                             "--no-progress"))
 
 

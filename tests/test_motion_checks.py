@@ -3,6 +3,7 @@ move, the sampled command is checked sample by sample before the first setpoint,
 checks the setpoint about to go out, and the compiled dry run is checked by the supervisor's
 rules on its record (same trip, same tick, same reason as the cycle-by-cycle loop)."""
 import json
+import math
 
 import numpy as np
 import pytest
@@ -225,3 +226,48 @@ def test_limits_refusal_still_names_the_limit(capsys):
     rc = main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "100mm", "--feed", "7000mm/min",
                "--tacc", "20ms"])
     assert rc == 2 and "limits.acceleration" in capsys.readouterr().err
+
+
+# --- issue 29, item 3: a feed above G0 or limits.speed is refused, not silently lowered ----------
+
+@pytest.mark.parametrize("stroke, extra", [("100mm", ["--check"]), ("100mm", []), ("500mm", ["--check"]),
+                                           ("-100mm", ["--back", "--check"])])
+def test_feed_above_g0_is_refused_naming_the_limit(tmp_path, capsys, stroke, extra):
+    """paper_bench: nc.g0 = limits.speed = 30 m/min. With 100 mm and t_acc 200 ms the stroke is
+    too short for 40 m/min: the plan lowers the peak speed to sqrt(G0 D / t_acc) = 0.5 m/s, which
+    fit, so --check said the move fits and the move ran at 30 m/min. Refused now, naming G0."""
+    from hil.cli import main
+    rc = main(["move", "--config", str(CONFIG / "paper_bench.toml"), f"--stroke={stroke}", "--feed", "40m/min",
+               "--tacc", "200ms", "--out", str(tmp_path / "m")] + extra)
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1, err
+    assert "feed 40000 mm/min" in err and "rapid speed G0 30000 mm/min" in err and "nc.g0" in err
+    assert not (tmp_path / "m").exists()
+
+
+def test_feed_at_g0_still_fits(capsys):
+    from hil.cli import main
+    assert main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "100mm", "--feed", "30m/min",
+                 "--tacc", "200ms", "--check", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["peak_speed"] == pytest.approx(0.5)
+
+
+def test_feed_above_the_speed_limit_is_refused_where_the_stroke_cannot_reach_it():
+    """No G0 known: limits.speed is the limit of the feed asked for, reached or not."""
+    from hil.profiles import check_limits
+    tr = Trajectory()
+    m = tr.move(MoveSpec(0.001, 2.0, a_max=1.0))          # 1 mm: peak sqrt(2 a D / pi) = 25 mm/s
+    assert m.reduced and m.peak_speed == pytest.approx(math.sqrt(2 * 1.0 * 0.001 / math.pi))
+    with pytest.raises(LimitError, match=r"feed 120000 mm/min .* exceeds limits.speed 1 m/s"):
+        check_limits(tr, _lim())
+    check_limits(tr, _lim(speed=2.0))                     # within: fits
+    with pytest.raises(LimitError, match=r"above the rapid speed G0 60000 mm/min \(1 m/s, nc.g0\)"):
+        check_limits(tr, _lim(speed=2.0, g0=1.0))
+
+
+def test_runtime_refuses_a_feed_above_g0_before_motion(bench):
+    """The same check on the run path (sweeps, jog, the API): nothing is recorded."""
+    tr = Trajectory()
+    tr.move(MoveSpec(0.1, 40 / 60, a_max=2.0))
+    with pytest.raises(Exception, match="rapid speed G0"):
+        run_trajectory(bench, tr)

@@ -127,7 +127,7 @@ def test_wheel_installed_outside_the_clone_runs_the_canopen_walkthrough(wheel, t
 
     # README, CANopen, "Try it": the drive in one process, the host in another (a free port here)
     sets = ["--config", "config/paper_bench_canopen.toml", "--set", "canopen.tip_node_id=2"]
-    drive = subprocess.Popen([hil, "drive-sim", *sets, "--port", "0", "--json", "--seconds", "240"], cwd=work,
+    drive = subprocess.Popen([hil, "drive-sim", *sets, "--port", "0", "--json", "--seconds", "240s"], cwd=work,
                              env=clean_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         line = drive.stdout.readline()

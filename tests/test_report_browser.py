@@ -133,7 +133,7 @@ def reports(work, record):
             made[kind] = (Path(out["out"]) / "report.html", [EMPS.name, "emps.toml"], ["published"])
         elif kind == "sweep":
             out = json.loads(_run(["sweep", "--config", BENCH, "--stroke", "50mm", "--feed", "6m/min", "--jmax",
-                                   "20..1500", "--points", "3", "--dwell", "0.3s", "--tolerance", "20um", "--jobs",
+                                   "20..1500m/s^3", "--points", "3", "--dwell", "0.3s", "--tolerance", "20um", "--jobs",
                                    "1", "--out", work / "sweep", "--no-progress", "--json"]))
             made[kind] = (Path(out["files"]["report"]), [BENCH.name],
                           ["j_max" if (out.get("proposal") or {}).get("j_max") else "jerk"])
@@ -237,3 +237,44 @@ def test_report_renders_in_chromium(kind, reports, tmp_path):
     shot = SCREENSHOTS / f"{kind}.png"
     r = _chromium([f"--screenshot={shot}", "--window-size=1280,2400", path.as_uri()], tmp_path / "profile2")
     assert r.returncode == 0 and shot.stat().st_size > 10_000, r.stderr[-2000:]
+
+
+# --- issue 29, item 5: the interactive page beside the compare report, offline ----------------------
+
+LIVE_PROBE = """<script>
+window.addEventListener("load", function () { setTimeout(function () {
+  function canvases(n) {
+    var c = n.tagName === "CANVAS" && n.width > 0 ? 1 : 0;
+    if (n.shadowRoot) c += canvases(n.shadowRoot);
+    for (var i = 0; i < n.children.length; i++) c += canvases(n.children[i]);
+    return c;
+  }
+  var out = {bokeh: typeof Bokeh, roots: 0, canvases: canvases(document.body)};
+  if (window.Bokeh && Bokeh.documents.length) out.roots = Bokeh.documents[0].roots().length;
+  var pre = document.createElement("pre");
+  pre.id = "browser-probe";
+  pre.textContent = JSON.stringify(out);
+  document.body.appendChild(pre);
+}, 3000); });
+</script>"""
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian: apt-get install chromium; "
+                                             ".ci/run installs it)")
+def test_interactive_page_renders_offline_in_chromium(reports, tmp_path):
+    """The report links interactive.html; Chromium, every request sent to a closed loopback proxy
+    (nothing can be fetched), draws its panels: BokehJS is in the page."""
+    path, _, _ = reports("compare")
+    assert '<a href="interactive.html">' in path.read_text(encoding="utf-8")
+    html = (path.parent / "interactive.html").read_text(encoding="utf-8")
+    assert not re.search(r"<script[^>]*\ssrc=", html)
+    probed = tmp_path / "probed.html"
+    probed.write_text(html.replace("</body>", LIVE_PROBE + "\n</body>"), encoding="utf-8")
+    r = _chromium(["--proxy-server=127.0.0.1:9", "--dump-dom", probed.as_uri()], tmp_path / "profile")
+    assert r.returncode == 0, r.stderr[-2000:]
+    m = re.search(r'<pre id="browser-probe">(.*?)</pre>', r.stdout, re.S)
+    assert m, f"the page did not finish loading: {r.stdout[-500:]!r}"
+    import html as _html
+    probe = json.loads(_html.unescape(m.group(1)))
+    assert probe["bokeh"] == "object" and probe["roots"] == 1, probe
+    assert probe["canvases"] >= 2, probe

@@ -2,7 +2,9 @@
 file deleted only when it is a latch, the simulated drive's socketcand server bounded and robust
 to malformed frames, serial command templates without attribute access, bounded reply patterns."""
 import json
+import os
 import socket
+import stat
 import time
 
 import pytest
@@ -188,3 +190,46 @@ def test_move_outputs_never_follow_planted_links(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 2 and "symbolic link" in err and err.count("\n") == 1
     assert victim.read_text() == "precious"
+
+
+# --- issue 29, item 4: outputs follow the umask (mkstemp made every one 0600) --------------------
+
+@pytest.fixture(params=[0o022, 0o077, 0o002])
+def umask(request):
+    old = os.umask(request.param)
+    try:
+        yield request.param
+    finally:
+        os.umask(old)
+
+
+def _mode(path) -> int:
+    return stat.S_IMODE(os.stat(path).st_mode)
+
+
+def test_written_files_follow_the_umask(tmp_path, umask):
+    want = 0o666 & ~umask
+    assert _mode(write_atomic(tmp_path / "a.txt", "x")) == want
+    (tmp_path / "b.txt").write_text("old")                 # replaced: the new file's mode, not the old one's
+    os.chmod(tmp_path / "b.txt", 0o600)
+    assert _mode(write_atomic(tmp_path / "b.txt", b"new")) == want
+    with open_new(tmp_path / "c.csv") as fh:
+        fh.write("t\n")
+    assert _mode(tmp_path / "c.csv") == want
+    assert not list(tmp_path.glob(".*.tmp"))                # no temporary left behind
+
+
+def test_command_outputs_follow_the_umask(tmp_path, capsys, umask):
+    """A record, its plot and its status file from hil move; a fitted config from hil fit's writer."""
+    from hil.cli import main
+    from hil.config import load
+    from hil.io.config_write import write_config
+    out = tmp_path / "m"
+    assert main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed", "7000mm/min",
+                 "--tacc", "200ms", "--dwell", "0.2s", "--out", str(out)]) == 0
+    files = [p for p in out.iterdir() if p.is_file()]
+    assert {"move.csv", "move.png"} <= {p.name for p in files}
+    assert {p.name: _mode(p) for p in files} == {p.name: 0o666 & ~umask for p in files}
+    bench = str(CONFIG / "paper_bench.toml")
+    write_config(tmp_path / "fitted.toml", bench, load(bench, {"plant.c2": "40 N*s/m"}))
+    assert _mode(tmp_path / "fitted.toml") == 0o666 & ~umask

@@ -239,7 +239,7 @@ def test_three_dof_against_two_dof_over_estimate(cfg3, cfg2):
 
 def test_cli_json(tmp_path, capsys):
     from hil.cli import main
-    rc = main(["sweep", "--config", str(CFG3), "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500",
+    rc = main(["sweep", "--config", str(CFG3), "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500m/s^3",
                "--points", "5", "--dwell", "0.3s", "--tolerance", "20um", "--compare", str(CFG2),
                "--jobs", "1", "--out", str(tmp_path), "--no-plot", "--no-progress", "--json"])
     assert rc == 0
@@ -257,7 +257,7 @@ def test_cli_user_errors(tmp_path, capsys):
     from hil.cli import main
     base = ["sweep", "--config", str(CFG3), "--stroke", "50mm", "--feed", "6m/min", "--out", str(tmp_path),
             "--no-plot", "--no-progress"]
-    assert main(base + ["--jmax", "100..10"]) == 2
+    assert main(base + ["--jmax", "100..10m/s^3"]) == 2
     assert main(base + ["--jmax", "20mm"]) == 2
     assert main(base + ["--tacc", "60ms", "--budget", "soon"]) == 2
     err = capsys.readouterr().err

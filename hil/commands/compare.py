@@ -32,6 +32,8 @@ JSON_KEYS = {
     "after": JsonKey("", "the same analysis of the --after model; null without --after"),
     "report": JsonKey("", "path of the self-contained report.html"),
     "figures": JsonKey("", "paths of the PNG figures written to --out"),
+    "interactive": JsonKey("", "path of interactive.html: the overlay and residual of every channel, to zoom and pan "
+                               "(self-contained, offline)"),
     "warnings": JsonKey("", "what deserves a look in the record (outliers, gaps, a slow log), one sentence each"),
     "before.channels": JsonKey(CHANNEL_UNIT, "per compared channel: rms, peak and noise_floor of the residual (the "
                                              "channel's SI unit, named by unit), fit (NRMSE fit, %), relative_error "
@@ -189,12 +191,17 @@ def run(args) -> int:
     say("writing the figures and the report")
     out = Path(args.out)
     figs = comparison_figures(a, out, after=b)
+    from hil.plots.interactive import write_interactive
+    title = f"{meas.source} against {cfg.source}"
+    live = write_interactive(a, out / "interactive.html", title, after=b)
     notes = a["inputs"] + [f"warning: {w}" for w in meas.warnings]
-    rep = write_report(out / "report.html", f"{meas.source} against {cfg.source}", a, figs, after=b, notes=notes,
-                       record=meas.source, configs=[("model", cfg.source), ("fitted model", after and after.source)])
+    rep = write_report(out / "report.html", title, a, figs, after=b, notes=notes,
+                       record=meas.source, configs=[("model", cfg.source), ("fitted model", after and after.source)],
+                       interactive=live.name)
     if args.json:
         print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
-                     "figures": [str(f) for f in figs], "warnings": meas.warnings}, indent=1))
+                     "figures": [str(f) for f in figs], "interactive": str(live), "warnings": meas.warnings},
+                    indent=1))
     else:
         from hil.units import fmt_si
         for c, d in a["channels"].items():

@@ -179,10 +179,10 @@ def run(args) -> int:
         raise UserError("--fault tip_missing_pdo: the simulated drive has no tip sensor node "
                         "(--set canopen.tip_node_id=2)")
     from hil.drivers.rt import CpuLatencyRequest
-    from hil.units import parse, parse_bounded
+    from hil.units import parse_bounded, parse_option
     args.seconds = parse_bounded(args.seconds, "time", "--seconds", nonnegative=True)
     args.switch_interval = parse_bounded(args.switch_interval, "time", "--switch-interval", nonnegative=True)
-    cpu_latency = parse(args.cpu_latency, "time", "--cpu-latency")
+    cpu_latency = parse_option(args.cpu_latency, "time", "--cpu-latency")
     if not cpu_latency >= 0:
         raise UserError(f"--cpu-latency {args.cpu_latency}: expected a time >= 0 (or inf: no request)")
     if args.switch_interval > 0:

@@ -59,8 +59,14 @@ JSON_KEYS = {
 }
 
 
+# the record in the project's shared folder, beside a clone (not shipped with the package)
+DEFAULT_DATA = "../shared/data/emps/DATA_EMPS.mat"
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument("--data", metavar="FILE", default="../shared/data/emps/DATA_EMPS.mat", help="the EMPS .mat record")
+    parser.add_argument("--data", metavar="FILE", default=DEFAULT_DATA,
+                        help="the EMPS .mat record, DATA_EMPS.mat (default: the shared folder beside a clone, "
+                             f"{DEFAULT_DATA})")
     # by name: the clone's config/emps.toml, else the shipped example (an installed package has no
     # config/ beside it: the path of this file's grandparent was site-packages/config/emps.toml)
     parser.add_argument("--config", default="config/emps.toml", metavar="FILE",
@@ -74,6 +80,16 @@ def add_arguments(parser) -> None:
                         help="validation record(s) (DATA_EMPS_PULSES.mat): errors of the fitted models on them, beside "
                              "the published validation figures")
     parser.add_argument("--json", action="store_true")
+
+
+def missing_record_message(data: str) -> str:
+    """Where the EMPS record was looked for, what it is, where to get it and how to give it."""
+    where = (f"looked for it at {data}, the project's shared folder beside a clone of the repository"
+             if data == DEFAULT_DATA else f"{data}: no such file")
+    return (f"hil emps needs the EMPS benchmark's identification record DATA_EMPS.mat (not shipped with the "
+            f"package): {where} (resolved from {Path.cwd()}); get it from the benchmark's archive EMPS.zip "
+            f"(nonlinear system identification benchmarks, 'EMPS'; the documentation's 'Get the EMPS record') "
+            f"and give its path: hil emps --data PATH/DATA_EMPS.mat")
 
 
 def run(args) -> int:
@@ -90,7 +106,7 @@ def run(args) -> int:
     from hil.plots.compare import comparison_figures, error_fall_figure
     from hil.plots.report import write_report
     if not Path(args.data).exists():
-        raise UserError(f"{args.data}: no such file (the EMPS record, see ../shared/data/emps/PROVENANCE.md)")
+        raise UserError(missing_record_message(args.data))
     for v in args.validate:
         if not Path(v).exists():
             raise UserError(f"--validate {v}: no such file (the EMPS validation record DATA_EMPS_PULSES.mat)")
@@ -121,7 +137,10 @@ def run(args) -> int:
                                  "+ asymmetric_friction": cfgs["asymmetric"]})
     val_md = validation_markdown(val) if val else ""
     write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n" + (f"\n{val_md}\n" if val_md else ""))
-    write_report(out / "report.html", "EMPS: start model against measurement, and the fitted model", a, figs, after=b,
+    from hil.plots.interactive import write_interactive
+    title = "EMPS: start model against measurement, and the fitted model"
+    write_interactive(a, out / "interactive.html", title, after=b, names=("start model", "fitted model"))
+    write_report(out / "report.html", title, a, figs, after=b, interactive="interactive.html",
                  record=args.data, configs=[("start model", args.config), ("fitted model", out / "emps_fitted.toml")],
                  emps={"rows": rows, "published": PUBLISHED, "check": chk, "diagnoses": diags},
                  names=("start model", "fitted model"), validation=_validation_tables(val))

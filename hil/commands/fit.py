@@ -123,7 +123,7 @@ def run(args) -> int:
     rp = make_records(args, cfg, metas)
     before = {c: float((rp.base_residuals[c] ** 2).mean() ** 0.5) for c in rp.channels}
     from hil.commands.progress import bar
-    with bar("fit", args, total=len(args.add) + (len(args.add) > 1)) as prog:
+    with bar("fit", args) as prog:          # fit_effects tells it the total (hil.ident.progress.expect)
         new, steps = fit_effects(rp, args.add, progress=prog)
     if refit:
         missing = [k for k in refit if not isinstance(new.get(k), float)]

@@ -9,7 +9,7 @@ from hil.errors import BackendError, BackendFault, RunStopped, UnitError, UserEr
 from hil.io.jsonout import JsonKey, dumps
 from hil.io.safe_write import save_figure, write_atomic
 from hil.supervisor import Supervisor, refuse_if_tripped
-from hil.units import parse, parse_angle_deg, parse_gain_db
+from hil.units import parse_angle_deg, parse_gain_db, parse_option
 
 HELP = "measure frequency responses (TF1', TF2, TF3, velocity and position loops) against the model"
 DESCRIPTION = """\
@@ -95,7 +95,7 @@ def _band(text: str):
         raise UserError(f"--band {text!r}: expected LOW..HIGH, e.g. 1Hz..200Hz")
     unit = "".join(ch for ch in parts[1] if ch.isalpha())
     lo = parts[0] if any(ch.isalpha() for ch in parts[0]) else parts[0] + unit
-    return parse(lo, "frequency", "--band"), parse(parts[1], "frequency", "--band")
+    return parse_option(lo, "frequency", "--band"), parse_option(parts[1], "frequency", "--band")
 
 
 def settings_from_args(args, cfg, ctrl):
@@ -105,12 +105,12 @@ def settings_from_args(args, cfg, ctrl):
         amp = 0.1 * ctrl.output_limit if args.input == "torque" else 0.005 * ctrl.speed_scale
     elif args.input == "torque":
         kind = "torque" if cfg.rotary else "dimensionless"
-        amp = parse(args.amplitude, kind, "--amplitude")
+        amp = parse_option(args.amplitude, kind, "--amplitude")
     else:
         try:
-            amp = parse(args.amplitude, "speed", "--amplitude") * ctrl.speed_scale
-        except UnitError:
-            amp = parse(args.amplitude, "angular_speed", "--amplitude")
+            amp = parse_option(args.amplitude, "angular_speed", "--amplitude")
+        except UnitError:       # not a motor speed: a linear speed (or a bare number: asks for a unit)
+            amp = parse_option(args.amplitude, "speed", "--amplitude") * ctrl.speed_scale
     if not amp > 0:
         raise UserError("--amplitude must be positive")
     if args.input == "torque" and amp >= ctrl.output_limit:
@@ -122,13 +122,13 @@ def settings_from_args(args, cfg, ctrl):
         raise UserError(f"--band: {band[1]:g} Hz is above the velocity loop's Nyquist frequency {0.5 / tv:g} Hz")
     if band[0] <= 0 or band[0] >= band[1]:
         raise UserError(f"--band {args.band}: needs 0 < low < high")
-    period = parse(args.period, "time", "--period")
+    period = parse_option(args.period, "time", "--period")
     if period * band[0] < 1 - 1e-9:
         period = 1.0 / band[0]
     return FrfSettings(signal=args.signal, input=args.input, amplitude=amp, band=band, periods=args.periods,
-                       period=period, settle=parse(args.settle, "time", "--settle"),
-                       speed=parse(args.speed, "speed", "--speed"),
-                       noise_speed=parse(args.noise, "angular_speed", "--noise"))
+                       period=period, settle=parse_option(args.settle, "time", "--settle"),
+                       speed=parse_option(args.speed, "speed", "--speed"),
+                       noise_speed=parse_option(args.noise, "angular_speed", "--noise"))
 
 
 def _check_travel(cfg, st, duration: float, x0: float) -> None:
@@ -194,7 +194,7 @@ def run(args) -> int:
         refuse_if_tripped(cfg)
         supervisor = None
     from hil.commands.progress import shown
-    progress = frf.stderr_progress if shown(args) else None      # silent with --json or off a terminal
+    progress = frf.stderr_progress if shown(args) else None      # on a terminal (stderr: --json too)
     try:
         result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
                              pm_min=pm_min, gm_min_db=gm_min_db, supervisor=supervisor)

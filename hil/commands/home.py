@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from hil.io.jsonout import JsonKey, dumps
-from hil.units import parse
+from hil.units import parse_option
 
 HELP = "home the CANopen drive (homing mode 6; method 37: the present position becomes --offset)"
 DESCRIPTION = """Home the drive: homing mode (6) with the method given (default 37, CiA 402 'homing
@@ -37,7 +37,7 @@ def run(args) -> int:
     from hil.supervisor import refuse_if_tripped
     cfg = load_config(args)
     refuse_if_tripped(cfg)            # homing may move the axis: a latched trip refuses it too
-    offset = parse(args.offset, "length", "--offset")
+    offset = parse_option(args.offset, "length", "--offset")
     be = CanopenBackend(cfg)
     try:
         with be:                   # opened (full start-up); shut down (disabled, closed) at the end

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from hil.io.jsonout import JsonKey, dumps
-from hil.units import parse
+from hil.units import parse_option
 
 HELP = "jog the axis by a distance from its present position (CANopen backend by default, supervised)"
 DESCRIPTION = """Move the axis by --distance from where it stands, at --speed with --amax, through the
@@ -43,13 +43,13 @@ def run(args) -> int:
     from hil.runtime import run_trajectory
     from hil.supervisor import refuse_if_tripped
     cfg = load_config(args)
-    if _no_move(cfg, parse(args.distance, "length", "--distance"), "--distance", args.json):
+    if _no_move(cfg, parse_option(args.distance, "length", "--distance"), "--distance", args.json):
         return 0
     refuse_if_tripped(cfg)                 # before anything connects
     traj = Trajectory(start=0.0)           # a relative move: the runtime plans it from where the axis stands
     try:
-        traj.move(MoveSpec(stroke=parse(args.distance, "length", "--distance"),
-                           feed=parse(args.speed, "speed", "--speed"), a_max=parse(args.amax, "acceleration", "--amax")))
+        traj.move(MoveSpec(stroke=parse_option(args.distance, "length", "--distance"),
+                           feed=parse_option(args.speed, "speed", "--speed"), a_max=parse_option(args.amax, "acceleration", "--amax")))
     except ValueError as exc:
         raise UserError(str(exc)) from None
     traj.dwell(0.1)

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 from hil import config as config_mod
 from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
-from hil.units import parse
+from hil.units import parse_option
 
 if TYPE_CHECKING:
     from hil.profiles import Trajectory
@@ -123,17 +123,17 @@ def add_arguments(p) -> None:
 def build_trajectory(args, cfg) -> Trajectory:
     from hil.profiles import MoveSpec, Trajectory
 
-    g0 = parse(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
+    g0 = parse_option(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
     try:
-        spec = MoveSpec(stroke=parse(args.stroke, "length", "--stroke"), feed=parse(args.feed, "speed", "--feed"),
-                        t_acc=parse(args.tacc, "time", "--tacc") if args.tacc else None,
+        spec = MoveSpec(stroke=parse_option(args.stroke, "length", "--stroke"), feed=parse_option(args.feed, "speed", "--feed"),
+                        t_acc=parse_option(args.tacc, "time", "--tacc") if args.tacc else None,
                         g0=g0 if args.tacc else None,
-                        a_max=parse(args.amax, "acceleration", "--amax") if args.amax else None,
-                        j_max=parse(args.jmax, "jerk", "--jmax") if args.jmax else None)
+                        a_max=parse_option(args.amax, "acceleration", "--amax") if args.amax else None,
+                        j_max=parse_option(args.jmax, "jerk", "--jmax") if args.jmax else None)
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    dwell = parse(args.dwell, "time", "--dwell")
-    traj = Trajectory(start=parse(args.start, "length", "--start") if args.start else 0.0)
+    dwell = parse_option(args.dwell, "time", "--dwell")
+    traj = Trajectory(start=parse_option(args.start, "length", "--start") if args.start else 0.0)
     traj.move(spec)
     traj.dwell(dwell)
     if args.back:
@@ -161,7 +161,7 @@ def run(args) -> int:
     from hil.units import SI_UNIT, fmt, parse_bounded
     cfg = load_config(args)
     band = parse_bounded(args.band, "length", "--band", positive=True, maximum=1.0)   # before anything moves
-    if _no_move(cfg, parse(args.stroke, "length", "--stroke"), "--stroke", args.json):
+    if _no_move(cfg, parse_option(args.stroke, "length", "--stroke"), "--stroke", args.json):
         return 0
     traj = build_trajectory(args, cfg)
     try:

@@ -1,40 +1,88 @@
-"""Progress of the commands that take more than a moment (diagnose, fit, emps, sweep, frf, ...).
+"""Progress of the commands that take more than a moment (diagnose, fit, emps, ...), on stderr.
 
-One bar on stderr (tqdm), shown only to a person: silent with ``--json`` and whenever stderr is
-not a terminal (a pipe, a log file, CI, the tests), so that what a script reads is never mixed
-with it. The library reports progress through a callback (``progress(name)``: one step done);
-:func:`bar` gives that callback and closes the bar when the work ends.
+The count, its total and the time left: on a terminal a tqdm bar; elsewhere (a pipe, a log file,
+CI) one plain line per step at most every :data:`LINE_INTERVAL` seconds, so that a log shows it
+without a bar's carriage returns. ``--json`` changes nothing here: stdout carries the JSON alone,
+stderr the progress (a 100 s ``hil emps --json`` is not silent). The library reports progress
+through a callback: ``progress(name)``, one step done (or started) with its name; and, where it
+learns of more work as it goes (a diagnosis chain's next step), ``progress.expect(n)``: n more
+steps to the total (:func:`hil.ident.progress.expect`).
 """
 from __future__ import annotations
 
 import sys
+import time
 from contextlib import contextmanager
 
-__all__ = ["bar", "shown"]
+__all__ = ["bar", "shown", "LINE_INTERVAL"]
+
+# the least time between two plain progress lines (not a terminal)
+LINE_INTERVAL = 2.0
 
 
 def shown(args=None) -> bool:
-    """Whether a progress bar is shown: not with --json, and only on a terminal."""
-    if args is not None and getattr(args, "json", False):
-        return False
+    """Whether a progress bar (tqdm, redrawn in place) is drawn: only on a terminal. Off a terminal
+    :func:`bar` writes plain lines instead; ``--json`` is no reason to hide progress (it goes to
+    stderr, the JSON to stdout)."""
     return bool(getattr(sys.stderr, "isatty", lambda: False)())
+
+
+def _clock(seconds: float) -> str:
+    s = int(round(seconds))
+    return f"{s // 60}:{s % 60:02d}" if s >= 60 else f"{s} s"
+
+
+class _Lines:
+    """Plain progress lines: ``emps: 3/12 fits (25 %), 0:41 elapsed, ETA 2:03: coulomb_friction``."""
+
+    def __init__(self, desc: str, total: int | None, unit: str, stream):
+        self.desc, self.total, self.unit, self.stream = desc, total, unit, stream
+        self.n, self.t0, self.last = 0, time.perf_counter(), -float("inf")
+
+    def update(self, name=None) -> None:
+        self.n += 1
+        now = time.perf_counter()
+        if now - self.last < LINE_INTERVAL and self.n != self.total:
+            return
+        self.last = now
+        elapsed = now - self.t0
+        if self.total:
+            left = elapsed / self.n * max(self.total - self.n, 0)
+            text = (f"{self.desc}: {self.n}/{self.total} {self.unit}s ({100 * self.n / self.total:.0f} %), "
+                    f"{_clock(elapsed)} elapsed, ETA {_clock(left)}")
+        else:
+            text = f"{self.desc}: {self.n} {self.unit}s, {_clock(elapsed)} elapsed"
+        print(text + (f": {name}" if name else ""), file=self.stream, flush=True)
 
 
 @contextmanager
 def bar(desc: str, args=None, total: int | None = None, unit: str = "fit"):
-    """``with bar("diagnose", args) as step: ... step("coulomb_friction")``: one step per call, its
-    name shown beside the count; nothing at all when :func:`shown` is false."""
-    if not shown(args):
-        yield lambda name=None: None
-        return
-    from tqdm import tqdm
-    b = tqdm(desc=desc, total=total, unit=unit, file=sys.stderr, leave=False, dynamic_ncols=True)
+    """``with bar("diagnose", args, total=n) as step: ... step("coulomb_friction")``: one step per
+    call, its name shown beside the count; ``step.expect(k)`` adds k steps to the total."""
+    if shown(args):
+        from tqdm import tqdm
+        b = tqdm(desc=desc, total=total, unit=unit, file=sys.stderr, leave=False, dynamic_ncols=True)
 
-    def step(name=None):
-        b.update(1)
-        if name:
-            b.set_postfix_str(str(name), refresh=True)
+        def step(name=None):
+            b.update(1)
+            if name:
+                b.set_postfix_str(str(name), refresh=True)
+
+        def expect(n: int) -> None:
+            b.total = (b.total or 0) + int(n)
+            b.refresh()
+    else:
+        lines = _Lines(desc, total, unit, sys.stderr)
+        b = None
+
+        def step(name=None):
+            lines.update(name)
+
+        def expect(n: int) -> None:
+            lines.total = (lines.total or 0) + int(n)
+    step.expect = expect
     try:
         yield step
     finally:
-        b.close()
+        if b is not None:
+            b.close()

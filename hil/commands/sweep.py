@@ -9,7 +9,7 @@ from pathlib import Path
 from hil.errors import LimitError, UserError
 from hil.io.jsonout import JsonKey, dumps
 from hil.io.safe_write import save_figure, write_atomic
-from hil.units import SI_UNIT, parse, parse_list
+from hil.units import parse_list, parse_option
 
 HELP = "jerk sweep: overshoot vs. jerk, the largest safe jerk for a tolerance, 2-dof vs. 3-dof"
 DESCRIPTION = """\
@@ -35,7 +35,7 @@ examples:
   hil sweep --config config/paper_bench.toml --stroke 590mm --feed 15m/min --g0 30m/min \\
       --tacc 60ms,80ms,90ms,100ms,151ms,200ms,250ms,280ms,300ms
   hil sweep --config config/paper_bench.toml --compare config/paper_bench_2dof.toml \\
-      --stroke 590mm --feed 15m/min --jmax 1..2000 --points 40 --tolerance 8um --json
+      --stroke 590mm --feed 15m/min --jmax 1..2000m/s^3 --points 40 --tolerance 8um --json
 """
 
 CSV_FIELDS = ("model", "analysis", "grid", "j_max", "a_max", "t_acc", "peak_speed", "ramp_time", "duration",
@@ -116,7 +116,7 @@ def add_arguments(p) -> None:
     p.add_argument("--g0", metavar="SPEED", help="rapid speed G0 for t_acc (default: the config's nc.g0)")
     g = p.add_mutually_exclusive_group(required=True)
     g.add_argument("--tacc", metavar="TIMES", help="acceleration times, e.g. 60ms,80ms,100ms (or a range 60ms..300ms with --points)")
-    g.add_argument("--jmax", metavar="JERKS", help="jerks: a list 10,20,50 or a log-spaced range 1..2000 (m/s^3 unless written)")
+    g.add_argument("--jmax", metavar="JERKS", help="jerks: a list 10,20,50m/s^3 or a log-spaced range 1..2000m/s^3")
     p.add_argument("--points", metavar="N", type=int, default=40, help="points of a range (default 40)")
     p.add_argument("--analysis", choices=("mechatronic", "transmission", "both"), default="mechatronic",
                    help="which model (default mechatronic; the JSON runs hold it unless transmission)")
@@ -145,28 +145,23 @@ _RANGE = re.compile(r"^\s*(.+?)\s*\.\.\s*(.+?)\s*$")
 
 
 def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
-    """A list ("60ms,80ms") or a log-spaced range ("1..2000", "60ms..300ms") of quantities."""
+    """A list ("60ms,80ms", "60,80ms") or a log-spaced range ("1..2000m/s^3", "60ms..300ms") of quantities,
+    each with its unit (the last one's applies to the bare numbers before it)."""
     from hil.sweep import jerk_grid
     m = _RANGE.match(text)
-    bare = r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?"
-    if m and re.fullmatch(bare, m.group(2)):          # bare numbers are SI
-        text = f"{m.group(1)}..{m.group(2)} {SI_UNIT[kind]}"
-        m = _RANGE.match(text)
-    elif not m and re.fullmatch(bare, text.split(",")[-1].strip()):
-        text = text.rstrip() + " " + SI_UNIT[kind]
-    if m:
+    if m:                       # the unit of the high end applies to a bare low end; none at all: refused
         lo_t, hi_t = m.group(1), m.group(2)
         unit = re.sub(r"^[\s+\-0-9.eE]*", "", hi_t)
         if unit and re.fullmatch(r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?", lo_t):
             lo_t = f"{lo_t} {unit}"
-        lo, hi = parse(lo_t, kind, what), parse(hi_t, kind, what)
+        lo, hi = parse_option(lo_t, kind, what), parse_option(hi_t, kind, what)
         if not (math.isfinite(lo) and math.isfinite(hi)):
             raise UserError(f"{what} {text!r}: the range must be finite")
         try:
             return jerk_grid(lo, hi, points)
         except ValueError as exc:
             raise UserError(f"{what} {text!r}: {exc}") from None
-    vals = parse_list(text, kind, what)
+    vals = parse_list(text, kind, what, option=True)
     if any(not v > 0 or not math.isfinite(v) for v in vals):
         raise UserError(f"{what}: every value must be positive and finite, got {text!r}")
     if len(vals) > MAX_POINTS:
@@ -186,7 +181,7 @@ def _budget(text):
         if pct < 0:
             raise UserError(f"--budget: the percent must be >= 0, got {text!r}")
         return None, pct
-    v = parse(t, "time", "--budget")
+    v = parse_option(t, "time", "--budget")
     if not v > 0:
         raise UserError(f"--budget: must be positive, got {text!r}")
     return v, None
@@ -194,13 +189,13 @@ def _budget(text):
 
 def settings_from_args(args, cfg):
     from hil.sweep import SweepSettings
-    stroke = parse(args.stroke, "length", "--stroke")
-    feed = parse(args.feed, "speed", "--feed")
+    stroke = parse_option(args.stroke, "length", "--stroke")
+    feed = parse_option(args.feed, "speed", "--feed")
     if stroke == 0:
         raise UserError("--stroke: must not be 0")
     if not feed > 0:
         raise UserError(f"--feed: must be positive, got {args.feed!r}")
-    g0 = parse(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
+    g0 = parse_option(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
     if not 2 <= args.points <= MAX_POINTS:
         raise UserError(f"--points: expected 2 .. {MAX_POINTS}, got {args.points}")
     if args.tacc:
@@ -209,10 +204,10 @@ def settings_from_args(args, cfg):
         by, values = "t_acc", parse_values(args.tacc, "time", args.points, "--tacc")
     else:
         by, values = "j_max", parse_values(args.jmax, "jerk", args.points, "--jmax")
-    tol = parse(args.tolerance, "length", "--tolerance") if args.tolerance else None
+    tol = parse_option(args.tolerance, "length", "--tolerance") if args.tolerance else None
     if tol is not None and not tol > 0:
         raise UserError(f"--tolerance: must be positive, got {args.tolerance!r}")
-    dwell = parse(args.dwell, "time", "--dwell") if args.dwell else None
+    dwell = parse_option(args.dwell, "time", "--dwell") if args.dwell else None
     if dwell is not None and dwell < 0:
         raise UserError(f"--dwell: must be >= 0, got {args.dwell!r}")
     if args.record_every < 1:

@@ -15,7 +15,7 @@ DESCRIPTION = """\
   hil synth --config config/paper_bench.toml --external-force 300N --force-on tip --out cut.csv
   hil synth --config config/paper_bench.toml --open-loop --pulses 1.5N*m --pulse-period 4s --pulse-width 2s --out ol.csv
 
-Quantities take units (--duration 5s, --sample-period 4ms, --param level=2Nm); a bare number is SI.
+Quantities take their unit (--duration 5s, --sample-period 4ms, --param level=2Nm); a bare number is refused.
 
 Pulses (--pulses, --external-force) are 0/amplitude pulses of --pulse-width every --pulse-period
 from 0.5 s. --pulses: a command added after the controller, written as the u_add channel (a
@@ -46,7 +46,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--effect", default=None, metavar="EFFECT",
                         help="hidden effect (catalogue name or parameter:<key>)")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                        help="a parameter of the effect, with its unit (level=2Nm; a bare number is SI; repeatable)")
+                        help="a parameter of the effect, with its unit (level=2Nm; repeatable)")
     parser.add_argument("--duration", default="12s", metavar="TIME", help="length of the record (default 12s)")
     parser.add_argument("--sample-period", default="4ms", metavar="TIME", help="sampling period (default 4ms)")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the moves and the noise")
@@ -78,7 +78,7 @@ def _param_values(args, cfg) -> tuple[dict | None, dict]:
     import difflib
 
     from hil.plant_config import candidate
-    from hil.units import parse
+    from hil.units import parse_option
     kinds = {}
     if args.effect:
         try:
@@ -101,7 +101,7 @@ def _param_values(args, cfg) -> tuple[dict | None, dict]:
             hint = f"did you mean {close[0]!r}? " if close else ""
             raise UserError(f"--param {name}: not a parameter of {args.effect} ({hint}its parameters: "
                             f"{', '.join(kinds)})")
-        vals[name] = parse(value.strip(), kinds[name] if kinds[name] in DIMENSIONS else "dimensionless",
+        vals[name] = parse_option(value.strip(), kinds[name] if kinds[name] in DIMENSIONS else "dimensionless",
                            f"--param {name}")
     return vals, kinds
 
@@ -111,27 +111,27 @@ def _inputs(args, cfg):
     from functools import partial
 
     from hil.ident.synth import pulse_train
-    from hil.units import UnitError, parse
+    from hil.units import UnitError, parse_option
     inputs, kinds = {}, {}
     try:
-        period = parse(args.pulse_period, "time", "--pulse-period")
-        width = parse(args.pulse_width, "time", "--pulse-width")
+        period = parse_option(args.pulse_period, "time", "--pulse-period")
+        width = parse_option(args.pulse_width, "time", "--pulse-width")
         if not 0 < width < period:
             raise UserError(f"--pulse-width {args.pulse_width}: expected between 0 and --pulse-period")
         if args.pulses is not None:
             kind = "torque" if cfg.rotary else "voltage"
             try:
-                amp = parse(args.pulses, kind, "--pulses")
+                amp = parse_option(args.pulses, kind, "--pulses")
             except UnitError:
                 if cfg.rotary:
                     raise
-                amp = parse(args.pulses, "force", "--pulses") / cfg["actuator.gain"]
+                amp = parse_option(args.pulses, "force", "--pulses") / cfg["actuator.gain"]
             inputs["u_add"] = partial(pulse_train, amplitude=amp, period=period, width=width)
             kinds["u_add"] = kind
         elif args.open_loop:
             raise UserError("--open-loop: give the actuator's command as --pulses AMPLITUDE")
         if args.external_force is not None:
-            f = parse(args.external_force, "force", "--external-force")
+            f = parse_option(args.external_force, "force", "--external-force")
             inputs[f"f_ext_{args.force_on}"] = partial(pulse_train, amplitude=f, period=period, width=width)
     except UnitError as exc:
         raise UserError(str(exc)) from None
@@ -144,10 +144,10 @@ def run(args) -> int:
     from hil.config import load, parse_assignment
     from hil.ident.synth import synthesize
     from hil.io.measurement import write
-    from hil.units import fmt, parse
+    from hil.units import fmt, parse_option
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
-    duration = parse(args.duration, "time", "--duration")
-    sample_period = parse(args.sample_period, "time", "--sample-period")
+    duration = parse_option(args.duration, "time", "--duration")
+    sample_period = parse_option(args.sample_period, "time", "--sample-period")
     _check_times(duration, sample_period)
     vals, kinds = _param_values(args, cfg)
     inputs, input_kinds = _inputs(args, cfg)

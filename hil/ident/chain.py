@@ -35,6 +35,7 @@ import numpy as np
 
 from hil.ident.diagnosis import candidate_names, diagnose
 from hil.ident.fit import evaluate, fit_effects
+from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate
@@ -140,6 +141,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             # the diagnosis's fit, polished from where it stopped
             lead = next(c for c in d["candidates"] if c.effect == verdict)
             if progress:
+                expect(progress, 1)
                 progress(verdict)
             # (weighted by the residual the fit left: the channel still far from its floor leads)
             at = cur.with_config(lead.cfg)
@@ -153,6 +155,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             name = "+".join(found + add)
             start = {f"{n}.{k}": v for n in found + add for k, v in effect_values(n, cfg1).items()}
             if progress:
+                expect(progress, 1)
                 progress(name)
             try:
                 at = replay.with_config(cfg1)

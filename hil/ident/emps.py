@@ -28,6 +28,7 @@ from hil.config import load
 from hil.ident.chain import diagnose_chain
 from hil.ident.fit import evaluate, fit_effects, joint_refit
 from hil.ident.inverse import idim_ls
+from hil.ident.progress import expect
 from hil.ident.replay import Replay
 from hil.ident.scores import relative_error
 from hil.io.importers import read_mat
@@ -173,6 +174,9 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     rows.append({"step": "IDIM-LS on the force (inverse model)", "short": "IDIM-LS", "params": params_of(cfg_inv),
                  "inverse_force": inv["relative_error"], **errors(rp, cfg_inv)})
     keys = ["plant.m1", "friction.viscous", "effects.coulomb_friction.level", "effects.constant_force.force"]
+    if progress:
+        expect(progress, 2)                  # this refit and the asymmetric friction's
+        progress("output-error refit of M, Fv, Fc, offset")
     cfg3 = joint_refit(rp.with_config(cfg_inv), cfg_inv, keys, max_nfev=nfev)
     rows.append({"step": "output-error refit of M, Fv, Fc, offset", "short": "OE refit M, Fv, Fc, offset", "params": params_of(cfg3), **errors(rp, cfg3)})
     # asymmetric friction: its inverse model as the start, then output error on top of the fit
@@ -181,6 +185,8 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     off = -cfg3["effects.constant_force.force"]     # the fit keeps its offset: take it out of the levels
     start = {"level_pos": max(q["Fc+"] + off, 0.0), "level_neg": max(q["Fc-"] - off, 0.0),
              "viscous_pos": q["Fv+"], "viscous_neg": q["Fv-"]}
+    if progress:
+        progress("asymmetric_friction")
     c4 = evaluate(rp.with_config(cfg3), "asymmetric_friction", max_nfev=nfev, start=start)
     cfg4 = c4.cfg
     rows.append({"step": "+ asymmetric_friction", "short": "+ asymmetric (IDIM start)", "params": params_of(cfg4), "inverse_force": inv2["relative_error"],

@@ -174,6 +174,8 @@ def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=N
     """Add the effects one after the other, each fitted on top of the previous ones (greedy), then
     all of them together. Returns the final config and the fitted :class:`Candidate` of each step
     (the joint fit last, when it lowered the error)."""
+    from hil.ident.progress import expect
+    expect(progress, len(names) + (len(names) > 1 and len(set(names)) == len(names)))
     steps = []
     cur = replay
     for name in names:

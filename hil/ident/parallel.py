@@ -35,6 +35,8 @@ def _work(args):
 
 def evaluate_many(replay, work, res0, jobs, progress):
     """Evaluate the (name, max_nfev, start, n_starts) items, in ``jobs`` processes."""
+    from hil.ident.progress import expect
+    expect(progress, len(work))
     if jobs > 1 and len(work) > 1:
         try:
             ctx = mp.get_context("fork")

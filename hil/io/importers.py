@@ -532,6 +532,15 @@ def _samples(idx, limit: int = 5) -> str:
     return s + (f" and {idx.size - limit} more" if idx.size > limit else "")
 
 
+def _channel_kind(meas: Measurement, name: str) -> str:
+    """The kind of quantity of a channel (its values SI): from the unit its file wrote, else from
+    its name; an actuator channel written without a known unit is a torque."""
+    from hil.io.measurement import UNITS
+    written = (getattr(meas, "units", None) or {}).get(name)
+    kind = UNITS[written][0] if written in UNITS else CHANNELS.get(name, "dimensionless")
+    return "torque" if kind == "actuator" else kind
+
+
 def data_warnings(meas: Measurement, position_period: float | None = None) -> list[str]:
     """Warnings about a record that can still be replayed: outliers of a channel (beyond
     ``OUTLIER_MADS`` median absolute deviations of the sample-to-sample difference around a
@@ -554,8 +563,10 @@ def data_warnings(meas: Measurement, position_period: float | None = None) -> li
         span = max(float(hi - lo), floor)
         bad = np.flatnonzero((dev > bound) & ((v > hi + span) | (v < lo - span)))
         if bad.size and bad.size < 0.01 * v.size + 1:
-            out.append(f"{meas.source}: channel {name!r}: {bad.size} outlier(s) beyond {bound:.3g} from the running "
-                       f"median, sample(s) {_samples(bad)} (e.g. {v[bad[0]]:.6g})")
+            from hil.units import fmt as fmt_quantity
+            kind = _channel_kind(meas, name)
+            out.append(f"{meas.source}: channel {name!r}: {bad.size} outlier(s) beyond {fmt_quantity(bound, kind, 3)} from "
+                       f"the running median, sample(s) {_samples(bad)} (e.g. {fmt_quantity(v[bad[0]], kind, 6)})")
     if position_period:
         dt = meas.sample_period
         if dt > SLOW_FACTOR * position_period:

@@ -5,9 +5,13 @@ half-written.
   ``O_NOFOLLOW`` (a symbolic link at its name is refused, not followed) and never an input of
   the command.
 * :func:`write_atomic`: a whole file at once: written to a fresh temporary file in the target's
-  folder (``tempfile.mkstemp``: a new, unpredictable name, created exclusively) and renamed over
-  the target (``os.replace``: a link at the target's name is replaced, its destination is not
-  touched), so readers see the old file or the new one, never a part.
+  folder (a new, unpredictable name, created exclusively, ``O_EXCL``) and renamed over the target
+  (``os.replace``: a link at the target's name is replaced, its destination is not touched), so
+  readers see the old file or the new one, never a part.
+
+Both create files with mode 0666 less the umask, as any program that writes a file does
+(``tempfile.mkstemp`` would give 0600 whatever the umask: colleagues on a shared lab machine could
+not open the reports).
 
 Both refuse a target that is one of the command's ``inputs`` (the same file, by device and
 inode: a relative path, a hard link or a link to it included).
@@ -15,7 +19,7 @@ inode: a relative path, a hard link or a link to it included).
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 from hil.errors import UserError
@@ -45,12 +49,26 @@ def open_new(path: str | Path, inputs=(), encoding: str = "utf-8"):
     refuse_inputs(path, inputs)
     flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0)
     try:
-        fd = os.open(path, flags, 0o644)
+        fd = os.open(path, flags, 0o666)         # the umask takes its bits off
     except OSError as exc:
         if Path(path).is_symlink():
             raise UserError(f"{path}: is a symbolic link; refusing to write through it") from None
         raise UserError(f"{path}: cannot write ({exc.strerror})") from None
     return os.fdopen(fd, "w", encoding=encoding, newline="")
+
+
+def _create_temporary(folder: Path, name: str) -> tuple[int, str]:
+    """A new file ``.NAME.<random>.tmp`` in ``folder``, created exclusively (``O_EXCL``: never an
+    existing file or a link) with mode 0666 less the umask: what ``tempfile.mkstemp`` does, but
+    with the mode every other output gets (mkstemp's is 0600)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        tmp = str(folder / f".{name}.{secrets.token_hex(6)}.tmp")
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name in {folder}")
 
 
 def write_atomic(path: str | Path, data: str | bytes, inputs=(), encoding: str = "utf-8") -> Path:
@@ -62,7 +80,7 @@ def write_atomic(path: str | Path, data: str | bytes, inputs=(), encoding: str =
     folder = path.parent
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+        fd, tmp = _create_temporary(folder, path.name)
     except OSError as exc:
         raise UserError(f"{path}: cannot write ({exc.strerror})") from None
     try:

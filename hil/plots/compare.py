@@ -1,5 +1,6 @@
-"""Figures of model against measurement (PNG): overlay, residual, spectrum, residual scatter, and
-MATLAB ``resid``'s figure (the residual's autocorrelation and its cross-correlation with the
+"""Figures of model against measurement (PNG): overlay (each channel measured and simulated, its
+residual beneath on the same time axis, the fit % in the legend), residual, spectrum, residual
+scatter, and MATLAB ``resid``'s figure (the residual's autocorrelation and its cross-correlation with the
 input, with the 99 % confidence band +-2.576/sqrt(N)).
 
 Every axis names its quantity and its unit; lengths, speeds, times and torques are drawn in the
@@ -38,6 +39,49 @@ def _channel_units(analysis: dict, key: str, chans, extra: dict | None = None) -
     return out
 
 
+def fit_label(name: str, fit: float) -> str:
+    """A legend entry with the model's fit, as MATLAB's ``compare`` writes it: ``model: 97.31 %``
+    (NRMSE fit, 100 (1 - ||y - y_hat|| / ||y - mean y||))."""
+    return f"{name}: {fit:.2f} %"
+
+
+def overlay_figure(analysis: dict, after: dict | None = None, names=("model", "fitted model")):
+    """Per channel, measured and simulated on top, their residual (measured - simulated) beneath,
+    every panel on one shared time axis (zooming one zooms all); the fit % of each model in the
+    legend. Returns the matplotlib figure."""
+    plt = _plt()
+    A = analysis["_arrays"]
+    B = after["_arrays"] if after else None
+    t = A["t"]
+    chans = list(A["measured"])
+    sig_u = _channel_units(analysis, "measured", chans)
+    res_u = _channel_units(analysis, "residual", chans, B)
+    fig = plt.figure(figsize=(10, 3.7 * len(chans)), layout="constrained")
+    grid = fig.add_gridspec(2 * len(chans), 1, height_ratios=[2.4, 1.0] * len(chans))
+    first = None
+    for i, c in enumerate(chans):
+        ax = fig.add_subplot(grid[2 * i], sharex=first)
+        first = first or ax
+        axr = fig.add_subplot(grid[2 * i + 1], sharex=first)
+        name, k = sig_u[c]
+        ax.plot(t, A["measured"][c] / k, "k", lw=1, label="measured")
+        ax.plot(t, A["simulated"][c] / k, "C0", lw=0.8, label=fit_label(names[0], analysis["channels"][c]["fit"]))
+        rname, rk = res_u[c]
+        axr.plot(t, A["residual"][c] / rk, "C0", lw=0.7)
+        if B:
+            ax.plot(t, B["simulated"][c] / k, "C3--", lw=0.8, label=fit_label(names[1], after["channels"][c]["fit"]))
+            axr.plot(t, B["residual"][c] / rk, "C3", lw=0.7)
+        axr.axhline(0.0, color="0.5", lw=0.5)
+        ax.set_ylabel(f"{c} [{name}]")
+        axr.set_ylabel(f"residual [{rname}]")
+        ax.legend(loc="upper right", fontsize=7, title="fit (NRMSE)", title_fontsize=7)
+        ax.tick_params(labelbottom=False)
+        if i < len(chans) - 1:
+            axr.tick_params(labelbottom=False)
+    axr.set_xlabel("time [s]")
+    return fig
+
+
 def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | None = None) -> list[Path]:
     """Write overlay, residual, spectrum, scatter and correlation (resid's figure) PNGs; ``after``: a second analysis
     (the fitted model) drawn beside the first. Returns the paths."""
@@ -48,19 +92,8 @@ def comparison_figures(analysis: dict, out: Path, tag: str = "", after: dict | N
     t = A["t"]
     chans = list(A["measured"])
     paths = []
-    sig_u = _channel_units(analysis, "measured", chans)
     res_u = _channel_units(analysis, "residual", chans, B)
-    fig, axes = plt.subplots(len(chans), 1, figsize=(10, 2.6 * len(chans)), sharex=True, squeeze=False)
-    for ax, c in zip(axes[:, 0], chans):
-        name, k = sig_u[c]
-        ax.plot(t, A["measured"][c] / k, "k", lw=1, label="measured")
-        ax.plot(t, A["simulated"][c] / k, "C0", lw=0.8, label="model")
-        if B:
-            ax.plot(t, B["simulated"][c] / k, "C3--", lw=0.8, label="fitted model")
-        ax.set_ylabel(f"{c} [{name}]")
-        ax.legend(loc="upper right", fontsize=7)
-    axes[-1, 0].set_xlabel("time [s]")
-    fig.tight_layout()
+    fig = overlay_figure(analysis, after)
     paths.append(out / f"overlay{tag}.png")
     save_figure(fig, paths[-1], dpi=90)
     plt.close(fig)

@@ -32,7 +32,8 @@ TEMPLATES = Path(__file__).resolve().parent / "templates"
 
 # what each figure of hil.plots.compare shows, by its file's stem (without a tag)
 CAPTIONS = {
-    "overlay": "Measured and simulated channels against time.",
+    "overlay": "Measured and simulated channels against time, each with its residual (measured minus simulated) "
+               "beneath on the same time axis; the legend gives each model's fit (NRMSE) %.",
     "residual": "The residual (measured minus simulated) against time.",
     "spectrum": "Amplitude spectrum of the residual (Hann window).",
     "scatter": "The residual against the commanded velocity, acceleration and position: a pattern names "
@@ -188,7 +189,7 @@ def compare_verdict(analysis: dict, after: dict | None = None) -> str:
 
 
 def _compare_context(title, analysis, figures, after, names, notes, record, configs, validation, verdict,
-                     verdict_label="Verdict", extra_meta=()) -> dict:
+                     verdict_label="Verdict", extra_meta=(), interactive=None) -> dict:
     models = _models(analysis, after, names)
     n = len(analysis["_arrays"]["t"]) if "_arrays" in analysis else None
     dt = analysis["sample_period"]
@@ -211,13 +212,13 @@ def _compare_context(title, analysis, figures, after, names, notes, record, conf
         resid_figure=resid, figures=[f for f in figs if f is not resid],
         before_name=names[0], after_name=names[1] if after else None,
         maxlag=min(200, (n or 0) // 4), band=fmt(band, 3), samples=n or "-", input_name="commanded velocity",
-        validation=validation or [])
+        validation=validation or [], interactive=interactive)
 
 
 def write_report(path: Path, title: str, analysis: dict, figures: list[Path], after: dict | None = None,
                  diagnosis: dict | None = None, notes: list[str] | None = None, *, record: str | None = None,
                  configs=(), validation: list | None = None, emps: dict | None = None, cfg=None,
-                 names: tuple[str, str] = ("model", "fitted model")) -> Path:
+                 names: tuple[str, str] = ("model", "fitted model"), interactive: str | None = None) -> Path:
     """Write the report of a comparison (``hil compare``; with ``emps``, of ``hil emps``; with
     ``diagnosis``, of ``hil diagnose``).
 
@@ -246,8 +247,12 @@ def write_report(path: Path, title: str, analysis: dict, figures: list[Path], af
         The model's config (the units of the diagnosis's parameters).
     names : (str, str)
         What the two models are called.
+    interactive : str, optional
+        The interactive figure's file (hil.plots.interactive), relative to the report: linked from
+        the figures' section.
     """
-    ctx = _compare_context(title, analysis, figures, after, names, notes, record, configs, validation, None)
+    ctx = _compare_context(title, analysis, figures, after, names, notes, record, configs, validation, None,
+                           interactive=interactive)
     template = "compare.html.j2"
     if emps is not None:
         ctx.update(_emps_context(emps))
