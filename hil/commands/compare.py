@@ -196,14 +196,15 @@ def run(args) -> int:
         print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
                      "figures": [str(f) for f in figs], "warnings": meas.warnings}, indent=1))
     else:
+        from hil.ident.scores import fmt_fit
         from hil.units import fmt_si
         for c, d in a["channels"].items():
             e = b["channels"][c] if b else None
             u = d["unit"]
-            line = (f"{c:8s} RMS {fmt_si(d['rms'], u):>10s}  peak {fmt_si(d['peak'], u):>10s}  fit {d['fit']:.2f} %  "
+            line = (f"{c:8s} RMS {fmt_si(d['rms'], u):>10s}  peak {fmt_si(d['peak'], u):>10s}  fit {fmt_fit(d['fit'])}  "
                     f"rel {d['relative_error']:.4g} %")
             if e:
-                line += f"   after: RMS {fmt_si(e['rms'], u)}  fit {e['fit']:.2f} %  rel {e['relative_error']:.4g} %"
+                line += f"   after: RMS {fmt_si(e['rms'], u)}  fit {fmt_fit(e['fit'])}  rel {e['relative_error']:.4g} %"
             print(line)
         print(f"report: {rep}")
     return 0

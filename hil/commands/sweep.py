@@ -257,7 +257,7 @@ def _text(r: dict) -> str:
         lines.append(f"{x['j_max']:9.4g} {x['a_max']:7.3g} {fmt(x['t_acc'] and x['t_acc'] * 1e3, '7.1f')} "
                      f"{x['overshoot_table_um']:10.3f} {x['overshoot_tip_um']:9.3f} "
                      f"{x['peak_following_error_table_um']:9.1f} {x['peak_following_error_tip_um']:9.1f} "
-                     f"{x['residual_tip_um']:9.2f} {fmt(x['settling_time_tip'], '10.3f')}")
+                     f"{fmt(x['residual_tip_um'], '9.2f')} {fmt(x['settling_time_tip'], '10.3f')}")
     if r.get("tolerance_um") is not None:
         mj = r.get("max_jerk")
         lines.append(f"tolerance {r['tolerance_um']:g} um at the tip: max jerk "

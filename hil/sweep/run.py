@@ -134,6 +134,7 @@ def _figures(t, x_cmd, x_table, x_tip, u, move, spec: RunSpec, t_end=None, every
     ``every``-th sample only (the others take them all)."""
     fig = move_figures(t, x_cmd, x_table, x_tip, u, move, t_end=t_end).as_dict()
     fig.pop("settle_band_um", None)
+    fig.pop("observed_after_s", None)
     if fig.get("t_acc") is None and spec.g0:
         fig["t_acc"] = math.pi * spec.g0 / (2.0 * move.a_max)
     fig["ramp_time"] = move.ramp_time
