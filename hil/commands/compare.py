@@ -4,6 +4,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 from pathlib import Path
 
+from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
 
 HELP = "model against measurement: errors per channel and motion phase, residual analysis, plots, HTML report"
@@ -179,6 +180,10 @@ def run(args) -> int:
     from hil.plots.report import write_report
     cfg, meas = load_inputs(args)
     after = load(args.after) if args.after else None
+    if after is not None and after.rotary != cfg.rotary:
+        kind = {True: "rotary", False: "linear"}
+        raise UserError(f"--after {args.after}: a {kind[after.rotary]} actuator, --config {cfg.source} a "
+                        f"{kind[cfg.rotary]} one: the models compared on one record must drive the same axis")
     say = progress(meas.t.size, quiet=args.json)
     with prompt_interrupt():
         say(f"replaying {meas.t.size} samples through {cfg.source}")
