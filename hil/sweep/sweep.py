@@ -131,6 +131,27 @@ def sampling(s: SweepSettings, *cfgs) -> tuple[float, str | None]:
     return dwell, note
 
 
+# the longest run (move and dwell) a sweep simulates, s: one run on the velocity-loop grid holds
+# about 1.3 MB per simulated second (3 masses); a 100 m stroke asked for 33 min and never answered
+MAX_RUN_S = 60.0
+
+
+def check_run_length(s: SweepSettings, dwell: float) -> None:
+    """Refuse (one line) a sweep whose longest run would last more than :data:`MAX_RUN_S`."""
+    from hil.profiles import plan_move
+    for v in s.values:
+        spec = (MoveSpec(s.stroke, s.feed, t_acc=float(v), g0=s.g0) if s.by == "t_acc"
+                else MoveSpec(s.stroke, s.feed, j_max=float(v), g0=s.g0))
+        try:
+            length = plan_move(spec).duration + dwell
+        except ValueError as exc:
+            raise UserError(f"--stroke {s.stroke:g} m, --feed {s.feed:g} m/s: {exc}") from None
+        if not length <= MAX_RUN_S:
+            raise UserError(f"--stroke {s.stroke * 1e3:g} mm at --feed {s.feed * 6e4:g} mm/min: a run of "
+                            f"{length:.4g} s (move and dwell), at most {MAX_RUN_S:g} s per run: a shorter stroke "
+                            f"or a higher feed")
+
+
 class _Runner:
     """Runs specs through an executor and a store, with a progress bar."""
 
@@ -331,6 +352,7 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
     if s.analysis not in ANALYSES + ("both",):
         raise ValueError(f"analysis: mechatronic, transmission or both, not {s.analysis!r}")
     dwell, dwell_note = sampling(s, cfg, compare_cfg)
+    check_run_length(s, dwell)
     if backend and s.verify_rel:
         # hundreds of checking moves on an axis: the answer is checked on the simulated plant only
         s = replace(s, verify_rel=0.0)
