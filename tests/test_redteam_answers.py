@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
-from conftest import CONFIG, ROOT
+from conftest import CONFIG
 
 from hil.cli import main
 from hil.config import load
@@ -242,7 +242,9 @@ def test_a_closed_stdout_ends_cleanly_after_the_run(tmp_path):
     """Before: BrokenPipeError, a traceback and exit 1 (a drive fault's code). The reader goes away
     before the command prints: the run completes and is recorded, the exit is 141, no traceback."""
     code = "import sys; from hil.cli import main; sys.exit(main(sys.argv[1:]))"
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    import hil
+    here = str(Path(hil.__file__).resolve().parents[1])     # the hil this test imports
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([here, os.environ.get("PYTHONPATH", "")]))
     p = subprocess.Popen([sys.executable, "-c", code, "move", "--config", BENCH, "--stroke", "10mm", "--feed",
                           "6000mm/min", "--amax", "2m/s^2", "--dwell", "0.3s", "--out", str(tmp_path)],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=tmp_path, env=env)
