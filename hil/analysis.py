@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["overshoot", "settling_time", "residual_amplitude", "MoveFigures", "move_figures"]
+__all__ = ["overshoot", "settling_time", "residual_amplitude", "observed_after", "MoveFigures", "move_figures"]
 
 
 def overshoot(x, target: float, direction: float) -> float:
@@ -23,11 +23,14 @@ def overshoot(x, target: float, direction: float) -> float:
 
 def settling_time(t, x, target: float, band: float, t_end_cmd: float) -> float | None:
     """Time after the end of the command until ``x`` stays within ``target +- band``; None if it
-    never settles within the record."""
+    never settles within the record, or the record has fewer than 2 samples after the command
+    (no dwell: it cannot be measured, see :func:`observed_after`)."""
     t = np.asarray(t, float)
     x = np.asarray(x, float)
     outside = np.abs(x - target) > band
     after = t >= t_end_cmd - 1e-12
+    if np.count_nonzero(after) < 2:      # no record after the command: cannot be measured, not 0
+        return None
     idx = np.flatnonzero(outside & after)
     if idx.size == 0:
         return 0.0
@@ -37,13 +40,22 @@ def settling_time(t, x, target: float, band: float, t_end_cmd: float) -> float |
     return float(t[last + 1] - t_end_cmd)
 
 
-def residual_amplitude(t, x, target: float, t_end_cmd: float) -> float:
-    """Half the peak-to-peak motion of ``x`` about the target after the command has ended."""
+def observed_after(t, t_end_cmd: float) -> float:
+    """Seconds of record after the end of the command (0: fewer than 2 samples there, so that
+    settling and residual vibration cannot be measured)."""
+    t = np.asarray(t, float)
+    after = t[t >= t_end_cmd - 1e-12]
+    return float(after[-1] - t_end_cmd) if after.size >= 2 else 0.0
+
+
+def residual_amplitude(t, x, target: float, t_end_cmd: float) -> float | None:
+    """Half the peak-to-peak motion of ``x`` about the target after the command has ended; None
+    when the record has fewer than 2 samples after it (cannot be measured: not 0)."""
     t = np.asarray(t, float)
     x = np.asarray(x, float)
-    sel = t >= t_end_cmd
-    if not np.any(sel):
-        return 0.0
+    sel = t >= t_end_cmd - 1e-12
+    if np.count_nonzero(sel) < 2:
+        return None
     d = x[sel] - target
     return float(0.5 * (d.max() - d.min()))
 
@@ -55,7 +67,7 @@ class MoveFigures:
     overshoot_tip_um: float
     peak_following_error_table_um: float
     peak_following_error_tip_um: float
-    residual_tip_um: float
+    residual_tip_um: float | None
     settling_time_table: float | None
     settling_time_tip: float | None
     peak_torque: float
@@ -64,6 +76,7 @@ class MoveFigures:
     peak_speed: float
     t_acc: float | None
     settle_band_um: float
+    observed_after_s: float = 0.0     # record after the command's end (0: settling, residual not measurable)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -87,11 +100,15 @@ def move_figures(t, x_cmd, x_table, x_tip, u, move, t_start: float = 0.0, t_end:
         overshoot_tip_um=overshoot(np.asarray(x_tip)[sel], target, d) * 1e6,
         peak_following_error_table_um=float(np.max(np.abs(np.asarray(x_cmd)[sel] - np.asarray(x_table)[sel]))) * 1e6,
         peak_following_error_tip_um=float(np.max(np.abs(np.asarray(x_cmd)[sel] - np.asarray(x_tip)[sel]))) * 1e6,
-        residual_tip_um=residual_amplitude(tt, np.asarray(x_tip)[sel], target, t_cmd_end) * 1e6,
+        residual_tip_um=_um(residual_amplitude(tt, np.asarray(x_tip)[sel], target, t_cmd_end)),
         settling_time_table=settling_time(tt, np.asarray(x_table)[sel], target, band, t_cmd_end),
         settling_time_tip=settling_time(tt, np.asarray(x_tip)[sel], target, band, t_cmd_end),
         peak_torque=float(np.max(np.abs(np.asarray(u)[sel]))) if np.size(u) else 0.0,
         j_max=move.j_max, a_max=move.a_max, peak_speed=move.peak_speed,
         t_acc=(spec.t_acc if spec is not None and spec.t_acc is not None else
                (spec.g0 * np.pi / (2 * move.a_max) if spec is not None and spec.g0 else None)),
-        settle_band_um=band * 1e6)
+        settle_band_um=band * 1e6, observed_after_s=observed_after(tt, t_cmd_end))
+
+
+def _um(v: float | None) -> float | None:
+    return None if v is None else v * 1e6

@@ -6,7 +6,9 @@ and imports what it needs inside ``run``: building the parser imports every comm
 (``benchmarks/bench_startup.py`` times it).
 Every error the project raises on purpose derives from :class:`hil.errors.HilError`; ``main``
 catches that root and prints one line: exit 2 for what the user can fix (bad config, bad data,
-refused moves), 1 for a drive fault, 130 for an interrupt. Never a traceback.
+refused moves), 1 for a drive fault, 130 for an interrupt, 141 when stdout was closed before
+everything was printed (``hil move ... | head -1``: the run has ended and is recorded; printing
+stopped, stdout goes to the null device). Never a traceback.
 
 Global options (before the command): ``--version``; ``--log-level LEVEL`` (the library logs
 through ``logging``, one logger per module named after it: ``hil.ident.diagnosis``,
@@ -24,6 +26,7 @@ import difflib
 import importlib
 import importlib.util
 import logging
+import os
 import re
 import sys
 
@@ -146,7 +149,11 @@ def main(argv: list[str] | None = None) -> int:
             except ValueError as exc:
                 print(f"hil {args.command}: error: {exc}", file=sys.stderr)
                 return 2
-        return int(args._run(args) or 0)
+        rc = int(args._run(args) or 0)
+        sys.stdout.flush()        # here, not at exit: a reader gone away is answered below
+        return rc
+    except BrokenPipeError:
+        return _stdout_closed()
     except HilError as exc:
         # one line, and the exit code of the error's kind (2: fix and retry; 1: drive fault;
         # a run stopped early: how it stopped, hil.errors.STOP_EXIT_CODES)
@@ -165,6 +172,19 @@ def main(argv: list[str] | None = None) -> int:
         if args.can_log:
             from hil.drivers.canopen import canlog
             canlog.request(None)
+
+
+def _stdout_closed() -> int:
+    """The reader of stdout went away: point stdout at the null device (the interpreter's flush at
+    exit would fail again, with a traceback-like message) and exit with STDOUT_CLOSED_EXIT."""
+    from hil.errors import STDOUT_CLOSED_EXIT
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):     # not a real file (a test's capture)
+        pass
+    return STDOUT_CLOSED_EXIT
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -57,6 +57,12 @@ STOP_EXIT_CODES = {
     "interrupt": 130,
 }
 
+# stdout closed before the command printed everything (``hil move ... | head -1``): 128 + SIGPIPE,
+# what a shell reports for a process that SIGPIPE ended. The work is done by then (a run has ended,
+# with its controlled stop where it needed one, and its record and files are written before
+# anything is printed); only the printing stopped. Never 1, which says drive fault.
+STDOUT_CLOSED_EXIT = 141
+
 # the first words of a stop reason, as the backends (hil.drivers.base's fault rule), the loop and the
 # supervisor write them -> the kind of stop
 _REASON_KINDS = (("drive fault", "drive_fault"), ("lost communication", "link"), ("loop overrun", "overrun"),

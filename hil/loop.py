@@ -342,7 +342,10 @@ class ControlLoop:
                     b.sync()
                     self.clock.wait()
                 if self.progress is not None and k % 1000 == 0:
-                    self.progress((k + 1) / K)
+                    try:
+                        self.progress((k + 1) / K)
+                    except OSError:          # its reader went away (a closed pipe): the motion goes on
+                        self.progress = None
         except BackendFault as exc:
             self._stop(b)
             status, reason = "fault", exc.reason

@@ -32,7 +32,7 @@ from hil.errors import SupervisorTripped, UserError
 logger = logging.getLogger(__name__)
 
 __all__ = ["Supervisor", "SupervisorTripped", "SECTION", "state_dir", "latch_path", "refuse_if_tripped",
-           "check_record", "is_latch", "remove_latch"]
+           "check_record", "is_latch", "remove_latch", "trip_hint"]
 
 APP = "compliant-axis-hil"
 
@@ -73,6 +73,15 @@ def latch_path(cfg=None) -> Path:
     ``latch.json`` in :func:`state_dir`."""
     lf = cfg.get("supervisor.latch_file", "") if cfg is not None else ""
     return Path(lf).expanduser() if lf else state_dir() / "latch.json"
+
+
+def trip_hint(cfg) -> str:
+    """What to tell after a run that did not complete: where its trip is latched, or that nothing
+    is (a dry run on the simulated plant trips on its record, hil.runtime, and latches nothing;
+    neither does an interrupted run)."""
+    if latch_path(cfg).exists():
+        return "'hil status' shows the trip, 'hil reset' clears it"
+    return "nothing is latched ('hil status' stays clear): on an axis this run would have stopped here"
 
 
 def refuse_if_tripped(cfg) -> None:

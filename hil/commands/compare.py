@@ -4,6 +4,7 @@ from __future__ import annotations
 from contextlib import contextmanager
 from pathlib import Path
 
+from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
 
 HELP = "model against measurement: errors per channel and motion phase, residual analysis, plots, HTML report"
@@ -181,6 +182,10 @@ def run(args) -> int:
     from hil.plots.report import write_report
     cfg, meas = load_inputs(args)
     after = load(args.after) if args.after else None
+    if after is not None and after.rotary != cfg.rotary:
+        kind = {True: "rotary", False: "linear"}
+        raise UserError(f"--after {args.after}: a {kind[after.rotary]} actuator, --config {cfg.source} a "
+                        f"{kind[cfg.rotary]} one: the models compared on one record must drive the same axis")
     say = progress(meas.t.size, quiet=args.json)
     with prompt_interrupt():
         say(f"replaying {meas.t.size} samples through {cfg.source}")
@@ -203,14 +208,15 @@ def run(args) -> int:
                      "figures": [str(f) for f in figs], "interactive": str(live), "warnings": meas.warnings},
                     indent=1))
     else:
+        from hil.ident.scores import fmt_fit
         from hil.units import fmt_si
         for c, d in a["channels"].items():
             e = b["channels"][c] if b else None
             u = d["unit"]
-            line = (f"{c:8s} RMS {fmt_si(d['rms'], u):>10s}  peak {fmt_si(d['peak'], u):>10s}  fit {d['fit']:.2f} %  "
+            line = (f"{c:8s} RMS {fmt_si(d['rms'], u):>10s}  peak {fmt_si(d['peak'], u):>10s}  fit {fmt_fit(d['fit'])}  "
                     f"rel {d['relative_error']:.4g} %")
             if e:
-                line += f"   after: RMS {fmt_si(e['rms'], u)}  fit {e['fit']:.2f} %  rel {e['relative_error']:.4g} %"
+                line += f"   after: RMS {fmt_si(e['rms'], u)}  fit {fmt_fit(e['fit'])}  rel {e['relative_error']:.4g} %"
             print(line)
         print(f"report: {rep}")
     return 0

@@ -142,6 +142,11 @@ def run(args) -> int:
     from hil.ident.diagnosis import diagnose
     from hil.ident.unexplained import HALF_GAP, describe
     from hil.plant_config import candidate
+    if args.out and (args.no_chain or args.max_steps <= 1):
+        # the single diagnosis adds nothing to the model: there is no config to write (it wrote
+        # nothing and said nothing)
+        raise UserError(f"--out {args.out}: the single diagnosis ({'--no-chain' if args.no_chain else '--max-steps 1'}) "
+                        f"adds nothing to the model, so there is no config to write; drop --out, or let the chain run")
     cfg, metas, vals = load_records(args)
     rp = make_records(args, cfg, metas)
     names = args.candidates.split(",") if args.candidates else None

@@ -131,6 +131,43 @@ def settings_from_args(args, cfg, ctrl):
                        noise_speed=parse_option(args.noise, "angular_speed", "--noise"))
 
 
+def check_margins(pm_min: float, gm_min_db: float) -> None:
+    """A margin to keep must be one: a gain margin > 0 dB (at or below 0 dB the loop is unstable:
+    --gm -6dB suggested a kv that 'hil move' refuses) and a phase margin between 0 and 180 deg."""
+    if not 0.0 < gm_min_db <= 60.0:
+        raise UserError(f"--gm {gm_min_db:g} dB: expected a gain margin above 0 dB and at most 60 dB (at or below "
+                        f"0 dB the loop is unstable), e.g. 6dB")
+    if not 0.0 < pm_min < 180.0:
+        raise UserError(f"--pm {pm_min:g} deg: expected a phase margin between 0 and 180 deg, e.g. 45deg")
+
+
+# the gains the tuning help suggests: (key in tuning, its entry, config key)
+_GAINS = (("velocity_loop", "kp_max", "control.kp"), ("position_loop", "kv_max", "control.kv"))
+
+
+def keep_stable_gains(result, cfg_with) -> None:
+    """Drop a suggested gain that the model's closed loop shows unstable, the check 'hil move'
+    refuses such a loop with (hil.closed_loop.check_loop_stability), and say so in the warnings:
+    the margins are read off the measured loops, the check is on the whole discrete loop.
+
+    ``cfg_with(key, value)``: the configuration with one value changed (SI)."""
+    from hil.closed_loop import UnstableLoopError, check_loop_stability
+    tun = result.tuning
+    for loop, entry, key in _GAINS:
+        value = (tun.get(loop) or {}).get(entry)
+        if value is None:
+            continue
+        try:
+            check_loop_stability(cfg_with(key, value))
+        except UnstableLoopError:
+            tun[loop].pop(entry, None)
+            tun[loop].pop("at_" + entry, None)
+            tun["config_diff"] = "\n".join(line for line in tun.get("config_diff", "").split("\n")
+                                           if not line.startswith(f"{key} = "))
+            result.warnings.append(f"{key} {value:.4g}, the largest keeping the margins on the measured loop, is not "
+                                   f"suggested: the model's closed loop is unstable with it ('hil move' would refuse it)")
+
+
 def _check_travel(cfg, st, duration: float, x0: float) -> None:
     lo, hi = cfg.get("limits.travel_min", -math.inf), cfg.get("limits.travel_max", math.inf)
     end = x0 + st.speed * duration
@@ -149,6 +186,7 @@ def run(args) -> int:
     from hil.drivers import open_backend
     from hil.plant_config import plant_from_config
     pm_min, gm_min_db = parse_angle_deg(args.pm, "--pm"), parse_gain_db(args.gm, "--gm")
+    check_margins(pm_min, gm_min_db)
     overrides = dict(parse_assignment(s) for s in args.set)
     cfg = load_config(args)            # --set, and -i/-c/-b or python-can's configuration for canopen
     plant_model = plant_from_config(cfg)
@@ -205,6 +243,7 @@ def run(args) -> int:
     finally:
         if backend is not None:
             backend.shutdown()
+    keep_stable_gains(result, lambda key, value: load(args.config, dict(overrides, **{key: value})))
     out = Path(args.out)
     report = result.as_dict()
     try:

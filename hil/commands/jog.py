@@ -68,6 +68,7 @@ def run(args) -> int:
     elif rec.status == "complete":
         print(f"jog {start * 1e3:.3f} -> {out['end_m'] * 1e3:.3f} mm: complete")
     else:
+        from hil.supervisor import trip_hint
         print(f"jog DID NOT COMPLETE: {rec.status}: {rec.reason}; the axis stopped at {out['end_m'] * 1e3:.3f} mm "
-              f"(from {start * 1e3:.3f} mm); 'hil status' shows the trip, 'hil reset' clears it")
+              f"(from {start * 1e3:.3f} mm); {trip_hint(cfg)}")
     return stop_exit_code(rec.status, rec.reason)

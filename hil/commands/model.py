@@ -37,6 +37,8 @@ JSON_KEYS = {
     "damping_ratios_with_friction": JsonKey("1", "the same with the motor's viscous friction"),
     "damped_modes_hz": JsonKey("Hz", "frequencies of the damped eigenvalues, friction included", when=_CHAIN),
     "damped_ratios": JsonKey("1", "damping ratios of the damped eigenvalues", when=_CHAIN),
+    "overdamped_modes": JsonKey("", "elastic modes without a damped frequency (real eigenvalues: no oscillation); "
+                                    "damped_modes_hz holds the others", when=_CHAIN),
     "plot": JsonKey("", "path of the Bode plots of TF1, TF2, TF3"),
     "closed_loop": JsonKey("Hz, dB", "the closed position loop: stable, spectral_radius, bandwidth_hz and "
                                      "peak_gain_db (table_ff, table_no_ff, tip_ff, ...), plot",
@@ -84,6 +86,9 @@ def model_report(cfg) -> dict:
         keep = wd > 1e-6 * max(wd.max(), 1.0)
         report["damped_modes_hz"] = [float(x) for x in wd[keep][-(ch.n - 1):] / (2 * math.pi)]
         report["damped_ratios"] = [float(x) for x in zd[keep][-(ch.n - 1):]]
+        # an overdamped mode (plant.c2 = 3000 on the paper bench) has real eigenvalues: no damped
+        # frequency, so fewer damped modes than elastic ones
+        report["overdamped_modes"] = (ch.n - 1) - len(report["damped_modes_hz"])
     return report
 
 
@@ -124,12 +129,18 @@ def _text(r: dict) -> str:
     if not r["modes_hz"]:
         lines.append("no elastic mode (a single mass)")
     else:
+        damped = list(zip(r.get("damped_ratios", []), r.get("damped_modes_hz", [])))
+        paired = len(damped) == len(r["modes_hz"])      # one damped eigenvalue per mode: side by side
         lines.append("elastic modes: undamped frequency, damping ratio (chain alone | with viscous friction"
-                     " | damped eigenvalues, friction included)")
+                     + (" | damped eigenvalues, friction included)" if paired else ")"))
         for i, f in enumerate(r["modes_hz"]):
             lines.append(f"  mode {i + 2}: {f:9.3f} Hz   zeta = {r['damping_ratios'][i]:.4f} | "
-                         f"{r['damping_ratios_with_friction'][i]:.4f} | {r['damped_ratios'][i]:.4f} "
-                         f"at {r['damped_modes_hz'][i]:.3f} Hz")
+                         f"{r['damping_ratios_with_friction'][i]:.4f}"
+                         + (f" | {damped[i][0]:.4f} at {damped[i][1]:.3f} Hz" if paired else ""))
+        if not paired:
+            lines.append("  damped eigenvalues, friction included: "
+                         + ("; ".join(f"zeta {z:.4f} at {fd:.3f} Hz" for z, fd in damped) or "none oscillates")
+                         + f"; {r['overdamped_modes']} mode(s) overdamped (real eigenvalues: no oscillation)")
     if r.get("plot"):
         lines.append(f"Bode plots: {r['plot']}")
     return "\n".join(lines)

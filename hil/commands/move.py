@@ -48,11 +48,15 @@ JSON_KEYS = {
     "overshoot_tip_um": JsonKey("um", "overshoot of the tool tip past the target", when=_DONE),
     "peak_following_error_table_um": JsonKey("um", "largest |x_cmd - x_table|", when=_DONE),
     "peak_following_error_tip_um": JsonKey("um", "largest |x_cmd - x_tip|", when=_DONE),
-    "residual_tip_um": JsonKey("um", "half the peak-to-peak tip motion after the command ended", when=_DONE),
+    "residual_tip_um": JsonKey("um", "half the peak-to-peak tip motion after the command ended (null: no record "
+                                     "after it, --dwell 0s)", when=_DONE),
     "settling_time_table": JsonKey("s", "from the end of the command until the table stays within --band; null: "
                                         "never settled in the record", when=_DONE),
     "settling_time_tip": JsonKey("s", "the same for the tip", when=_DONE),
     "settle_band_um": JsonKey("um", "the settling band (--band)", when=_DONE),
+    "observed_after_s": JsonKey("s", "record after the end of the command, where settling and residual vibration are "
+                                     "measured (0: they cannot be, null; the overshoot covers the command only)",
+                                when=_DONE),
     "peak_torque": JsonKey("N*m or N", "largest motor torque (rotary) or force (linear)", when=_DONE),
     "j_max": JsonKey("m/s^3", "peak jerk of the move", when=_DONE + ", or --check"),
     "a_max": JsonKey("m/s^2", "peak acceleration", when=_DONE + ", or --check"),
@@ -215,7 +219,8 @@ def run(args) -> int:
                   f"{rec.reason}")
             print(f"  stopped with the configured controlled stop ({cfg.get('supervisor.stop', 'quick_stop')}); "
                   f"no overshoot or settling figures for an incomplete move")
-            print(f"  record {rec.path}, plot {png}; 'hil status' shows the trip, 'hil reset' clears it")
+            from hil.supervisor import trip_hint
+            print(f"  record {rec.path}, plot {png}; {trip_hint(cfg)}")
         return summary["exit_code"]
     t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
         traj.segments[1], "stroke") else 0.0)
@@ -235,10 +240,17 @@ def run(args) -> int:
         st = lambda v: "not settled" if v is None else fmt(v, "time", unit="ms")  # noqa: E731
         print(f"move {fmt(first.stroke, 'length')} at {first.peak_speed * 60e3:.0f} mm/min on {backend.name}: "
               f"j_max {fmt(first.j_max, 'jerk')}, a_max {fmt(first.a_max, 'acceleration')}")
-        print(f"  overshoot          table {fig.overshoot_table_um:8.2f} um   tip {fig.overshoot_tip_um:8.2f} um")
+        blind = fig.observed_after_s <= 0.0     # no record after the command (--dwell 0s)
+        print(f"  overshoot          table {fig.overshoot_table_um:8.2f} um   tip {fig.overshoot_tip_um:8.2f} um"
+              + ("   (up to the command's end only: no dwell)" if blind else ""))
         print(f"  peak follow. error table {fig.peak_following_error_table_um:8.1f} um   tip "
               f"{fig.peak_following_error_tip_um:8.1f} um")
-        print(f"  settling (+-{band * 1e6:g} um) table {st(fig.settling_time_table)}   tip {st(fig.settling_time_tip)}")
-        print(f"  residual tip vibration {fig.residual_tip_um:.2f} um, peak {drive} {fmt(fig.peak_torque, drive, 3)}")
+        if blind:
+            print(f"  settling and residual tip vibration cannot be measured: no record after the command "
+                  f"(--dwell {args.dwell}); peak {drive} {fmt(fig.peak_torque, drive, 3)}")
+        else:
+            print(f"  settling (+-{band * 1e6:g} um) table {st(fig.settling_time_table)}   tip "
+                  f"{st(fig.settling_time_tip)}")
+            print(f"  residual tip vibration {fig.residual_tip_um:.2f} um, peak {drive} {fmt(fig.peak_torque, drive, 3)}")
         print(f"  record {rec.path}, plot {png}")
     return 0

@@ -53,7 +53,8 @@ _RUN = "runs[]"
 JSON_KEYS = {
     "config": JsonKey("", "path of the config"),
     "name": JsonKey("", "meta.name of the config"),
-    "move": JsonKey("m, m/s, s", "the moves: stroke_m, feed_m_per_s, g0_m_per_s, dwell_s, record_period_s, swept "
+    "move": JsonKey("m, m/s, s", "the moves: stroke_m, feed_m_per_s, g0_m_per_s, dwell_s (as run: at least what "
+                                 "the overshoot needs), record_period_s (of the dominant-frequency estimate), swept "
                                  "(`j_max` or `t_acc`)"),
     "analysis": JsonKey("", "`mechatronic`, `transmission` or `both` (--analysis)"),
     "runs": JsonKey("", "one entry per run of the primary analysis, by jerk (entries runs[].*); refinement and "
@@ -79,7 +80,8 @@ JSON_KEYS = {
     "max_jerk": JsonKey("m/s^3", "the most conservative largest jerk keeping the tip overshoot within the "
                                  "tolerance (null: none in the range)", when=_TOL),
     "max_jerk_t_acc": JsonKey("s", "the NC acceleration time of max_jerk (null without G0)", when=_TOL),
-    "admissible": JsonKey("m/s^3", "every admissible jerk interval [low, high]", when=_TOL),
+    "admissible": JsonKey("m/s^3", "every admissible jerk interval [low, high], each checked by runs (split "
+                                   "where one inside exceeds the tolerance)", when=_TOL),
     "verification": JsonKey("um", "the check of max_jerk by runs just below it: runs, spacing_rel, "
                                   "largest_overshoot_um, moved, peaks (j_max, overshoot_tip_um), bracket_rel; "
                                   "null when not checked", when=_TOL),
@@ -100,7 +102,7 @@ JSON_KEYS = {
     "proposal": JsonKey("m/s^3, s, um", "the jerk minimizing the tip overshoot within the time budget: j_max, t_acc, "
                                         "a_max, duration, overshoot_tip_um, overshoot_table_um, residual_tip_um, "
                                         "budget_s, fastest_s, analysis (or j_max null and a note)"),
-    "note": JsonKey("", "what could not be answered, in words (null: nothing)"),
+    "note": JsonKey("", "what could not be answered, and a dwell extended, in words (null: nothing)"),
     "stats": JsonKey("", "computed and reused (from runs.jsonl) runs"),
     "files": JsonKey("", "paths written: csv, json, runs, plot (unless --no-plot), report"),
 }
@@ -124,9 +126,11 @@ def add_arguments(p) -> None:
     p.add_argument("--compare", metavar="CONFIG", help="a second model (e.g. the 2-dof one) to compare with")
     p.add_argument("--budget", metavar="TIME|PERCENT", help="move-time budget for the proposed jerk: a time (2.5s) or a percent over the "
                                     "fastest move of the range (default 5%%)")
-    p.add_argument("--dwell", metavar="TIME", help="standstill after each move (default: max(1 s, 10 periods of the lowest mode))")
+    p.add_argument("--dwell", metavar="TIME", help="standstill after each move (default: max(1 s, 10 periods of the lowest "
+                                                   "mode); a shorter one than the overshoot needs is extended)")
     p.add_argument("--record-every", type=int, default=8, metavar="N",
-                   help="velocity steps per recorded sample (default 8 = 0.5 ms at 62.5 us)")
+                   help="velocity steps per sample of the dominant-frequency estimate (default 8 = 0.5 ms at 62.5 us; "
+                        "the overshoot is taken at every velocity step)")
     p.add_argument("--jobs", metavar="N", type=int, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on a dask.distributed scheduler, e.g. tcp://host:8786")
     p.add_argument("--backend", metavar="NAME", help="run the moves on this runtime backend (canopen, serial, sim) instead of "
@@ -248,7 +252,7 @@ def _text(r: dict) -> str:
         lines.append(f"{x['j_max']:9.4g} {x['a_max']:7.3g} {fmt(x['t_acc'] and x['t_acc'] * 1e3, '7.1f')} "
                      f"{x['overshoot_table_um']:10.3f} {x['overshoot_tip_um']:9.3f} "
                      f"{x['peak_following_error_table_um']:9.1f} {x['peak_following_error_tip_um']:9.1f} "
-                     f"{x['residual_tip_um']:9.2f} {fmt(x['settling_time_tip'], '10.3f')}")
+                     f"{fmt(x['residual_tip_um'], '9.2f')} {fmt(x['settling_time_tip'], '10.3f')}")
     if r.get("tolerance_um") is not None:
         mj = r.get("max_jerk")
         lines.append(f"tolerance {r['tolerance_um']:g} um at the tip: max jerk "

@@ -57,7 +57,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--pulse-period", default="1 s", metavar="TIME", help="pulse period (default 1 s)")
     parser.add_argument("--pulse-width", default="0.2 s", metavar="TIME", help="pulse width (default 0.2 s)")
     parser.add_argument("--open-loop", action="store_true", help="no position loop: the pulses are the whole command")
-    parser.add_argument("--out", required=True, metavar="FILE", help="the measurement file to write (CSV)")
+    parser.add_argument("--out", required=True, metavar="FILE",
+                        help="the measurement file to write: .csv (the measurement format) or .mat (MATLAB, SI)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -141,10 +142,17 @@ def _inputs(args, cfg):
 
 
 def run(args) -> int:
+    from pathlib import Path
+
     from hil.config import load, parse_assignment
     from hil.ident.synth import synthesize
     from hil.io.measurement import write
+    from hil.io.safe_write import refuse_inputs
     from hil.units import fmt, parse_option
+    refuse_inputs(args.out, (args.config,))
+    if Path(args.out).suffix.lower() not in (".csv", ".mat"):
+        # the suffix says the format: a CSV text under another name misleads every reader
+        raise UserError(f"--out {args.out}: expected a .csv (the measurement format) or .mat (MATLAB) file name")
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
     duration = parse_option(args.duration, "time", "--duration")
     sample_period = parse_option(args.sample_period, "time", "--sample-period")

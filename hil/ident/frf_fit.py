@@ -53,6 +53,34 @@ def is_frf_file(path) -> bool:
         return False
 
 
+# the magnitudes a response in SI units can have (m/(N m) of a stiff drive ~1e-9, a dimensionless
+# TF2 ~1): beyond these it is not a measurement (issue 30: 1e300 fitted c2 = 8.4e6)
+MAG_RANGE = (1e-30, 1e30)
+# the largest median factor between a response and the start model's at the same lines: more is
+# another axis or other units, not something a fit of one effect can explain
+MAX_MODEL_FACTOR = 1e6
+
+
+def _check_lines(where: str, f, mag, ph, coh, std) -> None:
+    """One clear line for a response's lists that are not a measurement: the frequencies positive,
+    finite and ascending (negative ones fitted c2 = 10.45), magnitudes positive and finite within
+    :data:`MAG_RANGE`, phases finite, coherence 0..1, standard deviations finite and >= 0."""
+    checks = (("frequency_hz", f, ~(np.isfinite(f) & (f > 0)), "positive finite frequencies in Hz"),
+              ("magnitude", mag, ~(np.isfinite(mag) & (mag >= MAG_RANGE[0]) & (mag <= MAG_RANGE[1])),
+               f"positive finite magnitudes within {MAG_RANGE[0]:g} .. {MAG_RANGE[1]:g}"),
+              ("phase_deg", ph, ~np.isfinite(ph), "finite phases"),
+              ("coherence", coh, ~(np.isfinite(coh) & (coh >= 0) & (coh <= 1)), "a coherence 0 .. 1"),
+              ("magnitude_std", std, ~(np.isfinite(std) & (std >= 0)), "finite standard deviations >= 0"))
+    for key, v, bad, what in checks:
+        if np.any(bad):
+            i = int(np.flatnonzero(bad)[0])
+            raise FrfDataError(f"{where}.{key}: expected {what}, got {v[i]:g} at line {i}")
+    if np.any(np.diff(f) <= 0):
+        i = int(np.flatnonzero(np.diff(f) <= 0)[0]) + 1
+        raise FrfDataError(f"{where}.frequency_hz: expected ascending frequencies, got {f[i]:g} after {f[i - 1]:g} "
+                           f"at line {i}")
+
+
 def load_frf(path) -> FrfData:
     path = str(path)
     try:
@@ -77,13 +105,13 @@ def load_frf(path) -> FrfData:
         except (KeyError, TypeError, ValueError) as exc:
             raise FrfDataError(f"{path}: responses.{name}: expected frequency_hz, magnitude, phase_deg lists "
                                f"({exc})") from None
-        if not (f.size == mag.size == ph.size == coh.size == std.size) or f.size < 3:
+        if not (f.size == mag.size == ph.size == coh.size == std.size) or f.size < 3 or f.ndim != 1:
             raise FrfDataError(f"{path}: responses.{name}: lists of different lengths or fewer than 3 lines")
-        ok = np.isfinite(f) & np.isfinite(mag) & np.isfinite(ph) & (mag > 0)
-        out.f[name] = f[ok]
-        out.h[name] = mag[ok] * np.exp(1j * ph[ok])
-        out.rel_std[name] = np.clip(np.nan_to_num(std[ok] / mag[ok], nan=1.0), 1e-4, None)
-        out.coherence[name] = coh[ok]
+        _check_lines(f"{path}: responses.{name}", f, mag, ph, coh, std)
+        out.f[name] = f
+        out.h[name] = mag * np.exp(1j * ph)
+        out.rel_std[name] = np.clip(std / mag, 1e-4, None)
+        out.coherence[name] = coh
     if not out.f:
         raise FrfDataError(f"{path}: none of the plant responses {', '.join(PLANT_RESPONSES)} is in the file")
     return out
@@ -121,6 +149,22 @@ def _residuals(cfg, data: FrfData, min_coherence: float):
     return np.concatenate(out), per
 
 
+def _check_scale(cfg, data: FrfData) -> None:
+    """Refuse a response whose magnitudes lie :data:`MAX_MODEL_FACTOR` or more from the start
+    model's (median over its lines): another axis, or other units, not a fit's business."""
+    plant = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant)
+    for name, f in data.f.items():
+        model = model_responses(plant, ctrl, f, tip_measured=name in ("TF3", "tip")).get(name)
+        if model is None:
+            continue
+        ratio = float(np.exp(np.median(np.log(np.abs(data.h[name])) - np.log(np.abs(model) + 1e-300))))
+        if not 1.0 / MAX_MODEL_FACTOR < ratio < MAX_MODEL_FACTOR:
+            raise FrfDataError(f"{data.source}: responses.{name}.magnitude: {ratio:.3g} times the model's (median over "
+                               f"the lines), more than {MAX_MODEL_FACTOR:g} apart: not a response of this axis in SI "
+                               f"units (is it the frf.json of this config?)")
+
+
 def fit_frf(cfg, data: FrfData, names: list[str], min_coherence: float = 0.8, max_nfev: int = 200) -> FrfFit:
     """Fit the effects or ``parameter:<key>`` ``names`` (together) to the measured responses."""
     effs = [candidate(n, cfg) for n in names]
@@ -145,6 +189,7 @@ def fit_frf(cfg, data: FrfData, names: list[str], min_coherence: float = 0.8, ma
             return np.full(n_res, 1e3)
 
     r0, per0 = _residuals(cfg, data, min_coherence)
+    _check_scale(cfg, data)
     n_res = r0.size
     z0 = np.array([math.log(start[p.name]) if lg else start[p.name] for p, lg in zip(params, logs)])
     lo = np.array([math.log(max(p.lower, 1e-300)) if lg else p.lower for p, lg in zip(params, logs)])

@@ -202,6 +202,11 @@ class Replay:
         sim = self.simulated(cfg)
         out = {}
         for c in self.channels:
+            if c not in sim:        # e.g. a linear actuator's model against a rotary record's torque
+                src = (cfg or self.cfg).source
+                raise UserError(f"{src}: its model gives no {c!r} channel, which the record {self.meas.source} "
+                                f"compares (a {'rotary' if (cfg or self.cfg).rotary else 'linear'} actuator gives "
+                                f"{', '.join(sorted(k for k in sim if k != 't'))}): is it a model of this axis?")
             y = self.meas[c]
             if first and self.align:
                 self.shifts[c] = _best_shift(y, sim[c])

@@ -253,11 +253,15 @@ def _apply_mapping(data: dict, factors: dict, units: dict, mapping: dict, source
         channels[name] = v
         exprs[name] = expr
         out_units[name] = unit or (units.get(expr.strip(), "") if plain else "")
+    replaced = []         # a file's own channel column that a map entry replaces (issue 30: never silently)
     if keep_unmapped:
         used = set()
         for expr in mapping:
             used |= {n.id for n in ast.walk(_safe_parse(expr)) if isinstance(n, ast.Name)}
         for col in data:
+            if col in channels and col not in used and col in CHANNELS:
+                replaced.append(f"{source}: --map {exprs[col]}={col} replaces the file's own column {col!r}, which "
+                                f"is left unused")
             if col in used or col in channels or col not in CHANNELS or col.startswith("__"):
                 continue
             _kind_of(col, units.get(col) or None, source)
@@ -284,7 +288,7 @@ def _apply_mapping(data: dict, factors: dict, units: dict, mapping: dict, source
                                    f"infinite value")
     meas = Measurement(channels, {"format": fmt, "mapping": ",".join(f"{v}={k}" for k, v in exprs.items())},
                        source, out_units)
-    meas.warnings = _check_time(channels["t"], source, 1)
+    meas.warnings = _check_time(channels["t"], source, 1) + replaced
     return meas
 
 

@@ -284,6 +284,8 @@ def write(path: str | Path, channels: dict[str, np.ndarray], meta: dict[str, obj
     channel whose kind is not fixed (``u_add``: torque, force or voltage; torque by default)."""
     from hil.io.safe_write import write_atomic
     path = Path(path)
+    if path.suffix.lower() == ".mat":
+        return write_mat(path, channels, meta, inputs)
     names = list(channels)
     kinds = [(kinds or {}).get(n) or CHANNELS.get(n, "dimensionless") for n in names]
     kinds = ["torque" if k == "actuator" else k for k in kinds]
@@ -295,6 +297,22 @@ def write(path: str | Path, channels: dict[str, np.ndarray], meta: dict[str, obj
                          [UNITS[WRITE_UNIT[k]][1] for k in kinds]))
     write_atomic(path, fh.getvalue(), inputs=inputs)
     return path
+
+
+def write_mat(path: str | Path, channels: dict[str, np.ndarray], meta: dict[str, object] | None = None,
+              inputs=()) -> Path:
+    """Write channels (SI) as a MATLAB v5 file (scipy.io.savemat): one column vector per channel,
+    named like the channel, so that ``hil compare FILE.mat`` reads it without ``--map``; ``meta``
+    as text variables. At once, never through a link (hil.io.safe_write.write_atomic)."""
+    import scipy.io
+
+    from hil.io.safe_write import write_atomic
+    fh = io.BytesIO()
+    data = {n: np.asarray(v, float).reshape(-1, 1) for n, v in channels.items()}
+    data.update({k: str(v) for k, v in (meta or {}).items() if k.isidentifier() and k not in data})
+    scipy.io.savemat(fh, data, do_compression=True)
+    write_atomic(Path(path), fh.getvalue(), inputs=inputs)
+    return Path(path)
 
 
 # a record shorter than this says nothing about the loop (and the statistics divide by N - 1)

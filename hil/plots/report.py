@@ -22,6 +22,7 @@ import math
 import struct
 from pathlib import Path
 
+from hil.ident.scores import fmt_fit
 from hil.io.safe_write import write_atomic
 from hil.plots.engineering import display_unit, eng, engineering_text, fmt, unit_label
 
@@ -117,6 +118,8 @@ def _in(value, unit_scale) -> str:
 
 
 def _pct(value, digits: int = 2) -> str:
+    if value is not None and not math.isfinite(value):      # an NRMSE fit of a constant channel
+        return "undefined"
     return "-" if value is None else f"{value:.{digits}f} %"
 
 
@@ -176,9 +179,9 @@ def compare_verdict(analysis: dict, after: dict | None = None) -> str:
     (structure a model could still explain)."""
     parts = []
     for c, d in analysis["channels"].items():
-        s = f"{c} fit {d['fit']:.2f} %"
+        s = f"{c} fit {fmt_fit(d['fit'])}"
         if after:
-            s += f" -> {after['channels'][c]['fit']:.2f} %"
+            s += f" -> {fmt_fit(after['channels'][c]['fit'])}"
         parts.append(s)
     last = after or analysis
     coloured = [c for c, d in last["channels"].items() if not d["whiteness"]["white"]]

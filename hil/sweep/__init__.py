@@ -37,16 +37,23 @@ Modules, each importing only those above it:
 """
 from __future__ import annotations
 
-from hil.sweep.curve import admissible_intervals, cancellation_jerks, crossing, local_minima, tolerance_answer
+from hil.sweep.curve import (
+    admissible_intervals,
+    cancellation_jerks,
+    crossing,
+    local_minima,
+    tolerance_answer,
+    verify_intervals,
+)
 from hil.sweep.jerk import jerk_grid, jmax_to_t_acc, t_acc_to_jmax
 from hil.sweep.model import fingerprint, model_of
 from hil.sweep.run import ANALYSES, RUN_FIELDS, RunSpec, backend_trajectory, dominant_frequency, run_on_backend, run_one
 from hil.sweep.store import ResultStore
-from hil.sweep.sweep import SweepSettings, default_dwell, run_sweep, warm_up
+from hil.sweep.sweep import SweepSettings, default_dwell, lowest_mode_hz, min_dwell, run_sweep, sampling, warm_up
 from hil.sweep.transmission import transmission_response
 
 __all__ = ["RunSpec", "SweepSettings", "run_one", "run_sweep", "admissible_intervals", "crossing",
            "local_minima", "tolerance_answer", "dominant_frequency", "cancellation_jerks",
            "t_acc_to_jmax", "jmax_to_t_acc", "ResultStore", "fingerprint", "jerk_grid", "warm_up",
            "transmission_response", "default_dwell", "ANALYSES", "RUN_FIELDS", "model_of",
-           "backend_trajectory", "run_on_backend"]
+           "backend_trajectory", "run_on_backend", "verify_intervals", "lowest_mode_hz", "min_dwell", "sampling"]

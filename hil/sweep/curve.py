@@ -16,6 +16,9 @@ plant) and refines what lies between grid points. Tested on hand-made curves.
   the lowest jerk up to the answer itself; any run over the tolerance moves the answer down to
   the crossing below it (bisected to ``rel``). A bump between grid points (the 40-point grid's
   5.17 m/s^3 with 8.8-9.2 um at 4.2-4.4 m/s^3) no longer hides.
+- :func:`verify_intervals`: the same check for every admissible interval: an excursion inside
+  one splits it in two (issue 30: the first crossing at 14.03 m/s^3 hid the admissible
+  15.8-23.6 m/s^3 behind it).
 - :func:`local_minima` and :func:`cancellation_jerks`: the dips, and where they are expected.
   The acceleration of a sine-square ramp of length T_r is a half-sine pulse, whose spectrum is
   zero at (k + 1/2) / T_r, k >= 1; a ramp with f_dom T_r = k + 1/2 therefore leaves (almost) no
@@ -27,7 +30,7 @@ import math
 from typing import Callable
 
 __all__ = ["crossing", "admissible_intervals", "tolerance_answer", "local_minima", "cancellation_jerks",
-           "peak_search", "verify_answer"]
+           "peak_search", "verify_answer", "verify_intervals"]
 
 
 def crossing(ok_j: float, over_j: float, f: Callable[[float], float], tol: float,
@@ -143,66 +146,94 @@ def peak_search(lo: float, hi: float, f: Callable[[float], float], iters: int = 
     return math.exp(best[1]), best[0]
 
 
-def verify_answer(j, y, tol: float, answer: float, f: Callable[[float], float], f_many=None,
-                  rel: float = 0.002, verify_rel: float = 0.01, max_runs: int = 400) -> dict:
-    """Check a largest admissible jerk ``answer`` (the first crossing of the grid curve ``j``,
-    ``y``, refined) by runs, and move it down where a run below it exceeds ``tol``.
+def _dense(lo: float, hi: float, verify_rel: float, max_runs: int) -> tuple[list[float], float]:
+    """Log-spaced jerks from ``lo`` to ``hi`` (both included) no more than ``verify_rel`` apart,
+    at most ``max_runs`` of them (the spacing widens beyond): ``(jerks, spacing)``."""
+    if not hi > lo:
+        return [lo], 0.0
+    n = int(math.ceil(math.log(hi / lo) / math.log1p(verify_rel))) + 1
+    n = max(2, min(n, max_runs))
+    pts = [lo * (hi / lo) ** (k / (n - 1)) for k in range(n)]
+    pts[0], pts[-1] = lo, hi
+    return pts, (hi / lo) ** (1.0 / (n - 1)) - 1.0
 
-    Parameters
-    ----------
-    j, y : sequence of float
-        The grid: ascending jerks and their overshoots.
-    tol : float
-        The tolerance (the unit of ``y``).
-    answer : float
-        The grid's answer, ``j[0] <= answer``.
-    f, f_many : callable
-        The overshoot at one jerk, and at a list of jerks (default: ``f`` on each).
-    rel : float
-        Relative width to which a crossing found is bisected.
-    verify_rel : float
-        Largest relative spacing of the dense runs from ``j[0]`` to the answer (widened, and said
-        so, where that would take more than ``max_runs`` runs).
+
+def verify_intervals(j, y, tol: float, intervals, f: Callable[[float], float], f_many=None,
+                     rel: float = 0.002, verify_rel: float = 0.01, max_runs: int = 400) -> dict:
+    """Check admissible intervals (those of :func:`admissible_intervals`) by runs, and split or
+    shrink them where a run inside exceeds ``tol``.
+
+    In every interval: a golden-section search for the peak around each grid local maximum in it
+    (:func:`peak_search`), then runs at log-spaced jerks no more than ``verify_rel`` apart from
+    its low end to its high end (at most ``max_runs`` per interval); each change between a run
+    within ``tol`` and one over it is bisected to ``rel`` (:func:`crossing`), so an interval
+    with an excursion inside becomes two, with the excursion's edges as ends.
 
     Returns
     -------
     dict
-        ``max_jerk`` (the checked answer), ``peaks`` (the local maxima searched: jerk and
-        overshoot found), ``runs`` (dense runs), ``spacing_rel`` (their largest relative
-        spacing), ``largest_below`` (the largest overshoot of the runs at or below the answer),
-        ``moved`` (whether the check lowered the answer).
+        ``intervals`` (the verified ones, ascending), ``peaks`` (the local maxima searched: jerk
+        and value found), ``runs`` (dense runs), ``spacing_rel`` (their largest relative
+        spacing), ``largest_within`` (the largest value of the runs inside the verified
+        intervals, per interval), ``moved`` (whether any interval changed).
     """
     f_many = f_many or (lambda js: [f(v) for v in js])
     j = [float(v) for v in j]
     y = [float(v) for v in y]
-    J = float(answer)
-    peaks = []
-    # 1. the grid's local maxima below the answer: the peak between their neighbours
-    for i in range(1, len(j) - 1):
-        if j[i + 1] > J:
-            break
-        if y[i] >= y[i - 1] and y[i] >= y[i + 1]:
-            jp, yp = peak_search(j[i - 1], j[i + 1], f)
-            peaks.append({"j_max": jp, "overshoot": yp})
-            if yp > tol:
-                J = min(J, crossing(j[i - 1], jp, f, tol, rel))
-                break
-    # 2. dense runs from the lowest jerk up to the answer itself
-    lo = j[0]
-    n = 2 if J <= lo else int(math.ceil(math.log(J / lo) / math.log1p(verify_rel))) + 1
-    n = max(2, min(n, max_runs))
-    spacing = (J / lo) ** (1.0 / (n - 1)) - 1.0 if J > lo else 0.0
-    pts = [lo * (J / lo) ** (k / (n - 1)) for k in range(n)] if J > lo else [lo]
-    pts[-1] = J
-    ys = [float(v) for v in f_many(pts)]
-    largest = ys[0]
-    for k, (pj, py) in enumerate(zip(pts, ys)):
-        if py > tol:
-            if k == 0:          # the lowest jerk itself is over: no admissible jerk
-                return {"max_jerk": None, "peaks": peaks, "runs": len(pts), "spacing_rel": spacing,
-                        "largest_below": py, "moved": True}
-            J = crossing(pts[k - 1], pj, f, tol, rel)
-            break
-        largest = max(largest, py)
-    return {"max_jerk": J, "peaks": peaks, "runs": len(pts), "spacing_rel": spacing, "largest_below": largest,
-            "moved": J < float(answer)}
+    out, peaks, largest = [], [], []
+    runs, spacing = 0, 0.0
+    for lo, hi in intervals:
+        lo, hi = float(lo), float(hi)
+        extra = []
+        for i in range(1, len(j) - 1):        # grid local maxima inside the interval
+            if lo <= j[i] <= hi and y[i] >= y[i - 1] and y[i] >= y[i + 1]:
+                jp, yp = peak_search(j[i - 1], j[i + 1], f)
+                peaks.append({"j_max": jp, "overshoot": yp})
+                if lo < jp < hi:
+                    extra.append((jp, yp))
+        pts, sp = _dense(lo, hi, verify_rel, max_runs)
+        runs += len(pts)
+        spacing = max(spacing, sp)
+        pairs = sorted(list(zip(pts, (float(v) for v in f_many(pts)))) + extra)
+        start = pairs[0][0] if pairs[0][1] <= tol else None
+        top = pairs[0][1] if start is not None else -math.inf
+        for (pa, ya), (pb, yb) in zip(pairs, pairs[1:]):
+            if ya <= tol < yb:                # leaves the tolerance between pa and pb
+                out.append([start, crossing(pa, pb, f, tol, rel)])
+                largest.append(top)
+                start = None
+            elif yb <= tol < ya:              # comes back
+                start, top = crossing(pb, pa, f, tol, rel), -math.inf
+            if yb <= tol:
+                top = max(top, yb)
+        if start is not None:
+            out.append([start, pairs[-1][0]])
+            largest.append(top)
+    moved = [[float(a), float(b)] for a, b in intervals] != out
+    return {"intervals": out, "peaks": peaks, "runs": runs, "spacing_rel": spacing, "largest_within": largest,
+            "moved": moved}
+
+
+def verify_answer(j, y, tol: float, answer: float, f: Callable[[float], float], f_many=None,
+                  rel: float = 0.002, verify_rel: float = 0.01, max_runs: int = 400) -> dict:
+    """Check a largest admissible jerk ``answer`` (the first crossing of the grid curve ``j``,
+    ``y``, refined) by runs, and move it down where a run below it exceeds ``tol``: the first
+    interval [j[0], answer] checked by :func:`verify_intervals`.
+
+    Returns
+    -------
+    dict
+        ``max_jerk`` (the checked answer: the end of the first verified interval when it still
+        starts at j[0], else None), ``intervals`` (the verified pieces of [j[0], answer]),
+        ``peaks``, ``runs``, ``spacing_rel`` (as :func:`verify_intervals`), ``largest_below``
+        (the largest value of the runs at or below the checked answer), ``moved`` (whether the
+        check lowered the answer).
+    """
+    j0 = float(j[0])
+    v = verify_intervals(j, y, tol, [[j0, float(answer)]], f, f_many, rel, verify_rel, max_runs)
+    first = v["intervals"][0] if v["intervals"] and v["intervals"][0][0] == j0 else None
+    J = first[1] if first else None
+    return {"max_jerk": J, "intervals": v["intervals"], "peaks": v["peaks"], "runs": v["runs"],
+            "spacing_rel": v["spacing_rel"],
+            "largest_below": v["largest_within"][0] if first else float(f(j0)),
+            "moved": J is None or J < float(answer)}

@@ -14,7 +14,8 @@ acceleration times turned into jerks by Eq. 15-16) for each analysis asked, thro
   (the grid, the predicted cancellation jerks, then a golden-section search in log jerk).
 
 Refinement and proposal runs are marked ``refine``. The report's keys are the ``--json`` output
-of ``hil sweep``. The dwell defaults to max(1 s, 10 periods of the lowest elastic mode).
+of ``hil sweep``. The dwell defaults to max(1 s, 10 periods of the lowest elastic mode); a shorter
+one than :func:`min_dwell` is extended to it (:func:`sampling`).
 """
 from __future__ import annotations
 
@@ -28,8 +29,9 @@ from typing import Iterable
 import numpy as np
 from tqdm import tqdm
 
+from hil.errors import UserError
 from hil.profiles import AxisLimits, MoveSpec, check_limits
-from hil.sweep.curve import cancellation_jerks, local_minima, tolerance_answer, verify_answer
+from hil.sweep.curve import cancellation_jerks, local_minima, tolerance_answer, verify_intervals
 from hil.sweep.executors import BackendExecutor, DaskExecutor, LocalExecutor
 from hil.sweep.jerk import jmax_to_t_acc
 from hil.sweep.model import fingerprint, model_of
@@ -38,7 +40,7 @@ from hil.sweep.store import ResultStore
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["SweepSettings", "default_dwell", "run_sweep", "warm_up"]
+__all__ = ["SweepSettings", "default_dwell", "lowest_mode_hz", "min_dwell", "run_sweep", "sampling", "warm_up"]
 
 
 @dataclass
@@ -67,14 +69,87 @@ class SweepSettings:
         return "transmission" if self.analysis == "transmission" else "mechatronic"
 
 
-def default_dwell(cfg) -> float:
-    """The dwell after a move, s: max(1 s, 10 periods of the lowest elastic mode of the chain)."""
+def lowest_mode_hz(cfg) -> float | None:
+    """The lowest elastic mode of the chain, Hz (None: a rigid chain)."""
     plant, _ = model_of(cfg)
     w, _ = plant.chain.modes()
     el = w[w > 1e-6]
-    if el.size == 0:
-        return 1.0
-    return float(max(1.0, 10.0 / (el.min() / (2 * math.pi))))
+    return float(el.min() / (2 * math.pi)) if el.size else None
+
+
+def default_dwell(cfg) -> float:
+    """The dwell after a move, s: max(1 s, 10 periods of the lowest elastic mode of the chain)."""
+    f1 = lowest_mode_hz(cfg)
+    return 1.0 if f1 is None else float(max(1.0, 10.0 / f1))
+
+
+def min_dwell(cfg) -> tuple[float, str]:
+    """The shortest dwell whose run still sees the overshoot, s, and why in words.
+
+    The tip overshoots after the command has ended (its residual vibration: a move of the
+    paper's bench at 25.56 m/s^3 overshoots 56.5 um in its dwell, 40.2 um up to the command's
+    end), and the vibration's largest swings come in its first periods: 10 periods of the lowest
+    elastic mode (the bench's latest peak came 1.8 periods after the command, jerks 1-2000
+    m/s^3); a loop approaching from below settles with the position loop: 10 time constants
+    1/kv (the 2-dof bench: 0.03 um below the target 0.2 s after the command)."""
+    _, ctrl = model_of(cfg)
+    f1 = lowest_mode_hz(cfg)
+    loop = 10.0 / ctrl.kv
+    if f1 is not None and 10.0 / f1 > loop:
+        return 10.0 / f1, f"10 periods of the lowest elastic mode, {f1:.3g} Hz"
+    return loop, f"10 time constants 1/kv of the position loop, kv {ctrl.kv:.3g} 1/s"
+
+
+def sampling(s: SweepSettings, *cfgs) -> tuple[float, str | None]:
+    """The dwell the runs take and a note when it is not the one asked for; refuses (one line) a
+    record too sparse for the dominant frequency.
+
+    A dwell shorter than :func:`min_dwell` (of every model swept) would miss the overshoot that
+    comes after the command (issue 30: ``--dwell 0s`` answered 25.54 m/s^3 where the first
+    crossing is 14.03): it is extended to that, and the note says so. ``record_every`` is at most
+    one sample per position tick and 4 per period of the lowest elastic mode (the overshoot
+    itself is always taken on the velocity-loop grid, hil.sweep.run)."""
+    dwell = s.dwell if s.dwell is not None else default_dwell(cfgs[0])
+    need, why = max(min_dwell(c) for c in cfgs if c is not None)
+    note = None
+    if dwell < need:
+        note = (f"the dwell of {dwell:.3g} s was extended to {need:.3g} s ({why}): a shorter one misses the "
+                f"overshoot that comes after the command")
+        dwell = need
+    for c in cfgs:
+        if c is None:
+            continue
+        _, ctrl = model_of(c)
+        top = ctrl.substeps
+        f1 = lowest_mode_hz(c)
+        if f1 is not None:
+            top = max(1, min(top, int(1.0 / (4.0 * f1 * ctrl.velocity_period))))
+        if not 1 <= s.record_every <= top:
+            raise UserError(f"--record-every {s.record_every}: expected 1 .. {top} velocity steps per sample "
+                            f"({top * ctrl.velocity_period * 1e3:.3g} ms: one sample per position tick and at least "
+                            f"4 per period of the lowest elastic mode, for the dominant-frequency estimate)")
+    return dwell, note
+
+
+# the longest run (move and dwell) a sweep simulates, s: one run on the velocity-loop grid holds
+# about 1.3 MB per simulated second (3 masses); a 100 m stroke asked for 33 min and never answered
+MAX_RUN_S = 60.0
+
+
+def check_run_length(s: SweepSettings, dwell: float) -> None:
+    """Refuse (one line) a sweep whose longest run would last more than :data:`MAX_RUN_S`."""
+    from hil.profiles import plan_move
+    for v in s.values:
+        spec = (MoveSpec(s.stroke, s.feed, t_acc=float(v), g0=s.g0) if s.by == "t_acc"
+                else MoveSpec(s.stroke, s.feed, j_max=float(v), g0=s.g0))
+        try:
+            length = plan_move(spec).duration + dwell
+        except ValueError as exc:
+            raise UserError(f"--stroke {s.stroke:g} m, --feed {s.feed:g} m/s: {exc}") from None
+        if not length <= MAX_RUN_S:
+            raise UserError(f"--stroke {s.stroke * 1e3:g} mm at --feed {s.feed * 6e4:g} mm/min: a run of "
+                            f"{length:.4g} s (move and dwell), at most {MAX_RUN_S:g} s per run: a shorter stroke "
+                            f"or a higher feed")
 
 
 class _Runner:
@@ -149,24 +224,29 @@ def _model_side(runner: _Runner, s: SweepSettings, dwell: float, tag: str) -> di
             return runner.one(spec)["overshoot_tip_um"] * 1e-6
 
         ans = tolerance_answer(j, y, s.tolerance, f, s.refine_rel, y_scale=1e6, y_unit="um")
-        if ans["max_jerk"] is not None and s.verify_rel:
-            # the answer checked by runs, not interpolated (curve.verify_answer)
+        if ans["admissible"] and s.verify_rel:
+            # every admissible interval checked by runs, not interpolated (curve.verify_intervals)
             def f_many(js):
                 specs = [RunSpec(s.primary, s.stroke, s.feed, s.g0, None, float(v), dwell, s.record_every, True)
                          for v in js]
                 return [r["overshoot_tip_um"] * 1e-6 for r in runner.many(specs, f"{tag} verify")]
-            v = verify_answer(j, y, s.tolerance, ans["max_jerk"], f, f_many, s.refine_rel, s.verify_rel,
-                              s.verify_runs)
+            v = verify_intervals(j, y, s.tolerance, ans["admissible"], f, f_many, s.refine_rel, s.verify_rel,
+                                 s.verify_runs)
+            first = v["intervals"][0] if v["intervals"] and v["intervals"][0][0] == j[0] else None
             ans["verification"] = {"runs": v["runs"], "spacing_rel": v["spacing_rel"],
-                                   "largest_overshoot_um": v["largest_below"] * 1e6, "moved": v["moved"],
+                                   "largest_overshoot_um": (v["largest_within"][0] * 1e6 if first
+                                                            else y[0] * 1e6),
+                                   "moved": v["moved"],
                                    "peaks": [{"j_max": p["j_max"], "overshoot_tip_um": p["overshoot"] * 1e6}
                                              for p in v["peaks"]],
                                    "bracket_rel": s.refine_rel}
-            ans["max_jerk"] = v["max_jerk"]
-            if v["max_jerk"] is None:
-                ans["admissible"] = ans["admissible"][1:]
-            elif ans["admissible"] and ans["admissible"][0][1] > v["max_jerk"]:
-                ans["admissible"][0][1] = v["max_jerk"]
+            ans["admissible"] = v["intervals"]
+            if first is not None and first[1] < j[-1]:
+                # the first crossing, found by the runs (a grid within the tolerance everywhere
+                # may hide an excursion: then the note asking for a wider range no longer holds)
+                ans["max_jerk"], ans["note"] = first[1], None
+            elif first is None:
+                ans["max_jerk"] = None
         side["tolerance"] = ans
     return side
 
@@ -271,7 +351,8 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
         raise ValueError("a t_acc sweep needs the rapid speed g0 (nc.g0 in the config, or --g0)")
     if s.analysis not in ANALYSES + ("both",):
         raise ValueError(f"analysis: mechatronic, transmission or both, not {s.analysis!r}")
-    dwell = s.dwell if s.dwell is not None else default_dwell(cfg)
+    dwell, dwell_note = sampling(s, cfg, compare_cfg)
+    check_run_length(s, dwell)
     if backend and s.verify_rel:
         # hundreds of checking moves on an axis: the answer is checked on the simulated plant only
         s = replace(s, verify_rel=0.0)
@@ -299,7 +380,7 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
         report["runs"] = main[s.primary]
         if s.analysis == "both":
             report["runs_transmission"] = main["transmission"]
-        notes = []
+        notes = [dwell_note] if dwell_note else []
         if s.tolerance is not None:
             t = main["tolerance"]
             report.update(tolerance_um=s.tolerance * 1e6, max_jerk=t["max_jerk"], admissible=t["admissible"],
