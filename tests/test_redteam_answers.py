@@ -43,7 +43,7 @@ def _one_line_error(capsys, argv, *words) -> str:
 def test_move_without_dwell_does_not_claim_settled(tmp_path, capsys):
     """Before: 'settling table 0 ms tip 0 ms', 'residual tip vibration 0.00 um' next to a 1204 um
     overshoot: with no record after the command, neither can be measured."""
-    argv = ["move", "--config", BENCH, "--stroke", "100mm", "--feed", "7000mm/min", "--jmax", "400",
+    argv = ["move", "--config", BENCH, "--stroke", "100mm", "--feed", "7000mm/min", "--jmax", "400m/s^3",
             "--dwell", "0s", "--out", str(tmp_path)]
     assert main(argv + ["--json"]) == 0
     d = json.loads(capsys.readouterr().out)
@@ -322,7 +322,7 @@ VALUE = st.one_of(QUANTITY, st.builds(lambda a, b: f"{a}..{b}", QUANTITY, QUANTI
 SURFACES = {
     "move": (["--config", BENCH, "--stroke", "5mm", "--feed", "3000mm/min", "--amax", "2m/s^2", "--dwell", "0.1s"],
              ["--stroke", "--feed", "--amax", "--dwell", "--band", "--start"]),
-    "sweep": (["--config", BENCH, "--stroke", "1mm", "--feed", "3000mm/min", "--jmax", "50,200", "--no-plot",
+    "sweep": (["--config", BENCH, "--stroke", "1mm", "--feed", "3000mm/min", "--jmax", "50,200m/s^3", "--no-plot",
                "--no-progress", "--jobs", "1"],
               ["--stroke", "--feed", "--jmax", "--points", "--dwell", "--record-every", "--budget", "--tolerance"]),
     "frf": (["--config", BENCH], ["--gm", "--pm", "--amplitude", "--band", "--period", "--speed", "--settle",

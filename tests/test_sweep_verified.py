@@ -176,7 +176,7 @@ def test_a_record_too_sparse_is_refused(every, capsys, tmp_path):
     """400 was a traceback, 640 / 6400 / 1e8 wrong answers: now one line, exit 2."""
     from hil.cli import main
     rc = main(["sweep", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "100mm", "--feed", "7000mm/min",
-               "--jmax", "5..400", "--points", "12", "--tolerance", "40um", "--record-every", str(every),
+               "--jmax", "5..400m/s^3", "--points", "12", "--tolerance", "40um", "--record-every", str(every),
                "--no-progress", "--out", str(tmp_path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "--record-every" in err[0] and "1 .. 64" in err[0]
