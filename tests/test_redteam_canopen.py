@@ -12,6 +12,7 @@ its fix, and a property-based fuzzer of CAN frames sent to the simulated drive.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import signal
@@ -224,3 +225,211 @@ def test_nothing_moves_after_a_fault_and_a_reset_until_commanded():
     bound = _drift_bound(sim, rows)
     assert abs(x_end - x_reset) <= bound, ((x_end - x_reset) * 1e6, bound * 1e6)
     assert abs(stale_target - actual) > 100          # the stale target was elsewhere (the test means it)
+
+
+# -- 4. a socketcand endpoint that accepts and never talks ---------------------------------------------
+@linux
+@pytest.mark.parametrize("command", ["status", "move"])
+def test_a_silent_socketcand_server_is_a_named_fault_not_a_hang(tmp_path, command):
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(4)                               # accepts (the kernel does), never says a word
+    port = srv.getsockname()[1]
+    argv = [command, "--config", CANOPEN, "--set", "canopen.interface=socketcand", "--set", "canopen.channel=can0",
+            "--set", f"canopen.port={port}", "--set", "canopen.connect_timeout=0.5s"]
+    if command == "move":
+        argv += ["--backend", "canopen", "--stroke", "10mm", "--feed", "6000mm/min", "--amax", "2m/s^2",
+                 "--out", str(tmp_path / "out")]
+    try:
+        t0 = time.monotonic()
+        r = subprocess.run(HIL + argv, env=_env(tmp_path), capture_output=True, text=True, timeout=60)
+        took = time.monotonic() - t0
+    finally:
+        srv.close()
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1, r.stderr           # a backend that cannot be opened
+    assert "accepted but did not greet" in lines[0] and f"127.0.0.1:{port}" in lines[0]
+    assert "Traceback" not in r.stderr and took < 30
+
+
+# -- 5. one line, never a traceback: frames, --fault values, node ids, the reason of a dead bus ----------
+def _server_drive(tmp_path):
+    from hil import config
+    from hil.drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
+    port = _free_port()
+    cfg = config.load(CANOPEN, {"canopen.interface": "socketcand", "canopen.channel": "can0", "canopen.port": port})
+    server = SocketcandServerBus(host="127.0.0.1", port=port, channel="can0")
+    return DriveSim(cfg, bus=server, lockstep=False), port
+
+
+def test_the_drive_survives_malformed_frames_over_socketcand(tmp_path):
+    sim, port = _server_drive(tmp_path)
+    server = sim.network.bus
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as c:
+            c.sendall(b"< open can0 >< rawmode >")
+            # an SDO request of 1 byte (struct.error in canopen's SDO server before the fix), an
+            # RPDO too short for its mapping, a SYNC of 8 bytes, an NMT command of 1 byte
+            c.sendall(b"< send 601 1 00 >< send 201 1 00 >< send 80 8 01 02 03 04 05 06 07 08 >< send 0 1 01 >")
+            c.sendall(b"< send 601 8 40 00 10 00 00 00 00 00 >")         # then a good SDO upload: answered
+            got, t_end = b"", time.monotonic() + 5
+            while b"frame 581" not in got and time.monotonic() < t_end:
+                c.settimeout(max(0.01, t_end - time.monotonic()))
+                try:
+                    got += c.recv(4096)
+                except socket.timeout:
+                    break
+        assert sim._idle_thread.is_alive() and b"frame 581" in got, (got, sim.log[-5:])
+        assert sim.frames_rejected >= 1 and any("ignored" in e for _, e in sim.log)
+    finally:
+        sim.close()
+        server.shutdown()
+
+
+@pytest.mark.parametrize("fault,words", [
+    ("emcy=0x123456789@0.1", "EMCY error code"), ("late_pdo=-1@0.1", "seconds 0..10"),
+    ("freeze=nan@0.1", "seconds 0..60"), ("kill@inf", "SECONDS must be a number"),
+    ("missing_pdo=0@0.1", "a count 1.."), ("following_error=1e300@0.1", "metres"),
+    ("kill=3@0.1", "kill takes no VALUE"), ("heartbeat_loss@-1", "SECONDS must be"),
+])
+def test_bad_fault_values_are_refused_in_one_line(capsys, fault, words):
+    from hil.cli import main
+    rc = main(["drive-sim", "--config", CANOPEN, "--fault", fault, "--seconds", "1", "--port", "0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and words in err[0] and "--fault" in err[0], err
+
+
+@pytest.mark.parametrize("key,value,words", [
+    ("canopen.node_id", 0, ">= 1"), ("canopen.node_id", 200, "at most 127"), ("canopen.tip_node_id", 128, "at most 127"),
+    ("canopen.host_node_id", 0, ">= 1"), ("canopen.abort_option", 4, "at most 3"),
+    ("canopen.sync_timeout", "1 s", "at most 120"),
+])
+def test_node_ids_and_guard_settings_in_range(capsys, tmp_path, key, value, words):
+    from hil.cli import main
+    rc = main(["status", "--config", CANOPEN, "--set", f"{key}={value}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and key in err[0] and words in err[0], err
+
+
+def test_a_bus_error_with_a_traceback_in_its_text_is_one_line():
+    """python-can's socketcand client puts a whole traceback into its error's text when the
+    server dies (kill -9 of hil drive-sim); the reason (screen, move.json, latch) is one line."""
+    import can
+
+    from hil.drivers.canopen.backend import _one_line
+    exc = can.CanOperationError("Failed to receive: [Errno 104] Connection reset by peer  Traceback (most recent "
+                                "call last):\n  File \"x.py\", line 1, in f\nConnectionResetError: [Errno 104]")
+    text = _one_line(exc)
+    assert text == "Failed to receive: [Errno 104] Connection reset by peer"
+    assert _one_line(OSError("x" * 1000)).endswith("...") and len(_one_line(OSError("x" * 1000))) == 200
+
+
+def test_can_log_refuses_a_symbolic_link(tmp_path):
+    from hil.drivers.canopen import canlog
+    target = tmp_path / "precious.txt"
+    target.write_text("keep me")
+    link = tmp_path / "trace.asc"
+    link.symlink_to(target)
+    with pytest.raises(ValueError, match="symbolic link"):
+        canlog.request(link)
+    with pytest.raises(ValueError, match="symbolic link"):
+        canlog.BusRecorder(link)
+    assert target.read_text() == "keep me"
+    canlog.request(None)
+
+
+# -- 6. a fuzzer of CAN frames sent to the simulated drive ----------------------------------------------
+from contextlib import contextmanager  # noqa: E402
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+MOVING = ("OPERATION ENABLED", "QUICK STOP ACTIVE", "FAULT REACTION ACTIVE")
+# the COB-IDs the drive listens to (NMT, SYNC, RPDO1..4, SDO, the host's heartbeat), a few it
+# does not, and any 11-bit one
+COBS = st.one_of(st.sampled_from([0x000, 0x080, 0x201, 0x301, 0x401, 0x501, 0x601, 0x77F, 0x701, 0x181, 0x081]),
+                 st.integers(0, 0x7FF))
+FRAME = st.tuples(COBS, st.binary(min_size=0, max_size=8))
+# frames a host would send to enable and move the drive, so that the fuzzer reaches the enabled
+# states too: NMT start, controlwords shutdown / switch on / enable, a target, SYNCs with counters
+ENABLING = [(0x000, bytes([1, 1])), (0x201, bytes([6, 0, 0, 0, 0, 0])), (0x201, bytes([7, 0, 0, 0, 0, 0])),
+            (0x201, bytes([0x0F, 0, 0, 0, 0, 0]))]
+FRAMES = st.lists(st.one_of(FRAME, st.sampled_from(ENABLING), st.tuples(st.just(0x080), st.binary(min_size=0, max_size=2))),
+                  min_size=1, max_size=40)
+
+
+@contextmanager
+def no_hang(seconds: int):
+    def boom(*_):
+        raise AssertionError(f"no answer within {seconds} s (a hang)")
+    old = signal.signal(signal.SIGALRM, boom)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+@pytest.fixture(scope="module")
+def fuzz_drive():
+    from hil import config
+    from hil.drivers.canopen.drive_sim import DriveSim
+    cfg = config.load(CANOPEN, {"canopen.interface": "virtual", "canopen.channel": f"fz{os.getpid()}"})
+    sim = DriveSim(cfg, lockstep=False, thread=False)
+    yield sim
+    sim.close()
+
+
+def _reset(sim) -> None:
+    """The drive as after power-on, the axis at rest at 0 (between examples)."""
+    with sim.lock:
+        sim.state, sim.cw = "SWITCH ON DISABLED", 0
+        sim._set_state("SWITCH ON DISABLED")
+        sim.node.nmt.state = "PRE-OPERATIONAL"
+        sim.plant.home_at(0.0)
+        sim.plant._u_act = 0.0
+        sim.rx.clear()
+        sim.target_position = sim.target_velocity = sim.target_torque = 0
+        sim._qs = None
+        sim.clear_injections()
+
+
+def _fuzz(sim, frames) -> None:
+    import can
+    _reset(sim)
+    target_since_enable = False
+    for cob, data in frames:
+        before_state, x0 = sim.state, float(sim.plant.x[0])
+        msg = can.Message(arbitration_id=cob, data=data, is_extended_id=False)
+        sim.handle_frame(msg)                       # never raises: a malformed frame is dropped
+        if sim.state == "OPERATION ENABLED" and before_state != "OPERATION ENABLED":
+            target_since_enable = False
+        if cob == 0x201 and len(data) >= 6 and sim.state == "OPERATION ENABLED" and \
+                sim.node.nmt.state == "OPERATIONAL":
+            target_since_enable = target_since_enable or int.from_bytes(data[2:6], "little", signed=True) != 0
+        moved = abs(float(sim.plant.x[0]) - x0) > 1e-12
+        # it moves only enabled (or braking from a motion) and after a fresh target of its own
+        assert not moved or (before_state in MOVING and target_since_enable), (before_state, sim.state, frames)
+    assert math.isfinite(float(sim.plant.x[0]))
+
+
+FAST = settings(max_examples=60, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+SLOW = settings(max_examples=3000, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+
+
+@given(FRAMES)
+@FAST
+def test_fuzz_frames_to_the_drive(fuzz_drive, frames):
+    with no_hang(10):
+        _fuzz(fuzz_drive, frames)
+
+
+@pytest.mark.slow
+@given(FRAMES)
+@SLOW
+def test_fuzz_frames_to_the_drive_long(fuzz_drive, frames):
+    with no_hang(30):
+        _fuzz(fuzz_drive, frames)

@@ -105,7 +105,8 @@ SECTION = {
                                 default=True),
     "canopen.tip_node_id": Field("int", "node id of a separate tool-tip sensor (CiA 406-like encoder, position "
                                  "0x6004 in TPDO1 on every SYNC); 0: none (the tip is the drive's 0x60E4.2 "
-                                 "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True),
+                                 "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True,
+                                 maximum=127),
     "canopen.tip_eds": Field("str", "object dictionary of the tip sensor node; default "
                              "hil/drivers/canopen/eds/tip_encoder_cia406.eds", default=""),
     "canopen.heartbeat": Field("time", "drive's heartbeat producer time (0x1017)", default=0.1, positive=True),

@@ -466,7 +466,7 @@ class DriveSim:
         # would hold an answer up by milliseconds; the cycle's own garbage goes by reference count
         gc.collect()
         gc.freeze()
-        bus, notify, now = self.network.bus, self.network.notify, time.perf_counter
+        bus, now = self.network.bus, time.perf_counter
         hold, release = getattr(bus, "hold", None), getattr(bus, "release", None)
         t_end = now() + seconds if seconds else math.inf
         duty = now()
@@ -479,28 +479,8 @@ class DriveSim:
                     return
                 raise
             if msg is not None:
-                if msg.is_error_frame or msg.is_remote_frame:
-                    continue
                 t_in = now()
-                with self.lock:
-                    self._before_frame(t_in)
-                try:
-                    if msg.arbitration_id == 0x80 and hold is not None:
-                        hold()                          # the whole answer goes out in one write
-                        try:
-                            notify(0x80, msg.data, msg.timestamp)
-                        finally:
-                            release()
-                    else:
-                        notify(msg.arbitration_id, msg.data, msg.timestamp)
-                except (can.CanError, OSError):
-                    raise
-                except Exception as exc:          # a malformed frame: dropped, as a bus drops it
-                    self.frames_rejected += 1
-                    self.log.append((self.syncs, f"frame 0x{msg.arbitration_id:X} "
-                                                 f"{bytes(msg.data).hex()} ignored ({type(exc).__name__})"))
-                    continue
-                if msg.arbitration_id == 0x80:
+                if self.handle_frame(msg, hold, release) and msg.arbitration_id == 0x80:
                     times.append(now() - t_in)
             t = now()
             if t >= duty:
@@ -517,6 +497,34 @@ class DriveSim:
                 if self._stall_for > 0:           # the freeze fault: the thread stalls, the frames queue
                     stall, self._stall_for = self._stall_for, 0.0
                     time.sleep(stall)
+
+    def handle_frame(self, msg, hold=None, release=None) -> bool:
+        """Wall-clock mode: one frame taken off the bus, handed to canopen's dispatch (SYNC,
+        RPDO, SDO, NMT, the host's heartbeat) after the consumers have looked at the clock. A
+        malformed frame (a PDO or SDO of the wrong size, an unknown command) is logged and
+        dropped, as a bus drops it: the drive carries on. True when the frame was handled."""
+        if msg.is_error_frame or msg.is_remote_frame:
+            return False
+        with self.lock:
+            self._before_frame(time.perf_counter())
+        notify = self.network.notify
+        try:
+            if msg.arbitration_id == 0x80 and hold is not None:
+                hold()                          # the whole answer goes out in one write
+                try:
+                    notify(0x80, msg.data, msg.timestamp)
+                finally:
+                    release()
+            else:
+                notify(msg.arbitration_id, msg.data, msg.timestamp)
+        except (can.CanError, OSError):
+            raise
+        except Exception as exc:          # a malformed frame: dropped
+            self.frames_rejected += 1
+            self.log.append((self.syncs, f"frame 0x{msg.arbitration_id:X} {bytes(msg.data).hex()} ignored "
+                                         f"({type(exc).__name__})"))
+            return False
+        return True
 
     def _heartbeat_wall(self):
         ms = self._config()["hb_ms"]
