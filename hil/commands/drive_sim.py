@@ -35,8 +35,8 @@ Faults to inject (repeatable): KIND[=VALUE]@SECONDS, SECONDS of the drive's cloc
 first enabled (OPERATION ENABLED: the host's move has begun), e.g. --fault emcy=0x2310@0.2 fires
 0.2 s into the first move. Kinds: emcy, heartbeat_loss, frozen_encoder, late_pdo (seconds),
 missing_pdo (count), following_error (metres), tip_missing_pdo (count; with a tip sensor node),
-freeze (seconds: the drive stops answering, 0.5 by default), kill (the drive is gone: no answer,
-no heartbeat, ever).
+freeze (seconds, 0.5 by default: the drive's thread stalls, the host's frames queue, and it
+finds that backlog when it carries on), kill (the drive is gone: no answer, no heartbeat, ever).
 
 --set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
 CiA 406-like linear encoder (hil/drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in

@@ -192,7 +192,7 @@ class DriveSim:
         self._fe_offset = 0.0
         self._hb_dead = False
         self._last_sync_wall = time.perf_counter()
-        self._last_run_wall = time.perf_counter()      # the drive's last cycle (SYNC or its own)
+        self._last_awake = time.perf_counter()         # the drive's thread last looked at its clock
         self._sync_armed = False           # the SYNC consumer watches from the first SYNC in OPERATION ENABLED
         self._own_cycles = 0               # cycles run without a SYNC since the last one (lockstep consumer)
         self._stall_ref: tuple[int, float] | None = None    # (SYNC counter, wall time) before a stall
@@ -430,19 +430,25 @@ class DriveSim:
             return False
         ahead = (counter - c0) % overflow          # the cycles this SYNC is after the one before the stall
         behind = (time.perf_counter() - t0) / conf["comm_period"] - ahead
-        if behind > STALE_CYCLES:
+        if STALE_CYCLES < behind < overflow // 2:   # beyond half the counter's range: no judgement
             return True
         self._stall_ref = None                     # caught up: the drive's clock and the host's agree again
         return False
 
     def _before_frame(self, t: float) -> None:
-        """Wall-clock mode, before a frame is handled: a drive that ran nothing for more than
-        ``STALE_CYCLES`` periods was stalled; it remembers the last SYNC before the stall (the
-        backlog is judged against it) and evaluates its consumers now, before the backlog."""
-        if self._stall_ref is None and t - self._last_run_wall > STALE_CYCLES * self.period and self._last_counter:
+        """Wall-clock mode, before a frame is handled: a drive whose thread did not run for more
+        than ``STALE_CYCLES`` + 1 periods (it wakes once a period at least) was stalled; it
+        remembers the last SYNC before the stall (the backlog is judged against it) and evaluates
+        its consumers now, before the backlog."""
+        # the drive's thread wakes at least once a period (a frame, or its duty): a longer gap is
+        # a stall of the drive itself, not a pause of the host (which only delays the SYNCs)
+        awake, self._last_awake = self._last_awake, t
+        if self._stall_ref is None and t - awake > (STALE_CYCLES + 1) * self.period and self._last_counter \
+                and awake - self._last_sync_wall <= STALE_CYCLES * self.period:
+            # (only a stall while the SYNCs came: the last one is the reference the backlog is judged by)
             self._stall_ref = (self._last_counter, self._last_sync_wall)
             pl = self.plant
-            self.log.append((self.syncs, f"stalled {(t - self._last_run_wall) * 1e3:.0f} ms at motor position "
+            self.log.append((self.syncs, f"stalled {(t - awake) * 1e3:.0f} ms at motor position "
                                          f"{pl.x[0] * 1e3:.4f} mm, speed {pl.x[pl.plant.n] * 1e3:.2f} mm/s"))
         self._watch(self._config())
 
@@ -560,7 +566,6 @@ class DriveSim:
     def _cycle(self, from_sync: bool) -> None:
         self.syncs += 1
         self.time += self.period
-        self._last_run_wall = time.perf_counter()
         if not from_sync:
             self._own_cycles += 1
         conf = self._config()
