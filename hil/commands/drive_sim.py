@@ -2,6 +2,7 @@
 from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -34,8 +35,8 @@ Faults to inject (repeatable): KIND[=VALUE]@SECONDS, SECONDS of the drive's cloc
 first enabled (OPERATION ENABLED: the host's move has begun), e.g. --fault emcy=0x2310@0.2 fires
 0.2 s into the first move. Kinds: emcy, heartbeat_loss, frozen_encoder, late_pdo (seconds),
 missing_pdo (count), following_error (metres), tip_missing_pdo (count; with a tip sensor node),
-freeze (seconds: the drive stops answering, 0.5 by default), kill (the drive is gone: no answer,
-no heartbeat, ever).
+freeze (seconds, 0.5 by default: the drive's thread stalls, the host's frames queue, and it
+finds that backlog when it carries on), kill (the drive is gone: no answer, no heartbeat, ever).
 
 --set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
 CiA 406-like linear encoder (hil/drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
@@ -92,8 +93,19 @@ def add_arguments(p) -> None:
                    "end the drive's SYNC-to-answer times")
 
 
+# the drive's log entries hil drive-sim prints as they happen
+GUARD_EVENTS = ("stalled", "abort connection", "quick stop ended", "ignored")
+
 FAULT_KINDS = ("emcy", "heartbeat_loss", "frozen_encoder", "late_pdo", "missing_pdo", "following_error",
                "tip_missing_pdo", "freeze", "kill")
+
+
+# the VALUE each kind takes: (least, largest, what it is); kinds not named take none
+COUNTED = ("emcy", "missing_pdo", "tip_missing_pdo")
+FAULT_VALUES = {"emcy": (0x1000, 0xFFFF, "an EMCY error code"), "late_pdo": (0.0, 10.0, "seconds"),
+                "missing_pdo": (1, 10 ** 6, "a count"), "tip_missing_pdo": (1, 10 ** 6, "a count"),
+                "following_error": (-1.0, 1.0, "metres"), "freeze": (0.0, 60.0, "seconds")}
+MAX_FAULT_TIME = 1e5          # s: SECONDS after the drive was enabled (a day and more)
 
 
 def parse_fault(text: str):
@@ -104,11 +116,17 @@ def parse_fault(text: str):
         raise UserError(f"--fault {text!r}: unknown kind {kind!r} (known: {', '.join(FAULT_KINDS)})")
     try:
         t = float(at) if at else 0.0
-        v = (int(value, 0) if kind in ("emcy", "missing_pdo", "tip_missing_pdo") else float(value)) if value else None
+        v = (int(value, 0) if kind in COUNTED else float(value)) if value else None
     except ValueError:
         raise UserError(f"--fault {text!r}: expected KIND[=VALUE]@SECONDS") from None
-    if t < 0:
-        raise UserError(f"--fault {text!r}: SECONDS must be >= 0")
+    if not (math.isfinite(t) and 0 <= t <= MAX_FAULT_TIME):
+        raise UserError(f"--fault {text!r}: SECONDS must be a number 0..{MAX_FAULT_TIME:g}, got {at!r}")
+    if v is not None:
+        lo, hi, what = FAULT_VALUES.get(kind, (None, None, ""))
+        if lo is None:
+            raise UserError(f"--fault {text!r}: {kind} takes no VALUE")
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise UserError(f"--fault {text!r}: {kind}'s VALUE must be {what} {lo:g}..{hi:g}, got {value!r}")
     return kind, v, t
 
 
@@ -142,10 +160,17 @@ class FaultSchedule:
             kind, value, _ = self.pending.pop(0)
             self.fired.append((kind, now))
             if kind == "freeze":
-                # no answer for a while: every TPDO withheld, the heartbeat stopped
+                seconds = 0.5 if value is None else float(value)
+                if not sim.lockstep:
+                    # the drive's thread stalls (as under SIGSTOP): it reads and sends nothing, the
+                    # host's frames queue, and it finds that backlog when it carries on
+                    sim.stall(seconds)
+                    continue
+                # lockstep (the drive's clock is the SYNC count, it cannot stall): no answer for a
+                # while, every TPDO withheld, the heartbeat stopped
                 sim.inject("missing_pdo", 10 ** 9)
                 sim.inject("heartbeat_loss")
-                self._thaw = now + (0.5 if value is None else float(value))
+                self._thaw = now + seconds
             elif kind == "kill":
                 self.killed = True
                 self.kill(sim)
@@ -213,11 +238,18 @@ def run(args) -> int:
               file=sys.stderr, flush=True)
     schedule = FaultSchedule(faults)
 
+    seen = [0]
+
     def on_duty(drive):                 # once a period, on the drive's thread (its lock held)
         before = len(schedule.fired)
         schedule.poll(drive)
         for kind, at in schedule.fired[before:]:
             print(f"drive-sim: {kind} injected {at:.3f} s after the drive was enabled", file=sys.stderr, flush=True)
+        # what the drive-side guards did (a stall, a lost heartbeat or SYNC, the end of a quick stop)
+        for _, event in drive.log[seen[0]:]:
+            if any(w in event for w in GUARD_EVENTS):
+                print(f"drive-sim: {event}", file=sys.stderr, flush=True)
+        seen[0] = len(drive.log)
 
     latency = CpuLatencyRequest(None)
     if args.priority > 0:
@@ -238,7 +270,7 @@ def run(args) -> int:
     signal.signal(signal.SIGTERM, _terminate)
     t0 = time.monotonic()
     try:
-        sim.serve(args.seconds, on_duty=on_duty if faults else None)    # the drive's one thread: this one
+        sim.serve(args.seconds, on_duty=on_duty)    # the drive's one thread: this one
         # a killed drive is silent, not gone: the server stays, nothing answers, until the end
         while schedule.killed and (not args.seconds or time.monotonic() - t0 < args.seconds):
             time.sleep(0.05)

@@ -88,8 +88,9 @@ SECTION = {
     "canopen.host": Field("str", "socketcand server address (127.0.0.1 only for the simulated drive)",
                           default="127.0.0.1"),
     "canopen.port": Field("int", "socketcand server port", default=29536, nonnegative=True),
-    "canopen.node_id": Field("int", "the drive's node id", default=1, nonnegative=True),
-    "canopen.host_node_id": Field("int", "the node id of the host's heartbeat", default=127, nonnegative=True),
+    "canopen.node_id": Field("int", "the drive's node id (1..127)", default=1, positive=True, maximum=127),
+    "canopen.host_node_id": Field("int", "the node id of the host's heartbeat (1..127)", default=127, positive=True,
+                                  maximum=127),
     "canopen.eds": Field("str", "object dictionary of the drive (EDS); default hil/drivers/canopen/eds/cia402_generic.eds",
                          default=""),
     "canopen.mode": Field("str", "mode of operation: csp (the drive closes both loops), csv (velocity), cst "
@@ -104,7 +105,8 @@ SECTION = {
                                 default=True),
     "canopen.tip_node_id": Field("int", "node id of a separate tool-tip sensor (CiA 406-like encoder, position "
                                  "0x6004 in TPDO1 on every SYNC); 0: none (the tip is the drive's 0x60E4.2 "
-                                 "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True),
+                                 "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True,
+                                 maximum=127),
     "canopen.tip_eds": Field("str", "object dictionary of the tip sensor node; default "
                              "hil/drivers/canopen/eds/tip_encoder_cia406.eds", default=""),
     "canopen.heartbeat": Field("time", "drive's heartbeat producer time (0x1017)", default=0.1, positive=True),
@@ -113,8 +115,15 @@ SECTION = {
     "canopen.host_heartbeat": Field("time", "host's heartbeat period", default=0.1, positive=True),
     "canopen.drive_heartbeat_timeout": Field("time", "drive: the host's heartbeat is lost after this (0x1016)",
                                              default=0.35, positive=True),
-    "canopen.abort_option": Field("int", "0x6007 on host heartbeat loss: 1 fault, 2 disable voltage, 3 quick stop",
-                                  default=3, nonnegative=True),
+    "canopen.abort_option": Field("int", "0x6007, the drive's action when the host's heartbeat or SYNC is lost: "
+                                  "0 none, 1 fault, 2 disable voltage, 3 quick stop", default=3, nonnegative=True,
+                                  maximum=3),
+    "canopen.sync_timeout": Field("time", "drive: the SYNC is lost after this long without one (SYNC consumer: "
+                                  "0x1006 x the loss limit 0x2003 in cycles, rounded up); then 0x6007 acts; 0: off",
+                                  default=0.1, nonnegative=True),
+    "canopen.quick_stop_deceleration": Field("acceleration", "drive: quick-stop deceleration (0x6085); default: "
+                                             "what the drive derives (the simulated drive: 80 % of what "
+                                             "the torque limit gives the axis)", default=None, positive=True),
     "canopen.following_error_window": Field("length", "drive-side following-error window (0x6065) on the motor "
                                             "position; default 1.5 x limits.following_error_table", default=None,
                                             positive=True),
@@ -129,6 +138,8 @@ SECTION = {
     "canopen.switch_interval": Field("time", "real-time runs: the interpreter's thread switch interval at most this "
                                      "(process-wide; Python's default 5 ms delays the receive threads)",
                                      default=1e-4, positive=True),
+    "canopen.connect_timeout": Field("time", "socketcand: how long the server may take to accept and greet",
+                                     default=2.0, positive=True),
     "canopen.sdo_timeout": Field("time", "SDO response timeout", default=0.5, positive=True),
     "canopen.stop_timeout": Field("time", "how long the host keeps the SYNC going while the drive finishes a "
                                   "quick stop", default=2.0, positive=True),
@@ -151,6 +162,46 @@ SYNC_ECHO = 0x2001          # the drive's copy of the SYNC counter, in the last 
 SYNC_OVERFLOW = 240         # 0x1019: the SYNC carries a counter 1..240
 _SIGNED = {0x6064: "i", 0x606C: "i", 0x60E4: "i", 0x6077: "h", 0x6071: "h", 0x607A: "i", 0x60FF: "i"}
 _TIP_FMT = struct.Struct("<i")
+
+
+def _one_line(exc: BaseException, limit: int = 200) -> str:
+    """An exception as one short line: python-can's socketcand interface puts a whole traceback
+    into its error's text (``Failed to receive: ... Traceback ...``), which must not reach a
+    reason on the screen, in move.json or in the latch."""
+    text = str(exc).split("Traceback (most recent call last)")[0]
+    text = " ".join(text.split())
+    if not text:
+        text = type(exc).__name__
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+def _probe_socketcand(host: str, port: int, timeout: float) -> None:
+    """Before python-can connects (it would retry for 10 s, then wait for the server's greeting
+    without a timeout): a server must accept and greet (``< hi >``) within ``timeout``; else a
+    BackendFault saying which. Every read here has a timeout."""
+    try:
+        conn = socket.create_connection((host, port), timeout=timeout)
+    except OSError as exc:
+        raise BackendFault(f"no socketcand server at {host}:{port} ({_one_line(exc)}); start 'hil drive-sim' "
+                           "or point canopen.host/port at one") from None
+    got = b""
+    try:
+        t_end = time.monotonic() + timeout
+        while b">" not in got and len(got) < 64:
+            conn.settimeout(max(1e-3, t_end - time.monotonic()))
+            chunk = conn.recv(64)
+            if not chunk:
+                break
+            got += chunk
+    except OSError:
+        pass
+    finally:
+        conn.close()
+    if b"< hi >" not in got:
+        said = f"it sent {got[:40]!r}" if got else "it sent nothing"
+        raise BackendFault(f"the socketcand server at {host}:{port} accepted but did not greet "
+                           f"('< hi >') within {timeout:g} s ({said}; canopen.connect_timeout): not a socketcand "
+                           f"server, or a hung one")
 
 
 def _pdo_struct(entries) -> tuple[struct.Struct, tuple]:
@@ -216,6 +267,12 @@ class CanopenBackend(Backend):
         self.rated = float(cfg.get("canopen.rated_torque", 10.0))
         self.speed_scale = controller_from_config(cfg, plant_from_config(cfg)).speed_scale
         self.tip_id = int(cfg.get("canopen.tip_node_id", 0) or 0)
+        sync_timeout = float(cfg.get("canopen.sync_timeout", 0.1))
+        self.sync_loss_cycles = int(math.ceil(sync_timeout / self.cycle_time - 1e-9)) if sync_timeout > 0 else 0
+        if self.sync_loss_cycles > SYNC_OVERFLOW // 2:
+            raise ConfigError(f"{cfg.source}: canopen.sync_timeout: {sync_timeout * 1e3:g} ms is "
+                              f"{self.sync_loss_cycles} cycles; expected at most {SYNC_OVERFLOW // 2} (half the "
+                              f"SYNC counter's range, so that the drive can tell a stale SYNC from a fresh one)")
         if self.tip_id and self.tip_id == self.node_id:
             raise ConfigError(f"{cfg.source}: canopen.tip_node_id: {self.tip_id} is the drive's node id")
         # the object dictionaries now: a missing or broken file is a mistake named before anything connects
@@ -301,12 +358,9 @@ class CanopenBackend(Backend):
         if self._bus is None and self.interface == "socketcand":
             host, port = cfg.get("canopen.host", "127.0.0.1"), int(cfg.get("canopen.port", 29536))
             # python-can warns of every TCP segment that splits a frame: harmless
-            logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.ERROR)
-            try:                      # python-can would retry for 10 s; say at once that nobody listens
-                socket.create_connection((host, port), timeout=1.0).close()
-            except OSError as exc:
-                raise BackendFault(f"no socketcand server at {host}:{port} ({exc}); start 'hil drive-sim' "
-                                   "or point canopen.host/port at one") from None
+            # and logs a lost connection with its traceback: the backend reports the cause itself, in one line
+            logging.getLogger("can.interfaces.socketcand.socketcand").setLevel(logging.CRITICAL)
+            _probe_socketcand(host, port, float(cfg.get("canopen.connect_timeout", 2.0)))
         if self._bus is None:
             kw = dict(interface=self.interface, channel=self.channel)
             if self.interface == "socketcand":
@@ -314,15 +368,22 @@ class CanopenBackend(Backend):
                           tcp_tune=True)          # TCP_NODELAY: no Nagle delay between RPDO and SYNC
             elif self.interface != "virtual":
                 kw["bitrate"] = cfg.get("canopen.bitrate", 1000000)
+            # python-can's socketcand client reads its handshake without a timeout: a server that
+            # stops talking after the probe would hold this process forever
+            old_timeout = socket.getdefaulttimeout()
+            if self.interface == "socketcand":
+                socket.setdefaulttimeout(float(cfg.get("canopen.connect_timeout", 2.0)))
             try:
                 self.network.connect(**kw)
             except can.CanInterfaceNotImplementedError as exc:     # the interface's library is not installed
                 self.network = None
                 raise ConfigError(f"{cfg.source}: canopen.interface: {self.interface} is not available "
-                                  f"({exc})") from None
+                                  f"({_one_line(exc)})") from None
             except (can.CanError, OSError) as exc:
                 self.network = None
-                raise BackendFault(f"cannot open the CAN bus {self.interface}:{self.channel} ({exc})") from None
+                raise BackendFault(f"cannot open the CAN bus {self.interface}:{self.channel} ({_one_line(exc)})") from None
+            finally:
+                socket.setdefaulttimeout(old_timeout)
         else:
             self.network.connect()
         # hil --can-log FILE: python-can's logger on the bus, received and sent frames (hil.drivers.canopen.canlog)
@@ -393,6 +454,9 @@ class CanopenBackend(Backend):
         sdo[0x6066].raw = int(round(cfg.get("canopen.following_error_timeout", 0.01) * 1e3))
         sdo[0x605A].raw = 2
         sdo[0x6007].raw = int(cfg.get("canopen.abort_option", 3))
+        qs_dec = cfg.get("canopen.quick_stop_deceleration")
+        if qs_dec is not None:
+            sdo[0x6085].raw = max(1, min(0xFFFFFFFE, int(round(qs_dec * self.counts_per_m))))
         sdo[0x1016][1].raw = (self.host_id << 16) | int(round(cfg.get("canopen.drive_heartbeat_timeout", 0.35) * 1e3))
         sdo[0x1017].raw = int(round(cfg.get("canopen.heartbeat", 0.1) * 1e3))
         sdo[0x1006].raw = int(round(self.cycle_time * 1e6))
@@ -413,6 +477,10 @@ class CanopenBackend(Backend):
             tmaps[2] = [e for e in tmaps[2] if e[0] != SYNC_ECHO]
         else:
             sdo[0x1019].raw = SYNC_OVERFLOW
+        if 0x2003 in self.node.object_dictionary:
+            # the SYNC consumer: a drive-specific object (this EDS's 0x2003); on another drive the
+            # manufacturer's own (docs/guide/canopen.md)
+            sdo[0x2003].raw = self.sync_loss_cycles
         tmaps = [m for m in tmaps if m]
         self._tpdo = {}
         for n in range(4):
@@ -487,7 +555,7 @@ class CanopenBackend(Backend):
             else:
                 x_tip = sdo[0x60E4][2].raw * 1e-9 if self.tip else math.nan
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-            raise BackendFault(f"lost communication: drive {self.node_id} does not answer SDO (position: {exc})") \
+            raise BackendFault(f"lost communication: drive {self.node_id} does not answer SDO (position: {_one_line(exc)})") \
                 from None
         return Feedback(x_motor=x_motor, x_table=x_table, v_motor=0.0, x_tip=x_tip)
 
@@ -652,7 +720,7 @@ class CanopenBackend(Backend):
                 take(msg)
         except (can.CanError, OSError) as exc:     # the fault rule: the next feedback says so
             if not self._rx_error:
-                self._rx_error = f"lost communication: the CAN bus failed on receive ({exc})"
+                self._rx_error = f"lost communication: the CAN bus failed on receive ({_one_line(exc)})"
                 self.events.append(f"cycle {self.syncs}: {self._rx_error}")
 
     def _take(self, msg) -> None:
@@ -748,14 +816,14 @@ class CanopenBackend(Backend):
                     self._take(msg)
             except (can.CanError, OSError) as exc:        # the fault rule: this feedback says so
                 if not self._rx_error:
-                    self._rx_error = f"lost communication: the CAN bus failed ({exc})"
+                    self._rx_error = f"lost communication: the CAN bus failed ({_one_line(exc)})"
                     self.events.append(f"cycle {self.syncs}: {self._rx_error}")
         old = sdo.RESPONSE_TIMEOUT
         sdo.RESPONSE_TIMEOUT = max(old, float(self.cfg.get("canopen.pdo_timeout", 5.0)))
         try:
             sdo.upload(0x1001, 0)
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-            self.events.append(f"cycle {self.syncs}: no SDO answer to the barrier ({exc})")
+            self.events.append(f"cycle {self.syncs}: no SDO answer to the barrier ({_one_line(exc)})")
         finally:
             sdo.RESPONSE_TIMEOUT = old
 
@@ -781,7 +849,7 @@ class CanopenBackend(Backend):
         try:
             self.network.send_message(cob_id, data)
         except (can.CanError, OSError) as exc:
-            raise BackendFault(f"lost communication: the CAN bus refused a frame ({exc})") from None
+            raise BackendFault(f"lost communication: the CAN bus refused a frame ({_one_line(exc)})") from None
 
     def _send_sync(self) -> None:
         """The SYNC (with its counter); from here on only the answer to this SYNC is fresh."""
@@ -833,7 +901,7 @@ class CanopenBackend(Backend):
                     continue
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
                 errors += 1
-                self.events.append(f"cycle {self.syncs}: no SDO answer while stopping ({exc})")
+                self.events.append(f"cycle {self.syncs}: no SDO answer while stopping ({_one_line(exc)})")
                 if errors >= 3:
                     self.events.append("drive unreachable: the drive-side guards (0x1016/0x6007) stop it")
                     return "unreachable"
@@ -858,7 +926,7 @@ class CanopenBackend(Backend):
                 if st in ("OPERATION ENABLED", "SWITCHED ON", "QUICK STOP ACTIVE"):
                     self.node.sdo[0x6040].raw = cia402.COMMANDS["SHUTDOWN"]
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-            self.events.append(f"disable: {exc}")
+            self.events.append(f"disable: {_one_line(exc)}")
         self.enabled = False
 
     def close(self) -> None:
@@ -876,11 +944,11 @@ class CanopenBackend(Backend):
                 if self.tip_node is not None:
                     self.tip_node.nmt.state = "PRE-OPERATIONAL"
         except Exception as exc:        # the link may be gone: the drive-side guards act then
-            self.events.append(f"close: {exc}")
+            self.events.append(f"close: {_one_line(exc)}")
         try:
             self.network.disconnect()
         except Exception as exc:
-            self.events.append(f"close: {exc}")
+            self.events.append(f"close: {_one_line(exc)}")
         if self._recorder is not None:
             self._recorder.close()
             self._recorder = None
@@ -906,5 +974,5 @@ class CanopenBackend(Backend):
                 out["tip_node"] = self.tip_id
                 out["tip_m"] = self.tip_node.sdo[0x6004].raw * step
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
-                out["tip_node"], out["tip_m"] = self.tip_id, f"no answer ({exc})"
+                out["tip_node"], out["tip_m"] = self.tip_id, f"no answer ({_one_line(exc)})"
         return out

@@ -21,6 +21,7 @@ attaches a recorder when it connects (:func:`attach`) and stops it when it close
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from pathlib import Path
@@ -45,7 +46,15 @@ def request(path: str | Path | None) -> None:
         if suffix not in FORMATS:
             raise ValueError(f"--can-log {path}: expected a file ending in {', '.join(FORMATS)} (the format "
                              f"python-can writes), got {suffix or 'no suffix'}")
+        _refuse_link(path)
         _requested.append(str(path))
+
+
+def _refuse_link(path) -> None:
+    """A symbolic link at the trace's name is refused, never followed (it could point at any
+    file the user may write), as hil.io.safe_write does for every output."""
+    if Path(path).is_symlink():
+        raise ValueError(f"--can-log {path}: is a symbolic link; refusing to write through it")
 
 
 def requested() -> str | None:
@@ -58,6 +67,9 @@ class BusRecorder(can.Listener):
 
     def __init__(self, path: str | Path):
         Path(path).parent.mkdir(parents=True, exist_ok=True)
+        _refuse_link(path)
+        # created here without following a link (O_NOFOLLOW), then python-can's writer opens it
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0), 0o644))
         self.path = str(path)
         self._writer = can.Logger(self.path)
         self._lock = threading.Lock()

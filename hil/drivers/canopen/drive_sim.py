@@ -14,9 +14,30 @@ the answer leaves within a fixed, short time of the SYNC (the figure is in ``hil
 --help``); the same thread produces the heartbeats on the wall clock and keeps the shaft moving
 on its own clock when SYNCs stop (the link died: the drive-side guards must stop it).
 
-Drive-side guards (set by the host over SDO at start-up): heartbeat consumer 0x1016 with the
-abort-connection option 0x6007, following-error window 0x6065/0x6066, software position limits
-0x607D, max torque 0x6072.
+Drive-side guards (set by the host over SDO at start-up): heartbeat consumer 0x1016 and SYNC
+consumer (communication cycle period 0x1006 times the SYNC loss limit 0x2003, a count of cycles),
+either of which, once lost while OPERATION ENABLED, performs the abort-connection option 0x6007
+(0 nothing, 1 fault, 2 disable voltage, 3 quick stop; EMCY 0x8130 for the heartbeat, 0x8100 for
+the SYNC); following-error window 0x6065/0x6066, software position limits 0x607D, max torque
+0x6072. The consumers are evaluated before each frame is handled (a drive that was stalled looks
+at its clock before it reads its backlog) and once a period.
+
+Stale setpoints. A drive whose processor stalled finds a backlog of RPDOs and SYNCs when it
+resumes. It never executes them: the SYNC consumer acts first where the stall was longer than its
+time; after a shorter stall (more than ``STALE_CYCLES`` periods in which the drive ran nothing)
+every SYNC whose counter (CiA 301 SYNC counter, 1..0x1019, which the host sends) belongs to a
+cycle more than ``STALE_CYCLES`` periods older than the drive's clock is discarded with the
+targets latched before it: the drive holds its last fresh target and sends no answer to it. A
+quick stop (or an abort) cannot be undone by a stale ``ENABLE OPERATION`` either: transition 16
+(QUICK STOP ACTIVE -> OPERATION ENABLED) exists only with quick stop option codes 5..8 (0x605A);
+the host sets 2. Enabling (transition 4) starts from the actual position: the targets received
+before it are dropped.
+
+Quick stop and fault reaction (0x605A = 2): the speed reference ramps from the present speed to
+zero at the quick-stop deceleration 0x6085 (position units per s^2; 0xFFFFFFFF: what the torque
+limit allows), then the drive holds the position where the motor came to rest (its speed crossed
+zero), never a stale target, until the motor and the table are at rest, and only then switches
+the power stage off.
 
 Fault injection (:meth:`DriveSim.inject`): ``emcy`` (a drive fault: EMCY + FAULT state),
 ``heartbeat_loss``, ``frozen_encoder``, ``late_pdo``, ``missing_pdo``, ``following_error``,
@@ -39,8 +60,9 @@ from collections import deque
 
 import can
 import canopen
+import numpy as np
 
-from hil.control import new_velocity_state, velocity_law
+from hil.control import P, new_velocity_state, velocity_law
 from hil.drivers.base import Setpoint
 from hil.drivers.canopen import cia402
 from hil.drivers.canopen import eds as eds_files
@@ -91,6 +113,12 @@ def _pdo_plan(node, comm_base: int, map_base: int, n: int):
         index, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
         entries.append((index, sub, bits // 8, _fmt(index, bits)))
     return (None if cob & 0x80000000 or not entries else cob & 0x7FF), entries
+
+
+STALE_CYCLES = 2          # a SYNC this many periods older than the drive's clock is stale
+QS_REST_SPEED = 1e-4      # m/s: motor and table below this, the quick stop has ended
+QS_MIN_HOLD = 0.02        # s: and the position held at least this long
+QS_EASE = 0.01            # s: the quick-stop deceleration falls to zero over about this time
 
 
 class DriveSim:
@@ -164,6 +192,15 @@ class DriveSim:
         self._fe_offset = 0.0
         self._hb_dead = False
         self._last_sync_wall = time.perf_counter()
+        self._last_awake = time.perf_counter()         # the drive's thread last looked at its clock
+        self._sync_armed = False           # the SYNC consumer watches from the first SYNC in OPERATION ENABLED
+        self._own_cycles = 0               # cycles run without a SYNC since the last one (lockstep consumer)
+        self._stall_ref: tuple[int, float] | None = None    # (SYNC counter, wall time) before a stall
+        self._last_counter = 0
+        self.stale_syncs = 0               # SYNCs (and their targets) discarded as stale
+        self.frames_rejected = 0           # malformed frames ignored
+        self._stall_for = 0.0              # serve: stall this long (the freeze fault)
+        self._qs: dict | None = None       # the quick stop's ramp and hold
         self._stop = threading.Event()
         self._idle_thread = None
         self.answer_times: list[float] = []        # serve: SYNC taken from the bus -> its TPDOs sent (s)
@@ -201,6 +238,7 @@ class DriveSim:
         self.plant.enabled = True
         self.plant.sync()
         self._quick_stop_step(1.0)
+        self._qs = None
         self.plant.enabled = False
         self.plant.x[:] = x
         self.plant._u_act = 0.0
@@ -229,6 +267,9 @@ class DriveSim:
             c = {"cpm": cpm, "rated": rated, "lo": d[0x607D][1].raw, "hi": d[0x607D][2].raw,
                  "tmax": d[0x6072].raw * 1e-3 * rated, "hb_timeout": (d[0x1016][1].raw & 0xFFFF) * 1e-3,
                  "fe_window": d[0x6065].raw, "fe_time_ms": d[0x6066].raw, "hb_ms": d[0x1017].raw,
+                 "sync_loss": d[0x2003].raw if 0x2003 in self.node.object_dictionary else 0,
+                 "comm_period": (d[0x1006].raw * 1e-6) or self.period, "qs_option": d[0x605A].raw,
+                 "overflow": d[0x1019].raw, "qs_dec": d[0x6085].raw,
                  "tpdo": [_pdo_plan(self.node, 0x1800, 0x1A00, n) for n in range(4)],
                  "rpdo": [_pdo_plan(self.node, 0x1400, 0x1600, n)[1] for n in range(4)]}
             self._conf = c
@@ -264,14 +305,22 @@ class DriveSim:
         new = cia402.next_state(old, cw, prev)
         if new == old:
             return
+        if old == "QUICK STOP ACTIVE" and new == "OPERATION ENABLED" and \
+                self.node.sdo[0x605A].raw not in (5, 6, 7, 8):
+            # transition 16 exists only with quick stop option codes 5..8: with 2, a quick stop
+            # ends in SWITCH ON DISABLED, whatever controlword arrives during it (a stale one)
+            if self._qs is not None and not self._qs.get("told"):
+                self._qs["told"] = True
+                self.log.append((self.syncs, "ENABLE OPERATION ignored in QUICK STOP ACTIVE (0x605A not 5..8)"))
+            return
         if new == "QUICK STOP ACTIVE":
-            self.quick_stop_at = self.syncs
-            self._qs_state = new_velocity_state()
+            self._start_quick_stop()
         if new == "OPERATION ENABLED":
             self.plant._prev_position = None
             self.plant._s = new_velocity_state()
             self.last_host_heartbeat = self._hb_now()
             self._fe_count = 0
+            self._hold_actual()
         if old == "FAULT":
             self.fault_code = 0
             self.node.sdo[0x603F].raw = 0
@@ -285,6 +334,25 @@ class DriveSim:
         if new != "OPERATION ENABLED":
             self.sw_extra = 0
         self.node.sdo[0x6041].raw = cia402.statusword_for(new, self.sw_extra)
+
+    def _hold_actual(self) -> None:
+        """Enabling starts where the axis stands: the position target is the actual position,
+        the targets received before (a stale RPDO of an earlier run) are dropped, the SYNC
+        consumer waits for the first SYNC of this run."""
+        for key in ((0x607A, 0), (0x60FF, 0), (0x6071, 0)):
+            self.rx.pop(key, None)
+        self.target_position = struct.unpack("<i", _raw(self.node, 0x6064, 0)[:4])[0]
+        self.target_velocity = self.target_torque = 0
+        self._sync_armed = False
+        self._own_cycles = 0
+        self._stall_ref = None
+
+    def _start_quick_stop(self) -> None:
+        self.quick_stop_at = self.syncs
+        self._qs_state = new_velocity_state()
+        pl = self.plant
+        v = float(pl.x[pl.plant.n])
+        self._qs = {"ramp": v, "dir": 1.0 if v >= 0 else -1.0, "hold": None, "held": 0.0}
 
     def _home(self) -> None:
         """Homing method 35/37 (CiA 402: the present position is the home position): the position
@@ -307,8 +375,15 @@ class DriveSim:
         with self.lock:
             if self.node.nmt.state != "OPERATIONAL":
                 return
+            entries = self._config()["rpdo"][n]
+            if len(data) < sum(e[2] for e in entries):
+                # CiA 301: a PDO shorter than its mapping is not processed (EMCY 0x8210)
+                self.frames_rejected += 1
+                self.log.append((self.syncs, f"RPDO{n + 1} of {len(data)} bytes ignored (length error)"))
+                self.node.emcy.send(0x8210, self.node.sdo[0x1001].raw, b"")
+                return
             off = 0
-            for index, sub, nbytes, f in self._config()["rpdo"][n]:
+            for index, sub, nbytes, f in entries:
                 value = struct.unpack_from("<" + f, data, off)[0]
                 off += nbytes
                 if index == 0x6040:
@@ -323,10 +398,65 @@ class DriveSim:
 
     def _on_sync(self, can_id, data, timestamp):
         with self.lock:
+            counter = data[0] if data else 0       # CiA 301 SYNC counter (0x1019 > 0)
+            if self._stale(counter):
+                self.stale_syncs += 1
+                self.log.append((self.syncs, f"stale SYNC {counter} discarded with its targets"))
+                for key in ((0x607A, 0), (0x60FF, 0), (0x6071, 0)):
+                    self.rx.pop(key, None)
+                self._cycle(from_sync=False)          # time goes on; the last fresh target held, no answer
+                return
             self._last_sync_wall = time.perf_counter()
-            self.sync_counter = data[0] if data else 0       # CiA 301 SYNC counter (0x1019 > 0)
+            self._own_cycles = 0
+            self._last_counter = counter
+            if self.state == "OPERATION ENABLED":
+                self._sync_armed = True
+            self.sync_counter = counter
             _put(self.node, 0x2001, 0, "B", self.sync_counter)
             self._cycle(from_sync=True)
+
+    def _stale(self, counter: int) -> bool:
+        """After a stall of the drive (``_stall_ref``: the last SYNC before it, counter and wall
+        time): a SYNC whose cycle is more than ``STALE_CYCLES`` periods older than the drive's
+        clock. Without a SYNC counter nothing tells a backlog's age: only the consumers act then."""
+        ref = self._stall_ref
+        if ref is None:
+            return False
+        conf = self._config()
+        c0, t0 = ref
+        overflow = conf["overflow"]
+        if not (counter and c0 and overflow):
+            self._stall_ref = None
+            return False
+        ahead = (counter - c0) % overflow          # the cycles this SYNC is after the one before the stall
+        behind = (time.perf_counter() - t0) / conf["comm_period"] - ahead
+        if STALE_CYCLES < behind < overflow // 2:   # beyond half the counter's range: no judgement
+            return True
+        self._stall_ref = None                     # caught up: the drive's clock and the host's agree again
+        return False
+
+    def _before_frame(self, t: float) -> None:
+        """Wall-clock mode, before a frame is handled: a drive whose thread did not run for more
+        than ``STALE_CYCLES`` + 1 periods (it wakes once a period at least) was stalled; it
+        remembers the last SYNC before the stall (the backlog is judged against it) and evaluates
+        its consumers now, before the backlog."""
+        # the drive's thread wakes at least once a period (a frame, or its duty): a longer gap is
+        # a stall of the drive itself, not a pause of the host (which only delays the SYNCs)
+        awake, self._last_awake = self._last_awake, t
+        if self._stall_ref is None and t - awake > (STALE_CYCLES + 1) * self.period and self._last_counter \
+                and awake - self._last_sync_wall <= STALE_CYCLES * self.period:
+            # (only a stall while the SYNCs came: the last one is the reference the backlog is judged by)
+            self._stall_ref = (self._last_counter, self._last_sync_wall)
+            pl = self.plant
+            self.log.append((self.syncs, f"stalled {(t - awake) * 1e3:.0f} ms at motor position "
+                                         f"{pl.x[0] * 1e3:.4f} mm, speed {pl.x[pl.plant.n] * 1e3:.2f} mm/s"))
+        self._watch(self._config())
+
+    def stall(self, seconds: float) -> None:
+        """The freeze fault in wall-clock mode: the drive's thread stops for ``seconds`` (it reads
+        nothing, sends nothing: the frames queue as they would in a stalled drive's receive
+        buffer), then carries on with its backlog."""
+        self._stall_for = float(seconds)
 
     def serve(self, seconds: float = 0.0, on_duty=None) -> None:
         """Wall-clock mode: the drive's one thread, until :meth:`close` (or ``seconds``, 0: no
@@ -342,7 +472,7 @@ class DriveSim:
         # would hold an answer up by milliseconds; the cycle's own garbage goes by reference count
         gc.collect()
         gc.freeze()
-        bus, notify, now = self.network.bus, self.network.notify, time.perf_counter
+        bus, now = self.network.bus, time.perf_counter
         hold, release = getattr(bus, "hold", None), getattr(bus, "release", None)
         t_end = now() + seconds if seconds else math.inf
         duty = now()
@@ -355,22 +485,13 @@ class DriveSim:
                     return
                 raise
             if msg is not None:
-                if msg.is_error_frame or msg.is_remote_frame:
-                    continue
                 t_in = now()
-                if msg.arbitration_id == 0x80 and hold is not None:
-                    hold()                          # the whole answer goes out in one write
-                    try:
-                        notify(0x80, msg.data, msg.timestamp)
-                    finally:
-                        release()
-                else:
-                    notify(msg.arbitration_id, msg.data, msg.timestamp)
-                if msg.arbitration_id == 0x80:
+                if self.handle_frame(msg, hold, release) and msg.arbitration_id == 0x80:
                     times.append(now() - t_in)
             t = now()
             if t >= duty:
                 with self.lock:
+                    self._before_frame(t)
                     if t - self._last_sync_wall > 3 * self.period:
                         self._cycle(from_sync=False)
                     self._heartbeat_wall()
@@ -379,6 +500,37 @@ class DriveSim:
                 duty += self.period
                 if duty <= t:                     # held up: the next duty one period from now
                     duty = t + self.period
+                if self._stall_for > 0:           # the freeze fault: the thread stalls, the frames queue
+                    stall, self._stall_for = self._stall_for, 0.0
+                    time.sleep(stall)
+
+    def handle_frame(self, msg, hold=None, release=None) -> bool:
+        """Wall-clock mode: one frame taken off the bus, handed to canopen's dispatch (SYNC,
+        RPDO, SDO, NMT, the host's heartbeat) after the consumers have looked at the clock. A
+        malformed frame (a PDO or SDO of the wrong size, an unknown command) is logged and
+        dropped, as a bus drops it: the drive carries on. True when the frame was handled."""
+        if msg.is_error_frame or msg.is_remote_frame:
+            return False
+        with self.lock:
+            self._before_frame(time.perf_counter())
+        notify = self.network.notify
+        try:
+            if msg.arbitration_id == 0x80 and hold is not None:
+                hold()                          # the whole answer goes out in one write
+                try:
+                    notify(0x80, msg.data, msg.timestamp)
+                finally:
+                    release()
+            else:
+                notify(msg.arbitration_id, msg.data, msg.timestamp)
+        except (can.CanError, OSError):
+            raise
+        except Exception as exc:          # a malformed frame: dropped
+            self.frames_rejected += 1
+            self.log.append((self.syncs, f"frame 0x{msg.arbitration_id:X} {bytes(msg.data).hex()} ignored "
+                                         f"({type(exc).__name__})"))
+            return False
+        return True
 
     def _heartbeat_wall(self):
         ms = self._config()["hb_ms"]
@@ -393,18 +545,34 @@ class DriveSim:
                 self._cycle(from_sync=False)
 
     # -- one drive cycle -------------------------------------------------------------------------
+    def _watch(self, conf) -> None:
+        """The heartbeat consumer (0x1016) and the SYNC consumer (0x1006 x 0x2003): either lost
+        while OPERATION ENABLED performs the abort-connection option (0x6007)."""
+        if self.state != "OPERATION ENABLED":
+            return
+        timeout = conf["hb_timeout"]
+        if timeout > 0 and self._hb_now() - self.last_host_heartbeat > timeout:
+            self._abort_connection("host heartbeat lost", 0x8130)
+            return
+        limit = conf["sync_loss"]
+        if limit and self._sync_armed:
+            if self.lockstep:
+                lost = self._own_cycles >= limit
+            else:
+                lost = time.perf_counter() - self._last_sync_wall > limit * conf["comm_period"]
+            if lost:
+                self._abort_connection(f"SYNC lost ({limit} cycles of {conf['comm_period'] * 1e3:g} ms)", 0x8100)
+
     def _cycle(self, from_sync: bool) -> None:
         self.syncs += 1
         self.time += self.period
+        if not from_sync:
+            self._own_cycles += 1
         conf = self._config()
         cpm, rated = conf["cpm"], conf["rated"]
         pl = self.plant
         operational = self.node.nmt.state == "OPERATIONAL"
-        # heartbeat consumer (0x1016) and the abort-connection option (0x6007)
-        timeout = conf["hb_timeout"]
-        now_hb = self._hb_now()
-        if timeout > 0 and self.state == "OPERATION ENABLED" and now_hb - self.last_host_heartbeat > timeout:
-            self._abort_connection()
+        self._watch(conf)
         # targets latched at SYNC, clamped to the software limits
         lo, hi = conf["lo"], conf["hi"]
         if (0x607A, 0) in self.rx:
@@ -424,8 +592,7 @@ class DriveSim:
                 pl.write_setpoint(Setpoint(output=max(-tmax, min(tmax, u))))
             pl.sync()
         elif self.state in ("QUICK STOP ACTIVE", "FAULT REACTION ACTIVE"):
-            self._quick_stop_step(tmax)
-            if abs(pl.x[pl.plant.n]) < 1e-4:
+            if self._quick_stop_step(tmax, conf):
                 # quick stop option 2 / fault reaction 0x605E = 2: stop on the quick-stop ramp, then disable
                 self._set_state("SWITCH ON DISABLED" if self.state == "QUICK STOP ACTIVE" else "FAULT")
         else:
@@ -456,15 +623,62 @@ class DriveSim:
         if from_sync and operational:
             self._send_tpdos(actual)
 
-    def _quick_stop_step(self, tmax: float) -> None:
-        """The drive's own velocity loop to zero speed at full torque (quick stop option 2)."""
+    def _qs_deceleration(self, tmax: float, conf) -> float:
+        """The quick-stop deceleration (m/s^2): 0x6085 (position units per s^2), or where it is
+        0 or 0xFFFFFFFF, 80 % of what the torque limit gives the whole axis."""
+        raw = conf["qs_dec"] if conf is not None else 0xFFFFFFFF
+        if raw and raw != 0xFFFFFFFF:
+            return raw / conf["cpm"]
+        pl = self.plant.plant
+        return 0.8 * tmax * pl.force_gain / pl.total_mass
+
+    def _quick_stop_step(self, tmax: float, conf=None) -> bool:
+        """One cycle of the quick stop (option 2) or fault reaction: the speed reference ramps to
+        zero at the quick-stop deceleration, the drive's velocity loop follows it; when the
+        ramp is at zero and the motor's speed has crossed zero (it stands), the position where it
+        stands is held (the position loop on the motor). True when the motor and the table are at
+        rest and the position has been held ``QS_MIN_HOLD``: the stop has ended."""
         pl = self.plant
-        n = pl.plant.n
-        steps = max(1, int(round(self.period / pl.ctrl.velocity_period)))
+        n, tv = pl.plant.n, pl.ctrl.velocity_period
+        if self._qs is None:
+            self._start_quick_stop()
+        q = self._qs
+        dv = self._qs_deceleration(tmax, conf) * tv
+        scale, kv = pl.ctrl.speed_scale, pl._p[P.KV]
+        steps = max(1, int(round(self.period / tv)))
+        m = pl.plant.chain.m
         for _ in range(steps):
-            w = pl.x[n] * pl.ctrl.speed_scale
-            u = velocity_law(pl._p, self._qs_state, 0.0, w, 0.0)
+            if q.get("done"):
+                pl._step(0.0)                           # the power stage is off: the axis coasts
+                continue
+            v = pl.x[n]
+            if q["hold"] is None:
+                r = q["ramp"]
+                # the deceleration eases off near zero speed (jerk-limited over QS_EASE): the end
+                # of the ramp does not set the compliant axis swinging back
+                step = min(dv, math.sqrt(2.0 * dv / QS_EASE * tv * abs(r)), abs(r))
+                q["ramp"] = r = 0.0 if abs(r) - step < 1e-9 else r - math.copysign(step, r)
+                if r == 0.0 and v * q["dir"] <= 0.0:
+                    q["hold"] = float(pl.x[0])           # where the motor came to rest
+                    self._qs_state = new_velocity_state()   # the braking torque is not carried on
+                w_ref = r
+            else:
+                w_ref = kv * (q["hold"] - pl.x[0])
+                q["held"] += tv
+                # the axis's momentum (the compliant masses still swing): the power stage goes off
+                # when it crosses zero with the motor and table at rest, so that nothing carries
+                # the axis on once it coasts
+                p = float(np.dot(m, pl.x[n:]))
+                if q["held"] >= QS_MIN_HOLD and abs(v) < QS_REST_SPEED and abs(pl.x[n + pl.plant.table]) < \
+                        QS_REST_SPEED and (p * q.get("p", p) <= 0.0 or abs(p) < 1e-6 * pl.plant.total_mass):
+                    q["done"] = True
+                    self.log.append((self.syncs, f"quick stop ended: held at {q['hold']:.6f} m"))
+                    pl._step(0.0)
+                    continue
+                q["p"] = p
+            u = velocity_law(pl._p, self._qs_state, w_ref * scale, v * scale, 0.0)
             pl._step(max(-tmax, min(tmax, u)))
+        return bool(q.get("done"))
 
     def _actual(self, cpm: float, rated: float) -> dict:
         pl = self.plant
@@ -535,24 +749,27 @@ class DriveSim:
             self.node.emcy.send(code, self.node.sdo[0x1001].raw, data)
             self.emcy_sent.append((self.time, code))
             self.fault_at = self.syncs
-            self._qs_state = new_velocity_state()
             was_enabled = self.state in ("OPERATION ENABLED", "QUICK STOP ACTIVE")
             self._set_state("FAULT REACTION ACTIVE")
+            self._start_quick_stop()
             if not was_enabled:
                 self._set_state("FAULT")
 
-    def _abort_connection(self) -> None:
+    def _abort_connection(self, cause: str = "host heartbeat lost", code: int = 0x8130) -> None:
+        """CiA 402 abort connection option code 0x6007: 0 no action, 1 fault (fault reaction, then
+        FAULT), 2 disable voltage (SWITCH ON DISABLED: the power stage off), 3 quick stop (then
+        SWITCH ON DISABLED, 0x605A = 2). Every action but 0 sends the EMCY ``code``."""
         option = self.node.sdo[0x6007].raw
-        self.log.append((self.syncs, f"host heartbeat lost, abort connection option {option}"))
+        self.log.append((self.syncs, f"{cause}, abort connection option {option}"))
+        self._sync_armed = False
         if option == 1:
-            self.fault(0x8130)
+            self.fault(code)
         elif option == 2:
-            self.node.emcy.send(0x8130, 0x11, b"")
+            self.node.emcy.send(code, 0x11, b"")
             self._set_state("SWITCH ON DISABLED")
         elif option == 3:
-            self.node.emcy.send(0x8130, 0x11, b"")
-            self.quick_stop_at = self.syncs
-            self._qs_state = new_velocity_state()
+            self.node.emcy.send(code, 0x11, b"")
+            self._start_quick_stop()
             self._set_state("QUICK STOP ACTIVE")
 
     def inject(self, fault: str, value: float | int | None = None) -> None:
