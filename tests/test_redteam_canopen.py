@@ -71,6 +71,21 @@ def _quick_stop_distance(speed: float) -> float:
         sim.close()
 
 
+def _wait_for_rows(path, rows: int, host, timeout: float = 60.0) -> None:
+    """Until the host's record holds ``rows`` data rows (the move is under way): a fixed sleep
+    froze the drive before the move began on a loaded machine."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and host.poll() is None:
+        try:
+            with open(path, "rb") as fh:
+                if sum(1 for line in fh if line[:1].isdigit() or line[:1] == b"-") >= rows:
+                    return
+        except FileNotFoundError:
+            pass
+        time.sleep(0.05)
+    raise AssertionError(f"{path}: fewer than {rows} rows after {timeout} s (host rc {host.poll()})")
+
+
 def _frozen_drive_case(tmp_path, miss_limit: int, how: str) -> dict:
     """``hil drive-sim`` in its own process, ``hil move`` (200 mm at 100 mm/s) against it; the drive
     frozen mid-move for 1.5 s (its --fault freeze, or SIGSTOP/SIGCONT); then where it stands."""
@@ -88,7 +103,7 @@ def _frozen_drive_case(tmp_path, miss_limit: int, how: str) -> dict:
                                        "--feed", "6000mm/min", "--amax", "2m/s^2", "--out", str(tmp_path / "out"),
                                        "--json"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         if how == "sigstop":
-            time.sleep(2.0)                      # start-up and about 0.5 s into the move
+            _wait_for_rows(tmp_path / "out" / "move.csv", 125, host)     # about 0.5 s into the move
             os.kill(drive.pid, signal.SIGSTOP)
             try:
                 host_out = host.communicate(timeout=60)
