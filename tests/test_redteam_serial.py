@@ -136,3 +136,76 @@ def test_reply_errors_stay_reply_errors():
     cs = CommandSet.from_config(load(SERIAL))
     with pytest.raises(ReplyError):
         cs.parse("set_position", cs.frame("PT 5"), {"position": 6})
+
+
+# -- 2. the simulated drive's watchdog: a frozen drive never executes what was queued ------------------
+def _quick_stop_distance(cfg, v: float) -> float:
+    """An upper bound of the quick stop's travel from speed ``v`` (m/s), from the model's data
+    alone: the velocity loop's proportional gain brakes the reflected inertia J with time
+    constant J/kp, the torque limit with at most tmax*2pi/pitch over the whole mass; the travel
+    is at most the sum of the two stops' distances (the integral part only brakes harder)."""
+    masses = sum(cfg[f"plant.m{i}"] for i in range(1, cfg.n_masses + 1))
+    r = cfg["plant.pitch"] / (2 * math.pi)                     # m per rad
+    tau = masses * r * r / cfg["control.kp"]                   # s
+    a_max = cfg["limits.torque"] / r / masses                  # m/s^2
+    return abs(v) * tau + v * v / (2 * a_max)
+
+
+@linux
+def test_a_frozen_drive_stops_and_never_executes_what_was_queued():
+    """The report's second unexpected motion, on the serial line: a drive frozen mid-move (SIGSTOP
+    of its process) while the host goes on sending targets ahead and then trips; on SIGCONT the
+    old drive executed the queued targets and coasted on. Now its watchdog (armed by the host at
+    open, 50 ms) trips first, it quick-stops from where it stood and drops the queue unread."""
+    import os
+    import signal
+    import time
+
+    from hil.drivers.base import BackendFault, Setpoint
+    from hil.drivers.serial.backend import SerialBackend
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    cfg = load(SERIAL)
+    T, v, acc = cfg["control.position_period"], 0.1, 2.0
+    with SimulatedSerialDrive(cfg, advance="wall") as drive:
+        b = SerialBackend(cfg, port=drive.port, timeout=0.03, budget=0.03, retries=0, setup_timeout=0.5)
+        b.open()                       # arms the drive's watchdog: serial.watchdog = 50 ms
+        b.enable()
+
+        def target(k):                 # a ramp at 2 m/s^2 to 0.1 m/s, then 0.1 m/s
+            t = k * T
+            ta = v / acc
+            return 0.5 * acc * t * t if t < ta else 0.5 * acc * ta * ta + v * (t - ta)
+
+        t0 = time.perf_counter()
+        for k in range(1, 31):          # 0.3 s of the move, in real time
+            fb = b.read_feedback()
+            assert not fb.fault, fb.fault
+            b.write_setpoint(Setpoint(position=target(k)))
+            time.sleep(max(0.0, t0 + k * T - time.perf_counter()))
+        before = drive.state()
+        os.kill(drive.proc.pid, signal.SIGSTOP)
+        try:
+            faults = 0
+            for k in range(31, 41):      # the host goes on: targets up to 10 mm ahead, all queued
+                faults += bool(b.read_feedback().fault)
+                try:
+                    b.write_setpoint(Setpoint(position=target(k)))
+                except BackendFault:
+                    faults += 1
+            with pytest.raises(BackendFault):
+                b.quick_stop()           # the host's stop does not get through either
+            assert faults == 20
+            b.close()                    # the host is gone; what it sent waits on the line
+        finally:
+            os.kill(drive.proc.pid, signal.SIGCONT)
+        time.sleep(1.0)                  # the drive resumes and stops
+        after = drive.state()
+    trip = after["watchdog_trip"]
+    assert trip is not None and after["fault"] == 1 and not after["enabled"] and not after["stopping"]
+    assert after["setpoints"] == before["setpoints"] == trip["setpoints"]     # nothing queued executed
+    assert after["discarded"] > 20 * 8                                       # the queue, dropped unread
+    # where it stood: within one cycle of the last state read before the freeze
+    assert before["x_table"] - 1e-6 <= trip["x"] <= before["x_table"] + v * T + 1e-6
+    bound = _quick_stop_distance(cfg, max(abs(trip["v"]), v))
+    assert after["x_table"] <= trip["x"] + bound, (after["x_table"] - trip["x"], bound)
+    assert after["x_table"] >= trip["x"] - 20e-6            # and never back past where it stood
