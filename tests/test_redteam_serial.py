@@ -209,3 +209,75 @@ def test_a_frozen_drive_stops_and_never_executes_what_was_queued():
     bound = _quick_stop_distance(cfg, max(abs(trip["v"]), v))
     assert after["x_table"] <= trip["x"] + bound, (after["x_table"] - trip["x"], bound)
     assert after["x_table"] >= trip["x"] - 20e-6            # and never back past where it stood
+
+
+# -- 3. every shipped config supervised; a real backend refused without the windows -------------------
+def _axis_configs():
+    return sorted(p for p in (ROOT / "config").glob("*.toml") if "[limits]" in p.read_text())
+
+
+@pytest.mark.parametrize("path", _axis_configs(), ids=lambda p: p.name)
+def test_every_shipped_config_has_the_supervisor_windows(path):
+    """The report: the serial example had no following-error window, so a hidden target ran the
+    axis 71 mm off its command, status complete. Each window is 2 x speed / kv (the lag of the
+    position loop without feed-forward at the top speed, twice)."""
+    from hil.drivers import SUPERVISOR_WINDOWS
+    cfg = load(path)
+    assert all(cfg.get(k) is not None for k in SUPERVISOR_WINDOWS), path.name
+    want = 2 * cfg["limits.speed"] / cfg["control.kv"]
+    assert cfg["limits.following_error_table"] == pytest.approx(want, rel=1e-3)
+    assert not cfg.get("supervisor.unsupervised", False)
+
+
+def _without_windows(tmp_path, name: str) -> Path:
+    text = "\n".join(line for line in (ROOT / "config" / name).read_text().splitlines()
+                     if not line.startswith(("following_error_table", "following_error_tip")))
+    p = tmp_path / name
+    p.write_text(text + "\n")
+    return p
+
+
+MOVE = ["--stroke", "1mm", "--feed", "1000mm/min", "--amax", "1m/s^2"]
+
+
+@pytest.mark.parametrize("name,backend,extra", [
+    ("serial_ascii_example.toml", "serial", ["--set", "serial.port=/dev/null"]),
+    ("paper_bench_canopen.toml", "canopen", []),
+    ("paper_bench.toml", "serial", ["--set", "serial.port=/dev/null"]),
+])
+def test_a_real_backend_without_the_windows_is_refused_before_it_connects(capsys, tmp_path, name, backend, extra):
+    import time
+    p = _without_windows(tmp_path, name)
+    t0 = time.perf_counter()
+    rc = main(["move", "--config", str(p), "--backend", backend, *extra, *MOVE, "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "\n" not in err, err
+    assert err.startswith(f"hil move: error: {p}: limits.following_error_table: missing; the {backend} backend"), err
+    assert "supervisor.unsupervised = true" in err
+    assert time.perf_counter() - t0 < 5.0          # nothing waited for a drive
+
+
+def test_hil_home_without_the_windows_is_refused(capsys, tmp_path):
+    p = _without_windows(tmp_path, "paper_bench_canopen.toml")
+    rc = main(["home", "--config", str(p)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "limits.following_error_table: missing; the canopen backend" in err, err
+
+
+def test_unsupervised_is_said_explicitly(capsys, tmp_path):
+    """With ``supervisor.unsupervised = true`` the same configuration goes on (here to the port,
+    /dev/null, where no drive answers: a drive fault, not the refusal)."""
+    p = _without_windows(tmp_path, "serial_ascii_example.toml")
+    rc = main(["move", "--config", str(p), "--backend", "serial", "--set", "serial.port=/dev/null",
+               "--set", "serial.setup_timeout=20ms", "--set", "supervisor.unsupervised=true", *MOVE,
+               "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip()
+    assert rc != 0 and "following_error_table" not in err, err
+    with pytest.raises(ConfigError, match="supervisor.unsupervised: expected true or false"):
+        load(p, {"supervisor.unsupervised": "yes"})
+
+
+def test_the_simulated_plant_runs_without_windows(capsys, tmp_path):
+    p = _without_windows(tmp_path, "paper_bench.toml")
+    rc = main(["move", "--config", str(p), *MOVE, "--dwell", "0.1s", "--out", str(tmp_path / "o")])
+    assert rc == 0, capsys.readouterr().err
