@@ -370,9 +370,11 @@ class SerialBackend(Backend):
             self.transact("set_speed", speed=self._counts("set_speed", setpoint.speed * self.k_speed))
 
     def _counts(self, op: str, value: float) -> int:
-        """A setpoint in whole drive units; a NaN or infinite one is never sent (BackendFault)."""
-        if not math.isfinite(value):
-            self._faulted = f"setpoint refused: serial {op}: {value!r} is not a finite number; not sent"
+        """A setpoint in whole drive units; a NaN or infinite one, or one of more digits than a
+        reply can confirm (protocol: 12), is never sent (BackendFault)."""
+        if not math.isfinite(value) or abs(value) >= 1e12:
+            self._faulted = (f"setpoint refused: serial {op}: {value!r} is not a finite number of at most 12 digits "
+                             f"(drive units); not sent")
             raise BackendFault(self._faulted)
         return round(value)
 

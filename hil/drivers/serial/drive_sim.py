@@ -110,6 +110,7 @@ class _Drive:
         self.stopping = False                 # the quick stop is running
         self.setpoints = 0                    # setpoints executed
         self.discarded = 0                    # bytes discarded unread after a freeze
+        self.drain_pending = False
         self.watchdog_trip: dict | None = None    # when the watchdog tripped: wall clock, position, speed
         self.last_valid = time.perf_counter()
         self.t_next = time.perf_counter() + self.period
@@ -332,6 +333,7 @@ class _Drive:
             self.watchdog_trip = {"t": now, "silent": now - self.last_valid, "x": fb.x_table, "x_motor": fb.x_motor,
                                   "v": fb.v_motor, "setpoints": self.setpoints}
             self.fault = 1
+            self.drain_pending = True         # what waits on the line is stale: the loop drops it
             self.quick_stop()
             return True
         return False
@@ -389,7 +391,9 @@ def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None, w
             r = select.select(watch, [], [], 0.0005)[0]
             # the watchdog first: after a freeze, what waits on the line was sent to a drive that
             # could not look; the drive stops and drops it unread
-            if drive.check_watchdog():
+            drive.check_watchdog()
+            if drive.drain_pending:        # tripped here, or in the last tick
+                drive.drain_pending = False
                 buf.clear()
                 drive.discarded += _drain(master)
                 r = [x for x in r if x is not master]
