@@ -389,6 +389,8 @@ def _assert_one_printable_line_each(cs, sent):
 NUMBER_TEXT = st.one_of(st.integers(-10**14, 10**14).map(str),
                         st.sampled_from(["nan", "NaN", "inf", "-inf", "1e308", "1e999", "0x10", "+-1", "", "-",
                                          "1.5", "１２", "9" * 40, "00000000000001"]))
+TARGET = st.one_of(st.sampled_from([math.nan, math.inf, -math.inf, 1e300, -1e12, 0.0, 0.0123]),
+                   st.floats(allow_nan=True, allow_infinity=True, width=64))
 REPLY = st.one_of(
     st.binary(max_size=300),                                                    # noise, any length
     st.binary(min_size=200, max_size=2000),                                     # over-long lines
@@ -401,7 +403,7 @@ REPLY = st.one_of(
 @pytest.mark.parametrize("checksum", ["none", "xor8"])
 @FUZZ
 @given(replies=st.lists(REPLY, min_size=1, max_size=4), eol=st.sampled_from([b"\r", b"", b"\r\n", b"\n"]),
-       target=st.floats(allow_nan=True, allow_infinity=True, width=64))
+       target=TARGET)
 def test_fuzz_serial_replies_into_the_backend(checksum, replies, eol, target):
     """Whatever the drive answers (random bytes, over-long lines, a missing or wrong echo, NaN and
     infinite numbers, with or without the line ending and checksum), the backend gives a
@@ -496,7 +498,7 @@ def test_fuzz_serial_configuration_values(changes, value):
 @pytest.mark.parametrize("checksum", ["none", "sum8"])
 @FUZZ_LONG
 @given(replies=st.lists(REPLY, min_size=1, max_size=4), eol=st.sampled_from([b"\r", b"", b"\r\n"]),
-       target=st.floats(allow_nan=True, allow_infinity=True, width=64))
+       target=TARGET)
 def test_fuzz_serial_replies_into_the_backend_long(checksum, replies, eol, target):
     test_fuzz_serial_replies_into_the_backend.hypothesis.inner_test(checksum, replies, eol, target)
 
