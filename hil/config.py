@@ -146,8 +146,9 @@ SCHEMA: dict[str, Field] = {
     "limits.jerk": Field("jerk", "largest commanded jerk", required=True, positive=True),
     "limits.torque": Field(_output_kind, "largest motor torque (rotary) or controller output (linear)",
                            default=None, positive=True),
-    "limits.following_error_table": Field("length", "following-error window at the table", default=None,
-                                          positive=True),
+    "limits.following_error_table": Field("length", "following-error window at the table; required on a real "
+                                          "backend (canopen, serial) unless supervisor.unsupervised = true",
+                                          default=None, positive=True),
     "limits.following_error_tip": Field("length", "following-error window at the tool tip (where measured)",
                                         default=None, positive=True),
     "limits.start_window": Field("length", "hardware backends: a move planned from a given start (--start) runs "

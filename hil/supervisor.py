@@ -102,6 +102,9 @@ SECTION = {
                                       default=10, positive=True),
     "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True,
                                 maximum=1_000_000),
+    "supervisor.unsupervised": Field("bool", "true: let a real backend (canopen, serial) run without the "
+                                     "supervisor's windows (limits.following_error_table); default false: refused "
+                                     "before anything connects", default=False),
     "supervisor.latch_file": Field("str", "file that keeps a trip across processes until 'hil reset'; default "
                                    "latch.json in $HIL_STATE_DIR, $XDG_STATE_HOME/compliant-axis-hil or "
                                    "~/.local/state/compliant-axis-hil", default=""),

@@ -144,7 +144,7 @@ def test_serial_templates_only_named_fields(template):
 
 
 def test_serial_templates_with_a_decimal_spec_work_both_ways():
-    cs = CommandSet({"set_position": "PT {position:+08d}"}, {"set_position": "OK"})
+    cs = CommandSet({"set_position": "PT {position:+08d}"}, {"set_position": "PT (?P<echo>[+-][0-9]+)"})
     body = cs.body("set_position", position=-42)
     assert body == "PT -0000042"
     m = command_pattern("PT {position:+08d}").fullmatch(body)

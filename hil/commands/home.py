@@ -31,6 +31,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from hil.commands.move import load_config
+    from hil.drivers import require_supervision
     from hil.drivers.base import BackendFault
     from hil.drivers.canopen.backend import CanopenBackend
     from hil.errors import UserError
@@ -38,6 +39,7 @@ def run(args) -> int:
     cfg = load_config(args)
     refuse_if_tripped(cfg)            # homing may move the axis: a latched trip refuses it too
     offset = parse_option(args.offset, "length", "--offset")
+    require_supervision(cfg, "canopen")
     be = CanopenBackend(cfg)
     try:
         with be:                   # opened (full start-up); shut down (disabled, closed) at the end

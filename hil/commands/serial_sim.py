@@ -18,6 +18,11 @@ Faults to inject (repeatable): KIND[@AFTER][xCOUNT][:OP], e.g. --fault timeout@2
 (after 20 more commands, the next 3 set_position commands get no reply; the move above is about
 97 commands, 7 at start-up and 2 a cycle). Kinds: timeout, partial, garbled, checksum,
 unexpected, refuse, drive_fault, vanish, late (the reply 50 ms late), frozen_encoder.
+
+The drive's watchdog: --watchdog TIME is its parameter (default 0: off) until the host's
+watchdog command sets it (serial.watchdog, armed at open). When the host is silent that long
+while the drive is enabled, the drive quick-stops and reports fault 1; after a freeze (kill
+-STOP) it stops and drops unread whatever was queued on the line meanwhile.
 """
 
 
@@ -28,12 +33,18 @@ def add_arguments(p) -> None:
                    help="inject a fault (repeatable)")
     p.add_argument("--advance", choices=("setpoint", "wall"), default="wall",
                    help="the plant advances one cycle per setpoint, or with the wall clock (default)")
+    p.add_argument("--watchdog", default="0s", metavar="TIME",
+                   help="the drive's watchdog parameter until the host sets it (default 0s: off)")
 
 
 def run(args) -> int:
     from hil.commands.move import load_config
     from hil.drivers.serial.drive_sim import parse_fault, serve
+    from hil.units import parse
     cfg = load_config(args)
+    watchdog = parse(args.watchdog, "time", "--watchdog")      # a UnitError is one line, exit 2
+    if not 0 <= watchdog <= 60:
+        raise UserError(f"--watchdog: expected a time from 0 s to 60 s, got {args.watchdog!r}")
     try:
         faults = [parse_fault(f) for f in args.fault]
     except ValueError as exc:
@@ -46,7 +57,7 @@ def run(args) -> int:
         print(f"simulated serial drive on {path} (advance: {args.advance}); use --set serial.port={path}; "
               "Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
-        serve(cfg, faults=faults, advance=args.advance, announce=announce)
+        serve(cfg, faults=faults, advance=args.advance, announce=announce, watchdog=watchdog)
     except KeyboardInterrupt:
         pass
     return 0

@@ -42,11 +42,17 @@ import serial
 from hil.config import Field, register_section
 from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, velocity_law
 from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
-from hil.drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError
+from hil.drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError, UnsafeCommand
 from hil.errors import BackendError, ConfigError
 from hil.plant_config import plant_from_config
 
-__all__ = ["SerialBackend", "SerialStats", "SECTION"]
+__all__ = ["SerialBackend", "SerialStats", "SECTION", "BAUDRATES"]
+
+# the standard rates of a UART (POSIX termios and pyserial's list, and the 14400 ... 256000 of
+# Windows and RS-485 drives): anything else is a typing mistake (0, 11520), not a drive's setting
+BAUDRATES = (50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 9600, 14400, 19200, 28800, 38400,
+             57600, 76800, 115200, 128000, 230400, 250000, 256000, 460800, 500000, 576000, 921600, 1000000,
+             1152000, 1500000, 2000000, 2500000, 3000000, 3500000, 4000000)
 
 
 # -- the configuration section ------------------------------------------------------------------------
@@ -55,7 +61,8 @@ __all__ = ["SerialBackend", "SerialStats", "SECTION"]
 SECTION = {
     "serial.port": Field("str", "serial port (/dev/ttyUSB0, COM3, /dev/pts/N of hil serial-sim, or a pyserial URL)",
                          default=""),
-    "serial.baudrate": Field("int", "baud rate", default=115200, nonnegative=True),
+    "serial.baudrate": Field("int", "baud rate, one of the standard rates (50 ... 4000000)", default=115200,
+                             positive=True),
     "serial.parity": Field("str", "parity", default="N", choices=("N", "E", "O")),
     "serial.stopbits": Field("int", "stop bits", default=1, nonnegative=True),
     "serial.mode": Field("str", "position: the drive closes both loops (set_position); velocity: the host closes "
@@ -156,9 +163,14 @@ class SerialBackend(Backend):
             return v if v is not None else cfg.get(f"serial.{key}", default)
 
         self.port = port or opt("port", "")
-        self.baudrate = int(opt("baudrate", 115200))
+        self.baudrate = opt("baudrate", 115200)
+        if isinstance(self.baudrate, bool) or self.baudrate not in BAUDRATES:
+            raise ConfigError(f"{cfg.source}: serial.baudrate: expected a standard rate ({BAUDRATES[0]} ... "
+                              f"{BAUDRATES[-1]}, e.g. 9600, 115200, 1000000), got {self.baudrate!r}")
         self.parity = opt("parity", "N")
-        self.stopbits = int(opt("stopbits", 1))
+        self.stopbits = opt("stopbits", 1)
+        if isinstance(self.stopbits, bool) or self.stopbits not in (1, 2):
+            raise ConfigError(f"{cfg.source}: serial.stopbits: expected 1 or 2, got {self.stopbits!r}")
         mode = opt("mode", "position")
         self.closes = "both" if mode == "position" else "velocity"
         tp = cfg.get("control.position_period", 0.004)
@@ -262,7 +274,11 @@ class SerialBackend(Backend):
     def transact(self, op: str, setup: bool = False, **values) -> dict:
         """Send ``op`` and return the named groups of its confirmed reply; retry within the budget,
         then raise BackendFault."""
-        frame = self.cs.encode(op, **values)
+        try:                # never anything but one line of printable ASCII (protocol.CommandSet.frame)
+            frame = self.cs.encode(op, **values)
+        except UnsafeCommand as exc:
+            self._faulted = f"setpoint refused: {exc}"
+            raise BackendFault(self._faulted) from None
         t0 = time.perf_counter()
         attempt_timeout = self.setup_timeout if setup else self.timeout
         end = t0 + (self.setup_timeout * (self.retries + 1) if setup else self.budget)
@@ -349,9 +365,18 @@ class SerialBackend(Backend):
 
     def write_setpoint(self, setpoint: Setpoint) -> None:
         if self.closes == "both":
-            self.transact("set_position", position=round(setpoint.position * self.k_pos))
+            self.transact("set_position", position=self._counts("set_position", setpoint.position * self.k_pos))
         else:
-            self.transact("set_speed", speed=round(setpoint.speed * self.k_speed))
+            self.transact("set_speed", speed=self._counts("set_speed", setpoint.speed * self.k_speed))
+
+    def _counts(self, op: str, value: float) -> int:
+        """A setpoint in whole drive units; a NaN or infinite one, or one of more digits than a
+        reply can confirm (protocol: 12), is never sent (BackendFault)."""
+        if not math.isfinite(value) or abs(value) >= 1e12:
+            self._faulted = (f"setpoint refused: serial {op}: {value!r} is not a finite number of at most 12 digits "
+                             f"(drive units); not sent")
+            raise BackendFault(self._faulted)
+        return round(value)
 
     def quick_stop(self) -> None:
         op = "quick_stop" if self.cs.has("quick_stop") else "disable"

@@ -8,9 +8,20 @@ the hil.sim_plant model (:class:`hil.drivers.sim.SimulatedPlant`, ``closes="both
 Time: with ``advance="setpoint"`` (the default) the plant advances one cycle (one position
 period) per setpoint received, so that a host loop may run as fast as the link permits; with
 ``advance="wall"`` it advances with the wall clock, one cycle per elapsed position period, as a
-real drive on its own clock does. Either way the watchdog runs on the wall clock: armed by the
-``watchdog`` command, it disables the drive and reports fault 1 when no valid command arrived for
-that long while enabled.
+real drive on its own clock does.
+
+The watchdog (the drive's protection against a silent host, as the CiA 402 abort-connection
+option is a CANopen drive's) runs on the wall clock. Its time is a drive parameter (``watchdog``
+of :func:`serve`, ``hil serial-sim --watchdog``; 0: off), which the host's ``watchdog`` command
+(``WD {ms}``) sets at start-up. When no valid command arrived for that long while enabled, the
+drive performs its quick stop (its own velocity loop to standstill at full torque, then
+disabled) and reports fault 1; ``clear_fault`` and ``enable`` are needed before it takes a
+setpoint again. The watchdog is checked before anything received is read: a drive that stood
+frozen (its process stopped, as by ``kill -STOP``) finds the host silent for the whole freeze
+when it resumes, stops, and discards every byte that was queued on the line meanwhile, unread. A
+drive on an ASCII line has no sequence number or time stamp to tell a stale command from a
+fresh one: what arrived while it could not look is stale. With ``advance="setpoint"`` the quick
+stop runs to standstill at once (no setpoints advance the plant's clock any more).
 
 Fault injection (:meth:`SimulatedSerialDrive.inject`, or ``hil serial-sim --fault``): after
 ``after`` further commands (of operation ``op`` if given), the next ``count`` commands get, instead
@@ -57,6 +68,7 @@ __all__ = ["SimulatedSerialDrive", "serve", "FAULTS", "parse_fault"]
 FAULTS = ("timeout", "partial", "garbled", "checksum", "unexpected", "refuse", "drive_fault", "vanish", "late",
           "frozen_encoder")
 LATE = 0.05          # s: how late a ``late`` reply comes
+STANDSTILL = 1e-4    # m/s: the quick stop is complete below this motor speed (as the CANopen drive's)
 
 
 def parse_fault(text: str) -> dict:
@@ -78,11 +90,13 @@ def parse_fault(text: str) -> dict:
 
 
 class _Drive:
-    def __init__(self, cfg, advance: str = "setpoint", seed: int = 1):
+    def __init__(self, cfg, advance: str = "setpoint", seed: int = 1, watchdog: float = 0.0):
         self.cs = CommandSet.from_config(cfg)
         mode = cfg.get("serial.mode", "position")
         self.plant = SimulatedPlant(cfg, closes="both" if mode == "position" else "velocity")
         self.plant.open()
+        # the quick stop's torque: the drive's limit
+        self.tmax = float(cfg.get("limits.torque") or cfg["control.output_limit"])
         self._warm_up()
         self.k_pos = float(cfg.get("serial.scale_position", 1e6))
         self.k_speed = float(cfg.get("serial.scale_speed", self.k_pos))
@@ -92,7 +106,12 @@ class _Drive:
         self.patterns = [(op, command_pattern(t)) for op, t in self.cs.commands.items()]
         self.enabled = False
         self.fault = 0
-        self.watchdog = 0.0
+        self.watchdog = float(watchdog)       # s; the drive parameter, until the host's watchdog command
+        self.stopping = False                 # the quick stop is running
+        self.setpoints = 0                    # setpoints executed
+        self.discarded = 0                    # bytes discarded unread after a freeze
+        self.drain_pending = False
+        self.watchdog_trip: dict | None = None    # when the watchdog tripped: wall clock, position, speed
         self.last_valid = time.perf_counter()
         self.t_next = time.perf_counter() + self.period
         self.faults: list[dict] = []
@@ -116,6 +135,7 @@ class _Drive:
         pl.enable()
         pl.write_setpoint(Setpoint(position=0.0, speed=0.0))
         pl.sync()
+        self._quick_stop_step()
         pl.disable()
         pl.home_at(0.0)
         pl._prev_position = None
@@ -243,19 +263,23 @@ class _Drive:
         if op == "enable":
             if self.fault:
                 return self._error(3)
-            self.enabled = True
+            self.enabled, self.stopping = True, False
             pl.enable()
             pl._prev_position = None
             self.t_next = time.perf_counter() + self.period
             return self._reply(op, {})
-        if op in ("disable", "quick_stop"):
-            self.enabled = False
+        if op == "quick_stop":
+            self.quick_stop()
+            return self._reply(op, {})
+        if op == "disable":
+            self.enabled = self.stopping = False
             pl.disable()
             return self._reply(op, {})
         if op in ("set_position", "set_speed", "set_output"):
             if not self.enabled:
                 return self._error(3)
             v = next(iter(vals.values()))
+            self.setpoints += 1
             if op == "set_position":
                 pl.write_setpoint(Setpoint(position=v / self.k_pos))
             elif op == "set_speed":
@@ -267,29 +291,93 @@ class _Drive:
             return self._reply(op, {"echo": v})
         return self._error(1)
 
+    # -- the quick stop and the watchdog ---------------------------------------------------------
+    def quick_stop(self) -> None:
+        """Stop on the drive's own velocity loop, torque limited, then disable (CiA 402 quick stop
+        option 2); setpoints are refused from now on."""
+        was_moving = self.enabled or self.stopping
+        self.enabled = False
+        if not was_moving:
+            self.plant.disable()
+            return
+        self.stopping = True
+        if self.advance == "setpoint":        # no setpoint will advance the clock: stop now
+            for _ in range(int(10.0 / self.period) + 1):
+                if not self.stopping:
+                    break
+                self._stop_cycle()
+
+    def _quick_stop_step(self) -> None:
+        """One position period of the quick stop: the velocity loop's proportional part to zero
+        speed, torque limited. No integral part: the speed decays without reversing (an integral
+        wound up while braking would drive the axis back past where the stop began)."""
+        pl = self.plant
+        n = pl.plant.n
+        kp = pl.ctrl.kp
+        for _ in range(pl.ctrl.substeps):
+            u = -kp * pl.x[n] * pl.ctrl.speed_scale
+            pl._step(max(-self.tmax, min(self.tmax, u)))
+
+    def _stop_cycle(self) -> None:
+        self._quick_stop_step()
+        if abs(self.plant.x[self.plant.plant.n]) < STANDSTILL:
+            self.stopping = False
+            self.plant.disable()
+
+    def check_watchdog(self, now: float | None = None) -> bool:
+        """Trip (quick stop, fault 1) when the host has been silent longer than the watchdog time
+        while the drive was enabled; True when it tripped now."""
+        now = time.perf_counter() if now is None else now
+        if self.enabled and self.watchdog > 0 and now - self.last_valid > self.watchdog:
+            fb = self.plant.read_feedback()
+            self.watchdog_trip = {"t": now, "silent": now - self.last_valid, "x": fb.x_table, "x_motor": fb.x_motor,
+                                  "v": fb.v_motor, "setpoints": self.setpoints}
+            self.fault = 1
+            self.drain_pending = True         # what waits on the line is stale: the loop drops it
+            self.quick_stop()
+            return True
+        return False
+
     def tick(self) -> None:
         now = time.perf_counter()
-        if self.enabled and self.watchdog > 0 and now - self.last_valid > self.watchdog:
-            self.enabled, self.fault = False, 1
-            self.plant.disable()
+        self.check_watchdog(now)
         if self.advance == "wall":
             n = 0
             while now >= self.t_next and n < 100:
-                self.plant.sync()
+                if self.stopping:
+                    self._stop_cycle()
+                else:
+                    self.plant.sync()
                 self.t_next += self.period
                 n += 1
             if now >= self.t_next:
                 self.t_next = now + self.period
 
 
-def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None) -> None:
+def _drain(fd: int) -> int:
+    """Read and drop everything waiting on ``fd``; the number of bytes dropped."""
+    n = 0
+    while select.select([fd], [], [], 0)[0]:
+        try:
+            data = os.read(fd, 4096)
+        except OSError:
+            break
+        if not data:
+            break
+        n += len(data)
+    return n
+
+
+def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None, watchdog: float = 0.0) -> None:
     """Run the drive on a new pseudo-terminal until ``conn`` says stop (or the port vanishes);
-    ``announce(path)`` is told the slave's path."""
-    drive = _Drive(cfg, advance)
+    ``announce(path)`` is told the slave's path; ``watchdog`` (s) is the drive's parameter until the
+    host's watchdog command sets it."""
+    drive = _Drive(cfg, advance, watchdog=watchdog)
     drive.faults = [dict(f) for f in faults]
     master, slave = os.openpty()
     tty.setraw(slave)
     tty.setraw(master)
+    os.set_blocking(master, False)      # a read never waits: the loop keeps its clock
     path = os.ttyname(slave)
     if conn is not None:
         conn.send(path)
@@ -301,6 +389,14 @@ def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None) -
     try:
         while True:
             r = select.select(watch, [], [], 0.0005)[0]
+            # the watchdog first: after a freeze, what waits on the line was sent to a drive that
+            # could not look; the drive stops and drops it unread
+            drive.check_watchdog()
+            if drive.drain_pending:        # tripped here, or in the last tick
+                drive.drain_pending = False
+                buf.clear()
+                drive.discarded += _drain(master)
+                r = [x for x in r if x is not master]
             if conn is not None and conn in r:
                 try:
                     msg = conn.recv()
@@ -313,11 +409,14 @@ def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None) -
                 if msg[0] == "state":
                     conn.send({"enabled": drive.enabled, "fault": drive.fault, "commands": drive.commands,
                                "x": float(drive.plant.x[0]), "v": float(drive.plant.x[drive.plant.plant.n]),
-                               "fired": list(drive.fired), "stopped": drive.stopped})
+                               "fired": list(drive.fired), "stopped": drive.stopped,
+                               "stopping": drive.stopping, "setpoints": drive.setpoints,
+                               "discarded": drive.discarded, "watchdog_trip": drive.watchdog_trip,
+                               "x_table": float(drive.plant.read_feedback().x_table)})
             if master in r:
                 try:
                     data = os.read(master, 4096)
-                except OSError:          # no slave open: nothing to read
+                except OSError:          # no slave open, or nothing after all: nothing to read
                     data = b""
                 buf += data
                 while True:
@@ -332,7 +431,10 @@ def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None) -
                     if drive.vanish:
                         return
                     if reply:
-                        os.write(master, reply)
+                        try:
+                            os.write(master, reply)
+                        except BlockingIOError:     # nobody reads the line: the reply is lost
+                            pass
             drive.tick()
     finally:
         for fd in (master, slave):
@@ -342,9 +444,9 @@ def serve(cfg, conn=None, faults=(), advance: str = "setpoint", announce=None) -
                 pass
 
 
-def _child(cfg, conn, faults, advance):
+def _child(cfg, conn, faults, advance, watchdog):
     try:
-        serve(cfg, conn, faults, advance)
+        serve(cfg, conn, faults, advance, watchdog=watchdog)
     except KeyboardInterrupt:
         pass
 
@@ -352,13 +454,14 @@ def _child(cfg, conn, faults, advance):
 class SimulatedSerialDrive:
     """The simulated drive in a child process. ``port`` is the pseudo-terminal to open."""
 
-    def __init__(self, cfg, faults=(), advance: str = "setpoint"):
+    def __init__(self, cfg, faults=(), advance: str = "setpoint", watchdog: float = 0.0):
         try:
             ctx = mp.get_context("fork")
         except ValueError:
             ctx = mp.get_context()
         self._conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_child, args=(cfg, child, list(faults), advance), daemon=True)
+        self.proc = ctx.Process(target=_child, args=(cfg, child, list(faults), advance, watchdog),
+                                daemon=True)
         self.proc.start()
         if not self._conn.poll(60):
             self.proc.kill()

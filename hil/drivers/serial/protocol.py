@@ -28,13 +28,15 @@ from dataclasses import dataclass, field
 from hil.errors import ConfigError
 
 __all__ = ["CommandSet", "ReplyError", "ChecksumError", "GarbledReply", "UnexpectedReply", "DriveRefused",
-           "OPERATIONS", "checksum", "FEEDBACK_GROUPS"]
+           "OPERATIONS", "checksum", "FEEDBACK_GROUPS", "UnsafeCommand", "VALUE_FIELD", "template_fields"]
 
 OPERATIONS = ("identify", "watchdog", "clear_fault", "enable", "disable", "quick_stop", "set_position",
               "set_speed", "set_output", "read")
 FEEDBACK_GROUPS = ("x_motor", "x_table", "v_motor", "output", "fault")
 CHECKSUMS = ("none", "sum8", "xor8")
 _INT = re.compile(r"[+-]?[0-9]{1,12}\Z")
+# the value each operation carries (its one template field); the others carry none
+VALUE_FIELD = {"set_position": "position", "set_speed": "speed", "set_output": "output", "watchdog": "ms"}
 
 
 # the fields a command template may hold, the format specs they may carry (sign, zero padding,
@@ -45,13 +47,25 @@ MAX_TEMPLATE = 256
 MAX_PATTERN = 512
 
 
-def _check_template(op: str, tpl) -> None:
+def _check_template(op: str, tpl, line_ending: bytes = b"\r") -> None:
     """A command template holds only the named fields with a decimal format spec: no attribute
     or index access (``{position.__class__}``, ``{position[0]}``), no conversion (``!r``), no
-    nested field; ``str.format`` then cannot reach anything but the integers it is given."""
+    nested field; ``str.format`` then cannot reach anything but the integers it is given.
+
+    And it is one command: printable ASCII only. A line ending or any other control character
+    inside a template (``"RD\\rPT 50000000"``) would make every use of it send a second, hidden
+    command; the fields' decimal specs then cannot put one in either (sign, digits, spaces)."""
     import string
     if not isinstance(tpl, str) or len(tpl) > MAX_TEMPLATE:
         raise ValueError(f"serial.commands.{op}: expected a template of at most {MAX_TEMPLATE} characters")
+    if not tpl.strip():
+        raise ValueError(f"serial.commands.{op}: empty (a command needs at least one printable character)")
+    for i, ch in enumerate(tpl):
+        if not " " <= ch <= "~":
+            what = "the line ending" if ch.encode("utf-8") in line_ending else \
+                ("a control character" if ord(ch) < 0x20 or ord(ch) == 0x7F else "a non-ASCII character")
+            raise ValueError(f"serial.commands.{op}: {what} {ch!r} at position {i}: a command is one line of "
+                             f"printable ASCII (anything after a line ending would be sent as another command)")
     try:
         parts = list(string.Formatter().parse(tpl))
     except ValueError as exc:
@@ -66,6 +80,12 @@ def _check_template(op: str, tpl) -> None:
             raise ValueError(f"serial.commands.{op}: field {{{name}}} with "
                              f"{'!' + conversion if conversion else ':' + spec!s}: only a decimal format spec "
                              f"(sign, zero padding, width, d) is allowed")
+
+
+def template_fields(tpl: str) -> list[str]:
+    """The names of the fields of a (checked) command template, in order."""
+    import string
+    return [name for _, name, _, _ in string.Formatter().parse(tpl) if name is not None]
 
 
 class ReplyError(Exception):
@@ -103,11 +123,38 @@ def checksum(kind: str, body: bytes) -> str:
     return ""
 
 
-def _decode_eol(text: str) -> bytes:
-    """``line_ending`` as written in TOML ("\\r") or spelled out ("CR", "LF", "CRLF")."""
-    named = {"CR": "\r", "LF": "\n", "CRLF": "\r\n"}
-    text = named.get(text.upper(), text) if text else "\r"
-    return text.encode("ascii")
+# the line endings a command set may use, as written in TOML or spelled out
+_EOL_NAMES = {"CR": "\r", "LF": "\n", "CRLF": "\r\n", "LFCR": "\n\r", "\\r": "\r", "\\n": "\n",
+              "\\r\\n": "\r\n", "\\n\\r": "\n\r"}
+
+
+def _decode_eol(text) -> bytes:
+    """``line_ending`` as written in TOML ("\\r"), spelled out ("CR", "LF", "CRLF") or escaped as
+    in a TOML literal string ('\\r'); what it must be is :func:`_check_eol`'s."""
+    if not isinstance(text, str):
+        raise ValueError(f"serial.line_ending: expected a string (\\r, \\n, \\r\\n, CR, LF, CRLF), got {text!r}")
+    text = _EOL_NAMES.get(text.upper() if text.isalpha() else text, text)
+    try:
+        return text.encode("ascii")
+    except UnicodeEncodeError:
+        raise ValueError(f"serial.line_ending: expected one or two ASCII control characters (\\r, \\n, "
+                         f"\\r\\n, CR, LF, CRLF), got {text[:20]!r}") from None
+
+
+def _check_eol(eol: bytes) -> None:
+    """One or two control characters: never empty (a line would never end), never printable (a
+    digit or letter in a reply would end the line there, and a command could hold it)."""
+    if not eol:
+        raise ValueError("serial.line_ending: empty: expected one or two control characters (\\r, \\n, \\r\\n, "
+                         "CR, LF, CRLF)")
+    if len(eol) > 2 or any(b >= 0x20 for b in eol):
+        raise ValueError(f"serial.line_ending: expected one or two control characters (\\r, \\n, \\r\\n, CR, "
+                         f"LF, CRLF), got {eol[:20].decode('ascii', 'replace')!r}")
+
+
+class UnsafeCommand(ValueError):
+    """A command that cannot be sent as one line (a value that is no finite whole number, a byte
+    that is not printable ASCII): refused before anything is written."""
 
 
 @dataclass
@@ -123,11 +170,23 @@ class CommandSet:
     def __post_init__(self):
         if self.checksum not in CHECKSUMS:
             raise ValueError(f"serial.checksum: expected one of {', '.join(CHECKSUMS)}, got {self.checksum!r}")
-        if not self.line_ending:
-            raise ValueError("serial.line_ending: empty")
+        _check_eol(self.line_ending)
+        sep = self.checksum_separator
+        if self.checksum != "none" and (not isinstance(sep, str) or len(sep) != 1 or not "!" <= sep <= "~"
+                                        or sep.isalnum()):
+            raise ValueError(f"serial.checksum_separator: expected one printable character that is no letter or "
+                             f"digit (the checksum's hex digits follow it), got {sep!r}")
+        if isinstance(self.max_reply, bool) or not isinstance(self.max_reply, int) or not \
+                1 <= self.max_reply <= 4096:
+            raise ValueError(f"serial.max_reply: expected a whole number of bytes 1..4096, got {self.max_reply!r}")
         for op, tpl in self.commands.items():
-            _check_template(op, tpl)
+            if op not in OPERATIONS:
+                raise ValueError(f"serial.commands.{op}: unknown operation (known: {', '.join(OPERATIONS)})")
+            _check_template(op, tpl, self.line_ending)
+            self._check_fields(op, tpl)
         for op, pat in self.replies.items():
+            if op not in OPERATIONS and op != "error":
+                raise ValueError(f"serial.replies.{op}: unknown operation (known: {', '.join(OPERATIONS)}, error)")
             if not isinstance(pat, str) or len(pat) > MAX_PATTERN:
                 raise ValueError(f"serial.replies.{op}: expected a regular expression of at most {MAX_PATTERN} "
                                  f"characters")
@@ -135,9 +194,23 @@ class CommandSet:
                 self._re[op] = re.compile(pat)
             except (re.error, RecursionError, OverflowError) as exc:
                 raise ValueError(f"serial.replies.{op}: not a regular expression ({exc})") from None
-        for op in self.commands:
-            if op != "error" and op not in self.replies:
+        for op, tpl in self.commands.items():
+            if op not in self.replies:
                 raise ValueError(f"serial.commands.{op} has no serial.replies.{op}: every command must be confirmed")
+            if template_fields(tpl) and "echo" not in self._re[op].groupindex:
+                raise ValueError(f"serial.replies.{op}: no (?P<echo>...) group: {op} carries a value, and it counts "
+                                 f"only once the drive confirms it (e.g. {tpl.split('{')[0]}(?P<echo>-?[0-9]+))")
+
+    @staticmethod
+    def _check_fields(op: str, tpl: str) -> None:
+        """The one value an operation carries, in its own field; the others carry none."""
+        names = template_fields(tpl)
+        want = VALUE_FIELD.get(op)
+        if want is None and names:
+            raise ValueError(f"serial.commands.{op}: {op} carries no value, got the field {{{names[0]}}}")
+        if want is not None and names != [want]:
+            got = ", ".join("{" + n + "}" for n in names) or "none"
+            raise ValueError(f"serial.commands.{op}: expected the one field {{{want}}}, got {got}")
 
     # -- building ------------------------------------------------------------------------------
     @classmethod
@@ -162,11 +235,24 @@ class CommandSet:
         return set(pat.groupindex) if pat is not None else set()
 
     def body(self, op: str, **values) -> str:
-        return self.commands[op].format(**{k: int(v) for k, v in values.items()})
+        """The command's text; a value that is no finite number is refused (:class:`UnsafeCommand`)."""
+        ints = {}
+        for k, v in values.items():
+            try:
+                ints[k] = int(v)
+            except (TypeError, ValueError, OverflowError):
+                raise UnsafeCommand(f"serial {op}: {k} = {v!r} is not a finite number; not sent") from None
+        return self.commands[op].format(**ints)
 
     def frame(self, text: str) -> bytes:
-        """A line (command or reply) with its checksum and line ending."""
-        raw = text.encode("ascii")
+        """A line (command or reply) with its checksum and line ending. Refuses (:class:`UnsafeCommand`)
+        any text that is not one line of printable ASCII: no template or value can make one line two."""
+        try:
+            raw = text.encode("ascii")
+        except UnicodeEncodeError:
+            raise UnsafeCommand(f"non-ASCII text in a line: {text[:40]!r}; not sent") from None
+        if any(b < 0x20 or b > 0x7E for b in raw):
+            raise UnsafeCommand(f"control character in a line: {text[:40]!r}; not sent")
         if self.checksum != "none":
             raw += (self.checksum_separator + checksum(self.checksum, raw)).encode("ascii")
         return raw + self.line_ending
