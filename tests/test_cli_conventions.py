@@ -390,6 +390,7 @@ _BASE = {
     "frf": ["--config", BENCH],
     "synth": ["--config", BENCH],
     "drive-sim": ["--config", CANOPEN, "--port", "0"],
+    "serial-sim": ["--config", str(ROOT / "config" / "serial_ascii_example.toml")],
 }
 _ONE_OF = {"--tacc", "--amax", "--jmax"}          # move's and sweep's exclusive group
 

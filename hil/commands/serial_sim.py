@@ -40,9 +40,9 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from hil.commands.move import load_config
     from hil.drivers.serial.drive_sim import parse_fault, serve
-    from hil.units import parse
+    from hil.units import parse_option
     cfg = load_config(args)
-    watchdog = parse(args.watchdog, "time", "--watchdog")      # a UnitError is one line, exit 2
+    watchdog = parse_option(args.watchdog, "time", "--watchdog")      # a UnitError is one line, exit 2
     if not 0 <= watchdog <= 60:
         raise UserError(f"--watchdog: expected a time from 0 s to 60 s, got {args.watchdog!r}")
     try:
