@@ -490,15 +490,16 @@ def _project_csv(path: Path) -> bool:
 
 def read_table(path, mapping=None) -> Measurement:
     """The project's CSV with a map: any expression of its columns (the header's units applied)."""
+    from hil.io.measurement import read_record_text
     source = str(path)
-    meas = parse_csv_text(Path(path).read_text(encoding="utf-8").removeprefix("\ufeff"), source, None,
-                          raw=True)
-    names, units, arr, meta = meas
+    text, notes = read_record_text(path)
+    names, units, arr, meta = parse_csv_text(text, source, None, raw=True)
     from hil.io.measurement import UNITS
     data = {n: arr[:, i] for i, n in enumerate(names)}
     factors = {n: UNITS[u][1] for n, u in units.items() if u in UNITS}
     out = _apply_mapping(data, factors, units, mapping, source, "csv", keep_unmapped=True)
     out.meta = meta | out.meta
+    out.warnings[:0] = notes
     return out
 
 

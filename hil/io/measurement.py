@@ -139,6 +139,17 @@ def read(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement
     """Read a measurement file (SI on return). ``mapping`` renames columns (``{"pos": "x_table"}``)
     and may give a unit for columns that have none (``{"pos": "x_table [mm]"}``)."""
     path = str(path)
+    text, notes = read_record_text(path)
+    meas = parse_text(text, path, mapping)
+    meas.warnings[:0] = notes
+    return meas
+
+
+def read_record_text(path: str | Path) -> tuple[str, list[str]]:
+    """The text of a measurement file (without a BOM: spreadsheet exports), and the reader's
+    notes about it: a record whose run did not end cleanly comes without a last line cut in its
+    write (:func:`_cut_record`)."""
+    path = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -149,7 +160,27 @@ def read(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement
         raise MeasurementError(f"{path}: is a folder, expected a measurement file") from None
     except OSError as exc:
         raise MeasurementError(f"{path}: cannot read ({exc.strerror})") from None
-    return parse_text(text.removeprefix("\ufeff"), path, mapping)     # a BOM (spreadsheet exports)
+    text, notes = _cut_record(text, path)
+    return text.removeprefix("\ufeff"), notes
+
+
+def _cut_record(text: str, path: str) -> tuple[str, list[str]]:
+    """A record whose run did not end cleanly (its status beside it still says ``running``, the
+    recording process gone: killed, crashed): the text without its last line where that was cut
+    in its ``write()`` (no line break at its end), and a warning saying so."""
+    from hil.io.recorder import status_of
+    st = status_of(path)
+    if st is None or st.get("ended_cleanly") is not False:
+        return text, []
+    notes = []
+    if text and not text.endswith(("\n", "\r")):
+        lineno = text.count("\n") + 1
+        text = text[:text.rfind("\n") + 1]
+        notes.append(f"{path}, line {lineno}: cut short when its run ended, dropped")
+    notes.append(f"{path}: the run did not end cleanly (its status {Path(path).with_suffix('.json').name} still says "
+                 f"running, {st.get('rows', '?')} rows at its last update; the recording process is gone): the "
+                 f"record ends where the run was cut")
+    return text, notes
 
 
 def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None = None, raw: bool = False):
