@@ -148,6 +148,8 @@ def parse(value, kind: str, what: str = "value") -> float:
     if isinstance(value, (int, float)):
         out = float(value)
     elif isinstance(value, str):
+        if len(value) > MAX_QUANTITY_CHARS:
+            check_quantity_text(value, kind, what)           # one line, the text cut
         text = _normalise(value)
         if not text:
             raise UnitError(f"{what}: empty string, expected a {kind} ({SI_UNIT[kind]})")

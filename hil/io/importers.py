@@ -462,6 +462,8 @@ def read_text(path: str | Path, mapping: dict[str, str] | None = None) -> Measur
     cells = [c.strip() for c in split(first)]
     has_header = not all(_is_number(c) for c in cells if c)
     body = lines[1:] if has_header else lines
+    if len(body) < 2:
+        raise MeasurementError(f"{source}: fewer than 2 data rows")
     if delim == ";":        # a decimal comma (European spreadsheets)
         body = [ln.replace(",", ".") for ln in body]
     try:
