@@ -241,7 +241,7 @@ def test_ordinary_map_expressions_still_evaluate():
 FAST = settings(max_examples=80, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
                                        HealthCheck.data_too_large, HealthCheck.large_base_example])
-SLOW = settings(FAST, max_examples=400)
+SLOW = settings(FAST, max_examples=2000)
 
 
 def _all_keys() -> list[str]:

@@ -211,7 +211,7 @@ def _cut_record(text: str, path: str) -> tuple[str, list[str]]:
     """A record whose run did not end cleanly (its status beside it still says ``running``, the
     recording process gone: killed, crashed): the text without its last line where that was cut
     in its ``write()`` (no line break at its end), and a warning saying so."""
-    from hil.io.recorder import status_of
+    from hil.io.record_status import status_of
     st = status_of(path)
     if st is None or st.get("ended_cleanly") is not False:
         return text, []

@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from hil.io.measurement import CHANNELS, UNITS, WRITE_UNIT, format_rows, header_name
+from hil.io.record_status import status_of
 from hil.io.safe_write import open_new, write_atomic
 
 __all__ = ["Recorder", "status_of", "STATUS_EVERY"]
 
 STATUS_EVERY = 0.5      # s between the status file's updates while a run goes
-STATUS_MAX_BYTES = 1 << 20
 
 
 class Recorder:
@@ -182,37 +182,3 @@ class _StatusUpdater(threading.Thread):
 def _one_line(value) -> str:
     """A metadata value on its comment line (a line break in it would end the comment)."""
     return " ".join(str(value).splitlines())
-
-
-def status_of(record: str | Path) -> dict | None:
-    """The status beside ``record`` (``<name>.json``), or None where there is none or it is not
-    one. A status still ``running`` whose process is gone (or that names none) gets
-    ``"ended_cleanly": False``: the run was killed or crashed before it closed its record."""
-    p = Path(record).with_suffix(".json")
-    try:
-        if not p.is_file() or p.stat().st_size > STATUS_MAX_BYTES:
-            return None
-        info = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    if not isinstance(info, dict) or "status" not in info:
-        return None
-    if info["status"] == "running":
-        info["ended_cleanly"] = False if not _alive(info.get("pid")) else None
-    else:
-        info["ended_cleanly"] = True
-    return info
-
-
-def _alive(pid) -> bool:
-    if not isinstance(pid, int) or pid <= 0:
-        return False
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:           # exists, another user's
-        return True
-    return True
