@@ -52,6 +52,8 @@ class Field:
     allow_inf: bool = False         # "inf" accepted (an integral time that switches the integral off)
     maximum: float | None = None    # largest accepted value (SI); every number is also within MAX_MAGNITUDE
     max_items: int = 64             # "floats": the longest list accepted
+    minimum: float | None = None    # smallest accepted value other than 0 (SI); a time: at least TIME_RANGE[0]
+    max_length: int = 1024          # "str": the longest text accepted (characters; MAX_STRING_CHARS)
 
     def kind_for(self, values: dict) -> str:
         return self.kind(values) if callable(self.kind) else self.kind
@@ -80,6 +82,27 @@ def _velocity_gain_kind(values):
 # Every number of a configuration, whatever its key, lies within +-MAX_MAGNITUDE (SI): a value
 # beyond it is a typo or an attack, never an axis (issue 18: a 1e300 gain, a 10^8-sample delay).
 MAX_MAGNITUDE = 1e12
+
+# Every time of a configuration other than 0 (a period, a time constant, a timeout) lies within
+# TIME_RANGE (s), unless its key says more narrowly: below a microsecond no host or drive timer
+# resolves anything (and a simulated loop period of 1 ns would take 4 million steps a position
+# tick: a hang, issue 30); above an hour no period or timeout of a run makes sense. "inf" stays
+# accepted where a key allows it (an integral time that switches the integral off).
+TIME_RANGE = (1e-6, 3600.0)
+
+# The loop periods (s). A servo drive closes its velocity loop at 8 to 32 kHz (the paper's
+# 62.5 us is 16 kHz; the fastest drives reach 62.5 kHz, 16 us): 10 us (100 kHz) is beyond any.
+# The host's position loop runs at least as slow as the velocity loop (a whole multiple of it);
+# 1 s is a slow serial link's ten times over.
+LOOP_PERIOD_RANGE = (10e-6, 1.0)
+
+# Text values: a name, a command template, a pattern; none needs more (a 5 MB meta.name hung
+# the plot's title, issue 30).
+MAX_STRING_CHARS = 1024
+# The configuration file: a few kilobytes in practice; tables nested no deeper than this
+# (section.subsection.key, plus an array).
+MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_DEPTH = 8
 
 # Keys of the chain that are numbered: plant.m1..mN, plant.k1..k(N-1), plant.c1..c(N-1).
 _NUMBERED = {"m": ("mass", "mass {i} of the chain (1: motor reflected to the load side)"),
@@ -115,9 +138,11 @@ SCHEMA: dict[str, Field] = {
     "actuator.current_loop_time_constant": Field("time", "first-order lag of the current loop; 0 = ideal",
                                                  default=0.0, nonnegative=True, maximum=1.0),
     # --- control -----------------------------------------------------------------------------
-    "control.position_period": Field("time", "position-loop period Tp", required=True, positive=True, maximum=1.0),
+    "control.position_period": Field("time", "position-loop period Tp", required=True, positive=True,
+                                     minimum=LOOP_PERIOD_RANGE[0], maximum=LOOP_PERIOD_RANGE[1]),
     "control.velocity_period": Field("time", "velocity-loop period Tv (Tp must be a whole multiple)",
-                                     required=True, positive=True, maximum=1.0),
+                                     required=True, positive=True, minimum=LOOP_PERIOD_RANGE[0],
+                                     maximum=LOOP_PERIOD_RANGE[1]),
     "control.kv": Field("frequency", "position-loop P gain Kv (1/s)", required=True, nonnegative=True),
     "control.ffv": Field("dimensionless", "velocity feed-forward, fraction of the interpolator velocity",
                          default=1.0, nonnegative=True),
@@ -177,8 +202,8 @@ SCHEMA: dict[str, Field] = {
                                  allow_inf=True),
     # --- backend -------------------------------------------------------------------------------
     "backend.type": Field("str", "sim (embedded plant model), canopen, serial", default="sim"),
-    "meta.name": Field("str", "a name for the axis", default=""),
-    "meta.description": Field("str", "free text", default=""),
+    "meta.name": Field("str", "a name for the axis", default="", max_length=200),
+    "meta.description": Field("str", "free text", default="", max_length=10000),
 }
 
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
@@ -262,24 +287,29 @@ def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
     what = f"{where}: {key}"
     if kind == "str":
         if not isinstance(raw, str):
-            raise ConfigError(f"{what}: expected a string, got {raw!r}")
+            raise ConfigError(f"{what}: expected a string, got {_short(raw)}")
+        if len(raw) > f.max_length:
+            raise ConfigError(f"{what}: expected a text of at most {f.max_length} characters, got {len(raw)} "
+                              f"({_short(raw)})")
         if f.choices and raw not in f.choices:
-            raise ConfigError(f"{what}: expected one of {', '.join(f.choices)}, got {raw!r}")
+            raise ConfigError(f"{what}: expected one of {', '.join(f.choices)}, got {_short(raw)}")
         return raw
     if kind == "bool":
         if not isinstance(raw, bool):
-            raise ConfigError(f"{what}: expected true or false, got {raw!r}")
+            raise ConfigError(f"{what}: expected true or false, got {_short(raw)}")
         return raw
     if kind == "int":
         if isinstance(raw, bool) or not isinstance(raw, int):
-            raise ConfigError(f"{what}: expected a whole number, got {raw!r}")
+            raise ConfigError(f"{what}: expected a whole number, got {_short(raw)}")
         if f.nonnegative and raw < 0:
             raise ConfigError(f"{what}: expected a whole number >= 0, got {raw!r}")
         if f.positive and raw <= 0:
             raise ConfigError(f"{what}: expected a whole number >= 1, got {raw!r}")
         top = f.maximum if f.maximum is not None else MAX_MAGNITUDE
         if raw > top or raw < -MAX_MAGNITUDE:
-            raise ConfigError(f"{what}: expected a whole number of at most {top:g}, got {raw!r}")
+            raise ConfigError(f"{what}: expected a whole number of at most {top:g}, got {_short(raw)}")
+        if f.minimum is not None and raw != 0 and raw < f.minimum:
+            raise ConfigError(f"{what}: expected a whole number of at least {f.minimum:g}, got {raw!r}")
         return raw
     if kind == "floats":
         if not isinstance(raw, list) or not raw or not all(
@@ -301,10 +331,22 @@ def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
     if f.nonnegative and not value >= 0:
         raise ConfigError(f"{what}: expected a {kind} >= 0 ({unit}), got {raw!r}")
     if not math.isinf(value):
-        top = f.maximum if f.maximum is not None else MAX_MAGNITUDE
+        low, top = value_range(f, kind)
         if value > top or value < -MAX_MAGNITUDE:
             raise ConfigError(f"{what}: expected a {kind} of at most {top:g} {unit}, got {_short(raw)}")
+        if low is not None and value != 0 and abs(value) < low:
+            zero = " (or 0)" if not f.positive else ""
+            raise ConfigError(f"{what}: expected a {kind} of at least {low:g} {unit}{zero}, got {_short(raw)}")
     return value
+
+
+def value_range(f: Field, kind: str) -> tuple[float | None, float]:
+    """The smallest magnitude other than 0 and the largest value a number of field ``f`` (of
+    ``kind``) may have, SI: the field's own bounds, else a time's :data:`TIME_RANGE`, else only
+    :data:`MAX_MAGNITUDE`."""
+    low = f.minimum if f.minimum is not None else (TIME_RANGE[0] if kind == "time" else None)
+    top = f.maximum if f.maximum is not None else (TIME_RANGE[1] if kind == "time" else MAX_MAGNITUDE)
+    return low, top
 
 
 def _short(raw: Any, n: int = 60) -> str:
@@ -485,11 +527,41 @@ def _check_consistency(values: dict, where: str) -> None:
                           f"({values['friction.coulomb']:g}), got {values['friction.static']:g}")
 
 
-def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None = None) -> Config:
+def _toml(text: str, source: str) -> dict:
+    """The TOML document ``text``, within :data:`MAX_CONFIG_BYTES` and :data:`MAX_CONFIG_DEPTH`;
+    anything else is one ConfigError naming ``source``."""
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{source}: {len(text)} characters, expected a configuration of at most "
+                          f"{MAX_CONFIG_BYTES // 1024} KiB")
     try:
         table = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML: {exc}") from None
+    except RecursionError:            # arrays or inline tables nested some thousand deep
+        raise ConfigError(f"{source}: arrays or tables nested too deeply (expected at most "
+                          f"{MAX_CONFIG_DEPTH} levels)") from None
+    if _depth(table) > MAX_CONFIG_DEPTH:
+        raise ConfigError(f"{source}: arrays or tables nested too deeply (expected at most "
+                          f"{MAX_CONFIG_DEPTH} levels)")
+    return table
+
+
+def _depth(value) -> int:
+    """How deeply tables and arrays nest in ``value`` (a scalar: 0), without recursion."""
+    deepest, todo = 0, [(value, 1)]
+    while todo:
+        v, d = todo.pop()
+        items = v.values() if isinstance(v, dict) else v if isinstance(v, list) else None
+        if items is None:
+            continue
+        deepest = max(deepest, d)
+        if d <= MAX_CONFIG_DEPTH:
+            todo.extend((x, d + 1) for x in items)
+    return deepest
+
+
+def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None = None) -> Config:
+    table = _toml(text, source)
     raw = _flatten(table)
     if overrides:
         for k, v in overrides.items():
@@ -550,6 +622,11 @@ def load(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
     if not p.exists() and (shipped := _example(p)) is not None:
         p = path = shipped
     try:
+        if p.exists() and not p.is_file():
+            raise ConfigError(f"{path}: is not a file, expected a configuration file (TOML)")
+        if p.exists() and p.stat().st_size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{path}: {p.stat().st_size} bytes, expected a configuration of at most "
+                              f"{MAX_CONFIG_BYTES // 1024} KiB")
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such configuration file (shipped examples, by name: "
@@ -569,8 +646,10 @@ def parse_assignment(text: str) -> tuple[str, Any]:
     key, _, value = text.partition("=")
     key, value = key.strip(), value.strip()
     try:
-        parsed = tomllib.loads(f"v = {value}")["v"]
-    except tomllib.TOMLDecodeError:
+        parsed = _toml(f"v = {value}", f"--set {_short(key, 60)}")["v"]
+    except ConfigError as exc:
+        if "nested too deeply" in str(exc) or "KiB" in str(exc):
+            raise
         parsed = value
     return key, parsed
 
@@ -593,6 +672,9 @@ def schema_markdown() -> str:
         else:
             default = repr(f.default)
         choices = f" One of: {', '.join(f.choices)}." if f.choices else ""
+        if f.minimum is not None and isinstance(f.kind, str) and f.kind in SI_UNIT:
+            top = f" .. {f.maximum:g}" if f.maximum is not None else ""
+            choices += f" Range: {f.minimum:g}{top} {SI_UNIT[f.kind]}."
         rows.append(f"| `{key.replace('*', 'N')}` | {kind} ({unit}) | {default} | {f.doc}.{choices} |"
                     .replace(" () |", " |"))
     return "\n".join(rows) + "\n"

@@ -243,20 +243,22 @@ class ControlLoop:
         else:
             self.per_tick = 1
         self._delay = [0.0] * int(ctrl.output_delay)     # outputs still in the computation delay
+        self._record_order = None if recorder is None else _record_order(recorder.names, rotary)
         _warm_up(self.p)
         if self.clock.real_time:
             gc.collect()
             gc.freeze()
 
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
-        """One row of the recorder at position tick ``k`` (real-time)."""
+        """One row of the recorder at position tick ``k``, in the recorder's column order
+        (real-time: one tuple, no dictionaries)."""
         if self.recorder is None:
             return
         tip = fb.x_tip if not math.isnan(fb.x_tip) else fb.x_table
-        row = {"t": k * self.ctrl.position_period, "x_cmd": x_cmd, "v_cmd": v_cmd, "x_motor": fb.x_motor,
-               "x_table": fb.x_table, "x_tip": tip, "e_table": x_cmd - fb.x_table, "e_tip": x_cmd - tip}
-        row["torque" if self.rotary else "command"] = output
-        self.recorder.append(**{n: row[n] for n in self.recorder.names})
+        row = (k * self.ctrl.position_period, x_cmd, v_cmd, fb.x_motor, fb.x_table, tip, output,
+               x_cmd - fb.x_table, x_cmd - tip)
+        order = self._record_order
+        self.recorder.write_row(row if order is None else [row[i] for i in order])
 
     def _inject(self, i: int, s, w_pos: float, w: float, a_cmd: float, fb: Feedback) -> float:
         """The velocity-loop step of cycle ``i`` with the excitation added; records the cycle
@@ -387,6 +389,21 @@ class ControlLoop:
     def _end(self, ticks: int, status: str, reason: str) -> LoopResult:
         clock = self.clock.stats() if hasattr(self.clock, "stats") else {}
         return LoopResult(ticks, status, reason, clock)
+
+
+# the columns _record fills, in the order of hil.runtime.record_channels
+RECORD_ROW = ("t", "x_cmd", "v_cmd", "x_motor", "x_table", "x_tip", "output", "e_table", "e_tip")
+
+
+def _record_order(names, rotary: bool) -> list[int] | None:
+    """Where each of the recorder's columns ``names`` is in :data:`RECORD_ROW` (None: the same
+    order); the controller's output is ``torque`` on a rotary axis, ``command`` on a linear one."""
+    row = [("torque" if rotary else "command") if n == "output" else n for n in RECORD_ROW]
+    unknown = [n for n in names if n not in row]
+    if unknown:
+        raise ValueError(f"recorder channels {unknown}: the loop records only {row}")
+    order = [row.index(n) for n in names]
+    return None if order == list(range(len(row))) else order
 
 
 def _warm_up(p) -> None:

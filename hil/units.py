@@ -89,6 +89,52 @@ def _normalise(text: str) -> str:
     return text
 
 
+# Bounds on a quantity written as text, checked before pint reads it: pint evaluates the
+# arithmetic of the text (Python integers), so "10**10**10 mm" would compute a number of ten
+# billion digits, and a long text costs in proportion. No quantity of an axis needs a power of a
+# power, an exponent beyond MAX_EXPONENT or more than MAX_QUANTITY_CHARS characters.
+MAX_QUANTITY_CHARS = 100
+MAX_EXPONENT = 30
+_POWER_OP = re.compile(r"\*\*|\^")
+# an exponent: a plain number, signed, or a fraction of whole numbers in parentheses: m^2, s**-1, m^(1/2)
+_EXPONENT = re.compile(r"\s*(?:\(\s*([+-]?\s*[0-9]+(?:\.[0-9]*)?)(?:\s*/\s*([0-9]+))?\s*\)|([+-]?\s*[0-9]+(?:\.[0-9]*)?))")
+_QUANTITY_EXAMPLE = "a number and a unit, e.g. 10 mm or 8.5e-4 kg*m^2"
+
+
+def check_quantity_text(text: str, kind: str, what: str = "value") -> None:
+    """Refuse, in one line (a UnitError naming ``what``), a quantity text that would cost pint
+    more than a quantity may: longer than :data:`MAX_QUANTITY_CHARS`, a power of a power
+    (``10**10**10``, ``(2^3)^4``), an exponent that is not a plain number or beyond
+    :data:`MAX_EXPONENT` in size."""
+    shown = text if len(text) <= 40 else text[:40] + "..."
+    if len(text) > MAX_QUANTITY_CHARS:
+        raise UnitError(f"{what}: {shown!r} ({len(text)} characters): expected a {kind} of at most "
+                        f"{MAX_QUANTITY_CHARS} characters, {_QUANTITY_EXAMPLE}")
+    for op in _POWER_OP.finditer(text):
+        m = _EXPONENT.match(text, op.end())
+        if m is None:
+            raise UnitError(f"{what}: cannot read {shown!r} as a {kind}: an exponent must be a number (e.g. m^2, "
+                            f"s**-1), expected {_QUANTITY_EXAMPLE}")
+        num = float(re.sub(r"\s", "", m.group(1) or m.group(3)))
+        size = abs(num / int(m.group(2))) if m.group(2) and int(m.group(2)) else abs(num)
+        if size > MAX_EXPONENT:
+            raise UnitError(f"{what}: cannot read {shown!r} as a {kind}: exponent {size:g} beyond "
+                            f"{MAX_EXPONENT}, expected {_QUANTITY_EXAMPLE}")
+        nested = _POWER_OP.match(text[m.end():].lstrip()) is not None
+        base = text[:op.start()].rstrip()
+        if not nested and base.endswith(")"):
+            depth, i = 0, len(base) - 1
+            while i >= 0:                          # the parenthesised base: does it hold a power?
+                depth += {")": 1, "(": -1}.get(base[i], 0)
+                if depth == 0:
+                    break
+                i -= 1
+            nested = _POWER_OP.search(base[max(i, 0):]) is not None
+        if nested:
+            raise UnitError(f"{what}: cannot read {shown!r} as a {kind}: a power of a power is not allowed, "
+                            f"expected {_QUANTITY_EXAMPLE}")
+
+
 def parse(value, kind: str, what: str = "value") -> float:
     """Return ``value`` in SI units, checking that it is a quantity of ``kind``.
 
@@ -102,6 +148,8 @@ def parse(value, kind: str, what: str = "value") -> float:
     if isinstance(value, (int, float)):
         out = float(value)
     elif isinstance(value, str):
+        if len(value) > MAX_QUANTITY_CHARS:
+            check_quantity_text(value, kind, what)           # one line, the text cut
         text = _normalise(value)
         if not text:
             raise UnitError(f"{what}: empty string, expected a {kind} ({SI_UNIT[kind]})")
@@ -114,6 +162,7 @@ def parse(value, kind: str, what: str = "value") -> float:
             return _finite_or_nan(float(text), what, kind)      # a bare number: SI already
         except ValueError:
             pass
+        check_quantity_text(text, kind, what)
         ureg = _registry()
         try:
             q = ureg.Quantity(text)
@@ -224,6 +273,7 @@ def parse_angle_deg(value, what: str = "value") -> float:
     try:
         deg = float(text)
     except ValueError:
+        check_quantity_text(text, "angle", what)
         try:
             q = _registry().Quantity(text)
             deg = float(q.to("deg").magnitude)

@@ -225,7 +225,7 @@ def test_recording_survives_a_fault(bench, tmp_path):
 def test_recording_survives_an_exception(tmp_path):
     names = record_channels(True)
     with pytest.raises(RuntimeError):
-        with Recorder(tmp_path / "r.csv", names, {"sample_period": "0.004 s"}, flush_every=1000) as rec:
+        with Recorder(tmp_path / "r.csv", names, {"sample_period": "0.004 s"}) as rec:
             for k in range(10):
                 rec.append(**{n: k * 1e-3 for n in names})
             raise RuntimeError("boom")

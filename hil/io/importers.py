@@ -41,7 +41,16 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.io.measurement import CHANNELS, Measurement, MeasurementError, _check_time, _kind_of
+from hil.io.measurement import (
+    CHANNELS,
+    Measurement,
+    MeasurementError,
+    _check_time,
+    _kind_of,
+    _shown,
+    check_fields,
+    check_record_file,
+)
 from hil.io.measurement import parse_text as parse_csv_text
 
 __all__ = ["read_mat", "read_any", "read_table", "parse_mapping", "evaluate", "data_warnings", "EMPS_MAPPING"]
@@ -53,6 +62,15 @@ _TARGET = re.compile(r"^([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[([^\]]*)\])?$")
 _MATLAB_COL = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\(\s*:\s*,\s*(\d+)\s*\)")
 _MATLAB_ROW = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\(\s*(\d+)\s*,\s*:\s*\)")
 _HEADER_CELL = re.compile(r"^\s*(.*?)\s*(?:[\[(]([^\])]*)[\])])?\s*$")
+
+# Bounds of a map expression (issue 30: a sum of 5000 terms, 100 000 unary signs or a power 5000
+# deep overflowed the parser's stack): its length, how deeply its syntax tree nests (a sum of n
+# terms nests n deep) and how many nodes it has. EMPS's longest is "vir*gtau".
+MAX_EXPR_CHARS = 500
+MAX_EXPR_DEPTH = 40
+MAX_EXPR_NODES = 400
+# a MATLAB file's variables, all together (elements): 10^8 doubles are 800 MB
+MAX_MAT_ELEMENTS = 100_000_000
 
 
 def _target(source: str, target: str, where: str):
@@ -101,15 +119,19 @@ def parse_mapping(items) -> dict[str, str]:
             if not part:
                 continue
             if "=" not in part:
-                raise MeasurementError(f"--map {part!r}: expected SOURCE=CHANNEL[unit], e.g. qg=x_cmd or pos=x_table[mm]")
+                raise MeasurementError(f"--map {_shown(part)}: expected SOURCE=CHANNEL[unit], e.g. qg=x_cmd or "
+                                       f"pos=x_table[mm]")
             a, _, b = part.rpartition("=")
             a, b = a.strip(), b.strip()
             if not _TARGET.match(b):
-                raise MeasurementError(f"--map {part!r}: {b!r} is not CHANNEL or CHANNEL[unit]")
+                raise MeasurementError(f"--map {_shown(part)}: {_shown(b)} is not CHANNEL or CHANNEL[unit]")
             if not a or "=" in a:
-                raise MeasurementError(f"--map {part!r}: expected one SOURCE=CHANNEL[unit]")
+                raise MeasurementError(f"--map {_shown(part)}: expected one SOURCE=CHANNEL[unit]")
+            if len(a) > MAX_EXPR_CHARS:
+                raise MeasurementError(f"--map {_shown(part)}: a source of {len(a)} characters, expected an "
+                                       f"expression of at most {MAX_EXPR_CHARS}")
             if a in out:
-                raise MeasurementError(f"--map {part!r}: the source {a!r} is mapped twice")
+                raise MeasurementError(f"--map {_shown(part)}: the source {_shown(a)} is mapped twice")
             out[a] = b
     return out
 
@@ -156,15 +178,14 @@ def evaluate(expr: str, data: dict, source: str = "<record>", factors: dict | No
 
 
 def _evaluate(expr: str, data: dict, source: str, factors: dict) -> np.ndarray:
+    if len(expr) > MAX_EXPR_CHARS:
+        raise MeasurementError(f"--map {_shown(expr)}: {len(expr)} characters, expected an expression of at most "
+                               f"{MAX_EXPR_CHARS}")
     text = _MATLAB_COL.sub(lambda m: f"{m.group(1)}[:,{int(m.group(2)) - 1}]", expr)
     text = _MATLAB_ROW.sub(lambda m: f"{m.group(1)}[{int(m.group(2)) - 1},:]", text)
     if re.search(r"[A-Za-z_][A-Za-z0-9_]*\(\s*0\s*,|,\s*0\s*\)", expr):
         raise MeasurementError(f"--map {expr!r}: MATLAB's (:,k) counts from 1; write data[:,0] for the first column")
-    try:
-        tree = ast.parse(text.strip(), mode="eval")
-    except SyntaxError:
-        raise MeasurementError(f"--map {expr!r}: not an expression of variables and numbers (use + - * / **, "
-                               f"parentheses and NAME[:,k])") from None
+    tree = _expression_tree(expr, text)
 
     def known():
         return ", ".join(k for k in data if not k.startswith("__"))
@@ -292,12 +313,40 @@ def _apply_mapping(data: dict, factors: dict, units: dict, mapping: dict, source
     return meas
 
 
+def _expression_tree(expr: str, text: str):
+    """The syntax tree of a map source ``expr`` (``text``: as rewritten for Python), within
+    :data:`MAX_EXPR_CHARS`, :data:`MAX_EXPR_DEPTH` and :data:`MAX_EXPR_NODES`; else one
+    MeasurementError naming the expression."""
+    if len(text) > MAX_EXPR_CHARS + 20:
+        raise MeasurementError(f"--map {_shown(expr)}: {len(expr)} characters, expected an expression of at most "
+                               f"{MAX_EXPR_CHARS}")
+    deep = (f"--map {_shown(expr)}: nested too deeply or too long (expected at most {MAX_EXPR_DEPTH} levels of "
+            f"operators and parentheses, {MAX_EXPR_NODES} terms)")
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except SyntaxError as exc:
+        if "too many nested" in str(exc) or "too complex" in str(exc):
+            raise MeasurementError(deep) from None
+        raise MeasurementError(f"--map {_shown(expr)}: not an expression of variables and numbers (use + - * / **, "
+                               f"parentheses and NAME[:,k])") from None
+    except (RecursionError, MemoryError):
+        raise MeasurementError(deep) from None
+    nodes, todo = 0, [(tree, 1)]
+    while todo:                       # no recursion: the bound is checked before anything recurses
+        node, depth = todo.pop()
+        nodes += 1
+        if depth > MAX_EXPR_DEPTH or nodes > MAX_EXPR_NODES:
+            raise MeasurementError(deep)
+        todo.extend((child, depth + 1) for child in ast.iter_child_nodes(node))
+    return tree
+
+
 def _safe_parse(expr: str):
     text = _MATLAB_COL.sub(lambda m: f"{m.group(1)}[:,0]", expr)
     text = _MATLAB_ROW.sub(lambda m: f"{m.group(1)}[0,:]", text)
     try:
-        return ast.parse(text.strip(), mode="eval")
-    except SyntaxError:
+        return _expression_tree(expr, text)
+    except MeasurementError:
         return ast.parse("0", mode="eval")
 
 
@@ -307,6 +356,13 @@ def read_mat(path: str | Path, mapping: dict[str, str] | None = None) -> Measure
     plus the EMPS names when present)."""
     import scipy.io
     source = str(path)
+    check_record_file(source)
+    try:
+        size = sum(int(np.prod(shape)) for _, shape, _ in scipy.io.whosmat(source))
+    except Exception:         # v7.3 (HDF5), or not a .mat: loadmat below says which
+        size = 0
+    if size > MAX_MAT_ELEMENTS:
+        raise MeasurementError(f"{source}: its variables hold {size} values, expected at most {MAX_MAT_ELEMENTS}")
     try:
         data = scipy.io.loadmat(source)
     except FileNotFoundError:
@@ -332,10 +388,14 @@ def _load_mat73(source: str) -> dict:
     out = {}
     try:
         with h5py.File(source, "r") as f:
-            for k, v in f.items():
-                if isinstance(v, h5py.Dataset) and v.dtype.kind in "biuf":
-                    a = np.asarray(v[()])
-                    out[k] = a.T if a.ndim == 2 else a
+            sets = [(k, v) for k, v in f.items() if isinstance(v, h5py.Dataset) and v.dtype.kind in "biuf"]
+            size = sum(int(v.size) for _, v in sets)
+            if size > MAX_MAT_ELEMENTS:
+                raise MeasurementError(f"{source}: its variables hold {size} values, expected at most "
+                                       f"{MAX_MAT_ELEMENTS}")
+            for k, v in sets:
+                a = np.asarray(v[()])
+                out[k] = a.T if a.ndim == 2 else a
     except OSError as exc:
         raise MeasurementError(f"{source}: not a readable MATLAB 7.3 file ({exc})") from None
     return out
@@ -384,21 +444,30 @@ def read_text(path: str | Path, mapping: dict[str, str] | None = None) -> Measur
     """A text log: whitespace-, tab-, semicolon- or comma-separated numbers, with a plain header
     line of names (``name[unit]`` or ``name (unit)`` optional) or none (then the matrix ``data``)."""
     source = str(path)
+    check_record_file(source)
     try:
         text = Path(path).read_text(encoding="utf-8", errors="replace").removeprefix("\ufeff")
     except FileNotFoundError:
         raise MeasurementError(f"{source}: no such file") from None
     except IsADirectoryError:
         raise MeasurementError(f"{source}: is a folder, expected a measurement file") from None
-    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith(("#", "%"))]
-    if not lines:
+    except OSError as exc:
+        raise MeasurementError(f"{source}: cannot read ({exc.strerror})") from None
+    numbered = [(i + 1, ln) for i, ln in enumerate(text.splitlines())
+                if ln.strip() and not ln.lstrip().startswith(("#", "%"))]
+    if not numbered:
         raise MeasurementError(f"{source}: no data")
+    lines = [ln for _, ln in numbered]
     first = lines[0]
     delim = ";" if ";" in first else "\t" if "\t" in first else "," if "," in first else None
+    for lineno, ln in numbered:
+        check_fields(ln, lineno, source, delim, what="a number or a name")
     split = (lambda s: s.split(delim)) if delim else (lambda s: s.split())
     cells = [c.strip() for c in split(first)]
     has_header = not all(_is_number(c) for c in cells if c)
     body = lines[1:] if has_header else lines
+    if len(body) < 2:
+        raise MeasurementError(f"{source}: fewer than 2 data rows")
     if delim == ";":        # a decimal comma (European spreadsheets)
         body = [ln.replace(",", ".") for ln in body]
     try:
@@ -455,6 +524,8 @@ def read_xlsx(path: str | Path, mapping: dict[str, str] | None = None, sheet: st
     vals = []
     for i, r in enumerate(rows[1:]):
         row = []
+        if len(vals) * width > MAX_MAT_ELEMENTS:
+            raise MeasurementError(f"{source}, sheet {ws.title}: more than {MAX_MAT_ELEMENTS} values")
         for j in range(width):
             v = r[j] if j < len(r) else None
             if isinstance(v, (int, float)) and not isinstance(v, bool):
@@ -494,15 +565,16 @@ def _project_csv(path: Path) -> bool:
 
 def read_table(path, mapping=None) -> Measurement:
     """The project's CSV with a map: any expression of its columns (the header's units applied)."""
+    from hil.io.measurement import read_record_text
     source = str(path)
-    meas = parse_csv_text(Path(path).read_text(encoding="utf-8").removeprefix("\ufeff"), source, None,
-                          raw=True)
-    names, units, arr, meta = meas
+    text, notes = read_record_text(path)
+    names, units, arr, meta = parse_csv_text(text, source, None, raw=True)
     from hil.io.measurement import UNITS
     data = {n: arr[:, i] for i, n in enumerate(names)}
     factors = {n: UNITS[u][1] for n, u in units.items() if u in UNITS}
     out = _apply_mapping(data, factors, units, mapping, source, "csv", keep_unmapped=True)
     out.meta = meta | out.meta
+    out.warnings[:0] = notes
     return out
 
 
@@ -517,6 +589,7 @@ def read_any(path: str | Path, mapping: dict[str, str] | None = None, sheet: str
     if low.endswith(".mat"):
         return read_mat(path, mapping)
     if low.endswith((".xlsx", ".xlsm")):
+        check_record_file(p)
         return read_xlsx(path, mapping, sheet)
     if Path(p).is_file() and not _project_csv(Path(p)):
         return read_text(path, mapping)

@@ -78,6 +78,11 @@ WRITE_UNIT = {"time": "s", "length": "mm", "speed": "mm/s", "torque": "N*m", "fo
 
 _HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[([^\]]*)\])?\s*$")
 
+# Bounds of what a record file may hold (issue 30): the file (a 1 kHz record of an hour's run is
+# some 400 MB), one field of a row or of the header (a number, a "name [unit]").
+MAX_RECORD_BYTES = 1 << 30
+MAX_FIELD_CHARS = 256
+
 
 @dataclass
 class Measurement:
@@ -139,6 +144,18 @@ def read(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement
     """Read a measurement file (SI on return). ``mapping`` renames columns (``{"pos": "x_table"}``)
     and may give a unit for columns that have none (``{"pos": "x_table [mm]"}``)."""
     path = str(path)
+    text, notes = read_record_text(path)
+    meas = parse_text(text, path, mapping)
+    meas.warnings[:0] = notes
+    return meas
+
+
+def read_record_text(path: str | Path) -> tuple[str, list[str]]:
+    """The text of a measurement file (without a BOM: spreadsheet exports), and the reader's
+    notes about it: a record whose run did not end cleanly comes without a last line cut in its
+    write (:func:`_cut_record`)."""
+    path = str(path)
+    check_record_file(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -149,7 +166,64 @@ def read(path: str | Path, mapping: dict[str, str] | None = None) -> Measurement
         raise MeasurementError(f"{path}: is a folder, expected a measurement file") from None
     except OSError as exc:
         raise MeasurementError(f"{path}: cannot read ({exc.strerror})") from None
-    return parse_text(text.removeprefix("\ufeff"), path, mapping)     # a BOM (spreadsheet exports)
+    text, notes = _cut_record(text, path)
+    return text.removeprefix("\ufeff"), notes
+
+
+def check_record_file(path: str | Path) -> None:
+    """Refuse, in one line, a record ``path`` that is no regular file (a folder, a FIFO, a
+    device: reading one would never end) or larger than :data:`MAX_RECORD_BYTES`."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise MeasurementError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise MeasurementError(f"{path}: cannot read ({exc.strerror})") from None
+    if p.is_dir():
+        raise MeasurementError(f"{path}: is a folder, expected a measurement file")
+    if not p.is_file():
+        raise MeasurementError(f"{path}: is not a regular file (a pipe or a device), expected a measurement file")
+    if st.st_size > MAX_RECORD_BYTES:
+        raise MeasurementError(f"{path}: {st.st_size / 2**20:.0f} MiB, expected a record of at most "
+                               f"{MAX_RECORD_BYTES >> 20} MiB (split it, or keep every n-th row)")
+
+
+def check_fields(line: str, lineno: int, source: str, sep: str | None = ",", names=None,
+                 what: str = "a number") -> None:
+    """Refuse, in one line naming the file, line and column, a ``line`` with a field longer than
+    :data:`MAX_FIELD_CHARS` (``sep``: the separator, None: whitespace; ``names``: the columns)."""
+    if len(line) <= MAX_FIELD_CHARS:
+        return
+    for c, cell in enumerate(line.split(sep)):
+        if len(cell) > MAX_FIELD_CHARS:
+            col = repr(names[c]) if names is not None and c < len(names) else str(c + 1)
+            raise MeasurementError(f"{source}, line {lineno}, column {col}: a field of {len(cell)} characters "
+                                   f"({_shown(cell)}), expected {what} of at most {MAX_FIELD_CHARS} characters")
+
+
+def _shown(text: str, n: int = 40) -> str:
+    """A text as written, cut for a one-line message."""
+    return repr(text) if len(text) <= n else repr(text[:n]) + "..."
+
+
+def _cut_record(text: str, path: str) -> tuple[str, list[str]]:
+    """A record whose run did not end cleanly (its status beside it still says ``running``, the
+    recording process gone: killed, crashed): the text without its last line where that was cut
+    in its ``write()`` (no line break at its end), and a warning saying so."""
+    from hil.io.record_status import status_of
+    st = status_of(path)
+    if st is None or st.get("ended_cleanly") is not False:
+        return text, []
+    notes = []
+    if text and not text.endswith(("\n", "\r")):
+        lineno = text.count("\n") + 1
+        text = text[:text.rfind("\n") + 1]
+        notes.append(f"{path}, line {lineno}: cut short when its run ended, dropped")
+    notes.append(f"{path}: the run did not end cleanly (its status {Path(path).with_suffix('.json').name} still says "
+                 f"running, {st.get('rows', '?')} rows at its last update; the recording process is gone): the "
+                 f"record ends where the run was cut")
+    return text, notes
 
 
 def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None = None, raw: bool = False):
@@ -167,13 +241,17 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
     if i >= len(lines):
         raise MeasurementError(f"{source}: no header line (expected e.g. 't [s],x_cmd [mm],x_table [mm]')")
     header_line = i + 1
-    header = next(csv.reader([lines[i]]))
+    check_fields(lines[i], header_line, source, what="a header cell 'name [unit]'")
+    try:
+        header = next(csv.reader([lines[i]]))
+    except csv.Error as exc:
+        raise MeasurementError(f"{source}, line {header_line}: not a header of 'name [unit]' cells ({exc})") from None
     names, factors, units = [], [], {}
     mapping = mapping or {}
     for col, cell in enumerate(header):
         m = _HEADER.match(cell)
         if not m:
-            raise MeasurementError(f"{source}, line {header_line}: column {col + 1} header {cell!r} is not "
+            raise MeasurementError(f"{source}, line {header_line}: column {col + 1} header {_shown(cell)} is not "
                                    f"'name [unit]'")
         name, unit = m.group(1), m.group(2)
         if raw:
@@ -210,6 +288,7 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
         lineno = i + 2 + j
         if not line.strip() or line.startswith("#"):
             continue
+        check_fields(line, lineno, source, names=names)
         cells = line.split(",")
         if len(cells) != len(names):
             if j == len(data_lines) - 1:
@@ -222,8 +301,8 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
         except ValueError:
             bad = next(c for c in cells if not _is_float(c))
             col = cells.index(bad)
-            raise MeasurementError(f"{source}, line {lineno}, column {names[col]!r}: {bad.strip()!r} is not a "
-                                   f"number") from None
+            raise MeasurementError(f"{source}, line {lineno}, column {names[col]!r}: {_shown(bad.strip())} is not "
+                                   f"a number") from None
         for c, v in enumerate(row):
             if math.isnan(v) or math.isinf(v):
                 raise MeasurementError(f"{source}, line {lineno}, column {names[c]!r}: {cells[c].strip()} "

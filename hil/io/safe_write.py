@@ -43,9 +43,10 @@ def refuse_inputs(path: str | Path, inputs=()) -> None:
             continue
 
 
-def open_new(path: str | Path, inputs=(), encoding: str = "utf-8"):
+def open_new(path: str | Path, inputs=(), encoding: str = "utf-8", binary: bool = False):
     """A text file opened for writing (truncated), refusing a symbolic link at ``path`` and any of
-    ``inputs``."""
+    ``inputs``; ``binary``: an unbuffered binary file instead (every ``write()`` reaches the
+    file at once: what a record killed with its process keeps)."""
     refuse_inputs(path, inputs)
     flags = os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_NOFOLLOW", 0)
     try:
@@ -54,6 +55,8 @@ def open_new(path: str | Path, inputs=(), encoding: str = "utf-8"):
         if Path(path).is_symlink():
             raise UserError(f"{path}: is a symbolic link; refusing to write through it") from None
         raise UserError(f"{path}: cannot write ({exc.strerror})") from None
+    if binary:
+        return os.fdopen(fd, "wb", buffering=0)
     return os.fdopen(fd, "w", encoding=encoding, newline="")
 
 
@@ -71,8 +74,10 @@ def _create_temporary(folder: Path, name: str) -> tuple[int, str]:
     raise FileExistsError(f"no free temporary name in {folder}")
 
 
-def write_atomic(path: str | Path, data: str | bytes, inputs=(), encoding: str = "utf-8") -> Path:
-    """Write ``data`` to ``path`` at once (a temporary file in the same folder, renamed over it)."""
+def write_atomic(path: str | Path, data: str | bytes, inputs=(), encoding: str = "utf-8", sync: bool = True) -> Path:
+    """Write ``data`` to ``path`` at once (a temporary file in the same folder, renamed over it).
+    ``sync``: on the disk before the rename (False: a file rewritten often, e.g. a running
+    record's status, where the page cache is enough: it survives the process, not the power)."""
     path = Path(path)
     refuse_inputs(path, inputs)
     if path.is_dir() and not path.is_symlink():
@@ -87,7 +92,8 @@ def write_atomic(path: str | Path, data: str | bytes, inputs=(), encoding: str =
         with os.fdopen(fd, "wb") as fh:
             fh.write(data.encode(encoding) if isinstance(data, str) else data)
             fh.flush()
-            os.fsync(fh.fileno())
+            if sync:
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         try:
