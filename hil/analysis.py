@@ -3,6 +3,11 @@
 Overshoot is the largest excursion past the final target in the direction of motion over the
 whole move and the dwell after it, floored at 0 (at high jerk the table can pass the target
 before the command ends, so the whole record counts, not only the time after the command).
+
+A row whose feedback is stale (its answer did not come in; the readings repeat the last one while
+the command moves on, the ``stale`` channel of a real axis's record) is left out of the following
+errors, which it would inflate by the command's travel in the missed cycles; ``stale_samples``
+says how many rows were left out.
 """
 from __future__ import annotations
 
@@ -77,20 +82,27 @@ class MoveFigures:
     t_acc: float | None
     settle_band_um: float
     observed_after_s: float = 0.0     # record after the command's end (0: settling, residual not measurable)
+    stale_samples: int = 0            # rows whose feedback repeats the last answer, left out of the following errors
 
     def as_dict(self) -> dict:
         return asdict(self)
 
 
 def move_figures(t, x_cmd, x_table, x_tip, u, move, t_start: float = 0.0, t_end: float | None = None,
-                 band: float = 1e-6) -> MoveFigures:
+                 band: float = 1e-6, stale=None) -> MoveFigures:
     """Figures of ``move`` (a planned SineSquareMove starting at ``t_start``) from a record.
 
-    ``t_end``: end of the window examined (the next move's start, or the record's end)."""
+    ``t_end``: end of the window examined (the next move's start, or the record's end).
+    ``stale``: per row, nonzero where the feedback repeats the last answer (left out of the
+    following errors); None: every row is a fresh answer."""
     t = np.asarray(t, float)
     t_end = t[-1] if t_end is None else t_end
     sel = (t >= t_start - 1e-12) & (t <= t_end + 1e-12)
     tt = t[sel]
+    stale_sel = np.zeros(t.size, bool) if stale is None else (np.asarray(stale, float) != 0) & sel
+    fresh = sel & ~stale_sel
+    if not fresh.any():                  # nothing but repeats: no following error can be read off
+        fresh = sel
     target = move.end
     d = move.direction
     t_cmd_end = t_start + move.duration
@@ -98,8 +110,8 @@ def move_figures(t, x_cmd, x_table, x_tip, u, move, t_start: float = 0.0, t_end:
     return MoveFigures(
         overshoot_table_um=overshoot(np.asarray(x_table)[sel], target, d) * 1e6,
         overshoot_tip_um=overshoot(np.asarray(x_tip)[sel], target, d) * 1e6,
-        peak_following_error_table_um=float(np.max(np.abs(np.asarray(x_cmd)[sel] - np.asarray(x_table)[sel]))) * 1e6,
-        peak_following_error_tip_um=float(np.max(np.abs(np.asarray(x_cmd)[sel] - np.asarray(x_tip)[sel]))) * 1e6,
+        peak_following_error_table_um=float(np.max(np.abs(np.asarray(x_cmd)[fresh] - np.asarray(x_table)[fresh]))) * 1e6,
+        peak_following_error_tip_um=float(np.max(np.abs(np.asarray(x_cmd)[fresh] - np.asarray(x_tip)[fresh]))) * 1e6,
         residual_tip_um=_um(residual_amplitude(tt, np.asarray(x_tip)[sel], target, t_cmd_end)),
         settling_time_table=settling_time(tt, np.asarray(x_table)[sel], target, band, t_cmd_end),
         settling_time_tip=settling_time(tt, np.asarray(x_tip)[sel], target, band, t_cmd_end),
@@ -107,7 +119,8 @@ def move_figures(t, x_cmd, x_table, x_tip, u, move, t_start: float = 0.0, t_end:
         j_max=move.j_max, a_max=move.a_max, peak_speed=move.peak_speed,
         t_acc=(spec.t_acc if spec is not None and spec.t_acc is not None else
                (spec.g0 * np.pi / (2 * move.a_max) if spec is not None and spec.g0 else None)),
-        settle_band_um=band * 1e6, observed_after_s=observed_after(tt, t_cmd_end))
+        settle_band_um=band * 1e6, observed_after_s=observed_after(tt, t_cmd_end),
+        stale_samples=int(np.count_nonzero(stale_sel)))
 
 
 def _um(v: float | None) -> float | None:

@@ -244,6 +244,7 @@ class ControlLoop:
             self.per_tick = 1
         self._delay = [0.0] * int(ctrl.output_delay)     # outputs still in the computation delay
         self._record_order = None if recorder is None else _record_order(recorder.names, rotary)
+        self._record_stale = recorder is not None and "stale" in recorder.names
         _warm_up(self.p)
         if self.clock.real_time:
             gc.collect()
@@ -255,8 +256,12 @@ class ControlLoop:
         if self.recorder is None:
             return
         tip = fb.x_tip if not math.isnan(fb.x_tip) else fb.x_table
-        row = (k * self.ctrl.position_period, x_cmd, v_cmd, fb.x_motor, fb.x_table, tip, output,
-               x_cmd - fb.x_table, x_cmd - tip)
+        if self._record_stale:
+            row = (k * self.ctrl.position_period, x_cmd, v_cmd, fb.x_motor, fb.x_table, tip, output,
+                   x_cmd - fb.x_table, x_cmd - tip, 1.0 if fb.stale else 0.0)
+        else:
+            row = (k * self.ctrl.position_period, x_cmd, v_cmd, fb.x_motor, fb.x_table, tip, output,
+                   x_cmd - fb.x_table, x_cmd - tip)
         order = self._record_order
         self.recorder.write_row(row if order is None else [row[i] for i in order])
 
@@ -392,7 +397,8 @@ class ControlLoop:
 
 
 # the columns _record fills, in the order of hil.runtime.record_channels
-RECORD_ROW = ("t", "x_cmd", "v_cmd", "x_motor", "x_table", "x_tip", "output", "e_table", "e_tip")
+# "stale" (1 where the cycle's answer did not come in, Feedback.stale) only where the recorder has it
+RECORD_ROW = ("t", "x_cmd", "v_cmd", "x_motor", "x_table", "x_tip", "output", "e_table", "e_tip", "stale")
 
 
 def _record_order(names, rotary: bool) -> list[int] | None:
@@ -403,7 +409,7 @@ def _record_order(names, rotary: bool) -> list[int] | None:
     if unknown:
         raise ValueError(f"recorder channels {unknown}: the loop records only {row}")
     order = [row.index(n) for n in names]
-    return None if order == list(range(len(row))) else order
+    return None if order == list(range(len(order))) else order
 
 
 def _warm_up(p) -> None:

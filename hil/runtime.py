@@ -47,9 +47,11 @@ logger = logging.getLogger(__name__)
 __all__ = ["RunRecord", "run_trajectory", "record_channels"]
 
 
-def record_channels(rotary: bool) -> list[str]:
+def record_channels(rotary: bool, stale: bool = False) -> list[str]:
+    """The channels of a run's record; ``stale`` (a backend whose answers can miss, a real axis's
+    fieldbus or line): a last column, 1 where the row's feedback repeats the last answer."""
     return ["t", "x_cmd", "v_cmd", "x_motor", "x_table", "x_tip", "torque" if rotary else "command",
-            "e_table", "e_tip"]
+            "e_table", "e_tip"] + (["stale"] if stale else [])
 
 
 @dataclass
@@ -110,7 +112,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     check_sampled(x_cmd, tp, AxisLimits.from_config(cfg))
     backend = backend if backend is not None else open_backend(cfg)
     rotary = cfg.rotary
-    names = record_channels(rotary)
+    names = record_channels(rotary, stale=getattr(backend, "misses_answers", False))
     info = {"sample_period": f"{tp:g} s", "config": cfg.source, "backend": backend.name}
     info.update(meta or {})
     if isinstance(backend, SimulatedPlant) and backend.closes == "none":

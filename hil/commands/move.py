@@ -57,6 +57,9 @@ JSON_KEYS = {
     "observed_after_s": JsonKey("s", "record after the end of the command, where settling and residual vibration are "
                                      "measured (0: they cannot be, null; the overshoot covers the command only)",
                                 when=_DONE),
+    "stale_samples": JsonKey("", "rows whose feedback repeats the last answer (a cycle without its answer on a "
+                                 "fieldbus or serial line), left out of the following errors", when=_DONE),
+    "overruns": JsonKey("", "cycles of the real-time loop that missed their deadline", when=_DONE),
     "peak_torque": JsonKey("N*m or N", "largest motor torque (rotary) or force (linear)", when=_DONE),
     "j_max": JsonKey("m/s^3", "peak jerk of the move", when=_DONE + ", or --check"),
     "a_max": JsonKey("m/s^2", "peak acceleration", when=_DONE + ", or --check"),
@@ -225,10 +228,10 @@ def run(args) -> int:
     t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
         traj.segments[1], "stroke") else 0.0)
     fig = move_figures(ch["t"], ch["x_cmd"], ch["x_table"], ch["x_tip"], ch.get("torque", ch.get("command")),
-                       first, 0.0, t_next, band)
+                       first, 0.0, t_next, band, stale=ch.get("stale"))
     png = plot_move(ch, out / "move.png", title=title)
     summary = dict(fig.as_dict(), status=rec.status, reason=rec.reason, record=str(rec.path), plot=str(png),
-                   backend=backend.name, start_m=traj.start)
+                   backend=backend.name, start_m=traj.start, overruns=int(rec.loop.get("overruns", 0)))
     drive = "torque" if cfg.rotary else "force"
     summary["units"] = {k: u for k, u in (("settling_time_table", "s"), ("settling_time_tip", "s"),
                                           ("peak_torque", SI_UNIT[drive]), ("j_max", "m/s^3"),
@@ -245,6 +248,11 @@ def run(args) -> int:
               + ("   (up to the command's end only: no dwell)" if blind else ""))
         print(f"  peak follow. error table {fig.peak_following_error_table_um:8.1f} um   tip "
               f"{fig.peak_following_error_tip_um:8.1f} um")
+        if fig.stale_samples or summary["overruns"]:
+            # a real axis: cycles without their answer repeat the last reading while the command
+            # moves on; left out of the figures above, and said here rather than only in move.json
+            print(f"  cycles without an answer {fig.stale_samples} (left out of the following errors), "
+                  f"loop overruns {summary['overruns']}")
         if blind:
             print(f"  settling and residual tip vibration cannot be measured: no record after the command "
                   f"(--dwell {args.dwell}); peak {drive} {fmt(fig.peak_torque, drive, 3)}")

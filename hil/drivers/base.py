@@ -80,7 +80,10 @@ class Feedback:
     ``x_tip`` is NaN where no tool-tip sensor exists. ``v_motor`` is the motor speed as a linear
     speed (m/s); ``output`` the actual torque (N m) or command. ``fault`` is empty while the
     drive is well, else one line saying what is wrong (the fault rule of the module docstring);
-    the positions are then the last ones known."""
+    the positions are then the last ones known. ``stale`` is True where this cycle's answer did not
+    come in (a missed PDO, a failed read): the readings repeat the last answer while the command
+    moves on, so a figure of the run must not count them as the axis's (they are recorded as the
+    ``stale`` channel where the backend can miss, :attr:`Backend.misses_answers`)."""
     x_motor: float
     x_table: float
     v_motor: float
@@ -90,6 +93,7 @@ class Feedback:
     # the position the position loop uses where it differs from the recorded one (a simulated scale
     # read late over a fieldbus); NaN: x_table or x_motor, as the controller's position_feedback says
     x_feedback: float = math.nan
+    stale: bool = False
 
 
 @dataclass
@@ -110,6 +114,7 @@ class Backend(ABC):
     closes: str = "none"
     cycle_time: float = 0.0      # seconds between exchanges (the host's clock ticks at this period)
     simulated: bool = False      # True: time advances only when the host calls sync()
+    misses_answers: bool = False  # True: a cycle's answer can fail to come in (Feedback.stale; a fieldbus, a line)
 
     # -- not real-time -----------------------------------------------------------------------------
     @abstractmethod

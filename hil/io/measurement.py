@@ -63,6 +63,8 @@ CHANNELS = {
     "t": "time", "x_cmd": "length", "v_cmd": "speed", "x_motor": "length", "x_table": "length",
     "x_tip": "length", "torque": "torque", "force": "force", "command": "voltage",
     "e_table": "length", "e_tip": "length",
+    # 1 where the row's feedback repeats the last answer (a real axis's missed cycle), else 0
+    "stale": "dimensionless",
     # measured inputs besides the command: an additive command after the controller (in the
     # actuator's units: torque, force or voltage) and external forces on the table and the tip
     "u_add": "actuator", "f_ext_table": "force", "f_ext_tip": "force",

@@ -7,6 +7,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 
 from hil.io.safe_write import save_figure
 
@@ -34,6 +35,13 @@ def move_figure(channels: dict, title: str = "", stopped: tuple[str, str] | None
     ax1.grid(True, alpha=0.3)
     ax2.plot(t, (channels["x_cmd"] - channels["x_table"]) * 1e6, lw=1.5, label="table")
     ax2.plot(t, (channels["x_cmd"] - channels["x_tip"]) * 1e6, lw=1, label="tool tip")
+    stale = np.asarray(channels.get("stale", ()), float)
+    if stale.size == len(t) and stale.any():
+        # a cycle without its answer repeats the last reading while the command moves on: its
+        # following error is not the axis's; marked, and the summary leaves it out
+        miss = stale != 0
+        ax2.plot(t[miss], ((channels["x_cmd"] - channels["x_table"]) * 1e6)[miss], "x", color="red", ms=4,
+                 label=f"no answer ({int(miss.sum())} cycles: stale reading)")
     ax2.set_ylabel("following error x_cmd - x [um]")
     ax2.set_xlabel("time [s]")
     ax2.legend(loc="best")

@@ -236,6 +236,7 @@ class _AnswerEvent(threading.Event):
 
 class CanopenBackend(Backend):
     name = "canopen"
+    misses_answers = True         # a SYNC without its TPDO in time (Feedback.stale)
 
     def __init__(self, cfg, bus=None, interface: str | None = None, channel: str | None = None,
                  mode: str | None = None, lockstep: bool | None = None, node_id: int | None = None):
@@ -781,7 +782,8 @@ class CanopenBackend(Backend):
             elif self._hb_last is not None and self._now() - self._hb_last > self.cfg.get(
                     "canopen.heartbeat_timeout", 0.35):
                 fault = f"lost communication: drive heartbeat lost ({(self._now() - self._hb_last) * 1e3:.0f} ms)"
-        fb = Feedback(x_motor=x_motor, x_table=x_table, v_motor=v, output=out, x_tip=x_tip, fault=fault)
+        fb = Feedback(x_motor=x_motor, x_table=x_table, v_motor=v, output=out, x_tip=x_tip, fault=fault,
+                      stale=not fresh)
         self._last = fb
         return fb
 

@@ -154,6 +154,7 @@ class SerialBackend(Backend):
     permits (for a simulated drive that advances one cycle per setpoint; never for a real one)."""
 
     name = "serial"
+    misses_answers = True         # a read that failed in the cycle (Feedback.stale)
 
     def __init__(self, cfg, port: str | None = None, free_run: bool = False, **options):
         self.cfg = cfg
@@ -352,7 +353,7 @@ class SerialBackend(Backend):
             if setup:
                 raise
             last = self._last_fb or Feedback(0.0, 0.0, 0.0)
-            return dataclasses.replace(last, fault=exc.reason)
+            return dataclasses.replace(last, fault=exc.reason, stale=True)
         xm = int(g["x_motor"]) / self.k_pos
         xt = int(g["x_table"]) / self.k_pos if "x_table" in g else xm
         v = int(g["v_motor"]) / self.k_pos if "v_motor" in g else math.nan      # counts/s
