@@ -51,6 +51,7 @@ COMMANDS = {
     "status": "hil.commands.status",
     "reset": "hil.commands.reset",
     "serial-sim": "hil.commands.serial_sim",
+    "scope": "hil.commands.scope",
 }
 
 

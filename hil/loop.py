@@ -12,7 +12,9 @@ write the setpoint, record (every position tick), let the supervisor check, end 
   (a cycle that starts a whole period late).
 * :class:`SimulatedClock`: no waiting; time is the cycle count times the period.
 
-The loop's hooks: a ``recorder`` (one row per position tick), a ``supervisor`` (checked every
+The loop's hooks: a ``recorder`` (one row per position tick), a ``scope`` (a
+:class:`hil.scope.ring.ScopeRing`: the same row, written in place into a preallocated ring the live
+scope's server reads without a lock; trips and the run's end as its events), a ``supervisor`` (checked every
 position tick) and an :class:`Injection` (an excitation added in every cycle to the torque or to
 the speed reference, and one row per cycle of what the loop did with it: hil.frf measures
 frequency responses through it).
@@ -43,6 +45,7 @@ import numpy as np
 from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
 from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
 from hil.drivers.rt import CpuLatencyRequest, fine_timer_slack
+from hil.scope.ring import ScopeRing
 
 __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]
 
@@ -214,7 +217,8 @@ class ControlLoop:
     a trip or a backend fault ends the run with the controlled stop (``supervisor.stop``:
     ``backend.quick_stop()`` or ``backend.disable()``) commanded in the same cycle.
     ``injection``: an :class:`Injection` (the host must close the velocity loop). ``progress``: called with the fraction of the run done every 1000 position
-    ticks (inside the cycle: keep it short).
+    ticks (inside the cycle: keep it short). ``scope``: a :class:`~hil.scope.ring.ScopeRing` the
+    cycle writes every position tick's row into (it changes nothing of what the loop computes).
 
     Real-time: :meth:`run`'s cycle and the methods it calls there (``_inject``, ``_record``,
     ``_stop``, the clock's ``wait``); :meth:`__init__` does the slow preparation before the drive
@@ -222,8 +226,9 @@ class ControlLoop:
 
     def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True,
                  priority: int = 0, injection: Injection | None = None, progress=None,
-                 cpu_latency: float | None = 0.0):
+                 cpu_latency: float | None = 0.0, scope: ScopeRing | None = None):
         self.backend = backend
+        self.scope = scope
         self.ctrl = ctrl
         self.p = ctrl.as_array()
         period = backend.cycle_time
@@ -252,7 +257,12 @@ class ControlLoop:
 
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
         """One row of the recorder at position tick ``k``, in the recorder's column order
-        (real-time: one tuple, no dictionaries)."""
+        (real-time: one tuple, no dictionaries), and the scope's row (in place, no allocation)."""
+        scope = self.scope
+        if scope is not None:
+            t = k * self.ctrl.position_period
+            scope.write(t, x_cmd, fb.x_motor, fb.x_table, fb.x_tip, x_cmd - fb.x_table,
+                        x_cmd - (fb.x_tip if not math.isnan(fb.x_tip) else fb.x_table), output, fb.v_motor)
         if self.recorder is None:
             return
         tip = fb.x_tip if not math.isnan(fb.x_tip) else fb.x_table
@@ -311,6 +321,7 @@ class ControlLoop:
                         latch(k * self.ctrl.position_period, fb.fault, fb)
                         self._stop(b)
                         status, reason = "tripped", fb.fault
+                        self._event(k, "trip", fb.fault)
                         return self._end(k, status, reason)
                     # the setpoint of this cycle (from the loops the backend does not close)
                     if b.closes == "both":
@@ -344,6 +355,7 @@ class ControlLoop:
                             if trip:
                                 self._stop(b)
                                 status, reason = "tripped", trip
+                                self._event(k, "trip", trip)
                                 return self._end(k, status, reason)
                     b.write_setpoint(sp)
                     b.sync()
@@ -356,16 +368,19 @@ class ControlLoop:
         except BackendFault as exc:
             self._stop(b)
             status, reason = "fault", exc.reason
+            self._event(k, "fault", reason)
             latch = getattr(self.supervisor, "trip", None)
             if latch is not None:        # latched like a trip: motion refused until 'hil reset'
                 latch(k * self.ctrl.position_period, reason)
         except KeyboardInterrupt:
             self._stop(b)
             status, reason = "aborted", "interrupted (Ctrl-C)"
+            self._event(k, "aborted", reason)
             raise
         except Exception as exc:
             self._stop(b)
             status, reason = "aborted", f"{type(exc).__name__}: {exc}"
+            self._event(k, "aborted", reason)
             raise
         finally:
             if hasattr(self.clock, "stop"):
@@ -376,7 +391,14 @@ class ControlLoop:
                     gc.enable()
             if self.recorder is not None and status != "complete":
                 self.recorder.close(status, reason)
+        if status == "complete":
+            self._event(K - 1, "complete", "")
         return self._end(K, status, reason)
+
+    def _event(self, k: int, kind: str, reason: str) -> None:
+        """An event of the scope at position tick ``k`` (real-time; nothing without a scope)."""
+        if self.scope is not None:
+            self.scope.event(k * self.ctrl.position_period, kind, reason)
 
     def _stop(self, backend: Backend) -> None:
         """The controlled stop the configuration asks for (supervisor.stop: quick_stop or disable);

@@ -39,6 +39,8 @@ from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop, LoopResult
 from hil.profiles import AxisLimits, Trajectory, check_limits, check_sampled
+from hil.scope.ring import ScopeRing
+from hil.scope.ring import feed as feed_scope
 from hil.simulate import simulate
 from hil.supervisor import check_record, refuse_if_tripped
 
@@ -94,13 +96,19 @@ def plan_from_measured(cfg, traj: Trajectory, measured: float, start: str) -> Tr
 
 
 def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | None = None, settle: float = 1.0,
-                   supervisor=None, meta: dict | None = None, check: bool = True, start: str = "check") -> RunRecord:
+                   supervisor=None, meta: dict | None = None, check: bool = True, start: str = "check",
+                   scope: ScopeRing | None = None, realtime: bool = False) -> RunRecord:
     """Check ``traj`` against the axis limits, run it (plus ``settle`` seconds standing at the end)
     and record every position tick.
 
     ``start``: on a backend that drives an axis, ``"follow"`` plans the run from where the axis
     stands, ``"check"`` (default) refuses it unless the axis stands at ``traj.start`` (within
-    ``limits.start_window``); see the module docstring. A latched trip refuses the run."""
+    ``limits.start_window``); see the module docstring. A latched trip refuses the run.
+
+    ``scope``: a :class:`~hil.scope.ring.ScopeRing` the live scope reads. Cycle by cycle, the loop
+    writes every position tick into it. A dry run is computed at once by the compiled loop: its
+    rows go into the ring after it, at real-time pace with ``realtime`` (the call then takes the
+    run's duration), else all at once; the record is the same either way."""
     if supervisor is None or not hasattr(supervisor, "arm"):
         refuse_if_tripped(cfg)           # a trip not reset refuses motion on every backend
     if check:
@@ -132,6 +140,9 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
             with Recorder(out_file, names, info) as rec:
                 rec.extend(chans)
                 rec.close(status, reason)
+        if scope is not None:
+            feed_scope(scope, chans, speed=sim.v[:len(chans["t"]), 0], status=status, reason=reason,
+                       pace=1.0 if realtime else None)
         return RunRecord(chans, status, reason, Path(out_file) if out_file else None, start=float(x_cmd[0]))
     # cycle by cycle, on the backend's clock
     ctrl = controller_from_config(cfg, getattr(backend, "plant", None) or _plant_scales(cfg))
@@ -143,7 +154,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         supervisor = Supervisor(cfg, real_time=not backend.simulated)
         supervisor.arm()           # refuses motion while an earlier trip is not reset
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary,
-                       priority=cfg.get("runtime.priority", 0), cpu_latency=cfg.get("runtime.cpu_latency", 0.0))
+                       priority=cfg.get("runtime.priority", 0), cpu_latency=cfg.get("runtime.cpu_latency", 0.0),
+                       scope=scope)
     started = {"planned_m": float(traj.start), "mode": start}
     try:
         with backend:                    # opened here; shut down (disabled, closed) however the run ends

@@ -391,6 +391,7 @@ _BASE = {
     "synth": ["--config", BENCH],
     "drive-sim": ["--config", CANOPEN, "--port", "0"],
     "serial-sim": ["--config", str(ROOT / "config" / "serial_ascii_example.toml")],
+    "scope": ["record.csv"],
 }
 _ONE_OF = {"--tacc", "--amax", "--jmax"}          # move's and sweep's exclusive group
 

@@ -7,7 +7,8 @@ Layers, lowest first (a module may import its own layer and the layers below it,
 2. the backends (``hil.drivers``)
 3. the runtime core: simulator, cycle loop, runtime, supervisor, profiles, measurement files
 4. the applications: identification, jerk sweeps, frequency responses
-5. figures and reports
+5. figures and reports, the live scope's server and page (``hil.scope.server``; its ring buffer,
+   ``hil.scope.ring``, is of the runtime core: the cycle writes it)
 6. the command line
 
 Every import statement counts, at the top of a module or inside a function: an import inside a
@@ -31,9 +32,9 @@ LAYERS = {
     "hil": 1, "hil.config": 1, "hil.control": 1, "hil.plant_config": 1,
     "hil.drivers": 2,
     "hil.simulate": 3, "hil.loop": 3, "hil.runtime": 3, "hil.supervisor": 3, "hil.profiles": 3,
-    "hil.closed_loop": 3, "hil.analysis": 3, "hil.io": 3,
+    "hil.closed_loop": 3, "hil.analysis": 3, "hil.io": 3, "hil.scope": 3,
     "hil.ident": 4, "hil.sweep": 4, "hil.frf": 4,
-    "hil.plots": 5,
+    "hil.plots": 5, "hil.scope.server": 5,
     "hil.commands": 6, "hil.cli": 6,
 }
 

@@ -125,6 +125,11 @@ def add_arguments(p) -> None:
     p.add_argument("--check", action="store_true", help="check the move against the limits, do not run it")
     p.add_argument("--out", metavar="DIR", default="out/move", help="output folder for the record and the plot (default out/move)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--realtime", action="store_true",
+                   help="on the simulated plant's dry run: show it in the scope at real-time pace (the command takes "
+                        "the run's duration); the record is the same")
+    from hil.commands.scope import add_scope_options
+    add_scope_options(p)
 
 
 def build_trajectory(args, cfg) -> Trajectory:
@@ -164,10 +169,12 @@ def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:
 def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
+    from hil.commands.scope import parse_hold
     from hil.profiles import AxisLimits, LimitError, check_limits, check_sampled
     from hil.units import SI_UNIT, fmt, parse_bounded
     cfg = load_config(args)
     band = parse_bounded(args.band, "length", "--band", positive=True, maximum=1.0)   # before anything moves
+    scope_hold = parse_hold(args.scope_hold, "--scope-hold")
     if _no_move(cfg, parse_option(args.stroke, "length", "--stroke"), "--stroke", args.json):
         return 0
     traj = build_trajectory(args, cfg)
@@ -197,8 +204,20 @@ def run(args) -> int:
     from hil.errors import stop_exit_code, stop_kind
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rec = run_trajectory(cfg, traj, backend=backend, out_file=out / "move.csv", settle=0.0, check=False,
-                         start="check" if args.start else "follow")
+    ring = server = None
+    if args.scope:
+        from hil.commands.scope import start_scope
+        from hil.scope.ring import ScopeRing
+        ring = ScopeRing()
+        server = start_scope(ring, args.scope_port, f"hil move: {cfg.get('meta.name') or cfg.source}",
+                             "N m" if cfg.rotary else "N", "move")
+    try:
+        rec = run_trajectory(cfg, traj, backend=backend, out_file=out / "move.csv", settle=0.0, check=False,
+                             start="check" if args.start else "follow", scope=ring, realtime=args.realtime)
+    finally:
+        if server is not None:
+            from hil.commands.scope import hold
+            hold(server, scope_hold)
     ch = rec.channels
     if len(ch["t"]) < 2:
         raise UserError(f"the move did not start on {backend.name}: {rec.status}: {rec.reason}")

@@ -1,0 +1,173 @@
+"""The scope's ring buffer: what the real-time cycle writes and the scope's server reads.
+
+The cycle must never wait for the scope. So the buffer is preallocated (a float64 array of
+``capacity`` rows, one column per :data:`SCOPE_CHANNELS`), the cycle writes one row in place and
+advances a write counter (``count``, rows written since the start), and there is no lock: the
+reader copies a window and checks the counter before and after the copy (a seqlock on the row
+index). A row the writer may have overwritten during the copy (its slot reused by a row with
+written meanwhile) is dropped from the copy (:meth:`ScopeRing.window`),
+so the reader gets a consistent, contiguous run of rows, never a half-written one.
+
+Python's interpreter lock orders the writer's stores as they are written (the row first, then
+the counter), which is what the seqlock needs; a row is written through a memoryview of the
+array, element by element, so a write allocates nothing.
+
+Events (a trip, how the run ended) go into a second, preallocated table of ``(row index, time,
+kind code)`` and a list of reasons of the same fixed length (the reason string is made by the
+supervisor anyway; storing a reference allocates nothing), with its own counter.
+
+Channels, SI: ``t`` (s), ``x_cmd``, ``x_motor``, ``x_table``, ``x_tip`` (m; NaN where the backend
+has no tool-tip sensor), ``e_table``, ``e_tip`` (m, following errors), ``output`` (N m or N, the
+controller's output), ``speed`` (m/s, the motor's speed as a linear speed at the table) and
+``state`` (the supervisor's state, :data:`STATES`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["ScopeRing", "SCOPE_CHANNELS", "STATES", "EVENT_KINDS"]
+
+SCOPE_CHANNELS = ("t", "x_cmd", "x_motor", "x_table", "x_tip", "e_table", "e_tip", "output", "speed", "state")
+# the supervisor's state as a number in the ``state`` channel
+STATES = {"running": 0.0, "tripped": 1.0, "fault": 2.0, "aborted": 3.0, "complete": 4.0}
+# what an event is; an event's code is its index here
+EVENT_KINDS = ("trip", "fault", "aborted", "complete", "start")
+
+
+class ScopeRing:
+    """A fixed-size ring of the loop's signals, one writer (the cycle), any number of readers.
+
+    Parameters
+    ----------
+    capacity : int
+        Rows kept (default 2**16: 65 s of a 1 kHz position clock).
+    events : int
+        Events kept (trips, the run's end), the oldest overwritten.
+    """
+
+    def __init__(self, capacity: int = 1 << 16, events: int = 64):
+        if capacity < 2 or events < 1:
+            raise ValueError(f"scope ring: capacity {capacity} (at least 2), events {events} (at least 1)")
+        self.capacity = int(capacity)
+        self.n = len(SCOPE_CHANNELS)
+        self.data = np.full((self.capacity, self.n), np.nan)
+        self._flat = memoryview(self.data.reshape(-1))        # element stores without numpy temporaries
+        self.count = 0                                        # rows written since the start (the seqlock)
+        self.event_rows = np.zeros((events, 3))               # row index, time, kind code
+        self._event_flat = memoryview(self.event_rows.reshape(-1))
+        self.event_reasons: list[str] = [""] * events
+        self.event_count = 0
+        self.state = 0.0                                      # written into every row
+
+    # --- the writer (real-time) -------------------------------------------------------------------
+    def write(self, t, x_cmd, x_motor, x_table, x_tip, e_table, e_tip, output, speed) -> None:
+        """One row (real-time: stores into the preallocated array, then advances the counter)."""
+        f = self._flat
+        i = (self.count % self.capacity) * 10
+        f[i] = t
+        f[i + 1] = x_cmd
+        f[i + 2] = x_motor
+        f[i + 3] = x_table
+        f[i + 4] = x_tip
+        f[i + 5] = e_table
+        f[i + 6] = e_tip
+        f[i + 7] = output
+        f[i + 8] = speed
+        f[i + 9] = self.state
+        self.count += 1              # after the row: a reader that sees the new count sees the row
+
+    def event(self, t: float, kind: str, reason: str = "") -> None:
+        """An event at time ``t`` (s) of the last row written: a trip, a fault, the run's end
+        (real-time: no allocation; ``kind`` one of :data:`EVENT_KINDS`). A trip, fault or abort
+        also sets the state of the rows written after it."""
+        code = EVENT_KINDS.index(kind)
+        j = self.event_count % len(self.event_reasons)
+        self.event_reasons[j] = reason
+        f = self._event_flat
+        f[3 * j] = self.count - 1
+        f[3 * j + 1] = t
+        f[3 * j + 2] = code
+        self.event_count += 1
+        if kind in ("trip", "fault", "aborted"):
+            self.state = STATES["tripped" if kind == "trip" else kind]
+
+    # --- the reader (the server's thread) ---------------------------------------------------------
+    def window(self, since: int = 0, most: int | None = None) -> tuple[int, np.ndarray]:
+        """The rows with index ``>= since`` written so far (at most ``most``, the newest), as a copy:
+        ``(index of the first row returned, rows)``. Rows the writer overwrote during the copy are
+        dropped (the seqlock), so the rows are consistent and contiguous; at most ``capacity - 1``
+        rows (the oldest slot is the one the writer may be filling)."""
+        cap = self.capacity
+        before = self.count
+        first = max(since, before - cap, 0)
+        if most is not None:
+            first = max(first, before - most)
+        if first >= before:
+            return before, np.zeros((0, self.n))
+        slots = np.arange(first, before) % cap
+        rows = self.data[slots]                      # the copy (fancy indexing copies)
+        after = self.count
+        # the writer, meanwhile, wrote rows before..after-1 and may be writing row ``after``: their
+        # slots held rows after-cap .. after; those are no longer the rows we asked for
+        stale = after + 1 - cap
+        if stale > first:
+            rows = rows[stale - first:]
+            first = stale
+        return first, rows
+
+    def events(self, since: int = 0) -> tuple[int, list[tuple[int, float, str, str]]]:
+        """The events with index ``>= since``: ``(next index, [(row, t, kind, reason), ...])``."""
+        n = len(self.event_reasons)
+        end = self.event_count
+        out = []
+        for e in range(max(since, end - n), end):
+            j = e % n
+            row, t, code = self.event_rows[j]
+            out.append((int(row), float(t), EVENT_KINDS[int(code)], self.event_reasons[j]))
+        return end, out
+
+
+def feed(ring: ScopeRing, channels: dict, speed=None, status: str = "complete", reason: str = "",
+         pace: float | None = 1.0, stop=None, sleep=None) -> int:
+    """Write a computed or recorded run into ``ring`` row by row: the dry run on the simulated
+    plant (computed at once by the compiled loop, then shown as it would have run) and ``hil
+    scope RECORD.csv``.
+
+    ``channels``: the measurement-format channels (``t``, ``x_cmd``, ``x_motor``, ``x_table``,
+    ``x_tip``, ``e_table``, ``e_tip``, ``torque`` or ``command``); ``speed``: the motor's speed
+    (m/s) per row, default the derivative of ``x_motor``. ``pace``: how many seconds of the run per
+    second of wall time (1.0: real time; None: all at once). ``stop``: a
+    :class:`threading.Event` that ends it early. The run's end (``status``, ``reason``) becomes
+    the last row's event. Returns the rows written.
+    """
+    import time
+
+    t = np.asarray(channels["t"], float)
+    n = t.size
+    if n == 0:
+        return 0
+    out = channels["torque"] if "torque" in channels else channels.get("command", np.zeros(n))
+    if speed is None:
+        speed = np.gradient(channels["x_motor"], t) if n > 1 else np.zeros(n)
+    cols = [t, channels["x_cmd"], channels["x_motor"], channels["x_table"], channels.get("x_tip", channels["x_table"]),
+            channels["e_table"], channels["e_tip"], out, speed]
+    rows = np.column_stack([np.asarray(c, float) for c in cols]).tolist()
+    sleep = sleep or time.sleep
+    wall0 = time.perf_counter()
+    k = 0
+    while k < n:
+        if stop is not None and stop.is_set():
+            break
+        if pace is None:
+            due = n
+        else:
+            due = int(np.searchsorted(t, t[0] + (time.perf_counter() - wall0) * pace, side="right"))
+        for row in rows[k:max(due, k)]:
+            ring.write(*row)
+        k = max(due, k)
+        if k < n:
+            sleep(0.005)
+    if k >= n:
+        kind = {"tripped": "trip", "fault": "fault", "aborted": "aborted"}.get(status, "complete")
+        ring.event(float(t[-1]), kind, reason)
+    return k

@@ -1,0 +1,141 @@
+"""The live scope's server (issue 27): only 127.0.0.1, a per-run token, no foreign websocket
+origin, and the page's data source gets the record's values."""
+import threading
+import time
+import urllib.error
+import urllib.request
+
+import numpy as np
+import pytest
+from conftest import CONFIG
+
+from hil.io.measurement import read
+from hil.scope.ring import ScopeRing, feed
+from hil.scope.server import ScopeServer
+
+
+def _channels(n=3000, period=1e-3):
+    t = np.arange(n) * period
+    ch = {n: np.sin(2 * np.pi * (i + 1) * t) * 1e-3 for i, n in
+          enumerate(["x_cmd", "x_motor", "x_table", "x_tip", "e_table", "e_tip"])}
+    ch["torque"] = np.cos(t)
+    ch["t"] = t
+    return ch
+
+
+@pytest.fixture
+def served():
+    ring = ScopeRing()
+    feed(ring, _channels(), status="tripped", reason="following error 2.1 mm > 1 mm", pace=None)
+    server = ScopeServer(ring, period=0.02)
+    server.start()
+    yield server
+    server.stop()
+
+
+def _get(url):
+    try:
+        with urllib.request.urlopen(url, timeout=20) as r:
+            return r.status, r.read().decode()
+    except urllib.error.HTTPError as exc:
+        return exc.code, ""
+
+
+def _wait(cond, timeout=10.0):
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if cond():
+            return True
+        time.sleep(0.02)
+    return False
+
+
+def test_only_loopback_and_the_token(served):
+    assert served.url.startswith("http://127.0.0.1:")
+    base = served.url.split("?")[0]
+    assert _get(base)[0] == 403
+    assert _get(base + "?token=" + "x" * len(served.token))[0] == 403
+    assert not served.sessions                              # no page, no data for them
+    status, html = _get(served.url)
+    assert status == 200 and "bokeh" in html.lower()
+    assert "cdn.bokeh.org" not in html                      # BokehJS from the package: no network
+    assert _wait(lambda: served.sessions and len(served.sessions[0].source.data["t"]) > 0)
+
+
+def test_the_page_gets_the_rows_decimated_and_the_trip(served):
+    status, _ = _get(served.url)
+    assert status == 200
+    page = served.sessions[0]
+    assert _wait(lambda: len(page.events.data["t"]) == 1 and len(page.source.data["t"]) > 0)
+    t = np.asarray(page.source.data["t"])
+    # a 5 s window at 1 kHz is 5000 rows, at most 2000 points: every third row (of the 3000 there are)
+    assert page.stride == 3 and t.size == 1000 and np.allclose(np.diff(t), 3e-3)
+    ch = _channels()
+    np.testing.assert_allclose(page.source.data["x_table"], ch["x_table"][::3] * 1e3)     # mm
+    np.testing.assert_allclose(page.source.data["e_tip"], ch["e_tip"][::3] * 1e6)         # um
+    assert page.events.data["t"][0] == pytest.approx(2.999)
+    assert "following error 2.1 mm" in page.events.data["reason"][0]
+    assert "following error 2.1 mm" in page.trips.text
+
+
+def test_a_foreign_origin_is_refused_for_the_websocket(served):
+    """Bokeh's allow_websocket_origin: a websocket from another origin gets 403, the same
+    request from the page's own origin is let through to the session check."""
+    from tornado.httpclient import HTTPClientError, HTTPRequest
+    from tornado.ioloop import IOLoop
+    from tornado.websocket import websocket_connect
+    port = served.port
+    ws = f"ws://127.0.0.1:{port}/scope/ws"
+
+    async def attempt(origin):
+        req = HTTPRequest(ws, headers={"Origin": origin, "Sec-WebSocket-Protocol": "bokeh, nonsense"})
+        try:
+            conn = await websocket_connect(req)
+        except HTTPClientError as exc:
+            return exc.code
+        msg = await conn.read_message()     # the server closes a connection without a valid session
+        conn.close()
+        return msg
+    assert IOLoop(make_current=False).run_sync(lambda: attempt("http://evil.example:80")) == 403
+    assert IOLoop(make_current=False).run_sync(lambda: attempt(f"http://127.0.0.1:{port}")) is None
+
+
+def test_hil_scope_replays_a_record(tmp_path, monkeypatch, capsys):
+    """``hil scope RECORD.csv``: the page's data source gets the record's values."""
+    from hil.cli import main
+    from hil.commands import scope as scope_cmd
+    assert main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed",
+                 "7000mm/min", "--tacc", "200ms", "--dwell", "0.2s", "--out", str(tmp_path)]) == 0
+    record = tmp_path / "move.csv"
+    started = []
+    real_start = scope_cmd.start_scope
+    monkeypatch.setattr(scope_cmd, "start_scope", lambda *a, **k: started.append(real_start(*a, **k)) or started[-1])
+    rc = []
+    th = threading.Thread(target=lambda: rc.append(main(["scope", str(record), "--speed", "100", "--hold", "4s"])))
+    th.start()
+    try:
+        assert _wait(lambda: started)
+        server = started[0]
+        assert _get(server.url)[0] == 200
+        page = server.sessions[0]
+        m = read(record)
+        assert _wait(lambda: page.ring.events()[0] == 1
+                     and len(page.source.data["t"]) == len(m))
+        np.testing.assert_allclose(page.source.data["x_tip"], m["x_tip"] * 1e3)
+        np.testing.assert_allclose(page.source.data["output"], m["torque"])
+    finally:
+        th.join(30)
+    assert rc == [0]
+    assert "hil scope: scope at http://127.0.0.1:" in capsys.readouterr().err
+
+
+def test_bad_input_is_one_line(tmp_path, capsys):
+    from hil.cli import main
+    assert main(["scope", str(tmp_path / "none.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "none.csv" in err
+    assert main(["scope", str(tmp_path / "none.csv"), "--speed", "0"]) == 2
+    assert "--speed 0: expected a positive number" in capsys.readouterr().err
+    assert main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed", "7000mm/min",
+                 "--tacc", "200ms", "--scope", "--scope-port", "70000", "--out", str(tmp_path)]) == 2
+    assert "--scope-port 70000: expected a port" in capsys.readouterr().err
