@@ -22,6 +22,7 @@ import sys
 import time
 from pathlib import Path
 
+import can
 import numpy as np
 import pytest
 
@@ -448,3 +449,44 @@ def test_fuzz_frames_to_the_drive(fuzz_drive, frames):
 def test_fuzz_frames_to_the_drive_long(fuzz_drive, frames):
     with no_hang(30):
         _fuzz(fuzz_drive, frames)
+
+
+# -- the drive's process killed: python-can's threads hit a dead socket ------------------------------
+class _DeadBus(can.BusABC):
+    """A bus whose far end is gone: receiving and sending fail as python-can's socketcand client
+    does after the drive's process was killed."""
+
+    def __init__(self):
+        super().__init__(channel="dead")
+
+    def _recv_internal(self, timeout):
+        raise can.CanOperationError("Failed to receive: [Errno 104] Connection reset by peer")
+
+    def send(self, msg, timeout=None):
+        raise can.CanOperationError("[Errno 32] Broken pipe")
+
+
+def test_a_dead_link_under_the_library_threads_is_one_line_not_a_traceback(monkeypatch):
+    """The notifier's receive thread and the host heartbeat's send thread both met the dead socket
+    and died printing python-can's traceback (2 of 7 kills of the drive): the backend now takes
+    both errors as its one-line 'lost communication'."""
+    import threading
+
+    from hil.drivers.canopen.backend import _BusErrors
+    died = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: died.append(args.exc_value))
+    cfg, sim, be = rig(prefix="dead")
+    sim.close()
+    bus = _DeadBus()
+    try:
+        notifier = can.Notifier(bus, [_BusErrors(be)], timeout=0.01)
+        task = bus.send_periodic(can.Message(arbitration_id=0x77F, data=[5], is_extended_id=False), 0.01)
+        task.on_error = be._on_heartbeat_send_error
+        time.sleep(0.3)
+        notifier.stop()
+        task.stop()
+    finally:
+        bus.shutdown()
+    assert died == []
+    assert be._rx_error.startswith("lost communication: the CAN bus failed (") and "\n" not in be._rx_error
+    be.close()

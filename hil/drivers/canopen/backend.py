@@ -74,6 +74,20 @@ from hil.drivers.canopen import eds as eds_files
 from hil.errors import ConfigError
 from hil.plant_config import plant_from_config
 
+logger = logging.getLogger(__name__)
+
+
+class _OneLine(logging.Filter):
+    """python-can logs a failed periodic send with its traceback; the backend reports the fault in
+    one line itself, so the record keeps its message and drops the traceback."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        record.exc_info = record.exc_text = None
+        return True
+
+
+logging.getLogger("can.broadcastmanager").addFilter(_OneLine())
+
 __all__ = ["CanopenBackend", "SECTION"]
 
 TIP_PROFILE = 406            # 0x1000 bits 0..15 of the tip sensor node
@@ -234,6 +248,26 @@ class _AnswerEvent(threading.Event):
         return self.is_set()
 
 
+class _BusErrors(can.Listener):
+    """A listener of the notifier's thread that takes the bus's error: python-can's Notifier
+    re-raises an error no listener handles, and the thread dies printing its traceback (the
+    drive's process killed: ``ConnectionResetError`` under the socketcand client). Here it becomes
+    the backend's one-line ``lost communication`` (``Feedback.fault``) and a log line."""
+
+    def __init__(self, backend: "CanopenBackend"):
+        self.backend = backend
+
+    def on_message_received(self, msg) -> None:
+        pass
+
+    def on_error(self, exc: Exception) -> None:
+        be = self.backend
+        if not be._rx_error:
+            be._rx_error = f"lost communication: the CAN bus failed ({_one_line(exc)})"
+            be.events.append(f"cycle {be.syncs}: {be._rx_error}")
+        logger.warning("%s", be._rx_error)
+
+
 class CanopenBackend(Backend):
     name = "canopen"
     misses_answers = True         # a SYNC without its TPDO in time (Feedback.stale)
@@ -347,6 +381,11 @@ class CanopenBackend(Backend):
         if not self.lockstep:
             self._host_hb_task = self.network.send_periodic(0x700 + self.host_id, [0x05],
                                                             cfg.get("canopen.host_heartbeat", 0.1))
+            # python-can's send thread re-raises a failed send unless told otherwise, and dies with
+            # its traceback on the screen (the drive's process killed: a broken pipe)
+            task = getattr(self._host_hb_task, "_task", None)
+            if task is not None and hasattr(task, "on_error"):
+                task.on_error = self._on_heartbeat_send_error
         else:
             self._send_host_heartbeat()
         self._hb_last = self._now()
@@ -387,6 +426,12 @@ class CanopenBackend(Backend):
                 socket.setdefaulttimeout(old_timeout)
         else:
             self.network.connect()
+        # a bus that fails under the notifier's thread (the drive's end of the link gone: a reset
+        # connection) is this backend's fault to report in one line, not a thread's traceback
+        errors = _BusErrors(self)
+        self.network.listeners.append(errors)
+        if self.network.notifier is not None:
+            self.network.notifier.add_listener(errors)
         # hil --can-log FILE: python-can's logger on the bus, received and sent frames (hil.drivers.canopen.canlog)
         self._recorder = canlog.attach(self.network)
         self.node = self.network.add_node(self.node_id, self._od)
@@ -833,6 +878,12 @@ class CanopenBackend(Backend):
         if self._sync_sent:
             self.setpoint_latency.append(time.perf_counter() - self._sync_sent)
         self._send(0x200 + self.node_id, struct.pack(self._rpdo_fmt, self._cw, self._target))
+
+    def _on_heartbeat_send_error(self, exc: Exception) -> bool:
+        """The host's heartbeat could not be sent (python-can's send thread): the link's fault in
+        one line; False stops the task (the drive's heartbeat consumer then acts)."""
+        _BusErrors(self).on_error(exc)
+        return False
 
     def _send_host_heartbeat(self) -> None:
         self._send(0x700 + self.host_id, [0x05])
