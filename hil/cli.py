@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import difflib
+import errno
 import importlib
 import importlib.util
 import logging
@@ -136,6 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    if sys.stdout is None:        # started with stdout closed (>&-): the run goes on, its text goes nowhere
+        sys.stdout = open(os.devnull, "w")
     parser = build_parser()
     args = parser.parse_args(argv)
     setup_logging(args.log_level)
@@ -169,6 +172,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"hil {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        # a device that takes nothing more (stdout on /dev/full, a full disk): one line, not a
+        # traceback and exit 1 (the drive-fault code); what was recorded before stays on disk
+        if exc.errno not in (errno.ENOSPC, errno.EIO, errno.EDQUOT) or exc.filename is not None:
+            raise
+        _stdout_closed()
+        print(f"hil {args.command}: error: a write failed ({exc.strerror}): standard output or a file of the "
+              f"command; free space or write elsewhere (--out)", file=sys.stderr)
+        return 2
     finally:
         if args.can_log:
             from hil.drivers.canopen import canlog

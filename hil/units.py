@@ -215,7 +215,9 @@ def parse_option(value, kind: str, what: str) -> float:
     """
     text = _normalise(value) if isinstance(value, str) else value
     if kind != "dimensionless" and isinstance(text, str) and _BARE_NUMBER.fullmatch(text) and float(text) != 0.0:
-        raise UnitError(f"{what} {value}: a {kind.replace('_', ' ')} needs its unit ({option_units(kind)})")
+        noun = kind.replace("_", " ")
+        article = "an" if noun[0] in "aeiou" else "a"
+        raise UnitError(f"{what} {value}: {article} {noun} needs its unit ({option_units(kind)})")
     return parse(value, kind, what)
 
 

@@ -193,6 +193,35 @@ def test_compare_with_a_constant_tip_says_undefined(tmp_path, capsys):
     assert "fit undefined" in tip and "e+" not in tip.split("fit")[1].split("rel")[0]
 
 
+def test_compare_with_a_zero_tip_says_undefined_not_nan(tmp_path, capsys):
+    """The red-team re-run: an all-zero measured channel printed 'rel nan %' (its RMS is zero)."""
+    rec = _with_column(_record(tmp_path, capsys), tmp_path / "zero.csv", "x_tip", "0")
+    assert main(["compare", str(rec), "--config", BENCH, "--out", str(tmp_path / "c")]) == 0
+    tip = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("x_tip"))
+    assert "nan" not in tip and "rel undefined" in tip, tip
+
+
+def test_a_wide_record_is_read_in_linear_time(tmp_path):
+    """The red-team re-run: the header's duplicate check searched a list per column, so 100 000
+    columns took 53 s and 400 000 hung; 200 000 columns now read at once (the guard allows 60 s)."""
+    from hil.io.measurement import parse_text
+    n = 200_000
+    head = "t [s],x_cmd [mm]," + ",".join(f"c{i}" for i in range(n))
+    rows = "\n".join(",".join([str(k * 0.004), "0"] + ["0"] * n) for k in range(3))
+    import signal
+
+    def boom(*_):
+        raise KeyboardInterrupt("over 60 s: the header check is quadratic again")
+    old = signal.signal(signal.SIGALRM, boom)
+    signal.alarm(60)
+    try:
+        m = parse_text(head + "\n" + rows + "\n", "wide.csv")
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    assert len(m.channels) == n + 2 and m.channels["c199999"].size == 3
+
+
 # --- --map onto a column the file has ------------------------------------------------------------------------
 
 def test_a_map_replacing_a_files_column_warns_naming_both(tmp_path, capsys):
@@ -255,6 +284,29 @@ def test_a_closed_stdout_ends_cleanly_after_the_run(tmp_path):
     assert rc == STDOUT_CLOSED_EXIT == 141 and "Traceback" not in err and "BrokenPipe" not in err, err
     status = json.loads((tmp_path / "move.json").read_text())
     assert status["status"] == "complete" and status["rows"] > 100
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full on this system")
+def test_a_full_or_absent_stdout_is_one_line(tmp_path):
+    """The red-team re-run: stdout on /dev/full gave OSError [Errno 28] with a traceback and exit 1
+    (a drive fault's code), a closed stdout (>&-) an AttributeError. Now: one line and exit 2
+    after the recorded run, and a run with no stdout at all completes (exit 0)."""
+    code = "import sys; from hil.cli import main; sys.exit(main(sys.argv[1:]))"
+    import hil
+    here = str(Path(hil.__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([here, os.environ.get("PYTHONPATH", "")]))
+    argv = [sys.executable, "-c", code, "move", "--config", BENCH, "--stroke", "10mm", "--feed", "6000mm/min",
+            "--amax", "2m/s^2", "--dwell", "0.3s", "--out", str(tmp_path)]
+    with open("/dev/full", "w") as full:
+        r = subprocess.run(argv, stdout=full, stderr=subprocess.PIPE, text=True, cwd=tmp_path, env=env, timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.strip().count("\n") == 0 and "No space left on device" in r.stderr
+    assert json.loads((tmp_path / "move.json").read_text())["status"] == "complete"
+    r = subprocess.run(argv[:-1] + [str(tmp_path / "closed")], stdout=None, stderr=subprocess.PIPE, text=True,
+                       cwd=tmp_path, env=env, timeout=120, pass_fds=(), close_fds=True,
+                       preexec_fn=lambda: os.close(1))
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+    assert json.loads((tmp_path / "closed" / "move.json").read_text())["status"] == "complete"
 
 
 # --- hil model with an overdamped mode ---------------------------------------------------------------------------

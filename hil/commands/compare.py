@@ -214,9 +214,14 @@ def run(args) -> int:
             e = b["channels"][c] if b else None
             u = d["unit"]
             line = (f"{c:8s} RMS {fmt_si(d['rms'], u):>10s}  peak {fmt_si(d['peak'], u):>10s}  fit {fmt_fit(d['fit'])}  "
-                    f"rel {d['relative_error']:.4g} %")
+                    f"rel {_rel(d['relative_error'])}")
             if e:
-                line += f"   after: RMS {fmt_si(e['rms'], u)}  fit {fmt_fit(e['fit'])}  rel {e['relative_error']:.4g} %"
+                line += f"   after: RMS {fmt_si(e['rms'], u)}  fit {fmt_fit(e['fit'])}  rel {_rel(e['relative_error'])}"
             print(line)
         print(f"report: {rep}")
     return 0
+
+
+def _rel(value) -> str:
+    """A relative error in the text: undefined (a measured channel of zero RMS) says so, not 'nan %'."""
+    return "undefined" if value is None or value != value else f"{value:.4g} %"
