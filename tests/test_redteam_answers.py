@@ -109,7 +109,7 @@ def test_a_dry_run_trip_does_not_point_at_a_latch(tmp_path, capsys, state_dir):
 
 # --- hil fit on an frf.json: lines validated -------------------------------------------------------------
 
-def _frf_json(path: Path, f=None, scale: float = 1.0) -> Path:
+def _frf_json(path: Path, f=None, scale: float = 1.0, phase: float | None = None) -> Path:
     """An frf.json in the format 'hil frf' writes, the paper bench's own model responses."""
     from hil.control import controller_from_config
     from hil.frf.model import model_responses
@@ -122,19 +122,22 @@ def _frf_json(path: Path, f=None, scale: float = 1.0) -> Path:
     for name in ("TF1p", "TF2"):
         h = model_responses(plant, ctrl, np.abs(f), tip_measured=False)[name] * scale
         resp[name] = {"frequency_hz": list(map(float, f)), "magnitude": list(map(float, np.abs(h))),
-                      "phase_deg": list(map(float, np.degrees(np.angle(h)))), "coherence": [1.0] * f.size,
+                      "phase_deg": list(map(float, np.degrees(np.angle(h)) if phase is None else np.full(f.size, phase))),
+                      "coherence": [1.0] * f.size,
                       "magnitude_std": list(map(float, 0.01 * np.abs(h))), "derived": False}
     path.write_text(json.dumps({"responses": resp}))
     return path
 
 
 @pytest.mark.parametrize("case, key", [("negative", "frequency_hz"), ("huge", "magnitude"), ("scale", "magnitude"),
-                                       ("descending", "frequency_hz")])
+                                       ("descending", "frequency_hz"), ("phase", "phase_deg")])
 def test_fit_refuses_an_frf_file_that_is_no_measurement(case, key, tmp_path, capsys):
-    """Before: negative frequencies fitted c2 = 10.45 N s/m, magnitudes of 1e300 c2 = 8.4e6."""
+    """Before: negative frequencies fitted c2 = 10.45 N s/m, magnitudes of 1e300 c2 = 8.4e6, phases
+    of 1e300 deg c2 = 65 (the model's 11.80)."""
     f = np.geomspace(2.0, 200.0, 120)
     path = {"negative": lambda p: _frf_json(p, f=-f), "huge": lambda p: _frf_json(p, scale=1e300),
-            "scale": lambda p: _frf_json(p, scale=1e9), "descending": lambda p: _frf_json(p, f=f[::-1])}[case](
+            "scale": lambda p: _frf_json(p, scale=1e9), "descending": lambda p: _frf_json(p, f=f[::-1]),
+            "phase": lambda p: _frf_json(p, phase=1e300)}[case](
         tmp_path / "frf.json")
     err = _one_line_error(capsys, ["fit", str(path), "--config", BENCH, "--add", "parameter:plant.c2", "--out",
                                    str(tmp_path / "fitted.toml")], str(path), f"responses.TF1p.{key}")

@@ -59,16 +59,20 @@ MAG_RANGE = (1e-30, 1e30)
 # the largest median factor between a response and the start model's at the same lines: more is
 # another axis or other units, not something a fit of one effect can explain
 MAX_MODEL_FACTOR = 1e6
+# the largest |phase| of an unwrapped response: a 10 ms delay at 1 kHz is 3600 deg, 1e5 deg is
+# 278 turns; more is not a measurement (the red-team re-run: 1e300 deg fitted c2 = 65 for 11.8)
+PHASE_LIMIT_DEG = 1e5
 
 
 def _check_lines(where: str, f, mag, ph, coh, std) -> None:
     """One clear line for a response's lists that are not a measurement: the frequencies positive,
     finite and ascending (negative ones fitted c2 = 10.45), magnitudes positive and finite within
-    :data:`MAG_RANGE`, phases finite, coherence 0..1, standard deviations finite and >= 0."""
+    :data:`MAG_RANGE`, phases finite within :data:`PHASE_LIMIT_DEG`, coherence 0..1, standard deviations finite and >= 0."""
     checks = (("frequency_hz", f, ~(np.isfinite(f) & (f > 0)), "positive finite frequencies in Hz"),
               ("magnitude", mag, ~(np.isfinite(mag) & (mag >= MAG_RANGE[0]) & (mag <= MAG_RANGE[1])),
                f"positive finite magnitudes within {MAG_RANGE[0]:g} .. {MAG_RANGE[1]:g}"),
-              ("phase_deg", ph, ~np.isfinite(ph), "finite phases"),
+              ("phase_deg", ph, ~(np.isfinite(ph) & (np.abs(ph) <= PHASE_LIMIT_DEG)),
+               f"finite phases within +-{PHASE_LIMIT_DEG:g} deg"),
               ("coherence", coh, ~(np.isfinite(coh) & (coh >= 0) & (coh <= 1)), "a coherence 0 .. 1"),
               ("magnitude_std", std, ~(np.isfinite(std) & (std >= 0)), "finite standard deviations >= 0"))
     for key, v, bad, what in checks:
