@@ -439,7 +439,7 @@ def test_a_bare_number_is_refused_naming_the_units(command, option, bare, has_ou
     err = capsys.readouterr().err.strip()
     first = bare.split(",")[0].split("..")[0]
     assert rc == 2 and "\n" not in err, err
-    assert f"{option} {first}: a " in err and "needs its unit (" in err, err
+    assert (f"{option} {first}: a " in err or f"{option} {first}: an " in err) and "needs its unit (" in err, err
     assert not out.exists()
 
 

@@ -479,14 +479,23 @@ def test_a_dead_link_under_the_library_threads_is_one_line_not_a_traceback(monke
     sim.close()
     bus = _DeadBus()
     try:
-        notifier = can.Notifier(bus, [_BusErrors(be)], timeout=0.01)
-        task = bus.send_periodic(can.Message(arbitration_id=0x77F, data=[5], is_extended_id=False), 0.01)
+        errors = _BusErrors(be)
+        notifier = can.Notifier(bus, [errors], timeout=0.01)
+        task = bus.send_periodic(can.Message(arbitration_id=0x77F, data=[5], is_extended_id=False), 0.01,
+                                 autostart=False)
         task.on_error = be._on_heartbeat_send_error
-        time.sleep(0.3)
+        task.start()
+        calls = []
+        errors_on_error = errors.on_error
+        errors.on_error = lambda exc: (calls.append(exc), errors_on_error(exc))
+        time.sleep(0.5)
         notifier.stop()
         task.stop()
     finally:
         bus.shutdown()
     assert died == []
+    # the dead socket fails at once on every receive: the notifier's thread must not spin on it
+    # (it logged 24 000 lines in one test run): at most one error per IDLE_AFTER_ERROR, plus the first
+    assert len(calls) <= 0.5 / _BusErrors.IDLE_AFTER_ERROR + 2, len(calls)
     assert be._rx_error.startswith("lost communication: the CAN bus failed (") and "\n" not in be._rx_error
     be.close()

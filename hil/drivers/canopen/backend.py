@@ -254,13 +254,23 @@ class _BusErrors(can.Listener):
     drive's process killed: ``ConnectionResetError`` under the socketcand client). Here it becomes
     the backend's one-line ``lost communication`` (``Feedback.fault``) and a log line."""
 
+    # python-can's notifier goes on receiving after a handled error, and a dead socket fails at
+    # once: the thread waits this long per further error instead of spinning on it (until the
+    # backend stops the notifier at close)
+    IDLE_AFTER_ERROR = 0.1
+
     def __init__(self, backend: "CanopenBackend"):
         self.backend = backend
+        self.failed = False
 
     def on_message_received(self, msg) -> None:
         pass
 
     def on_error(self, exc: Exception) -> None:
+        if self.failed:
+            time.sleep(self.IDLE_AFTER_ERROR)
+            return
+        self.failed = True
         be = self.backend
         if not be._rx_error:
             be._rx_error = f"lost communication: the CAN bus failed ({_one_line(exc)})"
