@@ -5,13 +5,12 @@ exit 2 at the command line), never a traceback, and never hang.
 Bounded: a fixed number of examples per property (``derandomize``: the same examples every run),
 the whole file well under a minute in CI."""
 import math
-import signal
-from contextlib import contextmanager
 
 import numpy as np
 import pytest
 import scipy.io
 from conftest import CONFIG
+from hang_guard import no_hang
 
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
@@ -27,25 +26,6 @@ FAST = settings(max_examples=150, deadline=2000, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 SLOW = settings(max_examples=25, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-
-
-class Hang(BaseException):
-    """No answer in time: a BaseException, so that no ``except Exception`` of the code under test
-    (pint's, the unit parser's) turns it into an ordinary one-line error and hides the hang."""
-
-
-@contextmanager
-def no_hang(seconds: int):
-    """Fail an example that takes longer than ``seconds`` (a hang), by SIGALRM."""
-    def boom(*_):
-        raise Hang(f"no answer within {seconds} s (a hang)")
-    old = signal.signal(signal.SIGALRM, boom)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 NUMBERS = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**30, 10**30),

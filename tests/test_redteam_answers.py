@@ -8,16 +8,15 @@ and exit 2, a documented stop its exit code, and nothing else."""
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.io
 from conftest import CONFIG
+from hang_guard import no_hang
 
 from hil.cli import main
 from hil.config import load
@@ -211,17 +210,8 @@ def test_a_wide_record_is_read_in_linear_time(tmp_path):
     n = 200_000
     head = "t [s],x_cmd [mm]," + ",".join(f"c{i}" for i in range(n))
     rows = "\n".join(",".join([str(k * 0.004), "0"] + ["0"] * n) for k in range(3))
-    import signal
-
-    def boom(*_):
-        raise KeyboardInterrupt("over 60 s: the header check is quadratic again")
-    old = signal.signal(signal.SIGALRM, boom)
-    signal.alarm(60)
-    try:
+    with no_hang(60):                    # the header check quadratic again
         m = parse_text(head + "\n" + rows + "\n", "wide.csv")
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
     assert len(m.channels) == n + 2 and m.channels["c199999"].size == 3
 
 
@@ -348,19 +338,6 @@ from hypothesis import strategies as st  # noqa: E402
 DEFAULT_EXAMPLES = {"move": 8, "sweep": 3, "frf": 8, "model": 6, "synth": 6}
 LONG = settings(max_examples=150, deadline=None, derandomize=True,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
-
-
-@contextmanager
-def no_hang(seconds: int):
-    def boom(*_):
-        raise AssertionError(f"no answer within {seconds} s (a hang)")
-    old = signal.signal(signal.SIGALRM, boom)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 NUMBER = st.one_of(st.sampled_from(["0", "-0", "-1", "1e300", "-1e300", "1e-300", "nan", "inf", "-inf", "1e999",

@@ -28,6 +28,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from canopen_rig import rig  # noqa: E402
+from hang_guard import no_hang  # noqa: E402
 
 from hil.drivers.base import Setpoint  # noqa: E402
 from hil.io.measurement import read as read_measurement  # noqa: E402
@@ -355,7 +356,6 @@ def test_can_log_refuses_a_symbolic_link(tmp_path):
 
 
 # -- 6. a fuzzer of CAN frames sent to the simulated drive ----------------------------------------------
-from contextlib import contextmanager  # noqa: E402
 
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
@@ -372,19 +372,6 @@ ENABLING = [(0x000, bytes([1, 1])), (0x201, bytes([6, 0, 0, 0, 0, 0])), (0x201, 
             (0x201, bytes([0x0F, 0, 0, 0, 0, 0]))]
 FRAMES = st.lists(st.one_of(FRAME, st.sampled_from(ENABLING), st.tuples(st.just(0x080), st.binary(min_size=0, max_size=2))),
                   min_size=1, max_size=40)
-
-
-@contextmanager
-def no_hang(seconds: int):
-    def boom(*_):
-        raise AssertionError(f"no answer within {seconds} s (a hang)")
-    old = signal.signal(signal.SIGALRM, boom)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 @pytest.fixture(scope="module")

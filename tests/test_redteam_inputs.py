@@ -14,14 +14,13 @@ from __future__ import annotations
 import importlib
 import math
 import os
-import signal
 import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import CONFIG
+from hang_guard import no_hang
 
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
@@ -35,25 +34,6 @@ from hil.units import DIMENSIONS, parse  # noqa: E402
 BENCH = CONFIG / "paper_bench.toml"
 BENCH_TEXT = BENCH.read_text(encoding="utf-8")
 MOVE = ["--feed", "7000mm/min", "--tacc", "200ms", "--check"]
-
-
-class Hang(BaseException):
-    """No answer in time: a BaseException, so that no ``except Exception`` of the code under test
-    (pint's, the unit parser's) turns it into an ordinary error."""
-
-
-@contextmanager
-def no_hang(seconds: int):
-    """Fail what takes longer than ``seconds`` (a hang), by SIGALRM."""
-    def boom(*_):
-        raise Hang(f"no answer within {seconds} s (a hang)")
-    old = signal.signal(signal.SIGALRM, boom)
-    signal.alarm(seconds)
-    try:
-        yield
-    finally:
-        signal.alarm(0)
-        signal.signal(signal.SIGALRM, old)
 
 
 def one_line_error(capsys, argv, seconds=10) -> str:

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from hang_guard import no_hang
 
 from hil.cli import main
 from hil.config import load, loads
@@ -302,25 +303,6 @@ FUZZ_LONG = settings(max_examples=3000, deadline=None, derandomize=True,
                      suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
 
 
-def _no_hang(seconds: int):
-    """Fail an example that takes longer than ``seconds`` (a hang), by SIGALRM."""
-    import signal
-    from contextlib import contextmanager
-
-    @contextmanager
-    def guard():
-        def boom(*_):
-            raise AssertionError(f"no answer within {seconds} s (a hang)")
-        old = signal.signal(signal.SIGALRM, boom)
-        signal.alarm(seconds)
-        try:
-            yield
-        finally:
-            signal.alarm(0)
-            signal.signal(signal.SIGALRM, old)
-    return guard()
-
-
 class _ScriptedPort:
     """A serial port whose drive answers from a script: ``answer(command_line) -> bytes``. What
     the backend writes is kept, so that every line sent can be checked."""
@@ -424,7 +406,7 @@ def test_fuzz_serial_replies_into_the_backend(checksum, replies, eol, target):
         return raw + eol
 
     b, port = _scripted_backend(cfg, answer)
-    with _no_hang(5):
+    with no_hang(5):
         fb = b.read_feedback()
         assert isinstance(fb, Feedback)
         if not fb.fault:
@@ -477,7 +459,7 @@ def test_fuzz_serial_configuration_values(changes, value):
     from hil.drivers.serial.backend import SerialBackend
     from hil.drivers.serial.protocol import VALUE_FIELD
     cfg = _serial_config("xor8")
-    with _no_hang(5):
+    with no_hang(5):
         try:
             b = SerialBackend(cfg.with_values(dict(changes), source="fuzz.toml"), port="loop://")
         except HilError as exc:
