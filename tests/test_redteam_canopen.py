@@ -54,16 +54,8 @@ def _env(tmp_path) -> dict:
 def _quick_stop_distance(speed: float) -> float:
     """How far the simulated drive's quick stop carries the motor from ``speed``, measured by a
     second method: the lockstep drive in this process, a quick stop commanded at that speed."""
-    cfg, sim, be = rig(prefix="qsd")
+    cfg, sim, be = _moving_rig("qsd", speed)
     try:
-        be.open()
-        be.enable()
-        pos, T = be.read_feedback().x_motor, be.cycle_time
-        for k in range(150):
-            be.read_feedback()
-            pos += min(speed, 2.0 * k * T) * T
-            be.write_setpoint(Setpoint(position=pos))
-            be.sync()
         x0 = float(sim.plant.x[0])
         be.quick_stop()
         be.disable()
