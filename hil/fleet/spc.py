@@ -1,0 +1,210 @@
+"""Statistical process control of a fleet: every record judged against its own axis's history.
+
+Pure functions on plain lists (no I/O), so that each rule is tested on a series with a known answer.
+
+Conventions: a *series* is one tracked parameter of one axis (``backlash.gap``), its records in
+time order: ``values`` (SI), ``stderrs`` (the fit's standard error of each value, SI; NaN or None:
+none) and ``dates`` (text, ISO 8601 as the manifest gives them).
+
+Control limits (:func:`control_limits`) come from the axis's *baseline* records (the first
+``n_baseline``, or those the manifest names): the centre is their mean; the spread is the
+night-to-night scatter of a healthy axis, which is far larger than one fit's standard error
+(parameters move by about a percent with temperature and load), so it is the larger of the
+baseline's sample standard deviation and ``scatter`` x |centre|. Each record's own standard error
+is added in quadrature: sigma_i = sqrt(s^2 + se_i^2). A record is out of control when
+|x_i - centre| > k sigma_i (Shewhart, k = 3 by default) or when a one-sided CUSUM of
+z_i = (x_i - centre) / sigma_i (reference 0.5, decision interval 4, either side) alarms (a slow
+drift crosses the CUSUM's interval before it leaves 3 sigma). The date it *first moved* is the
+CUSUM's change-point estimate: the record after the last one where the alarming side's sum was
+zero before the first alarm (Montgomery, Introduction to Statistical Quality Control, 9.1).
+
+A physical threshold (``backlash.gap > 10um``) flags a record whose value is beyond it, whatever
+its history says.
+
+An effect that the diagnosis chain names on every baseline record is the axis's *normal*
+(:func:`normal_effects`); only an effect named later and not in the normal is a finding.
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+from hil.errors import ConfigError
+
+__all__ = ["Limits", "Threshold", "control_limits", "judge_series", "parse_threshold", "normal_effects",
+           "K_SIGMA", "CUSUM_K", "CUSUM_H", "SCATTER"]
+
+K_SIGMA = 3.0          # Shewhart limits: centre +- 3 sigma
+CUSUM_K = 0.5          # CUSUM reference value (in sigma): detects a shift of about 1 sigma
+CUSUM_H = 4.0          # CUSUM decision interval (in sigma)
+SCATTER = 0.01         # the least night-to-night scatter of a healthy axis, relative to the centre
+
+
+@dataclass
+class Limits:
+    """The control limits of one series: centre and the baseline's spread ``sigma`` (SI), before
+    each record's own standard error is added."""
+    centre: float
+    sigma: float
+    n_baseline: int
+
+    def band(self, stderr: float | None = None, k: float = K_SIGMA) -> tuple[float, float]:
+        """(lower, upper) limit for a record with standard error ``stderr``."""
+        s = self.sigma_for(stderr)
+        return self.centre - k * s, self.centre + k * s
+
+    def sigma_for(self, stderr: float | None) -> float:
+        se = stderr if stderr is not None and math.isfinite(stderr) else 0.0
+        return math.sqrt(self.sigma ** 2 + se ** 2)
+
+
+@dataclass
+class Threshold:
+    """A physical limit on a tracked parameter: ``name`` (``effect.param``), ``op`` ``>`` or ``<``,
+    ``value`` (SI) and the text as written."""
+    name: str
+    op: str
+    value: float
+    text: str
+
+    def crossed(self, x: float) -> bool:
+        return x > self.value if self.op == ">" else x < self.value
+
+
+@dataclass
+class SeriesJudgement:
+    """What :func:`judge_series` finds: per record, ``status`` ("baseline", "ok", "out", "threshold")
+    and the band; ``flagged`` and ``first_moved`` (index) when the series left its limits."""
+    limits: Limits
+    status: list[str]
+    lower: list[float]
+    upper: list[float]
+    flagged: bool = False
+    first_moved: int | None = None
+    first_alarm: int | None = None
+    threshold_first: int | None = None
+    reasons: list[str] = field(default_factory=list)
+
+
+def _finite(x) -> bool:
+    return x is not None and isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def control_limits(values: list[float], scatter: float = SCATTER) -> Limits:
+    """The limits from the baseline ``values``: centre = mean, sigma = max(sample standard
+    deviation (n - 1), scatter * |centre|); NaN (a fit without a value) left out."""
+    vals = [float(v) for v in values if _finite(v)]
+    if not vals:
+        raise ValueError("no baseline value to set control limits from")
+    n = len(vals)
+    centre = sum(vals) / n
+    sd = math.sqrt(sum((v - centre) ** 2 for v in vals) / (n - 1)) if n > 1 else 0.0
+    return Limits(centre, max(sd, scatter * abs(centre)), n)
+
+
+def cusum_alarm(z: list[float], k: float = CUSUM_K, h: float = CUSUM_H) -> tuple[int | None, int | None]:
+    """Tabular CUSUM of standardised deviations ``z`` on both sides: (index of the first alarm,
+    change-point estimate: the record after the alarming side's last zero), or (None, None)."""
+    hi = lo = 0.0
+    last_hi = last_lo = -1
+    for i, zi in enumerate(z):
+        if not _finite(zi):
+            continue
+        hi = max(0.0, hi + zi - k)
+        lo = max(0.0, lo - zi - k)
+        if hi == 0.0:
+            last_hi = i
+        if lo == 0.0:
+            last_lo = i
+        if hi > h:
+            return i, last_hi + 1
+        if lo > h:
+            return i, last_lo + 1
+    return None, None
+
+
+def judge_series(values: list[float], stderrs: list[float | None], baseline: list[int],
+                 threshold: Threshold | None = None, scatter: float = SCATTER, k: float = K_SIGMA) -> SeriesJudgement:
+    """Judge one series (time order) against the limits of its ``baseline`` indices.
+
+    A record after the baseline is ``out`` when it is beyond centre +- k sigma_i; the series is
+    flagged when a record is out or the CUSUM alarms after the baseline; ``first_moved`` is the
+    earliest of the CUSUM's change-point estimate and the first record out (never a baseline
+    record). ``threshold`` flags any record beyond it (``threshold_first``).
+    """
+    lim = control_limits([values[i] for i in baseline], scatter)
+    status, lower, upper, z = [], [], [], []
+    first_out = None
+    base = set(baseline)
+    after = max(baseline) + 1 if baseline else 0
+    for i, (x, se) in enumerate(zip(values, stderrs)):
+        lo, hi = lim.band(se, k)
+        lower.append(lo)
+        upper.append(hi)
+        s = lim.sigma_for(se)
+        z.append((x - lim.centre) / s if _finite(x) and s > 0 else float("nan"))
+        if i in base:
+            status.append("baseline")
+        elif _finite(x) and not lo <= x <= hi:
+            status.append("out")
+            if first_out is None and i >= after:
+                first_out = i
+        else:
+            status.append("ok")
+    out = SeriesJudgement(lim, status, lower, upper)
+    # the CUSUM runs from the end of the baseline: the baseline defines zero
+    alarm, moved = cusum_alarm(z[after:], k=CUSUM_K, h=CUSUM_H)
+    alarm = None if alarm is None else alarm + after
+    moved = None if moved is None else moved + after
+    if first_out is not None or alarm is not None:
+        out.flagged = True
+        out.first_alarm = min(i for i in (first_out, alarm) if i is not None)
+        out.first_moved = min(i for i in (first_out, moved) if i is not None)
+        out.reasons.append("left its control limits")
+    if threshold is not None:
+        for i, x in enumerate(values):
+            if _finite(x) and threshold.crossed(x):
+                status[i] = "threshold"
+                out.threshold_first = i if out.threshold_first is None else out.threshold_first
+        if out.threshold_first is not None:
+            out.flagged = True
+            out.first_moved = out.threshold_first if out.first_moved is None else min(out.first_moved,
+                                                                                      out.threshold_first)
+            out.reasons.append(f"beyond {threshold.text}")
+    return out
+
+
+_THRESHOLD = re.compile(r"^\s*([A-Za-z_][\w:.]*)\s*([<>])\s*(.+?)\s*$")
+
+
+def parse_threshold(text: str, kinds: dict[str, str], where: str) -> Threshold:
+    """``"backlash.gap > 10um"`` (or ``"backlash > 10um"``: the effect's first parameter) as a
+    :class:`Threshold`; ``kinds`` maps every tracked ``effect.param`` to its unit kind (hil.units).
+    A name not tracked, a comparison other than > or <, or a value without its unit is refused
+    naming ``where``."""
+    from hil.units import DIMENSIONS, UnitError, parse_option
+    m = _THRESHOLD.match(text)
+    if not m:
+        raise ConfigError(f"{where}: {text!r}: expected 'effect.parameter > value' or '< value', e.g. "
+                          f"'backlash.gap > 10um'")
+    name, op, value = m.groups()
+    if name not in kinds:
+        firsts = {k.split(".", 1)[0]: k for k in reversed(list(kinds))}
+        if name in firsts:
+            name = firsts[name]
+        else:
+            raise ConfigError(f"{where}: {text!r}: {name} is not a tracked parameter (tracked: "
+                              f"{', '.join(kinds) or 'none'})")
+    kind = kinds[name]
+    try:
+        v = parse_option(value, kind if kind in DIMENSIONS else "dimensionless", f"{where} {name}")
+    except UnitError as exc:
+        raise ConfigError(str(exc)) from None
+    return Threshold(name, op, float(v), text.strip())
+
+
+def normal_effects(named: list[set[str]], baseline: list[int]) -> set[str]:
+    """The effects the chain names on every baseline record of an axis (its normal)."""
+    sets = [named[i] for i in baseline if i < len(named)]
+    return set.intersection(*sets) if sets else set()
