@@ -147,7 +147,7 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
             d = diagnose_chain(rp, cands, max_steps=settings.max_steps, jobs=1, fit_nfev=settings.fit_nfev)
             named = [e for s in d["chain"] for e in s["effects"]]
             fig.update(verdict=d["verdict"], named=named, end=d["final"]["end"],
-                       error=d["final"]["error"], noise_floor=d["final"]["noise_floor"],
+                       final_error=d["final"]["error"], noise_floor=d["final"]["noise_floor"],
                        above_floor=d["final"]["above_floor"], at_noise_floor=bool(d["final"]["at_noise_floor"]),
                        chain=[{"step": s["step"], "effects": s["effects"], "params": s["params"],
                                "score": s["score"]} for s in d["chain"]])
