@@ -91,10 +91,11 @@ def trend_svg(name: str, dates: list[str], p: dict, kind: str) -> str:
 
 def _page(title: str, body: str) -> str:
     import hil
-    stamp = _dt.datetime.now().strftime("%Y-%m-%d %H:%M")
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     return (f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
             f"<style>{CSS}</style></head><body><h1 id=\"title\">{html.escape(title)}</h1>{body}"
-            f"<p><small>hil {html.escape(str(getattr(hil, '__version__', '')))}, {stamp}</small></p></body></html>\n")
+            f"<p><small>hil version {html.escape(str(getattr(hil, '__version__', '')))}, date {stamp}</small></p>"
+            f"</body></html>\n")
 
 
 def _record_page(e: dict, fig: dict, kinds: dict) -> str:

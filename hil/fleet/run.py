@@ -220,7 +220,9 @@ class DaskExecutor:
         futs = [self.client.submit(diagnose_record, *it, key=f"fleet-{hashlib.sha1(it[0].encode()).hexdigest()}",
                                    pure=False) for it in items]
         try:
-            for fut in das_completed(futs):
+            with self.client.as_current():
+                done = das_completed(futs)
+            for fut in done:
                 yield fut.result()
         finally:
             for f in futs:

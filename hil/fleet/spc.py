@@ -175,7 +175,7 @@ def judge_series(values: list[float], stderrs: list[float | None], baseline: lis
     return out
 
 
-_THRESHOLD = re.compile(r"^\s*([A-Za-z_][\w:.]*)\s*([<>])\s*(.+?)\s*$")
+_THRESHOLD = re.compile(r"^\s*([A-Za-z_][\w:.]*)\s*([<>])(?!=)\s*([^<>=]+?)\s*$")
 
 
 def parse_threshold(text: str, kinds: dict[str, str], where: str) -> Threshold:
