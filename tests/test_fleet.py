@@ -24,7 +24,7 @@ from conftest import CONFIG
 from hil.cli import main
 from hil.errors import ConfigError
 from hil.fleet.manifest import read_manifest
-from hil.fleet.spc import control_limits, cusum_alarm, judge_series, normal_effects, parse_threshold
+from hil.fleet.spc import change_point, control_limits, cusum_alarm, judge_series, normal_effects, parse_threshold
 
 BENCH = str(CONFIG / "paper_bench.toml")
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
@@ -56,6 +56,16 @@ def test_a_slow_ramp_is_dated_by_the_cusum_before_it_leaves_three_sigma():
     assert cusum_alarm([0.0] * 5 + [1.0, 2.0, 3.0, 4.0, 5.0]) == (7, 5)
     j = judge_series(vals, [None] * len(vals), [0, 1, 2])
     assert j.flagged and j.first_moved == 5 and j.first_alarm == 7
+
+
+def test_a_step_after_a_night_that_lay_high_is_dated_at_the_step():
+    """The CUSUM's own estimate (the record after its last zero) would date it a week early: the
+    night before the step lay 1.3 sigma high by chance; the least-squares change point does not."""
+    vals = [1.0, 1.0, 1.0, 1.013, 1.4, 1.41]
+    assert cusum_alarm([(v - 1.0) / 0.01 for v in vals[3:]])[1] == 0         # i.e. record 3
+    j = judge_series(vals, [None] * len(vals), [0, 1, 2])
+    assert j.flagged and j.first_alarm == 4 and j.first_moved == 4
+    assert change_point([0, 0, 0, 1.3, 40.0, 41.0], 3, 4) == 4
 
 
 def test_a_steady_axis_with_its_scatter_is_not_flagged():

@@ -24,7 +24,8 @@ torque on a rotary axis, a command in V or a force in N on a linear one); with -
 pulses are the actuator's whole command (torque steps), no position loop.
 
 --fleet SPEC.toml: a fleet with a known answer (hil.fleet.synth: axes, dates, effects, drifts),
-written to the folder --out with its manifest.csv and truth.json (for hil fleet).
+written to the folder --out with its manifest.csv and truth.json (for hil fleet); --fleet example:
+the tutorial's (docs/tutorials/fleet.md).
 """
 
 
@@ -84,7 +85,8 @@ def _fleet(args) -> int:
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
     spec = read_spec(args.fleet, cfg)
     _check_times(spec["duration"], spec["sample_period"])
-    synthesize_fleet(cfg, spec, args.out, args.config, inputs=(args.config, args.fleet))
+    synthesize_fleet(cfg, spec, args.out, args.config, inputs=(args.config,) + (() if args.fleet == "example" else
+                                                                               (args.fleet,)))
     n = len(spec["axes"]) * len(spec["dates"])
     manifest = str(Path(args.out) / "manifest.csv")
     if args.json:

@@ -14,9 +14,12 @@ baseline's sample standard deviation and ``scatter`` x |centre|. Each record's o
 is added in quadrature: sigma_i = sqrt(s^2 + se_i^2). A record is out of control when
 |x_i - centre| > k sigma_i (Shewhart, k = 3 by default) or when a one-sided CUSUM of
 z_i = (x_i - centre) / sigma_i (reference 0.5, decision interval 4, either side) alarms (a slow
-drift crosses the CUSUM's interval before it leaves 3 sigma). The date it *first moved* is the
-CUSUM's change-point estimate: the record after the last one where the alarming side's sum was
-zero before the first alarm (Montgomery, Introduction to Statistical Quality Control, 9.1).
+drift crosses the CUSUM's interval before it leaves 3 sigma). The date it *first moved*
+(:func:`change_point`) is the least-squares change point of the standardised deviations from the
+end of the baseline to the last record, no later than the first alarm: a step (zero, then one
+level) or a ramp (zero, then a line from zero), whichever fits better (a step estimate alone dates
+a ramp late, the CUSUM's own estimate, the record after its last zero, dates a step early when the
+night before it happened to lie high).
 
 A physical threshold (``backlash.gap > 10um``) flags a record whose value is beyond it, whatever
 its history says.
@@ -32,7 +35,7 @@ from dataclasses import dataclass, field
 
 from hil.errors import ConfigError
 
-__all__ = ["Limits", "Threshold", "control_limits", "judge_series", "parse_threshold", "normal_effects",
+__all__ = ["Limits", "Threshold", "control_limits", "judge_series", "change_point", "cusum_alarm", "parse_threshold", "normal_effects",
            "K_SIGMA", "CUSUM_K", "CUSUM_H", "SCATTER"]
 
 K_SIGMA = 3.0          # Shewhart limits: centre +- 3 sigma
@@ -124,14 +127,37 @@ def cusum_alarm(z: list[float], k: float = CUSUM_K, h: float = CUSUM_H) -> tuple
     return None, None
 
 
+def change_point(z: list[float], start: int, latest: int) -> int:
+    """The record a shift began at, from standardised deviations ``z`` (the baseline's centre is
+    zero): the tau in [start, latest] of least squared error of a step (0 before tau, the mean of
+    z[tau:] after) or a ramp (0 before, beta (i - tau + 1) from tau on, beta fitted), over every
+    record from ``start`` on; the earliest on a tie."""
+    idx = [i for i in range(start, len(z)) if _finite(z[i])]
+    best = None
+    for tau in range(start, latest + 1):
+        before = sum(z[i] ** 2 for i in idx if i < tau)
+        after = [(i, z[i]) for i in idx if i >= tau]
+        if not after:
+            continue
+        mean = sum(v for _, v in after) / len(after)
+        step = before + sum((v - mean) ** 2 for _, v in after)
+        w = [(i - tau + 1, v) for i, v in after]
+        beta = sum(a * v for a, v in w) / sum(a * a for a, _ in w)
+        ramp = before + sum((v - beta * a) ** 2 for a, v in w)
+        sse = min(step, ramp)
+        if best is None or sse < best[0] - 1e-12 * max(1.0, abs(best[0])):
+            best = (sse, tau)
+    return start if best is None else best[1]
+
+
 def judge_series(values: list[float], stderrs: list[float | None], baseline: list[int],
                  threshold: Threshold | None = None, scatter: float = SCATTER, k: float = K_SIGMA) -> SeriesJudgement:
     """Judge one series (time order) against the limits of its ``baseline`` indices.
 
     A record after the baseline is ``out`` when it is beyond centre +- k sigma_i; the series is
-    flagged when a record is out or the CUSUM alarms after the baseline; ``first_moved`` is the
-    earliest of the CUSUM's change-point estimate and the first record out (never a baseline
-    record). ``threshold`` flags any record beyond it (``threshold_first``).
+    flagged when a record is out or the CUSUM alarms after the baseline (``first_alarm``: the
+    earlier); ``first_moved`` is :func:`change_point` up to that alarm (never a baseline record).
+    ``threshold`` flags any record beyond it (``threshold_first``).
     """
     lim = control_limits([values[i] for i in baseline], scatter)
     status, lower, upper, z = [], [], [], []
@@ -154,13 +180,12 @@ def judge_series(values: list[float], stderrs: list[float | None], baseline: lis
             status.append("ok")
     out = SeriesJudgement(lim, status, lower, upper)
     # the CUSUM runs from the end of the baseline: the baseline defines zero
-    alarm, moved = cusum_alarm(z[after:], k=CUSUM_K, h=CUSUM_H)
+    alarm, _ = cusum_alarm(z[after:], k=CUSUM_K, h=CUSUM_H)
     alarm = None if alarm is None else alarm + after
-    moved = None if moved is None else moved + after
     if first_out is not None or alarm is not None:
         out.flagged = True
         out.first_alarm = min(i for i in (first_out, alarm) if i is not None)
-        out.first_moved = min(i for i in (first_out, moved) if i is not None)
+        out.first_moved = change_point(z, after, out.first_alarm)
         out.reasons.append("left its control limits")
     if threshold is not None:
         for i, x in enumerate(values):

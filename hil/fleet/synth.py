@@ -22,7 +22,7 @@ Every record runs the same test move (the move sequence of seed 0, as a nightly 
 one program) with its own sensor noise; each effect value is scattered by a Gaussian factor
 (1 + scatter N(0, 1)) per record, drawn from a seed of the axis and the date, so the fleet is the
 same on every run. Written: ``AXIS_DATE.csv`` per record, ``manifest.csv`` (record, axis,
-timestamp, config) and ``truth.json`` (every record's true values; per axis the drifting
+timestamp) and ``truth.json`` (every record's true values; per axis the drifting
 parameters and the date each starts).
 """
 from __future__ import annotations
@@ -35,7 +35,32 @@ from pathlib import Path
 
 from hil.errors import ConfigError
 
-__all__ = ["read_spec", "synthesize_fleet"]
+__all__ = ["read_spec", "synthesize_fleet", "EXAMPLE"]
+
+# ``--fleet example``: three axes of the paper bench, six weekly dates; X2's backlash grows from
+# the fourth date (a worn nut), Y1's friction rises from the fifth (failing lubrication)
+EXAMPLE = """\
+axes = ["X1", "X2", "Y1"]
+start = "2026-03-02"
+count = 6
+every = "7 days"
+duration = "1.5 s"
+scatter = 0.01
+[effects]
+backlash = { gap = "4 um" }
+coulomb_friction = { level = "1.5 N*m" }
+[[drift]]
+axis = "X2"
+parameter = "backlash.gap"
+from = "2026-03-23"
+step = "5 um"
+rate = "0.1 um"
+[[drift]]
+axis = "Y1"
+parameter = "coulomb_friction.level"
+from = "2026-03-30"
+step = "0.6 N*m"
+"""
 
 SPEC_KEYS = ("axes", "start", "count", "every", "duration", "sample_period", "scatter", "effects", "drift")
 DRIFT_KEYS = ("axis", "parameter", "from", "step", "rate")
@@ -63,11 +88,11 @@ def _param_kind(cfg, effect: str, param: str, where: str) -> str:
 
 
 def read_spec(path, cfg) -> dict:
-    """The spec, checked and in SI: axes, dates (ISO text), duration, sample_period, scatter,
+    """The spec (a file, or ``"example"``: :data:`EXAMPLE`), checked and in SI: axes, dates (ISO text), duration, sample_period, scatter,
     effects {effect: {param: value}}, drift [{axis, effect, param, from, step, rate (per day)}]."""
     p = Path(path)
     try:
-        raw = tomllib.loads(p.read_text(encoding="utf-8"))
+        raw = tomllib.loads(EXAMPLE if str(path) == "example" else p.read_text(encoding="utf-8"))
     except OSError as exc:
         raise ConfigError(f"--fleet {p}: cannot be read ({exc.strerror or exc})") from None
     except tomllib.TOMLDecodeError as exc:
@@ -149,9 +174,7 @@ def synthesize_fleet(cfg, spec: dict, out_dir, config_path: str, inputs=()) -> d
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     x_cmd = move_sequence(spec["duration"], cfg["control.position_period"], 0)
-    rows = ["record,axis,timestamp,config"]
-    import os
-    cfg_rel = os.path.relpath(Path(config_path).resolve(), out.resolve())      # the manifest travels with the folder
+    rows = ["record,axis,timestamp"]         # the config: hil fleet run --config (each record's header names it)
     truth = {"records": {}, "drift": spec["drift"], "scatter": spec["scatter"]}
     for axis in spec["axes"]:
         for date in spec["dates"]:
@@ -169,7 +192,7 @@ def synthesize_fleet(cfg, spec: dict, out_dir, config_path: str, inputs=()) -> d
             write(out / name, ch, {"sample_period": f"{spec['sample_period']:g} s", "config": config_path,
                                    "axis": axis, "timestamp": date,
                                    "hidden_effects": json.dumps(vals, sort_keys=True)}, inputs=inputs)
-            rows.append(f"{name},{axis},{date},{cfg_rel}")
+            rows.append(f"{name},{axis},{date}")
             truth["records"][f"{axis}@{date}"] = vals
     write_atomic(out / "manifest.csv", "\n".join(rows) + "\n", inputs=inputs)
     write_atomic(out / "truth.json", json.dumps(truth, indent=1, sort_keys=True) + "\n", inputs=inputs)
