@@ -206,9 +206,9 @@ SCHEMA: dict[str, Field] = {
     "meta.description": Field("str", "free text", default="", max_length=10000),
     # --- fleet (hil fleet) ------------------------------------------------------------------------
     "fleet.track": Field("str", "effects whose strengths hil fleet fits on every record of the axis and tracks "
-                                "over time, comma-separated (e.g. \"backlash, coulomb_friction\")", default=""),
+                                "over time, comma-separated (e.g. \"backlash, coulomb_friction\")", default=None),
     "fleet.thresholds": Field("str", "physical limits of tracked parameters, comma-separated (e.g. "
-                                     "\"backlash.gap > 10um\"); a record beyond one is flagged", default=""),
+                                     "\"backlash.gap > 10um\"); a record beyond one is flagged", default=None),
 }
 
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None

@@ -213,6 +213,12 @@ def test_bad_settings_are_one_line_with_exit_2(fleet, capsys):
     assert main(["fleet", "run", str(work / "records"), "--config", BENCH, "--track", "no_such_effect",
                  "--out", str(work / "bad")]) == 2
     assert "fleet.track" in capsys.readouterr().err
+    # the config's own settings: [fleet] track and thresholds, named in the error
+    cfg = work / "axis.toml"
+    cfg.write_text(Path(BENCH).read_text() + '\n[fleet]\ntrack = "backlash"\nthresholds = "backlash.gap > 10"\n')
+    assert main(["fleet", "run", str(work / "records"), "--config", str(cfg), "--out", str(work / "bad")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"{cfg}: fleet.thresholds backlash.gap" in err and "unit" in err and len(err.splitlines()) == 1
     assert main(["fleet", "report", str(work / "nowhere")]) == 2
     assert "no fleet here" in capsys.readouterr().err
 
