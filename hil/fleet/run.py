@@ -155,7 +155,8 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
         fig["values"] = {k: float(v) for k, v in vals.items()}
         fig["stderr"] = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in ses.items()}
         return key, fig
-    except (HilError, ValueError, OSError) as exc:
+    except (HilError, ValueError, OSError, ArithmeticError, KeyError, IndexError) as exc:
+        # one record's failure is its own line in the summary; the fleet goes on
         return key, {"error": f"{task.record}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"}
 
 
