@@ -186,13 +186,16 @@ class LocalExecutor:
         try:
             for fut in as_completed(futs):
                 yield from fut.result()
+            self.finished = True
         finally:
             for f in futs:
                 f.cancel()
 
     def close(self):
         if self.pool is not None:
-            self.pool.shutdown(wait=False, cancel_futures=True)
+            # every record done: the idle workers are joined (their resources counted, nothing left
+            # behind); else (an error) they are left to exit on their own
+            self.pool.shutdown(wait=getattr(self, "finished", False), cancel_futures=True)
             self.pool = None
 
 
