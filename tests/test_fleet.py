@@ -326,3 +326,33 @@ def test_the_same_figures_on_a_dask_scheduler_and_worker_processes(fleet, tmp_pa
             p.terminate()
             p.wait(timeout=30)
     _same_as_local(work, tmp_path / "dask")
+
+
+@pytest.mark.slow
+def test_ctrl_c_loses_nothing_finished(fleet, tmp_path):
+    """Ctrl-C (SIGINT to the process group, as a terminal sends it) in the middle of a run: the
+    records stored before it are reused by the next run, which diagnoses only the rest."""
+    import os
+    import signal
+    import sys
+    import time
+    work, _ = fleet
+    out = tmp_path / "out"
+    store = out / "results.jsonl"
+    cmd = [sys.executable, "-c", "import sys; from hil.cli import main; sys.exit(main(sys.argv[1:]))", "fleet", "run",
+           str(work / "records"), *RUN, "--out", str(out), "--jobs", "1"]
+    p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        t0 = time.time()
+        while time.time() - t0 < 300 and not (store.exists() and store.read_text().count("\n") >= 2):
+            time.sleep(0.2)
+        os.killpg(p.pid, signal.SIGINT)
+        assert p.wait(timeout=60) != 0
+    finally:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+    done = len([ln for ln in store.read_text().splitlines() if ln.strip()])
+    assert 2 <= done < 10
+    again = json.loads(_cli("fleet", "run", work / "records", *RUN, "--out", out, "--json"))
+    assert again["reused"] >= 2 and again["computed"] == 10 - again["reused"]
+    assert again["axes"] == json.loads((work / "out" / "fleet.json").read_text())["axes"]
