@@ -24,7 +24,15 @@ from conftest import CONFIG
 from hil.cli import main
 from hil.errors import ConfigError
 from hil.fleet.manifest import read_manifest
-from hil.fleet.spc import change_point, control_limits, cusum_alarm, judge_series, normal_effects, parse_threshold
+from hil.fleet.spc import (
+    change_point,
+    control_limits,
+    cusum_alarm,
+    judge_series,
+    new_effects,
+    normal_effects,
+    parse_threshold,
+)
 
 BENCH = str(CONFIG / "paper_bench.toml")
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
@@ -92,6 +100,11 @@ def test_a_physical_threshold_flags_whatever_the_history():
 def test_an_effect_named_on_every_baseline_record_is_the_axis_normal():
     named = [{"backlash", "coulomb_friction"}, {"backlash"}, {"backlash", "viscous_friction"}, {"backlash", "x"}]
     assert normal_effects(named, [0, 1, 2]) == {"backlash"}
+    # after the baseline: a stray verdict on one night is not a finding; two nights in a row are,
+    # dated at the first; so is one on the latest record
+    later = named[:3] + [{"backlash", "pitch_error"}, {"backlash"}, {"backlash", "feedback_delay"},
+                         {"backlash", "feedback_delay"}, {"backlash", "constant_force"}]
+    assert new_effects(later, [0, 1, 2], {"backlash"}) == {"feedback_delay": 5, "constant_force": 7}
 
 
 # --- the manifest -------------------------------------------------------------------------------------

@@ -25,7 +25,8 @@ A physical threshold (``backlash.gap > 10um``) flags a record whose value is bey
 its history says.
 
 An effect that the diagnosis chain names on every baseline record is the axis's *normal*
-(:func:`normal_effects`); only an effect named later and not in the normal is a finding.
+(:func:`normal_effects`); only an effect named later, not in the normal, on two records in a row
+or on the latest one, is a finding (:func:`new_effects`).
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ from dataclasses import dataclass, field
 from hil.errors import ConfigError
 
 __all__ = ["Limits", "Threshold", "control_limits", "judge_series", "change_point", "cusum_alarm", "parse_threshold", "normal_effects",
-           "K_SIGMA", "CUSUM_K", "CUSUM_H", "SCATTER"]
+           "new_effects", "K_SIGMA", "CUSUM_K", "CUSUM_H", "SCATTER"]
 
 K_SIGMA = 3.0          # Shewhart limits: centre +- 3 sigma
 CUSUM_K = 0.5          # CUSUM reference value (in sigma): detects a shift of about 1 sigma
@@ -233,3 +234,18 @@ def normal_effects(named: list[set[str]], baseline: list[int]) -> set[str]:
     """The effects the chain names on every baseline record of an axis (its normal)."""
     sets = [named[i] for i in baseline if i < len(named)]
     return set.intersection(*sets) if sets else set()
+
+
+def new_effects(named: list[set[str]], baseline: list[int], normal: set[str]) -> dict[str, int]:
+    """Effects outside the axis's normal that the chain names after the baseline and keeps naming:
+    on two records in a row, or on the latest record (one stray verdict on a noisy night is not a
+    finding). Effect -> index of the first record of its first such run."""
+    after = max(baseline) + 1 if baseline else 0
+    out: dict[str, int] = {}
+    for eff in sorted(set().union(*named[after:]) - normal if named[after:] else set()):
+        hits = [i for i in range(after, len(named)) if eff in named[i]]
+        for i in hits:
+            if i + 1 in hits or i == len(named) - 1:
+                out[eff] = i
+                break
+    return out

@@ -8,7 +8,7 @@ out of the series and listed with its line. Values SI.
 from __future__ import annotations
 
 from hil.fleet.manifest import Entry
-from hil.fleet.spc import SCATTER, judge_series, normal_effects
+from hil.fleet.spc import SCATTER, judge_series, new_effects, normal_effects
 
 __all__ = ["judge_fleet", "rows", "N_BASELINE"]
 
@@ -64,13 +64,7 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
     named = [set(f.get("named", [])) for f in figs]
     normal = normal_effects(named, base)
     out["normal"] = sorted(normal)
-    seen = {}
-    for e, n in zip(good, named):
-        for eff in sorted(n - normal):
-            if good.index(e) in base:
-                continue
-            seen.setdefault(eff, e.timestamp)
-    out["findings"] = [{"effect": k, "since": v} for k, v in seen.items()]
+    out["findings"] = [{"effect": k, "since": good[i].timestamp} for k, i in new_effects(named, base, normal).items()]
     for f in out["findings"]:
         out["flags"].append({"parameter": f["effect"], "since": f["since"], "reason": "named by the chain, "
                              "not in the axis's normal", "from": None, "to": None})
