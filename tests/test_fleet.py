@@ -168,6 +168,8 @@ def fleet(tmp_path_factory):
     out = json.loads(_cli("synth", "--config", BENCH, "--fleet", work / "spec.toml", "--out", work / "records",
                           "--json"))
     assert out["fleet"]["records"] == 10 and out["fleet"]["drift"][0]["from"] == "2026-03-23"
+    from hil.commands.synth import JSON_KEYS
+    assert set(out) <= set(JSON_KEYS) and out["fleet"]["drift"][0]["step"] == pytest.approx(5e-6)
     run = json.loads(_cli("fleet", "run", work / "records", *RUN, "--out", work / "out", "--jobs", "2", "--json"))
     return work, run
 
