@@ -253,6 +253,14 @@ def commands_reference() -> str:
                 out += ["", desc]
             out += ["```", "", "| option | value | default | meaning |", "|---|---|---|---|"]
             out += [r for r in (_option_row(a) for a in p._actions) if r]
+            # a family of sub-commands (hil fleet run, hil fleet report): each with its options
+            for act in (a for a in p._actions if isinstance(a, argparse._SubParsersAction)):
+                sub_helps = {a.dest: a.help for a in act._choices_actions}
+                for sname, sp in act.choices.items():
+                    out += ["", f"### hil {name} {sname}", "", _cell(sub_helps.get(sname, "")), "", "```text",
+                            sp.format_usage().strip(), "```", "", "| option | value | default | meaning |",
+                            "|---|---|---|---|"]
+                    out += [r for r in (_option_row(a) for a in sp._actions) if r]
         return "\n".join(out) + "\n"
     finally:
         if old is None:
@@ -279,6 +287,7 @@ JSON_GUIDES = {
     "status": ("CANopen", "../guide/canopen.md"),
     "reset": ("CANopen", "../guide/canopen.md"),
     "drive-sim": ("CANopen", "../guide/canopen.md"),
+    "fleet": ("A fleet's nightly diagnosis", "../tutorials/fleet.md"),
 }
 
 

@@ -44,6 +44,7 @@ COMMANDS = {
     "diagnose": "hil.commands.diagnose",
     "fit": "hil.commands.fit",
     "synth": "hil.commands.synth",
+    "fleet": "hil.commands.fleet",
     "emps": "hil.commands.emps",
     "frf": "hil.commands.frf",
     "drive-sim": "hil.commands.drive_sim",

@@ -204,6 +204,11 @@ SCHEMA: dict[str, Field] = {
     "backend.type": Field("str", "sim (embedded plant model), canopen, serial", default="sim"),
     "meta.name": Field("str", "a name for the axis", default="", max_length=200),
     "meta.description": Field("str", "free text", default="", max_length=10000),
+    # --- fleet (hil fleet) ------------------------------------------------------------------------
+    "fleet.track": Field("str", "effects whose strengths hil fleet fits on every record of the axis and tracks "
+                                "over time, comma-separated (e.g. \"backlash, coulomb_friction\")", default=None),
+    "fleet.thresholds": Field("str", "physical limits of tracked parameters, comma-separated (e.g. "
+                                     "\"backlash.gap > 10um\"); a record beyond one is flagged", default=None),
 }
 
 # Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None

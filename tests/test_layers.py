@@ -33,7 +33,7 @@ LAYERS = {
     "hil.drivers": 2,
     "hil.simulate": 3, "hil.loop": 3, "hil.runtime": 3, "hil.supervisor": 3, "hil.profiles": 3,
     "hil.closed_loop": 3, "hil.analysis": 3, "hil.io": 3, "hil.scope": 3,
-    "hil.ident": 4, "hil.sweep": 4, "hil.frf": 4,
+    "hil.ident": 4, "hil.sweep": 4, "hil.frf": 4, "hil.fleet": 4,
     "hil.plots": 5, "hil.scope.server": 5,
     "hil.commands": 6, "hil.cli": 6,
 }

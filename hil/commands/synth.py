@@ -14,6 +14,7 @@ DESCRIPTION = """\
   hil synth --config config/paper_bench.toml --pulses 0.5N*m --out pulses.csv   (u_add after the controller)
   hil synth --config config/paper_bench.toml --external-force 300N --force-on tip --out cut.csv
   hil synth --config config/paper_bench.toml --open-loop --pulses 1.5N*m --pulse-period 4s --pulse-width 2s --out ol.csv
+  hil synth --config config/paper_bench.toml --fleet fleet.toml --out fleet/      (axes x dates, drifting effects)
 
 Quantities take their unit (--duration 5s, --sample-period 4ms, --param level=2Nm); a bare number is refused.
 
@@ -21,6 +22,10 @@ Pulses (--pulses, --external-force) are 0/amplitude pulses of --pulse-width ever
 from 0.5 s. --pulses: a command added after the controller, written as the u_add channel (a
 torque on a rotary axis, a command in V or a force in N on a linear one); with --open-loop the
 pulses are the actuator's whole command (torque steps), no position loop.
+
+--fleet SPEC.toml: a fleet with a known answer (hil.fleet.synth: axes, dates, effects, drifts),
+written to the folder --out with its manifest.csv and truth.json (for hil fleet); --fleet example:
+the tutorial's (docs/tutorials/fleet.md).
 """
 
 
@@ -36,6 +41,8 @@ JSON_KEYS = {
     "inputs": JsonKey("", "the added inputs: u_add (--pulses), f_ext_table or f_ext_tip (--external-force)"),
     "open_loop": JsonKey("", "no position loop (--open-loop)"),
     "units": JsonKey("", "the SI unit of each parameter (params), of duration and of sample_period"),
+    "fleet": JsonKey("", "with --fleet: axes, dates, records (number written), manifest (path), drift (the spec's "
+                         "drifts: axis, effect, param, from, step, rate per day; SI)", when="with --fleet"),
 }
 
 
@@ -59,7 +66,38 @@ def add_arguments(parser) -> None:
     parser.add_argument("--open-loop", action="store_true", help="no position loop: the pulses are the whole command")
     parser.add_argument("--out", required=True, metavar="FILE",
                         help="the measurement file to write: .csv (the measurement format) or .mat (MATLAB, SI)")
+    parser.add_argument("--fleet", default=None, metavar="SPEC",
+                        help="a fleet (TOML spec: axes, dates, effects, drifts) written to the folder --out")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def _fleet(args) -> int:
+    """--fleet SPEC: the records of axes x dates, their manifest and the truth, in the folder --out."""
+    from pathlib import Path
+
+    from hil.config import load, parse_assignment
+    from hil.fleet.synth import read_spec, synthesize_fleet
+    if args.effect or args.param or args.pulses or args.external_force or args.open_loop:
+        raise UserError("--fleet: the spec gives the effects; drop --effect, --param, --pulses, --external-force, "
+                        "--open-loop")
+    if Path(args.out).suffix.lower() in (".csv", ".mat"):
+        raise UserError(f"--out {args.out}: with --fleet, expected a folder")
+    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    spec = read_spec(args.fleet, cfg)
+    _check_times(spec["duration"], spec["sample_period"])
+    synthesize_fleet(cfg, spec, args.out, args.config, inputs=(args.config,) + (() if args.fleet == "example" else
+                                                                               (args.fleet,)))
+    n = len(spec["axes"]) * len(spec["dates"])
+    manifest = str(Path(args.out) / "manifest.csv")
+    if args.json:
+        print(dumps({"out": args.out, "fleet": {"axes": spec["axes"], "dates": spec["dates"], "records": n,
+                                                "manifest": manifest, "drift": spec["drift"]}}))
+    else:
+        print(f"wrote {n} records ({len(spec['axes'])} axes x {len(spec['dates'])} dates, "
+              f"{spec['dates'][0]} to {spec['dates'][-1]}) and {manifest}")
+        for d in spec["drift"]:
+            print(f"  {d['axis']}: {d['effect']}.{d['param']} moves from {d['from']}")
+    return 0
 
 
 def _check_times(duration: float, sample_period: float) -> None:
@@ -150,6 +188,8 @@ def run(args) -> int:
     from hil.io.safe_write import refuse_inputs
     from hil.units import fmt, parse_option
     refuse_inputs(args.out, (args.config,))
+    if args.fleet:
+        return _fleet(args)
     if Path(args.out).suffix.lower() not in (".csv", ".mat"):
         # the suffix says the format: a CSV text under another name misleads every reader
         raise UserError(f"--out {args.out}: expected a .csv (the measurement format) or .mat (MATLAB) file name")

@@ -1,0 +1,137 @@
+"""Speed of ``hil fleet`` (issue 26, item 5): records per minute on local processes and on a local
+Dask cluster, the time of one record's chain against the record's length (it must grow linearly),
+and the peak memory of each worker.
+
+A synthetic fleet (hil.fleet.synth: the paper bench with backlash and Coulomb friction, 1 %
+scatter) of ``--axes`` x ``--dates`` records of ``--duration``; every record diagnosed as
+``hil fleet run`` does (hil.fleet.run.diagnose_record: the chain on ``--candidates`` with
+``--max-steps``, the tracked fit of backlash and friction). Each executor starts from an empty
+store, so every record is computed; the first record is run once beforehand in this process, so
+that the kernels' compilation is not counted (forked workers inherit it; Dask workers compile on
+their first record, which is counted: a cluster pays it once per worker).
+
+    python benchmarks/bench_fleet.py                                # 2 x 3 records of 1.5 s, 2 workers
+    python benchmarks/bench_fleet.py --axes 10 --dates 10 --duration 6s --candidates all   (issue's goal)
+    python benchmarks/bench_fleet.py --lengths 1.5s,3s,6s --json
+
+Quote the figures with the command and the machine's load (printed).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def _fleet(tmp: Path, axes: int, dates: int, duration: str):
+    from hil.config import load
+    from hil.fleet.manifest import read_manifest
+    from hil.fleet.synth import read_spec, synthesize_fleet
+    cfg = load(ROOT / "config" / "paper_bench.toml")
+    spec_path = tmp / "spec.toml"
+    names = ", ".join(f'"A{i}"' for i in range(axes))
+    spec_path.write_text(f'axes = [{names}]\nstart = "2026-03-02"\ncount = {dates}\nevery = "1 day"\n'
+                         f'duration = "{duration}"\nscatter = 0.01\n[effects]\nbacklash = {{ gap = "4 um" }}\n'
+                         f'coulomb_friction = {{ level = "1.5 N*m" }}\n')
+    synthesize_fleet(cfg, read_spec(spec_path, cfg), tmp / "records", str(ROOT / "config" / "paper_bench.toml"))
+    return cfg, read_manifest(tmp / "records")
+
+
+def _settings(args):
+    from hil.fleet.run import Settings
+    cands = None if args.candidates == "all" else tuple(args.candidates.split(","))
+    return Settings(track=("backlash", "coulomb_friction"), candidates=cands, max_steps=args.max_steps)
+
+
+def _rate(entries, cfg, settings, out, scheduler=None, jobs=None) -> tuple[float, float]:
+    from hil.fleet.batch import run_fleet
+    t0 = time.perf_counter()
+    res = run_fleet(entries, {str(ROOT / "config" / "paper_bench.toml"): cfg},
+                    str(ROOT / "config" / "paper_bench.toml"), settings, out, scheduler=scheduler, jobs=jobs)
+    dt = time.perf_counter() - t0
+    assert res.computed == len(entries), res
+    bad = [f for f in res.figures.values() if "error" in f]
+    assert not bad, bad[:1]
+    return len(entries) / dt * 60.0, dt
+
+
+def _maxrss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--axes", type=int, default=2)
+    ap.add_argument("--dates", type=int, default=3)
+    ap.add_argument("--duration", default="1.5 s")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--candidates", default="backlash,coulomb_friction,viscous_friction",
+                    help="the chain's candidates, or 'all' (the catalogue, as hil diagnose)")
+    ap.add_argument("--max-steps", type=int, default=2)
+    ap.add_argument("--lengths", default="1.5s,3s,6s", help="record lengths of the chain-time row")
+    ap.add_argument("--no-dask", action="store_true")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    from hil.fleet.run import Task, diagnose_record, record_key
+    out: dict = {"load": os.getloadavg(), "cpus": os.cpu_count(), "records": args.axes * args.dates,
+                 "duration": args.duration, "workers": args.workers, "candidates": args.candidates,
+                 "max_steps": args.max_steps}
+    settings = _settings(args)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        cfg, entries = _fleet(tmp, args.axes, args.dates, args.duration)
+        data = Path(entries[0].record).read_bytes()
+        diagnose_record(record_key(data, cfg, settings), Task(entries[0].record, "w", "0", ""), data, cfg, settings)
+        rate, dt = _rate(entries, cfg, settings, tmp / "local", jobs=args.workers)
+        out["local"] = {"records_per_min": rate, "seconds": dt,
+                        "peak_rss_mib_per_worker": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0}
+        if not args.no_dask:
+            from distributed import LocalCluster
+            with LocalCluster(host="127.0.0.1", n_workers=args.workers, threads_per_worker=1, processes=True,
+                              dashboard_address=None) as cluster:
+                from distributed import Client
+                rate, dt = _rate(entries, cfg, settings, tmp / "dask", scheduler=cluster.scheduler_address)
+                with Client(cluster.scheduler_address) as c:
+                    peaks = c.run(_maxrss_mib)
+            out["dask"] = {"records_per_min": rate, "seconds": dt, "peak_rss_mib_per_worker": sorted(peaks.values())}
+        # one record's chain against its length, in this process
+        chain = []
+        for length in args.lengths.split(","):
+            sub = tmp / f"len-{length}"
+            sub.mkdir()
+            cfg1, es = _fleet(sub, 1, 1, length)
+            d = Path(es[0].record).read_bytes()
+            t0 = time.perf_counter()
+            _, fig = diagnose_record(record_key(d, cfg1, settings), Task(es[0].record, "A0", "0", ""), d, cfg1,
+                                     settings)
+            chain.append({"duration": length, "samples": fig.get("samples"), "seconds": time.perf_counter() - t0})
+        out["chain_vs_length"] = chain
+    out["peak_rss_mib_main"] = _maxrss_mib()
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return 0
+    print(f"load {out['load'][0]:.2f} {out['load'][1]:.2f} {out['load'][2]:.2f} on {out['cpus']} CPUs; "
+          f"{out['records']} records of {args.duration}, candidates {args.candidates}, max steps {args.max_steps}")
+    lo = out["local"]
+    print(f"local processes ({args.workers}): {lo['records_per_min']:.1f} records/min ({lo['seconds']:.1f} s), "
+          f"peak RSS per worker {lo['peak_rss_mib_per_worker']:.0f} MiB")
+    if "dask" in out:
+        da = out["dask"]
+        print(f"local Dask cluster ({args.workers} worker processes): {da['records_per_min']:.1f} records/min "
+              f"({da['seconds']:.1f} s, the workers' compilation included), peak RSS per worker "
+              f"{', '.join(f'{p:.0f}' for p in da['peak_rss_mib_per_worker'])} MiB")
+    for c in out["chain_vs_length"]:
+        print(f"one record of {c['duration']} ({c['samples']} samples): {c['seconds']:.2f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

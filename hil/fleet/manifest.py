@@ -1,0 +1,167 @@
+"""The records of a fleet: a manifest (CSV or TOML) or a folder of records.
+
+Conventions: one :class:`Entry` per record: ``record`` (path), ``axis`` (an id), ``timestamp``
+(ISO 8601 text, a date or a date and time; the order of an axis's records), ``config`` (path of
+the axis's config; the command's ``--config`` where the manifest gives none) and ``baseline``
+(true: one of the records the axis's control limits come from; when no record of an axis is
+named, its first ``n_baseline`` are).
+
+* CSV: a header with the columns ``record, axis, timestamp`` and optionally ``config, baseline``;
+* TOML: ``[[record]]`` tables with the same keys;
+* a folder: ``manifest.csv`` or ``manifest.toml`` in it when there is one, else every record
+  named ``AXIS/TIMESTAMP.EXT`` or ``AXIS_TIMESTAMP.EXT`` (.csv, .mat, .txt, .xlsx), the timestamp
+  ISO 8601.
+
+Relative paths are relative to the manifest's folder. Bad input is one line naming the file, the
+row and the column.
+"""
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from hil.errors import ConfigError
+
+__all__ = ["Entry", "read_manifest", "RECORD_SUFFIXES"]
+
+RECORD_SUFFIXES = (".csv", ".mat", ".txt", ".xlsx")
+COLUMNS = ("record", "axis", "timestamp", "config", "baseline")
+_AXIS_RE = re.compile(r"^[A-Za-z0-9][\w.-]{0,63}$")
+_FILE_RE = re.compile(r"^(?P<axis>[A-Za-z0-9][\w.-]*?)_(?P<ts>\d{4}-\d{2}-\d{2}(?:[T ]\d{2}[:\d]*)?)$")
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One record of the fleet (see the module's conventions)."""
+    record: str
+    axis: str
+    timestamp: str
+    config: str | None = None
+    baseline: bool = False
+
+    @property
+    def id(self) -> str:
+        """The record's name in reports and summaries: ``AXIS@TIMESTAMP``."""
+        return f"{self.axis}@{self.timestamp}"
+
+
+def _timestamp(text: str, where: str) -> str:
+    t = str(text).strip()
+    try:
+        _dt.datetime.fromisoformat(t)
+    except ValueError:
+        raise ConfigError(f"{where}: timestamp {t!r}: expected ISO 8601, e.g. 2026-03-04 or 2026-03-04T22:00") from None
+    return t
+
+
+def _bool(v, where: str) -> bool:
+    if isinstance(v, bool):
+        return v
+    s = str(v).strip().lower()
+    if s in ("", "0", "false", "no"):
+        return False
+    if s in ("1", "true", "yes"):
+        return True
+    raise ConfigError(f"{where}: baseline {v!r}: expected true or false")
+
+
+def _entry(row: dict, base: Path, where: str) -> Entry:
+    for col in ("record", "axis", "timestamp"):
+        if not str(row.get(col) or "").strip():
+            raise ConfigError(f"{where}: column {col!r} is empty or missing (expected: {', '.join(COLUMNS[:3])}"
+                              f"; optional: config, baseline)")
+    axis = str(row["axis"]).strip()
+    if not _AXIS_RE.match(axis):
+        raise ConfigError(f"{where}: axis {axis!r}: expected letters, digits, '_', '-', '.' (at most 64)")
+    rec = Path(str(row["record"]).strip())
+    cfg = str(row.get("config") or "").strip() or None
+    return Entry(str(rec if rec.is_absolute() else base / rec), axis, _timestamp(row["timestamp"], where),
+                 None if cfg is None else str(Path(cfg) if Path(cfg).is_absolute() else base / cfg),
+                 _bool(row.get("baseline", False), where))
+
+
+def _from_csv(path: Path) -> list[Entry]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    rows = [r for r in rows if r and not (len(r) == 1 and not r[0].strip()) and not r[0].lstrip().startswith("#")]
+    if not rows:
+        raise ConfigError(f"{path}: empty manifest (expected a header: record, axis, timestamp[, config, baseline])")
+    head = [c.strip().lower() for c in rows[0]]
+    unknown = [c for c in head if c not in COLUMNS]
+    if unknown:
+        raise ConfigError(f"{path}: line 1: unknown column {unknown[0]!r} (expected: {', '.join(COLUMNS)})")
+    out = []
+    for i, r in enumerate(rows[1:], start=2):
+        if len(r) != len(head):
+            raise ConfigError(f"{path}: line {i}: {len(r)} fields, expected {len(head)} ({', '.join(head)})")
+        out.append(_entry(dict(zip(head, r)), path.parent, f"{path}: line {i}"))
+    return out
+
+
+def _from_toml(path: Path) -> list[Entry]:
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    recs = data.get("record")
+    if not isinstance(recs, list) or not all(isinstance(r, dict) for r in recs):
+        raise ConfigError(f"{path}: expected [[record]] tables (record, axis, timestamp[, config, baseline])")
+    out = []
+    for i, r in enumerate(recs, start=1):
+        unknown = [c for c in r if c not in COLUMNS]
+        if unknown:
+            raise ConfigError(f"{path}: record {i}: unknown key {unknown[0]!r} (expected: {', '.join(COLUMNS)})")
+        out.append(_entry(r, path.parent, f"{path}: record {i}"))
+    return out
+
+
+def _from_folder(folder: Path) -> list[Entry]:
+    for name in ("manifest.csv", "manifest.toml"):
+        if (folder / name).is_file():
+            return read_manifest(folder / name)
+    out = []
+    for p in sorted(folder.rglob("*")):
+        if not p.is_file() or p.suffix.lower() not in RECORD_SUFFIXES:
+            continue
+        rel = p.relative_to(folder)
+        if len(rel.parts) == 2:
+            axis, ts = rel.parts[0], p.stem
+        else:
+            m = _FILE_RE.match(p.stem)
+            if not m:
+                continue
+            axis, ts = m.group("axis"), m.group("ts")
+        try:
+            out.append(_entry({"record": str(p), "axis": axis, "timestamp": ts}, folder, str(p)))
+        except ConfigError:
+            continue            # not a record of the fleet's naming
+    if not out:
+        raise ConfigError(f"{folder}: no manifest.csv or manifest.toml and no record named AXIS/TIMESTAMP.csv "
+                          f"or AXIS_TIMESTAMP.csv")
+    return out
+
+
+def read_manifest(path: str | Path) -> list[Entry]:
+    """The fleet's records from a manifest (.csv, .toml) or a folder, in (axis, time) order;
+    a record listed twice is refused."""
+    p = Path(path)
+    if p.is_dir():
+        entries = _from_folder(p)
+    elif not p.exists():
+        raise ConfigError(f"{p}: no such manifest or folder")
+    elif p.suffix.lower() == ".csv":
+        entries = _from_csv(p)
+    elif p.suffix.lower() == ".toml":
+        entries = _from_toml(p)
+    else:
+        raise ConfigError(f"{p}: expected a manifest (.csv or .toml) or a folder of records")
+    seen = {}
+    for e in entries:
+        if e.id in seen:
+            raise ConfigError(f"{p}: axis {e.axis} has two records at {e.timestamp} ({seen[e.id]}, {e.record})")
+        seen[e.id] = e.record
+    return sorted(entries, key=lambda e: (e.axis, _dt.datetime.fromisoformat(e.timestamp), e.timestamp))

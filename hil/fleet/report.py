@@ -1,0 +1,188 @@
+"""The fleet's report: one self-contained HTML page, each record's own page, and the values as
+CSV and JSON.
+
+The page: one row per axis (latest verdict, flags, worst drift), then per axis a trend plot of
+each tracked parameter (inline SVG, no script, nothing linked): the values with their standard
+error as bars, the control band (centre +- 3 sigma of each record) shaded, the centre dashed, a
+threshold dotted, the flagged dates marked by a red line; below it the links to each record's
+page (``records/AXIS_DATE.html``: the chain's verdict, end and steps, the tracked values).
+values.csv / values.json: every (axis, date, effect, value, stderr) in SI.
+"""
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import html
+import io
+import math
+from pathlib import Path
+
+__all__ = ["write_report", "trend_svg"]
+
+W, H, PAD_L, PAD_R, PAD_T, PAD_B = 640, 220, 70, 20, 20, 40
+
+CSS = """body{font-family:sans-serif;margin:2em;max-width:900px;color:#222}
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;text-align:left}
+.flag{color:#b00}.ok{color:#070}svg{border:1px solid #ddd;margin:0.5em 0}h2{margin-top:2em}"""
+
+
+def _q(v, kind: str) -> str:
+    from hil.units import DIMENSIONS, fmt
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    return fmt(v, kind) if kind in DIMENSIONS and kind != "dimensionless" else f"{v:.4g}"
+
+
+def _days(dates: list[str]) -> list[float]:
+    d0 = _dt.datetime.fromisoformat(dates[0])
+    return [(_dt.datetime.fromisoformat(d) - d0).total_seconds() / 86400 for d in dates]
+
+
+def trend_svg(name: str, dates: list[str], p: dict, kind: str) -> str:
+    """One tracked parameter's trend (see the module's conventions) as an SVG element."""
+    xs = _days(dates)
+    vals = [v if v is not None else float("nan") for v in p["values"]]
+    ses = [s if s is not None else 0.0 for s in p["stderr"]]
+    ys = [y for y in vals + p["lower"] + p["upper"] if y is not None and math.isfinite(y)]
+    if p.get("threshold_value") is not None:
+        ys.append(p["threshold_value"])
+    if not ys:
+        return ""
+    lo, hi = min(ys), max(ys)
+    span = hi - lo or abs(hi) or 1.0
+    lo, hi = lo - 0.08 * span, hi + 0.08 * span
+    x_hi = max(xs[-1], 1e-9)
+
+    def X(x):
+        return PAD_L + (W - PAD_L - PAD_R) * (x / x_hi if len(xs) > 1 else 0.5)
+
+    def Y(y):
+        return PAD_T + (H - PAD_T - PAD_B) * (1 - (y - lo) / (hi - lo))
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" role="img" '
+           f'aria-label="{html.escape(name)} over time">']
+    band = [f"{X(x):.1f},{Y(u):.1f}" for x, u in zip(xs, p["upper"])] + \
+           [f"{X(x):.1f},{Y(v):.1f}" for x, v in reversed(list(zip(xs, p["lower"])))]
+    out.append(f'<polygon points="{" ".join(band)}" fill="#cde" stroke="none"><title>control band</title></polygon>')
+    out.append(f'<line x1="{PAD_L}" x2="{W - PAD_R}" y1="{Y(p["centre"]):.1f}" y2="{Y(p["centre"]):.1f}" '
+               f'stroke="#579" stroke-dasharray="5,3"/>')
+    if p.get("threshold_value") is not None:
+        yt = Y(p["threshold_value"])
+        out.append(f'<line x1="{PAD_L}" x2="{W - PAD_R}" y1="{yt:.1f}" y2="{yt:.1f}" stroke="#b00" '
+                   f'stroke-dasharray="2,2"><title>{html.escape(p["threshold"] or "")}</title></line>')
+    if p.get("first_moved"):
+        xm = X(_days([dates[0], p["first_moved"]])[1])
+        out.append(f'<line x1="{xm:.1f}" x2="{xm:.1f}" y1="{PAD_T}" y2="{H - PAD_B}" stroke="#d00" stroke-width="2">'
+                   f'<title>first moved {html.escape(p["first_moved"])}</title></line>')
+    pts = [(X(x), Y(v), Y(v - s), Y(v + s), st, d, v) for x, v, s, st, d in zip(xs, vals, ses, p["status"], dates)
+           if math.isfinite(v)]
+    out.append('<polyline fill="none" stroke="#333" points="' + " ".join(f"{a:.1f},{b:.1f}" for a, b, *_ in pts) + '"/>')
+    for a, b, e0, e1, st, d, v in pts:
+        colour = "#d00" if st in ("out", "threshold") else "#333"
+        out.append(f'<line x1="{a:.1f}" x2="{a:.1f}" y1="{e0:.1f}" y2="{e1:.1f}" stroke="{colour}"/>'
+                   f'<circle cx="{a:.1f}" cy="{b:.1f}" r="3" fill="{colour}"><title>{html.escape(d)}: '
+                   f'{html.escape(_q(v, kind))} ({st})</title></circle>')
+    out.append(f'<text x="{PAD_L}" y="{H - 8}" font-size="11">{html.escape(dates[0])}</text>'
+               f'<text x="{W - PAD_R}" y="{H - 8}" font-size="11" text-anchor="end">{html.escape(dates[-1])}</text>'
+               f'<text x="4" y="{PAD_T + 10}" font-size="11">{html.escape(_q(hi, kind))}</text>'
+               f'<text x="4" y="{H - PAD_B}" font-size="11">{html.escape(_q(lo, kind))}</text>')
+    out.append("</svg>")
+    return "".join(out)
+
+
+def _page(title: str, body: str) -> str:
+    import hil
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return (f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+            f"<style>{CSS}</style></head><body><h1 id=\"title\">{html.escape(title)}</h1>{body}"
+            f"<p><small>hil version {html.escape(str(getattr(hil, '__version__', '')))}, date {stamp}</small></p>"
+            f"</body></html>\n")
+
+
+def _record_page(e: dict, fig: dict, kinds: dict) -> str:
+    rows = [f"<p>Record: {html.escape(e['record'])}<br>Axis {html.escape(e['axis'])}, "
+            f"{html.escape(e['timestamp'])}</p>"]
+    if "error" in fig:
+        rows.append(f'<p id="verdict" class="flag">error: {html.escape(fig["error"])}</p>')
+        return "".join(rows)
+    if "verdict" in fig:
+        rows.append(f'<p id="verdict">chain verdict: {html.escape(str(fig["verdict"]))}; end: '
+                    f'{html.escape(str(fig.get("end")))}; named: {html.escape(", ".join(fig.get("named", [])) or "none")}'
+                    f"</p>")
+        rows.append("<table><tr><th>step</th><th>effects</th><th>score</th></tr>" + "".join(
+            f"<tr><td>{s['step']}</td><td>{html.escape(', '.join(s['effects']))}</td><td>{s['score']:.1f}</td></tr>"
+            for s in fig.get("chain", [])) + "</table>")
+    else:
+        rows.append('<p id="verdict">tracked fit only (no chain)</p>')
+    rows.append("<table><tr><th>parameter</th><th>value</th><th>standard error</th></tr>" + "".join(
+        f"<tr><td>{html.escape(k)}</td><td>{html.escape(_q(v, kinds.get(k, '')))}</td>"
+        f"<td>{html.escape(_q(fig.get('stderr', {}).get(k), kinds.get(k, '')))}</td></tr>"
+        for k, v in sorted(fig.get("values", {}).items())) + "</table>")
+    return "".join(rows)
+
+
+def _page_name(e: dict) -> str:
+    return f"records/{e['axis']}_{e['timestamp'].replace(':', '-')}.html"
+
+
+def write_report(state: dict, out_dir) -> dict:
+    """report.html, records/*.html, values.csv and values.json of a judged fleet (hil fleet run's
+    fleet.json) in ``out_dir``; returns their paths."""
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import rows
+    from hil.io.safe_write import write_atomic
+    out = Path(out_dir)
+    kinds = state.get("kinds", {})
+    entries = state["entries"]
+    figures = state["figures"]
+    pages = []
+    for e in entries:
+        path = out / _page_name(e)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, _page(f"{e['axis']} at {e['timestamp']}", _record_page(e, figures.get(
+            f"{e['axis']}@{e['timestamp']}", {"error": "not run"}), kinds)))
+        pages.append(str(path))
+    thresholds = state.get("settings", {}).get("thresholds", {})
+    body = [f'<p id="verdict">{len(entries)} records of {len(state["axes"])} axes; '
+            f'{sum(1 for a in state["axes"] if a["flags"])} flagged.</p>',
+            "<table><tr><th>axis</th><th>latest verdict</th><th>flags</th><th>worst drift</th></tr>"]
+    for a in state["axes"]:
+        w = a.get("worst")
+        worst = (f"{html.escape(w['parameter'])}: {html.escape(_q(w['from'], kinds.get(w['parameter'], '')))} -> "
+                 f"{html.escape(_q(w['to'], kinds.get(w['parameter'], '')))} ({w['sigma']:.1f} sigma)") if w else "-"
+        cls = "flag" if a["flags"] else "ok"
+        flags = "; ".join(f"{f['parameter']} since {f['since']}" for f in a["flags"]) or "none"
+        body.append(f'<tr><td><a href="#axis-{html.escape(a["axis"])}">{html.escape(a["axis"])}</a></td>'
+                    f'<td class="{cls}">{html.escape(a["verdict"])}</td><td>{html.escape(flags)}</td>'
+                    f"<td>{worst}</td></tr>")
+    body.append("</table>")
+    by_axis: dict[str, list] = {}
+    for e in entries:
+        by_axis.setdefault(e["axis"], []).append(e)
+    for a in state["axes"]:
+        body.append(f'<h2 id="axis-{html.escape(a["axis"])}">{html.escape(a["axis"])}</h2>')
+        if a["normal"]:
+            body.append(f"<p>normal (named on every baseline record): {html.escape(', '.join(a['normal']))}</p>")
+        for name, p in a["params"].items():
+            p = dict(p)
+            if name in thresholds:
+                from hil.fleet.spc import parse_threshold
+                p["threshold_value"] = parse_threshold(thresholds[name], kinds, "threshold").value
+            body.append(f"<h3>{html.escape(name)}</h3>" + trend_svg(name, a["dates"], p, kinds.get(name, "")))
+        links = " ".join(f'<a href="{html.escape(_page_name(e))}">{html.escape(e["timestamp"])}</a>'
+                         for e in by_axis.get(a["axis"], []))
+        body.append(f"<p>records: {links}</p>")
+        for er in a["errors"]:
+            body.append(f'<p class="flag">error: {html.escape(er["error"])}</p>')
+    report = out / "report.html"
+    write_atomic(report, _page("Fleet report", "".join(body)))
+    table = rows([Entry(**e) for e in entries], figures)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=["axis", "date", "effect", "value", "stderr", "record"], lineterminator="\n")
+    w.writeheader()
+    for r in table:
+        w.writerow({k: ("" if v is None else repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+    write_atomic(out / "values.csv", buf.getvalue())
+    from hil.io.jsonout import dumps
+    write_atomic(out / "values.json", dumps(table, indent=1) + "\n")
+    return {"report": str(report), "csv": str(out / "values.csv"), "json": str(out / "values.json"),
+            "pages": pages}

@@ -1,0 +1,95 @@
+"""The fleet judged: each axis's tracked parameters against its own history (hil.fleet.spc), its
+normal effects, its findings, and the table of every (axis, date, effect, value, standard error).
+
+Conventions: an axis's records in time order; its baseline is the records the manifest names
+(``baseline`` true) or else its first ``n_baseline`` readable ones; a record with an error is left
+out of the series and listed with its line. Values SI.
+"""
+from __future__ import annotations
+
+from hil.fleet.manifest import Entry
+from hil.fleet.spc import SCATTER, judge_series, new_effects, normal_effects
+
+__all__ = ["judge_fleet", "rows", "N_BASELINE"]
+
+N_BASELINE = 3
+
+
+def _baseline(entries: list[Entry], n_baseline: int) -> list[int]:
+    named = [i for i, e in enumerate(entries) if e.baseline]
+    return named or list(range(min(n_baseline, len(entries))))
+
+
+def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict, n_baseline: int = N_BASELINE,
+               scatter: float = SCATTER) -> dict:
+    """One axis: ``params`` (per tracked parameter: centre, sigma, status per record, flagged,
+    first_moved date, reasons), ``normal`` (effects of every baseline record), ``findings``
+    (effects named after the baseline outside the normal, with their first date), ``errors``,
+    ``verdict`` of the latest record and ``worst`` (the parameter that moved most, in sigma)."""
+    good = [e for e in entries if "error" not in figures.get(e.id, {"error": "not run"})]
+    errors = [{"record": e.id, "error": figures.get(e.id, {}).get("error", "not run")}
+              for e in entries if e not in good]
+    out = {"axis": axis, "records": [e.id for e in good], "dates": [e.timestamp for e in good], "params": {},
+           "normal": [], "findings": [], "errors": errors, "flags": [], "verdict": "no readable record",
+           "worst": None}
+    if not good:
+        return out
+    base = _baseline(good, n_baseline)
+    figs = [figures[e.id] for e in good]
+    names = sorted({k for f in figs for k in f.get("values", {})})
+    worst = None
+    for name in names:
+        vals = [f.get("values", {}).get(name, float("nan")) for f in figs]
+        ses = [f.get("stderr", {}).get(name) for f in figs]
+        try:
+            j = judge_series(vals, ses, base, thresholds.get(name), scatter)
+        except ValueError:
+            continue            # no baseline value: nothing to judge against
+        p = {"centre": j.limits.centre, "sigma": j.limits.sigma, "values": vals, "stderr": ses,
+             "lower": j.lower, "upper": j.upper, "status": j.status, "flagged": j.flagged,
+             "first_moved": good[j.first_moved].timestamp if j.first_moved is not None else None,
+             "reasons": j.reasons,
+             "threshold": thresholds[name].text if name in thresholds else None}
+        last = vals[-1]
+        drift = abs(last - j.limits.centre) / j.limits.sigma if j.limits.sigma > 0 else 0.0
+        p["drift_sigma"] = drift
+        out["params"][name] = p
+        if j.flagged:
+            out["flags"].append({"parameter": name, "since": p["first_moved"], "reason": "; ".join(j.reasons),
+                                 "from": j.limits.centre, "to": last})
+        if worst is None or drift > worst[1]:
+            worst = (name, drift, j.limits.centre, last)
+    if worst is not None:
+        out["worst"] = {"parameter": worst[0], "sigma": worst[1], "from": worst[2], "to": worst[3]}
+    named = [set(f.get("named", [])) for f in figs]
+    normal = normal_effects(named, base)
+    out["normal"] = sorted(normal)
+    out["findings"] = [{"effect": k, "since": good[i].timestamp} for k, i in new_effects(named, base, normal).items()]
+    for f in out["findings"]:
+        out["flags"].append({"parameter": f["effect"], "since": f["since"], "reason": "named by the chain, "
+                             "not in the axis's normal", "from": None, "to": None})
+    if out["flags"]:
+        out["verdict"] = "drift: " + ", ".join(f"{fl['parameter']} since {fl['since']}" for fl in out["flags"])
+    else:
+        out["verdict"] = "ok"
+    return out
+
+
+def judge_fleet(entries: list[Entry], figures: dict, thresholds: dict, n_baseline: int = N_BASELINE,
+                scatter: float = SCATTER) -> list[dict]:
+    """Every axis judged (see :func:`judge_axis`), in axis order."""
+    axes: dict[str, list[Entry]] = {}
+    for e in entries:
+        axes.setdefault(e.axis, []).append(e)
+    return [judge_axis(a, es, figures, thresholds, n_baseline, scatter) for a, es in sorted(axes.items())]
+
+
+def rows(entries: list[Entry], figures: dict) -> list[dict]:
+    """Every (axis, date, effect, value, standard error) of the fleet, one dict each (SI)."""
+    out = []
+    for e in entries:
+        f = figures.get(e.id, {})
+        for name, v in sorted(f.get("values", {}).items()):
+            out.append({"axis": e.axis, "date": e.timestamp, "effect": name, "value": v,
+                        "stderr": f.get("stderr", {}).get(name), "record": e.record})
+    return out
