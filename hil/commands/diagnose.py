@@ -115,7 +115,7 @@ def add_arguments(parser) -> None:
                              "and the residual analysis of the start model and of the model with the chain")
 
 
-def candidates_json(d):
+def candidates_json(d, unit=None):
     out = {"candidates": [c.as_json() for c in d["candidates"]], "verdict": d["verdict"],
            "also_missing": d.get("also_missing", []), "combinations": d.get("combinations", []),
            "joint_candidates": d.get("joint_candidates", []),
@@ -123,7 +123,7 @@ def candidates_json(d):
            "noise_floor_source": d.get("noise_floor_source", {}), "gap_closed": d.get("gap_closed")}
     # the convention of every command's JSON: SI, and a units map where a key does not carry its unit
     from hil.ident.replay import UNITS
-    per_channel = {c: UNITS.get(c, "") for c in d["noise_floor"]}
+    per_channel = {c: (unit(c) if unit is not None else UNITS.get(c, "")) for c in d["noise_floor"]}
     out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
@@ -178,7 +178,7 @@ def run(args) -> int:
     if args.report:
         write_html_report(args.report, d, rp, cfg, args, ", ".join(str(m.source) for m in metas))
     if args.json:
-        out = candidates_json(d)
+        out = candidates_json(d, rp.unit)
         if args.report:
             out["report"] = str(args.report)
         print(dumps(out, indent=1))
@@ -275,7 +275,7 @@ def write_html_report(path, d, rp, cfg, args, record) -> None:
     b = analyse(first, fitted) if fitted is not None else None
     with tempfile.TemporaryDirectory(prefix="hil-diagnose-") as tmp:
         figs = comparison_figures(a, Path(tmp), after=b)
-        write_diagnosis_report(Path(path), f"Diagnosis of {record} against {cfg.source}", candidates_json(d), a, figs,
+        write_diagnosis_report(Path(path), f"Diagnosis of {record} against {cfg.source}", candidates_json(d, rp.unit), a, figs,
                                after=b, record=record,
                                configs=[("model", cfg.source), ("model with the chain", args.out if b else None)],
                                cfg=cfg, validation=validation_tables(d, rp.unit))

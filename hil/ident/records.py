@@ -69,6 +69,7 @@ class Records:
         self.parts = list(parts)
         first = self.parts[0]
         self.cfg, self.plant, self.align = first.cfg, first.plant, first.align
+        self.units = first.units
         self.channels = list(first.channels)
         for p in self.parts[1:]:
             if list(p.channels) != self.channels:
