@@ -127,3 +127,54 @@ def test_irregular_sampling_is_said_with_its_samples(tmp_path):
 def test_regular_sampling_with_float_jitter_is_quiet(tmp_path):
     steps = 0.004 + 1e-9 * np.random.default_rng(2).standard_normal(400)
     assert read(_jittered(tmp_path, steps)).warnings == []
+
+
+# -- the run-to-run spread (issue 25, item 3) -------------------------------------------------------------
+def _repetition(src, dst, sigma, seed):
+    """A repetition of the record ``src``: the same command, the positions with their own scatter."""
+    m = read(src)
+    rng = np.random.default_rng(seed)
+    ch = dict(m.channels)
+    for c in ("x_motor", "x_table", "x_tip"):
+        ch[c] = ch[c] + sigma * rng.standard_normal(ch[c].size)
+    write(dst, ch)
+    return read(dst)
+
+
+def test_the_spread_of_repetitions_is_their_scatter_about_the_mean(tmp_path):
+    from hil.ident.noise import run_to_run_spread
+    src = tmp_path / "base.csv"
+    assert main(["synth", "--config", BENCH, "--duration", "2s", "--out", str(src)]) == 0
+    a = _repetition(src, tmp_path / "a.csv", 2e-6, 1)
+    b = _repetition(src, tmp_path / "b.csv", 2e-6, 2)
+    s = run_to_run_spread([a, b], ["x_motor", "x_tip"], "x_cmd")
+    # two records: the sample standard deviation at each sample is |a - b| / sqrt(2)
+    d = a["x_motor"] - b["x_motor"]
+    assert s["x_motor"]["rms"] == pytest.approx(np.sqrt(np.mean(d * d) / 2), rel=1e-12)
+    assert s["x_motor"]["repetitions"] == 2 and s["x_motor"]["tests"] == 1
+    # another command is another test: nothing to pool
+    other = read(src)
+    other.channels["x_cmd"] = other.channels["x_cmd"] * 1.1
+    assert run_to_run_spread([a, other], ["x_motor"], "x_cmd") == {}
+
+
+def test_diagnose_says_within_the_run_to_run_spread(tmp_path, capsys):
+    """HSM150's chain ended 'no effect pays' at 461 633 x the encoder's floor while its repetitions
+    differ by 10-217 rad: repetitions of one command now raise the floor by their scatter."""
+    src = tmp_path / "base.csv"
+    assert main(["synth", "--config", BENCH, "--duration", "2s", "--out", str(src)]) == 0
+    a, b = (tmp_path / "a.csv"), (tmp_path / "b.csv")
+    _repetition(src, a, 5e-6, 1)
+    _repetition(src, b, 5e-6, 2)
+    capsys.readouterr()
+    rc, out, _ = _run(capsys, "diagnose", str(a), str(b), "--config", BENCH, "--candidates", "coulomb_friction",
+                      "--no-chain", "--jobs", "1", "--json")
+    assert rc == 0
+    r = json.loads(out)["run_to_run"]
+    ma, mb = read(a), read(b)
+    d = ma["x_tip"] - mb["x_tip"]
+    assert r["spread"]["x_tip"] == pytest.approx(np.sqrt(np.mean(d * d) / 2), rel=1e-9)
+    assert r["within"] is True
+    rc, out, _ = _run(capsys, "diagnose", str(a), str(b), "--config", BENCH, "--candidates", "coulomb_friction",
+                      "--no-chain", "--jobs", "1")
+    assert "run-to-run: within the run-to-run spread" in out
