@@ -143,7 +143,7 @@ SCHEMA: dict[str, Field] = {
     "control.velocity_period": Field("time", "velocity-loop period Tv (Tp must be a whole multiple)",
                                      required=True, positive=True, minimum=LOOP_PERIOD_RANGE[0],
                                      maximum=LOOP_PERIOD_RANGE[1]),
-    "control.kv": Field("frequency", "position-loop P gain Kv (1/s)", required=True, nonnegative=True),
+    "control.kv": Field("loop_gain", "position-loop P gain Kv (1/s)", required=True, nonnegative=True),
     "control.ffv": Field("dimensionless", "velocity feed-forward, fraction of the interpolator velocity",
                          default=1.0, nonnegative=True),
     "control.position_feedback": Field("str", "position-loop feedback: the linear encoder (table) or the motor "

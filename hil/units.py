@@ -28,6 +28,7 @@ DIMENSIONS = {
     "length": "[length]",
     "time": "[time]",
     "frequency": "1 / [time]",
+    "loop_gain": "1 / [time]",
     "speed": "[length] / [time]",
     "acceleration": "[length] / [time] ** 2",
     "jerk": "[length] / [time] ** 3",
@@ -51,7 +52,7 @@ DIMENSIONS = {
 
 # What a bare number means for each kind (the SI unit), for messages.
 SI_UNIT = {
-    "dimensionless": "1", "length": "m", "time": "s", "frequency": "1/s", "speed": "m/s",
+    "dimensionless": "1", "length": "m", "time": "s", "frequency": "1/s", "loop_gain": "1/s", "speed": "m/s",
     "acceleration": "m/s^2", "jerk": "m/s^3", "mass": "kg", "inertia": "kg*m^2",
     "stiffness": "N/m", "damping": "N*s/m", "force": "N", "torque": "N*m",
     "rot_stiffness": "N*m/rad", "rot_damping": "N*m*s/rad", "angular_speed": "rad/s",
@@ -191,7 +192,7 @@ def parse(value, kind: str, what: str = "value") -> float:
 # The units a command-line option of each kind is usually written in, for the message that asks for
 # one (the first few of each kind; pint reads any other unit of the dimension as well).
 OPTION_UNITS = {
-    "length": "mm, um, m", "time": "s, ms, us", "frequency": "Hz, kHz",
+    "length": "mm, um, m", "time": "s, ms, us", "frequency": "Hz, kHz", "loop_gain": "1/s",
     "speed": "mm/min, m/min, mm/s, m/s", "acceleration": "m/s^2, mm/s^2", "jerk": "m/s^3, mm/s^3",
     "angular_speed": "rad/s, rpm", "force": "N, kN", "torque": "N*m", "voltage": "V, mV",
 }
@@ -306,6 +307,8 @@ DISPLAY_UNITS: dict[str, list[tuple[str, str, float]]] = {
     "length": [("nm", "nm", 1e-6), ("um", "um", 1e-3), ("mm", "mm", 10.0), ("m", "m", math.inf)],
     "time": [("us", "us", 1e-3), ("ms", "ms", 1.0), ("s", "s", math.inf)],
     "frequency": [("Hz", "Hz", 1e4), ("kHz", "kHz", math.inf)],
+    # a position loop's gain Kv: a speed per following error, 1/s (never Hz: it is no frequency of a cycle)
+    "loop_gain": [("1/s", "1/s", math.inf)],
     "speed": [("mm/s", "mm/s", 0.1), ("m/s", "m/s", math.inf)],
     "acceleration": [("m/s^2", "m/s^2", math.inf)],
     "jerk": [("m/s^3", "m/s^3", math.inf)],
@@ -425,6 +428,17 @@ def fmt_si(value, si_unit: str, digits: int = 4) -> str:
     """:func:`fmt` for a value known by its SI unit (a record's channel): ``fmt_si(2.03e-4, "m")``
     -> ``"203 um"``; a unit of no known kind is written as given."""
     kind = kind_of(si_unit)
+    if kind is None and si_unit in ANGLE_LADDER and value is not None and math.isfinite(float(value)):
+        # an angle (a motor's position on a record without a screw): urad, mrad or rad by magnitude
+        shown, scale = next(((n, k) for n, k in ANGLE_LADDER[si_unit] if abs(float(value)) >= k),
+                            ANGLE_LADDER[si_unit][-1])
+        text = f"{float(value) / scale:.{digits}g}"
+        return f"{float(value) / scale:.0f} {shown}" if "e" in text and abs(float(value)) >= 1 else f"{text} {shown}"
     if kind is None:
         return "n/a" if value is None else f"{float(value):.{digits}g} {si_unit}".rstrip()
     return fmt(value, kind, digits)
+
+
+# the displayed units of an angle and an angular speed, largest first
+ANGLE_LADDER = {"rad": (("rad", 1.0), ("mrad", 1e-3), ("urad", 1e-6)),
+                "rad/s": (("rad/s", 1.0), ("mrad/s", 1e-3), ("urad/s", 1e-6))}

@@ -20,7 +20,8 @@ embedded).
   hil compare DATA_EMPS.mat --config config/emps.toml --map t=t,qg=x_cmd,qm=x_motor,vir*gtau=force
   hil compare pulses.csv --config config/paper_bench.toml          (a u_add channel: added after the controller)
   hil compare idf.mat --config motor.toml --open-loop --map "data[:,0]=t,data[:,2]=x_motor,data[:,4]=torque"
-  hil compare log.txt --config lina.toml --map "data[:,0]=t[ms],data[:,1]=x_cmd[mm],data[:,3]=x_motor[mm]"
+  hil compare log.txt --config lina.toml --map "data[:,0]=t[ms],data[:,2]=x_cmd[mm],data[:,3]=x_motor[mm]"
+      (a maxon log: column 2 is the profile generator's demand, the command the loop follows; column 1 its target)
   hil compare data.csv --config old.toml --after new.toml     (before and after side by side)
 """
 

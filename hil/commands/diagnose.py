@@ -88,6 +88,11 @@ JSON_KEYS = {
     "chain[].score": JsonKey("", "the step's BIC fall"),
     "chain[].evidence": JsonKey("", "the verdict's evidence, one sentence"),
     "chain[].refitted_together": JsonKey("", "everything found so far was refitted together at this step"),
+    "run_to_run": JsonKey("", "where the records repeat one test: spread (per channel, the repetitions' scatter "
+                              "about their mean, the channel's unit), floor_parts (per channel: spread, sensor: the "
+                              "records' own floor, quantization: q/sqrt(12)), error_over (the final error in "
+                              "multiples of each part), within (every channel with a spread within it, the others at their own floor)",
+                          when="several records of one command"),
     "final": JsonKey("", "the end of the chain (keys final.*)", when="the chain (not --no-chain or --max-steps 1)"),
     "final.error": JsonKey(CHANNEL_UNIT, "per channel, RMS error of the model with the chain"),
     "final.noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the noise floor"),
@@ -115,7 +120,7 @@ def add_arguments(parser) -> None:
                              "and the residual analysis of the start model and of the model with the chain")
 
 
-def candidates_json(d):
+def candidates_json(d, unit=None):
     out = {"candidates": [c.as_json() for c in d["candidates"]], "verdict": d["verdict"],
            "also_missing": d.get("also_missing", []), "combinations": d.get("combinations", []),
            "joint_candidates": d.get("joint_candidates", []),
@@ -123,11 +128,11 @@ def candidates_json(d):
            "noise_floor_source": d.get("noise_floor_source", {}), "gap_closed": d.get("gap_closed")}
     # the convention of every command's JSON: SI, and a units map where a key does not carry its unit
     from hil.ident.replay import UNITS
-    per_channel = {c: UNITS.get(c, "") for c in d["noise_floor"]}
+    per_channel = {c: (unit(c) if unit is not None else UNITS.get(c, "")) for c in d["noise_floor"]}
     out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
-    for k in ("estimation", "validation"):
+    for k in ("estimation", "validation", "run_to_run"):
         if k in d:
             out[k] = d[k]
     if "chain" in d:
@@ -163,6 +168,9 @@ def run(args) -> int:
             d = diagnose(rp, names, progress=prog, jobs=args.jobs, min_gap=HALF_GAP)
         else:
             d = diagnose_chain(rp, names, max_steps=args.max_steps, progress=prog, jobs=args.jobs)
+    rr = run_to_run(d, rp)
+    if rr is not None:
+        d["run_to_run"] = rr
     table = None
     if len(metas) > 1 or vals:
         from hil.ident.records import estimation_validation
@@ -178,7 +186,7 @@ def run(args) -> int:
     if args.report:
         write_html_report(args.report, d, rp, cfg, args, ", ".join(str(m.source) for m in metas))
     if args.json:
-        out = candidates_json(d)
+        out = candidates_json(d, rp.unit)
         if args.report:
             out["report"] = str(args.report)
         print(dumps(out, indent=1))
@@ -191,6 +199,9 @@ def run(args) -> int:
     elif "residual" in d:
         for line in describe(d["residual"]):
             print("  " + line)
+    if rr is not None:
+        for line in run_to_run_text(rr, rp):
+            print(line)
     if table is not None:
         from hil.ident.records import errors_text
         for line in errors_text(table, rp.unit):
@@ -275,7 +286,7 @@ def write_html_report(path, d, rp, cfg, args, record) -> None:
     b = analyse(first, fitted) if fitted is not None else None
     with tempfile.TemporaryDirectory(prefix="hil-diagnose-") as tmp:
         figs = comparison_figures(a, Path(tmp), after=b)
-        write_diagnosis_report(Path(path), f"Diagnosis of {record} against {cfg.source}", candidates_json(d), a, figs,
+        write_diagnosis_report(Path(path), f"Diagnosis of {record} against {cfg.source}", candidates_json(d, rp.unit), a, figs,
                                after=b, record=record,
                                configs=[("model", cfg.source), ("model with the chain", args.out if b else None)],
                                cfg=cfg, validation=validation_tables(d, rp.unit))
@@ -325,6 +336,42 @@ def chain_text(d, rp) -> list[str]:
     if "residual" in f:
         lines += ["  " + x for x in describe(f["residual"])]
     return lines
+
+
+def run_to_run(d, rp) -> dict | None:
+    """The error of the final model against each part of the noise floor, where the records hold
+    repetitions of one test (hil.ident.noise.run_to_run_spread); None where they do not."""
+    from hil.ident.unexplained import AT_FLOOR
+    spread = {c: v for c, v in getattr(rp, "spread", {}).items() if v > 0}    # a copied channel has none
+    if not spread:
+        return None
+    err = d["final"]["error"] if "final" in d else d["error_before"]
+    others = [c for c in err if c not in spread]
+    src = getattr(rp, "noise_sources", {})
+    parts = {}
+    for c in spread:
+        sensor, q = src.get(c, {}).get("sensor"), src.get(c, {}).get("quantization", 0.0) / 12 ** 0.5
+        parts[c] = {"spread": spread[c], "sensor": sensor}
+        if q and (sensor is None or abs(q - sensor) > 1e-9 * q):       # said once where the floor is the grid
+            parts[c]["quantization"] = q
+    over = {c: {k: (err[c] / v if v else None) for k, v in parts[c].items()} for c in spread}
+    return {"spread": dict(spread), "floor_parts": parts, "error_over": over,
+            "within": (all(err[c] <= AT_FLOOR * spread[c] for c in spread)
+                       and all(err[c] <= AT_FLOOR * d["noise_floor"][c] for c in others))}
+
+
+def run_to_run_text(r, rp) -> list[str]:
+    from hil.units import fmt_si
+    lines = []
+    for c, over in r["error_over"].items():
+        bits = [f"{over[k]:.3g} x the {name} ({fmt_si(r['floor_parts'][c][k], rp.unit(c), 3)})"
+                for k, name in (("spread", "run-to-run spread"), ("sensor", "record's own floor"),
+                                ("quantization", "quantization")) if over.get(k) is not None]
+        lines.append(f"  {c}: the error is " + ", ".join(bits))
+    head = ("within the run-to-run spread: the model is as close to each record as repetitions of the same "
+            "command are to each other" if r["within"] else
+            "above the run-to-run spread of the repeated records")
+    return [f"run-to-run: {head}"] + lines
 
 
 def _write_config(args, d, source) -> None:

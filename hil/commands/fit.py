@@ -52,6 +52,8 @@ JSON_KEYS = {
                          "candidates[])", when=_RECORD),
     "fitted": JsonKey("SI", "per written config key: value, stderr (standard error) and unit (its SI unit)",
                       when=_RECORD),
+    "unchanged": JsonKey("SI", "per fitted config key that the fit left at the config's value (so not written): "
+                               "value, stderr and unit", when=_RECORD),
     "records": JsonKey("", "the estimation records", when=_RECORD),
     "units": JsonKey("", "the SI unit of each channel of error_before and error_after", when=_RECORD),
     "estimation": JsonKey("", "per estimation record: record, samples, errors before and after (as diagnose's)",
@@ -154,6 +156,9 @@ def run(args) -> int:
     written = _write(args, new, stderr, f"hil fit on {names}",
                      inputs=(args.config, *paths, *(getattr(args, "validate", None) or [])))
     out["fitted"] = {k: {"value": new.get(k), "stderr": stderr.get(k), "unit": _si_unit(k, new)} for k in written}
+    # every --add is accounted for: a fitted key the fit left at the config's value is named, not dropped
+    kept = [k for k in stderr if k not in written]
+    out["unchanged"] = {k: {"value": new.get(k), "stderr": stderr.get(k), "unit": _si_unit(k, new)} for k in kept}
     # the errors of the config as written (its values rounded to their standard errors)
     from hil.config import load
     saved = load(args.out)
@@ -172,7 +177,11 @@ def run(args) -> int:
         if len(metas) > 1 or vals:
             for line in errors_text(table, rp.unit):
                 print(line)
-        print(f"wrote {args.out} (changed: {', '.join(written) or 'nothing'})")
+        for k in kept:
+            print(f"{k}: the fit left it at the config's value {fitted_text([k], new, {})[0].split(' = ', 1)[1]} "
+                  f"(the record does not move it; not written)")
+        print(f"wrote {args.out} (changed: {', '.join(written) or 'nothing'}"
+              f"{'; unchanged: ' + ', '.join(kept) if kept else ''})")
     return 0
 
 

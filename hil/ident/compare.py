@@ -28,10 +28,10 @@ from hil.ident.scores import noise_floor, nrmse_fit, relative_error
 __all__ = ["metrics", "analyse"]
 
 
-def metrics(t, x_cmd, y, yhat, chan: str) -> dict:
+def metrics(t, x_cmd, y, yhat, chan: str, unit: str | None = None) -> dict:
     r = y - yhat
     out = {"rms": float(np.sqrt(np.mean(r * r))), "peak": float(np.max(np.abs(r))), "fit": nrmse_fit(y, yhat),
-           "relative_error": relative_error(y, yhat), "unit": UNITS.get(chan, "")}
+           "relative_error": relative_error(y, yhat), "unit": UNITS.get(chan, "") if unit is None else unit}
     if chan in POSITION_CHANNELS:
         om, os_ = overshoots(t, x_cmd, y), overshoots(t, x_cmd, yhat)
         out["overshoot_difference"] = float(np.max(np.abs(om - os_))) if om.size else 0.0
@@ -60,7 +60,7 @@ def analyse(replay: Replay, cfg=None) -> dict:
     for c in replay.channels:
         y = m[c]
         r = res[c]
-        d = metrics(t, xc, y, y - r, c)
+        d = metrics(t, xc, y, y - r, c, replay.unit(c))
         d["noise_floor"] = noise_floor(r)
         d["phase_rms"] = {p: (float(np.sqrt(np.mean(r[mask] ** 2))) if mask.any() else None)
                           for p, mask in phases.items()}

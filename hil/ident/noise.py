@@ -36,12 +36,13 @@ from hil.ident.residual import motion_phases
 from hil.ident.scores import noise_floor as third_difference_floor
 from hil.plant_config import _NOISE_KINDS
 
-__all__ = ["quantization_step", "standstill_noise", "record_noise", "given_noise", "SETTLE", "AR_ORDER",
-           "QUIET", "NOISE_KINDS"]
+__all__ = ["quantization_step", "standstill_noise", "record_noise", "given_noise", "run_to_run_spread",
+           "same_test", "SETTLE", "AR_ORDER", "QUIET", "NOISE_KINDS", "SAME_TEST"]
 
 SETTLE = 0.1        # s skipped at the start of each standstill (at most half of it)
 AR_ORDER = 4        # two resonances predicted away
 QUIET = 2.5         # segments within this factor of the quietest's variance are pooled
+SAME_TEST = 0.01    # repetitions of one test: their commands differ by at most this share of the command's RMS
 NOISE_KINDS = _NOISE_KINDS     # the unit kind of each channel's noise figure (the config's [noise] section)
 
 
@@ -146,4 +147,48 @@ def record_noise(meas, cfg, residuals: dict) -> dict:
             continue
         out[c] = {"rms": third_difference_floor(r), "source": "residual third difference (may hold structure)",
                   "quantization": 0.0}
+    return out
+
+
+def same_test(a, b, command: str) -> bool:
+    """Two records are repetitions of one test: the same sample times (within 1 % of a period over
+    the common length, lengths within 1 %) and the same ``command`` channel (the position command,
+    or the drive channel of an open-loop run) within :data:`SAME_TEST` of its RMS."""
+    n = min(len(a.t), len(b.t))
+    if n < 3 or abs(len(a.t) - len(b.t)) > 0.01 * n or command not in a or command not in b:
+        return False
+    ta, tb = a.t[:n] - a.t[0], b.t[:n] - b.t[0]
+    if float(np.max(np.abs(ta - tb))) > 0.01 * a.sample_period:
+        return False
+    ca, cb = np.asarray(a[command][:n], float), np.asarray(b[command][:n], float)
+    scale = float(np.sqrt(np.mean(ca * ca)))
+    return bool(scale > 0 and np.sqrt(np.mean((ca - cb) ** 2)) <= SAME_TEST * scale)
+
+
+def run_to_run_spread(measurements, channels, command: str) -> dict:
+    """Per channel, the scatter of repetitions of one test about their mean (SI, RMS): records are
+    grouped by :func:`same_test`; each group of two or more gives the sample standard deviation
+    across its records at every sample (over their common length), and the groups' variances are
+    pooled. This is what no model of the axis can explain: the same command gave these different
+    answers. Returns {channel: {"rms", "repetitions", "tests"}}; empty when no test was repeated."""
+    groups: list[list] = []
+    for m in measurements:
+        g = next((g for g in groups if same_test(g[0], m, command)), None)
+        if g is None:
+            groups.append([m])
+        else:
+            g.append(m)
+    groups = [g for g in groups if len(g) > 1]
+    out = {}
+    for c in channels:
+        ss, dof = 0.0, 0
+        for g in groups:
+            if not all(c in m for m in g):
+                continue
+            n = min(len(m.t) for m in g)
+            y = np.stack([np.asarray(m[c][:n], float) for m in g])
+            ss += float(np.sum((y - y.mean(axis=0)) ** 2))
+            dof += n * (len(g) - 1)
+        if dof:
+            out[c] = {"rms": math.sqrt(ss / dof), "repetitions": sum(len(g) for g in groups), "tests": len(groups)}
     return out

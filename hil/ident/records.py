@@ -29,6 +29,7 @@ import math
 import numpy as np
 
 from hil.errors import UserError
+from hil.ident.noise import run_to_run_spread
 from hil.ident.objective import Objective
 from hil.ident.replay import Replay
 from hil.ident.scores import relative_error
@@ -69,6 +70,7 @@ class Records:
         self.parts = list(parts)
         first = self.parts[0]
         self.cfg, self.plant, self.align = first.cfg, first.plant, first.align
+        self.units = first.units
         self.channels = list(first.channels)
         for p in self.parts[1:]:
             if list(p.channels) != self.channels:
@@ -87,6 +89,7 @@ class Records:
             src = "; ".join(f"{p.meas.source}: {p.noise_sources[c]['source']}" for p in self.parts)
             self.noise_sources[c] = {"rms": math.sqrt(f2), "source": src,
                                      "quantization": max(p.noise_sources[c].get("quantization", 0.0) for p in self.parts)}
+        self._add_run_to_run_spread()
         self.noise = {c: self.noise_sources[c]["rms"] for c in self.channels}
         self.base_residuals = self._join([p.base_residuals for p in self.parts])
         rms = {c: float(np.sqrt(np.mean(self.base_residuals[c] ** 2))) for c in self.channels}
@@ -94,6 +97,20 @@ class Records:
         sample_weights = {c: np.concatenate([np.full(n, p.objective.weights[c]) for n, p in zip(sizes, self.parts)])
                           for c in self.channels}
         self.objective = _JoinedObjective(self, weights, sample_weights, sum(sizes) * len(self.channels))
+
+    def _add_run_to_run_spread(self) -> None:
+        """Repetitions of one test (hil.ident.noise.run_to_run_spread) raise each channel's floor by
+        their scatter, in quadrature: a model cannot be closer to a record than the records of the
+        same command are to each other."""
+        first = self.parts[0]
+        command = first.drive_channel if first.open_loop else "x_cmd"
+        spread = run_to_run_spread([p._source_meas for p in self.parts], self.channels, command)
+        self.spread = {c: s["rms"] for c, s in spread.items()}
+        for c, s in spread.items():
+            ns = self.noise_sources[c]
+            ns["spread"], ns["sensor"] = s["rms"], ns["rms"]
+            ns["rms"] = math.hypot(ns["rms"], s["rms"])
+            ns["source"] += f"; run-to-run spread of {s['repetitions']} repetitions of {s['tests']} test(s)"
 
     def _join(self, dicts) -> dict:
         return {c: np.concatenate([d[c] for d in dicts]) for c in self.channels}

@@ -50,12 +50,26 @@ from hil.simulate import external_forces, per_velocity_period, simulate
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Replay", "POSITION_CHANNELS", "UNITS"]
+__all__ = ["Replay", "POSITION_CHANNELS", "UNITS", "angle_axis", "channel_units"]
 
 POSITION_CHANNELS = ("x_motor", "x_table", "x_tip")
 _FORCE = ("torque", "force", "command")
 UNITS = {"x_motor": "m", "x_table": "m", "x_tip": "m", "x_motor-x_table": "m", "torque": "N*m", "force": "N",
          "command": "V", "e_table": "m", "e_tip": "m"}
+
+
+def angle_axis(cfg) -> bool:
+    """A motor without a screw: a rotary axis whose pitch is 2 pi m per revolution, the convention
+    that makes the project's positions read as the motor's angle (1 m = 1 rad; config/hsm150.toml)."""
+    return bool(cfg.rotary) and abs(float(cfg["plant.pitch"]) - 2 * math.pi) <= 1e-9 * 2 * math.pi
+
+
+def channel_units(cfg) -> dict:
+    """The SI unit of each replayed channel on this axis: positions in rad on an angle axis
+    (:func:`angle_axis`), in m otherwise."""
+    if not angle_axis(cfg):
+        return dict(UNITS)
+    return {c: ("rad" if u == "m" else u) for c, u in UNITS.items()}
 
 
 class Replay:
@@ -66,6 +80,7 @@ class Replay:
                  open_loop: bool = False):
         logger.debug("replaying %s through %s", getattr(meas, "source", "a record"), cfg.source)
         self.cfg = cfg
+        self.units = channel_units(cfg)
         self.plant = plant_from_config(cfg)
         self.open_loop = open_loop
         self.drive_channel = _drive_channel(meas, cfg) if open_loop else None
@@ -215,7 +230,7 @@ class Replay:
         return out
 
     def unit(self, chan) -> str:
-        return UNITS.get(chan, "")
+        return self.units.get(chan, "")
 
     def primary_channel(self, res) -> str:
         return self.force_channel or max(self.channels, key=lambda c: float(np.mean(res[c] ** 2) * self.objective.weights[c] ** 2))

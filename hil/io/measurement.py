@@ -343,14 +343,27 @@ def _check_time(t: np.ndarray, source: str, first_line: int) -> list[str]:
         raise MeasurementError(f"{source}, line {first_line + k}, column 't': time {t[k]:g} s is not after "
                                f"the previous {t[k - 1]:g} s (time must increase strictly)")
     med = float(np.median(dt))
+    where = "line" if first_line > 1 else "sample"
     gaps = np.flatnonzero(dt > 1.5 * med)
+    out = []
     if gaps.size:
         k = int(gaps[0]) + 1
-        where = "line" if first_line > 1 else "sample"
         more = f" ({gaps.size} gaps in all, the widest {dt.max():g} s)" if gaps.size > 1 else ""
-        return [f"{source}, {where} {first_line + k}, column 't': a gap of {dt[k - 1]:g} s after {t[k - 1]:g} s (the "
-                f"sample period is {med:g} s){more}; the replay interpolates over it"]
-    return []
+        out.append(f"{source}, {where} {first_line + k}, column 't': a gap of {dt[k - 1]:g} s after {t[k - 1]:g} s "
+                   f"(the sample period is {med:g} s){more}; the replay interpolates over it")
+    # irregular steps short of a gap (a logger that samples every 12-20 ms): the spectra and the noise
+    # floor assume one period, so more than IRREGULAR_SHARE of the steps off by IRREGULAR_STEP is said
+    off = np.flatnonzero((np.abs(dt - med) > IRREGULAR_STEP * med) & (dt <= 1.5 * med))
+    if off.size > IRREGULAR_SHARE * dt.size:
+        first = ", ".join(str(first_line + int(k) + 1) for k in off[:5])
+        out.append(f"{source}, column 't': irregular sampling: {off.size} of {dt.size} steps differ from the median "
+                   f"{med:g} s by more than {IRREGULAR_STEP:.0%} (from {dt.min():g} s to {dt.max():g} s; first at "
+                   f"{where}s {first}); the replay interpolates between the samples, the spectra assume {med:g} s")
+    return out
+
+
+IRREGULAR_STEP = 0.10      # a step this far from the median period is irregular
+IRREGULAR_SHARE = 0.01     # ... and said when more than this share of the steps are
 
 
 def format_rows(columns: list[np.ndarray], factors: list[float]) -> str:

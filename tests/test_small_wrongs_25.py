@@ -1,0 +1,180 @@
+"""The small wrongs of issue 25 (item 5), each against what the code did before: a motor's angle
+printed as metres, a fitted key dropped without a word, Kv in Hz in the text and 1/s in the JSON,
+the actuator's help map on the target column, irregular sampling without a warning."""
+import json
+import re
+
+import numpy as np
+import pytest
+from conftest import CONFIG
+
+from hil.cli import main
+from hil.io.measurement import read, write
+from hil.units import fmt_si
+
+BENCH = str(CONFIG / "paper_bench.toml")
+HSM = str(CONFIG / "hsm150.toml")
+
+
+def _run(capsys, *argv):
+    rc = main(list(argv))
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def test_fmt_si_writes_an_angle_in_rad_mrad_urad():
+    assert fmt_si(5865.8, "rad") == "5866 rad"
+    assert fmt_si(2.083e-4, "rad", 3) == "208 urad"
+    assert fmt_si(0.0123, "rad", 3) == "12.3 mrad"
+
+
+@pytest.fixture(scope="module")
+def hsm_record(tmp_path_factory):
+    """An open-loop record of the HSM150 motor (config/hsm150.toml: 1 m = 1 rad, no screw)."""
+    out = tmp_path_factory.mktemp("hsm") / "steps.csv"
+    assert main(["synth", "--config", HSM, "--open-loop", "--pulses", "0.05Nm", "--duration", "2s",
+                 "--out", str(out)]) == 0
+    return str(out)
+
+
+def test_a_motor_without_a_screw_prints_its_positions_in_rad(hsm_record, tmp_path, capsys):
+    """The HSM150's positions are the motor's angle: 'x_motor RMS 5866 m' was printed."""
+    rc, out, _ = _run(capsys, "compare", hsm_record, "--config", HSM, "--open-loop", "--set",
+                      "friction.viscous=1e-4", "--out", str(tmp_path / "c"))
+    assert rc == 0
+    line = next(s for s in out.splitlines() if s.startswith("x_motor"))
+    assert re.search(r"RMS\s+[\d.]+ (u|m)?rad\s+peak\s+[\d.]+ (u|m)?rad", line), line
+    rc, out, _ = _run(capsys, "compare", hsm_record, "--config", HSM, "--open-loop", "--set",
+                      "friction.viscous=1e-4", "--out", str(tmp_path / "c"), "--json")
+    assert json.loads(out)["before"]["channels"]["x_motor"]["unit"] == "rad"
+
+
+def test_a_linear_axis_keeps_metres(tmp_path, capsys):
+    rec = tmp_path / "r.csv"
+    assert main(["synth", "--config", BENCH, "--duration", "2s", "--out", str(rec)]) == 0
+    capsys.readouterr()
+    rc, out, _ = _run(capsys, "compare", str(rec), "--config", BENCH, "--set", "plant.c2=40",
+                      "--out", str(tmp_path / "c"), "--json")
+    assert json.loads(out)["before"]["channels"]["x_tip"]["unit"] == "m"
+
+
+def test_every_added_key_is_written_or_named_as_unchanged(tmp_path, capsys):
+    """An open-loop record does not move Kv: '--add ... --add parameter:control.kv' wrote the
+    friction and said nothing of Kv."""
+    rec = tmp_path / "ol.csv"
+    assert main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--param", "level=2Nm", "--open-loop",
+                 "--pulses", "5Nm", "--duration", "3s", "--seed", "2", "--out", str(rec)]) == 0
+    capsys.readouterr()
+    argv = ["fit", str(rec), "--open-loop", "--config", BENCH, "--add", "coulomb_friction",
+            "--add", "parameter:control.kv", "--out", str(tmp_path / "f.toml")]
+    rc, out, _ = _run(capsys, *argv)
+    assert rc == 0
+    assert "control.kv: the fit left it at the config's value 50 1/s" in out
+    assert "unchanged: control.kv" in out
+    rc, out, _ = _run(capsys, *argv, "--json")
+    d = json.loads(out)
+    assert "effects.coulomb_friction.level" in d["fitted"]
+    assert d["unchanged"]["control.kv"]["value"] == 50.0 and d["unchanged"]["control.kv"]["unit"] == "1/s"
+
+
+def test_kv_has_one_unit_in_text_and_json(tmp_path, capsys):
+    """Kv printed as '74.246 Hz' in the text and '1/s' in the JSON: it is a gain in 1/s."""
+    rec = tmp_path / "kv.csv"
+    assert main(["synth", "--config", BENCH, "--set", "control.kv=60", "--duration", "3s", "--seed", "2",
+                 "--out", str(rec)]) == 0
+    capsys.readouterr()
+    argv = ["fit", str(rec), "--config", BENCH, "--add", "parameter:control.kv", "--out", str(tmp_path / "f.toml")]
+    rc, out, _ = _run(capsys, *argv)
+    line = next(s for s in out.splitlines() if s.startswith("control.kv"))
+    assert line.endswith("1/s  (standard error)") and "Hz" not in line
+    value = float(line.split("=")[1].split("+-")[0])
+    assert abs(value - 60.0) < 0.5                       # the synth's Kv, found again
+    rc, out, _ = _run(capsys, *argv, "--json")
+    assert json.loads(out)["fitted"]["control.kv"]["unit"] == "1/s"
+    assert 'kv = "' in (tmp_path / "f.toml").read_text() and " 1/s\"" in (tmp_path / "f.toml").read_text()
+
+
+def test_the_actuator_help_maps_the_demand_the_loop_follows(capsys):
+    """The maxon log's columns (PROVENANCE.md): 0 time, 1 target, 2 demand, 3 actual. The help's
+    example mapped the target (a step) to x_cmd; the loop follows the profile generator's demand."""
+    with pytest.raises(SystemExit):
+        main(["compare", "--help"])
+    text = capsys.readouterr().out
+    line = next(s for s in text.splitlines() if "lina.toml" in s)
+    assert "data[:,2]=x_cmd" in line and "data[:,1]=x_cmd" not in line
+
+
+def _jittered(tmp_path, steps):
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    x = 1e-3 * np.sin(t)
+    p = tmp_path / "j.csv"
+    write(p, {"t": t, "x_cmd": x, "x_motor": x})
+    return p
+
+
+def test_irregular_sampling_is_said_with_its_samples(tmp_path):
+    """A logger stepping 12-20 ms around 14 ms: no gap over 1.5 periods, and no word before."""
+    rng = np.random.default_rng(1)
+    steps = rng.choice([0.013, 0.014, 0.015, 0.017, 0.019], size=400)
+    m = read(_jittered(tmp_path, steps))
+    msg = next(w for w in m.warnings if "irregular sampling" in w)
+    off = np.flatnonzero(np.abs(steps - np.median(steps)) > 0.1 * np.median(steps))
+    assert f"{off.size} of 400 steps" in msg
+    # the line of the later sample of the first irregular step (line 1: the header, sample k on line k + 1)
+    assert f"lines {off[0] + 3}," in msg
+
+
+def test_regular_sampling_with_float_jitter_is_quiet(tmp_path):
+    steps = 0.004 + 1e-9 * np.random.default_rng(2).standard_normal(400)
+    assert read(_jittered(tmp_path, steps)).warnings == []
+
+
+# -- the run-to-run spread (issue 25, item 3) -------------------------------------------------------------
+def _repetition(src, dst, sigma, seed):
+    """A repetition of the record ``src``: the same command, the positions with their own scatter."""
+    m = read(src)
+    rng = np.random.default_rng(seed)
+    ch = dict(m.channels)
+    for c in ("x_motor", "x_table", "x_tip"):
+        ch[c] = ch[c] + sigma * rng.standard_normal(ch[c].size)
+    write(dst, ch)
+    return read(dst)
+
+
+def test_the_spread_of_repetitions_is_their_scatter_about_the_mean(tmp_path):
+    from hil.ident.noise import run_to_run_spread
+    src = tmp_path / "base.csv"
+    assert main(["synth", "--config", BENCH, "--duration", "2s", "--out", str(src)]) == 0
+    a = _repetition(src, tmp_path / "a.csv", 2e-6, 1)
+    b = _repetition(src, tmp_path / "b.csv", 2e-6, 2)
+    s = run_to_run_spread([a, b], ["x_motor", "x_tip"], "x_cmd")
+    # two records: the sample standard deviation at each sample is |a - b| / sqrt(2)
+    d = a["x_motor"] - b["x_motor"]
+    assert s["x_motor"]["rms"] == pytest.approx(np.sqrt(np.mean(d * d) / 2), rel=1e-12)
+    assert s["x_motor"]["repetitions"] == 2 and s["x_motor"]["tests"] == 1
+    # another command is another test: nothing to pool
+    other = read(src)
+    other.channels["x_cmd"] = other.channels["x_cmd"] * 1.1
+    assert run_to_run_spread([a, other], ["x_motor"], "x_cmd") == {}
+
+
+def test_diagnose_says_within_the_run_to_run_spread(tmp_path, capsys):
+    """HSM150's chain ended 'no effect pays' at 461 633 x the encoder's floor while its repetitions
+    differ by 10-217 rad: repetitions of one command now raise the floor by their scatter."""
+    src = tmp_path / "base.csv"
+    assert main(["synth", "--config", BENCH, "--duration", "2s", "--out", str(src)]) == 0
+    a, b = (tmp_path / "a.csv"), (tmp_path / "b.csv")
+    _repetition(src, a, 5e-6, 1)
+    _repetition(src, b, 5e-6, 2)
+    capsys.readouterr()
+    rc, out, _ = _run(capsys, "diagnose", str(a), str(b), "--config", BENCH, "--candidates", "coulomb_friction",
+                      "--no-chain", "--jobs", "1", "--json")
+    assert rc == 0
+    r = json.loads(out)["run_to_run"]
+    ma, mb = read(a), read(b)
+    d = ma["x_tip"] - mb["x_tip"]
+    assert r["spread"]["x_tip"] == pytest.approx(np.sqrt(np.mean(d * d) / 2), rel=1e-9)
+    assert r["within"] is True
+    rc, out, _ = _run(capsys, "diagnose", str(a), str(b), "--config", BENCH, "--candidates", "coulomb_friction",
+                      "--no-chain", "--jobs", "1")
+    assert "run-to-run: within the run-to-run spread" in out
