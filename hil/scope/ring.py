@@ -16,6 +16,11 @@ Events (a trip, how the run ended) go into a second, preallocated table of ``(ro
 kind code)`` and a list of reasons of the same fixed length (the reason string is made by the
 supervisor anyway; storing a reference allocates nothing), with its own counter.
 
+One ring may watch several runs one after the other (a sweep's runs on an axis): each run's
+clock starts at 0, so a row whose time is before the last row's starts a new run, and the ring
+shifts that run's times (and its events') to go on one sample period after the last row: the
+time axis of the page is one line.
+
 Channels, SI: ``t`` (s), ``x_cmd``, ``x_motor``, ``x_table``, ``x_tip`` (m; NaN where the backend
 has no tool-tip sensor), ``e_table``, ``e_tip`` (m, following errors), ``output`` (N m or N, the
 controller's output), ``speed`` (m/s, the motor's speed as a linear speed at the table) and
@@ -58,12 +63,22 @@ class ScopeRing:
         self.event_reasons: list[str] = [""] * events
         self.event_count = 0
         self.state = 0.0                                      # written into every row
+        self.t0 = 0.0                                         # added to the times of this run (see above)
+        self.last_t = -np.inf                                 # the time of the last row (with t0)
+        self.dt = 0.0                                         # the last row's time step
 
     # --- the writer (real-time) -------------------------------------------------------------------
     def write(self, t, x_cmd, x_motor, x_table, x_tip, e_table, e_tip, output, speed) -> None:
         """One row (real-time: stores into the preallocated array, then advances the counter)."""
         f = self._flat
         i = (self.count % self.capacity) * 10
+        t = t + self.t0
+        if t < self.last_t:          # a new run's clock starts at 0: go on after the last row
+            self.t0 += self.last_t + (self.dt or 1e-3) - t
+            t = self.last_t + (self.dt or 1e-3)
+        else:
+            self.dt = t - self.last_t if self.count else 0.0
+        self.last_t = t
         f[i] = t
         f[i + 1] = x_cmd
         f[i + 2] = x_motor
@@ -85,7 +100,7 @@ class ScopeRing:
         self.event_reasons[j] = reason
         f = self._event_flat
         f[3 * j] = self.count - 1
-        f[3 * j + 1] = t
+        f[3 * j + 1] = t + self.t0
         f[3 * j + 2] = code
         self.event_count += 1
         if kind in ("trip", "fault", "aborted"):
