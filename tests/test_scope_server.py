@@ -139,3 +139,100 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     assert main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed", "7000mm/min",
                  "--tacc", "200ms", "--scope", "--scope-port", "70000", "--out", str(tmp_path)]) == 2
     assert "--scope-port 70000: expected a port" in capsys.readouterr().err
+
+
+def _in_page(page, fn):
+    """Run ``fn`` in the page's own thread (Bokeh's next-tick callback, with the document's lock)."""
+    done, out = threading.Event(), []
+
+    def tick():
+        try:
+            out.append(fn())
+        finally:
+            done.set()
+    page.doc.add_next_tick_callback(tick)
+    assert done.wait(10)
+    return out[0] if out else None
+
+
+def _page(server):
+    assert _get(server.url)[0] == 200
+    assert _wait(lambda: server.sessions)
+    return server.sessions[-1]
+
+
+def test_a_trip_holds_the_rolling_view_with_the_cycles_before_it(served):
+    """The record ends in a trip at 2.999 s: the rolling view freezes around it (4 s of the 5 s time
+    base before it) and keeps every shown row before it; its reason is on the page."""
+    page = _page(served)
+    assert _wait(lambda: "held at the trip" in page.status.text)
+    assert page.freeze.active and page.frozen and page.freeze.label == "resume"
+    assert (page.x_range.start, page.x_range.end) == pytest.approx((2.999 - 4.0, 2.999 + 1.0))
+    t = np.asarray(page.source.data["t"])
+    assert t[0] == 0.0 and t[-1] == pytest.approx(2.997) and t.size == 1000
+    assert "following error 2.1 mm" in page.trips.text and page.events.data["t"] == [pytest.approx(2.999)]
+    _in_page(page, lambda: setattr(page.freeze, "active", False))       # resume: rolls on
+    assert not page.frozen and page.status.text == "rolling"
+
+
+def test_single_shot_on_a_rising_level_shows_pre_and_post_time():
+    """x_cmd = 100 mm/s * t crosses 50 mm at t = 0.5 s: armed single shot with 100 ms before and
+    50 ms after shows exactly that window, the trigger marked, then waits to be armed again."""
+    ring = ScopeRing()
+    server = ScopeServer(ring, period=0.02)
+    server.start()
+    try:
+        page = _page(server)
+
+        def setup():
+            page.source_select.value = "channel"
+            page.channel_select.value = "x_cmd"
+            page.slope_select.value = "rising"
+            page.level_input.value = "50"
+            page.pre_input.value = "100ms"
+            page.post_input.value = "50ms"
+            page.mode_select.value = "single"
+        _in_page(page, setup)
+        assert page.armed and "armed: waiting for x_cmd rising through 50 mm" in page.status.text
+        t = np.arange(1000) * 1e-3
+        ch = {n: np.zeros_like(t) for n in ["x_motor", "x_table", "x_tip", "e_table", "e_tip", "torque"]}
+        ch.update(t=t, x_cmd=0.1 * t)
+        feed(ring, ch, pace=None)
+        assert _wait(lambda: "single shot" in page.status.text)
+        assert not page.armed
+        assert page.triggered_at == pytest.approx(0.5, abs=1e-9)
+        assert (page.x_range.start, page.x_range.end) == pytest.approx((0.4, 0.55))
+        assert page.trigger_spans[0].location == pytest.approx(0.5)
+        shown = np.asarray(page.source.data["t"])
+        assert shown[0] == pytest.approx(0.4) and shown[-1] == pytest.approx(0.55) and shown.size == 151
+        np.testing.assert_allclose(page.source.data["x_cmd"], 100.0 * shown)
+        # a bad level is said on the page, the trigger kept
+        _in_page(page, lambda: setattr(page.level_input, "value", "fifty"))
+        assert "level 'fifty': expected a number in mm" in page.status.text and page.trigger.level == 50.0
+    finally:
+        server.stop()
+
+
+def test_cursors_and_the_csv_of_the_view(served):
+    page = _page(served)
+    assert _wait(lambda: page.frozen)                 # held at the trip
+
+    def cursors():
+        page.cursor_inputs[0].value = "1.0"
+        page.cursor_inputs[1].value = "1.0625"
+    _in_page(page, cursors)
+    assert "<b>B-A</b> 62.500 ms" in page.readout.text
+    assert page.cursor_spans[1][0].location == 1.0625
+    # x_tip = sin(2 pi 4 t) mm: 0 at A, 1 at B (within the interpolation between shown rows)
+    row = next(r for r in page.readout.text.split("<tr>") if r.startswith("<td>x_tip</td>"))
+    a, b, d = (float(c.split("</td>")[0]) for c in row.split("<td>")[2:5])
+    assert a == pytest.approx(0.0, abs=0.02) and b == pytest.approx(1.0, abs=0.02) and d == pytest.approx(b - a)
+    text = _in_page(page, page.export_csv)
+    lines = text.splitlines()
+    assert lines[0].startswith("# hil scope export 1") and lines[1].startswith("t [s],x_cmd [mm],x_motor [mm]")
+    data = np.loadtxt(lines[2:], delimiter=",")
+    t = np.asarray(page.source.data["t"])
+    keep = (t >= page.x_range.start) & (t <= page.x_range.end)
+    np.testing.assert_array_equal(data[:, 0], t[keep])
+    np.testing.assert_array_equal(data[:, 3], np.asarray(page.source.data["x_table"])[keep])
+    assert page.csv.text == text
