@@ -217,7 +217,8 @@ def run(args) -> int:
     settle = frf.settle_time(plant_model, st)
     duration = st.lead_in + math.ceil(settle / st.period + st.periods) * st.period + 1.0
     _check_travel(cfg, st, duration, 0.0)
-    from hil.commands.scope import scope_for
+    from hil.commands.scope import check_scope_options, scope_for
+    check_scope_options(args)          # before anything moves
     with scope_for(args, cfg, "frf") as ring:     # the page before the drive is enabled; held after the run
         name = args.backend or cfg.get("backend.type", "sim")
         backend = None

@@ -46,8 +46,8 @@ def run(args) -> int:
     refuse_if_tripped(cfg)            # homing may move the axis: a latched trip refuses it too
     offset = parse_option(args.offset, "length", "--offset")
     require_supervision(cfg, "canopen")
-    be = CanopenBackend(cfg)
     check_scope_options(args)
+    be = CanopenBackend(cfg)
     with scope_for(args, cfg, "home") as ring:
         try:
             with be:                   # opened (full start-up); shut down (disabled, closed) at the end

@@ -317,13 +317,12 @@ def run(args) -> int:
         check_scheduler_address(args.scheduler)
     from hil.supervisor import refuse_if_tripped
     refuse_if_tripped(cfg)             # a trip not reset refuses motion on every backend
-    if args.scope:
-        from hil.commands.scope import check_scope_options
-        if not args.backend:
-            raise UserError("--scope: the model sweep moves no axis (it runs the compiled model in worker processes); "
-                            "with --backend sim, canopen or serial its moves run through the runtime, and the scope "
-                            "shows them")
-        check_scope_options(args)
+    from hil.commands.scope import check_scope_options
+    check_scope_options(args)          # before anything runs
+    if args.scope and not args.backend:
+        raise UserError("--scope: the model sweep moves no axis (it runs the compiled model in worker processes); "
+                        "with --backend sim, canopen or serial its moves run through the runtime, and the scope "
+                        "shows them")
     # an unstable loop has no overshoot to report (issue 18): refused, for the compared model too
     from hil.closed_loop import check_loop_stability
     for c in (cfg, cmp_cfg):
