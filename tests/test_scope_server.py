@@ -236,3 +236,18 @@ def test_cursors_and_the_csv_of_the_view(served):
     np.testing.assert_array_equal(data[:, 0], t[keep])
     np.testing.assert_array_equal(data[:, 3], np.asarray(page.source.data["x_table"])[keep])
     assert page.csv.text == text
+
+
+def test_the_server_thread_does_not_keep_a_real_time_priority(served):
+    """The loop's runtime.priority raises every thread of the process to SCHED_FIFO, the scope's
+    server too: the server's next frame puts its thread back to the ordinary policy."""
+    import os
+    if not hasattr(os, "sched_setscheduler"):
+        pytest.skip("no sched_setscheduler on this platform")
+    _page(served)
+    tid = served.native_id
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(10))
+    except PermissionError:
+        pytest.skip("real-time scheduling not permitted here (CAP_SYS_NICE)")
+    assert _wait(lambda: os.sched_getscheduler(tid) == os.SCHED_OTHER, 5.0)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import hmac
 import logging
+import os
 import secrets
 import threading
 
@@ -92,6 +93,7 @@ class ScopeServer:
         self.period = float(period)
         self.sessions = []            # the live pages' state (tests read what was streamed)
         self._thread = None
+        self.native_id = None         # the server thread's id (Linux: its task id)
         self._loop = None
         self._ready = threading.Event()
         self._error = None
@@ -117,6 +119,7 @@ class ScopeServer:
         return self.url
 
     def _serve(self, sockets) -> None:
+        self.native_id = threading.get_native_id()
         try:
             loop = asyncio.new_event_loop()
             asyncio.set_event_loop(loop)
@@ -165,6 +168,19 @@ class ScopeServer:
             return
         page = _Page(self, doc)
         self.sessions.append(page)
+
+
+def ordinary_priority() -> None:
+    """Keep the calling thread (the server's) at the ordinary scheduling policy. The loop, with
+    ``runtime.priority``, raises every thread of the process to its real-time priority, this one
+    too, which would then compete with the cycle; called on every frame (one system call)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:              # not Linux-like, or not allowed: nothing to undo then either
+        pass
 
 
 def _token_auth(token: str):
@@ -449,6 +465,7 @@ class _Page:
 
     def update(self) -> None:
         """The periodic callback (the server's thread): new rows and events from the ring."""
+        ordinary_priority()
         self.next_event, new = self.ring.events(self.next_event)
         trips = []
         for row, t, kind, reason in new:
