@@ -46,7 +46,7 @@ def test_jog_on_the_simulated_plant(started, capsys):
     assert rows.shape[0] > 50 and rows[-1, IX("x_table")] == pytest.approx(out["end_m"], abs=1e-12)
     assert rows[-1, IX("x_cmd")] == pytest.approx(0.002, abs=1e-12)
     assert server.ring.events()[1][-1][2] == "complete"
-    assert server._loop is None                                  # held 0 s, then stopped
+    assert not server.running                                    # held 0 s, then stopped
 
 
 def test_home_shows_the_position_before_and_after(started, capsys):

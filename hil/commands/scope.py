@@ -46,13 +46,12 @@ def scope_for(args, cfg, command: str):
     if not getattr(args, "scope", False):
         yield None
         return
-    from hil.scope.ring import ScopeRing
     held = check_scope_options(args)
-    ring = ScopeRing()
-    server = start_scope(ring, args.scope_port, f"hil {command}: {cfg.get('meta.name') or cfg.source}",
+    # the server in its own process: it never holds this process's interpreter lock, which the cycle needs
+    server = start_scope(None, args.scope_port, f"hil {command}: {cfg.get('meta.name') or cfg.source}",
                          "N m" if cfg.rotary else "N", command)
     try:
-        yield ring
+        yield server.ring
     finally:
         hold(server, held)
 
@@ -72,14 +71,19 @@ def parse_hold(text, option: str) -> float | None:
 
 
 def start_scope(ring, port: int, title: str, output_unit: str, command: str, option: str = "--scope-port"):
-    """Start the scope's server and say where it is on stderr; returns the server."""
+    """Start the scope's server and say where it is on stderr; returns the server. ``ring``: a
+    ring to serve in a thread of this process (a replay: no cycle to disturb); None: a server in
+    its own process with a ring of its own (``server.ring``), for a run (hil.scope.server.ScopeProcess)."""
     import sys
 
     from hil.errors import UserError
-    from hil.scope.server import ScopeServer
+    from hil.scope.server import ScopeProcess, ScopeServer
     if not 0 <= port <= 65535:
         raise UserError(f"{option} {port}: expected a port, 0 (any free one) to 65535")
-    server = ScopeServer(ring, port=port, title=title, output_unit=output_unit)
+    if ring is None:
+        server = ScopeProcess(port=port, title=title, output_unit=output_unit)
+    else:
+        server = ScopeServer(ring, port=port, title=title, output_unit=output_unit)
     url = server.start()
     print(f"hil {command}: scope at {url}", file=sys.stderr, flush=True)
     return server

@@ -32,7 +32,7 @@ import numpy as np
 
 from hil.scope.ring import SCOPE_CHANNELS, ScopeRing
 
-__all__ = ["ScopeServer", "DISPLAY", "WINDOWS"]
+__all__ = ["ScopeServer", "ScopeProcess", "DISPLAY", "WINDOWS"]
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +101,10 @@ class ScopeServer:
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}/scope?token={self.token}"
+
+    @property
+    def running(self) -> bool:
+        return self._loop is not None
 
     # --- the server's thread ------------------------------------------------------------------------
     def start(self) -> str:
@@ -547,3 +551,108 @@ class _Page:
         if len(t):
             end = float(t[-1])
             self.x_range.start, self.x_range.end = max(end - self.window, float(t[0])), max(end, float(t[0]) + 1e-3)
+
+
+class ScopeProcess:
+    """The scope's server in a process of its own (what the commands use): the ring is a shared
+    file mapping (``/dev/shm`` where there is one) the cycle writes here and the server reads there,
+    so the server never holds this process's interpreter lock, which the cycle needs (a thread
+    here would: at ordinary priority, preempted while holding it, it stalls a real-time loop;
+    at the loop's priority it competes with it). The token goes to the child on its stdin (not its
+    command line, which other users of the machine can read); closing that pipe (or this process
+    ending) stops it.
+
+    Parameters: as :class:`ScopeServer`, less the ring (made here: ``capacity`` rows, ``events``).
+    """
+
+    def __init__(self, capacity: int = 1 << 16, events: int = 64, port: int = 0, token: str | None = None,
+                 title: str = "hil scope", output_unit: str = "N m", max_points: int = 2000, period: float = 0.04):
+        import tempfile
+        from pathlib import Path
+        self.port, self.token = int(port), token or secrets.token_urlsafe(16)
+        self.title, self.output_unit, self.max_points, self.period = title, output_unit, int(max_points), float(period)
+        folder = Path("/dev/shm") if Path("/dev/shm").is_dir() else Path(tempfile.gettempdir())
+        fd, path = tempfile.mkstemp(prefix="hil-scope-", dir=folder)
+        os.close(fd)
+        self.path = path
+        self.ring = ScopeRing(capacity, events, path=path)
+        self.proc = None
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}/scope?token={self.token}"
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def start(self) -> str:
+        """Start the server's process; returns the URL once it listens (a bad port: UserError)."""
+        import subprocess
+        import sys
+        from pathlib import Path
+
+        import hil
+        from hil.errors import UserError
+        root = str(Path(hil.__file__).resolve().parents[1])
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "hil.scope.server", self.path, str(self.ring.capacity), str(self.ring.n_events),
+             str(self.port), self.title, self.output_unit, str(self.max_points), str(self.period)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+        self.proc.stdin.write(self.token + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline().strip()
+        if not line.isdigit():
+            self.stop()
+            raise UserError(line.removeprefix("error: ") or "the scope's server did not start")
+        self.port = int(line)
+        return self.url
+
+    def stop(self) -> None:
+        """Stop the server's process; the ring stays readable here (its file is removed)."""
+        import subprocess
+        if self.proc is not None:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+            self.proc.stdout.close()
+        try:
+            os.unlink(self.path)
+        except FileNotFoundError:
+            pass
+
+
+def _serve_shared(argv: list[str]) -> int:
+    """The child of :class:`ScopeProcess`: serve the ring mapped from ``argv[0]`` until stdin closes."""
+    import sys
+    path, capacity, events, port, title, unit, max_points, period = argv
+    token = sys.stdin.readline().strip()
+    ring = ScopeRing.attach(path, int(capacity), int(events))
+    server = ScopeServer(ring, port=int(port), token=token, title=title, output_unit=unit,
+                         max_points=int(max_points), period=float(period))
+    try:
+        server.start()
+    except Exception as exc:               # said by the parent, in one line
+        print(f"error: {exc}", flush=True)
+        return 2
+    print(server.port, flush=True)
+    try:
+        sys.stdin.read()                   # until the parent closes it, or ends
+    except KeyboardInterrupt:              # Ctrl-C reaches the whole process group: the parent decides
+        sys.stdin.read()
+    server.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    import signal
+    import sys
+    signal.signal(signal.SIGINT, signal.SIG_IGN)     # Ctrl-C is the parent's: it ends the hold, then closes stdin
+    sys.exit(_serve_shared(sys.argv[1:]))
