@@ -227,3 +227,22 @@ def test_the_page_shows_a_drive_fault_with_the_cycles_before_it(tmp_path):
     kept = [x for x in t if x <= t_trip]
     assert kept[0] <= t_trip - 3.5 and len(kept) >= 3.5 / 0.012
     assert all(b > a for a, b in zip(t, t[1:]))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian: apt-get install chromium; "
+                                             ".ci/run installs it)")
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and signals as on Linux")
+def test_the_timing_benchmark_compares_a_run_with_the_page_streaming():
+    """benchmarks/bench_canopen_timing.py --scope: the same run without and with the page open in
+    Chromium, in one invocation; the page's figures on the second."""
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks/bench_canopen_timing.py"), "--transport", "virtual",
+                          "--rate", "250", "--duration", "3", "--scope", "--json"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    without, with_page = json.loads(out.stdout)["results"]
+    assert (without["scope"], with_page["scope"]) == (False, True) and with_page["transport"].endswith("+scope")
+    assert without["cycles"] == with_page["cycles"] == 750
+    assert "page_frames_per_s" not in without
+    assert with_page["page_frames_per_s"] > 0 and 0 < with_page["server_cpu_pct_of_one_core"] < 100
+    assert 0 < with_page["page_latency_p50_ms"] <= with_page["page_latency_p99_ms"] <= with_page["page_latency_max_ms"]
