@@ -235,6 +235,9 @@ class ScopePage:
         port = _free_port()
         self.browser = subprocess.Popen([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
                                          "--disable-background-networking", "--window-size=1400,1500",
+                                         # a page in front, as on a person's screen: no timer throttling
+                                         "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
+                                         "--disable-backgrounding-occluded-windows",
                                          f"--user-data-dir={self.profile}", f"--remote-debugging-port={port}", url],
                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         end, ws = time.monotonic() + 60, None

@@ -1,11 +1,13 @@
 """The live scope's page: a Bokeh server on 127.0.0.1 that streams a :class:`ScopeRing` to a
 browser (issue 27).
 
-The server runs in its own thread with its own event loop; a periodic callback of each page
+:class:`ScopeServer` runs in a thread with its own event loop; a periodic callback of each page
 (every ``period`` s) copies the rows written since its last call out of the ring (lock-free, see
 :mod:`hil.scope.ring`), keeps every ``stride``-th row so that the window on screen holds at most
-``max_points`` points per trace, and sends them with ``ColumnDataSource.stream``. The cycle never
-waits for it.
+``max_points`` points per trace, and sends them with ``ColumnDataSource.stream``. For a run, the
+commands use :class:`ScopeProcess`: the same server in a process of its own (``python -m
+hil.scope.server``), the ring a shared file mapping, so that the server never holds the
+interpreter lock of the process whose cycle writes the ring. The cycle never waits for it.
 
 Access: only 127.0.0.1 is bound; the page's URL carries a per-run token (``?token=...``). A
 request for the page without it or with a wrong one is answered 403 (Bokeh's auth hook: the
@@ -13,11 +15,15 @@ request is redirected to a handler that refuses). The page's websocket needs a s
 with a per-run secret (Bokeh's signed sessions), which only an authorised page load hands out,
 and an ``Origin`` of 127.0.0.1:PORT or localhost:PORT (``allow_websocket_origin``).
 
-The page: positions (mm), following errors (um), the controller's output (N m or N), the motor's
-speed (mm/s) and the supervisor's state; channels chosen with check boxes; a rolling window
-(Select); freeze and resume; every trip or fault drawn as a vertical span with its reason; export
-of the rows in view as CSV (in the browser, no server round trip). BokehJS is served from the
-bokeh package itself: nothing is fetched from the network.
+The page (:class:`_Page`): positions (mm), following errors (um), the controller's output (N m or
+N), the motor's speed (mm/s) and the supervisor's state; channels chosen with check boxes; modes
+rolling, normal and single shot on a trigger (a channel's level or edge, a trip, a move's start;
+pre- and post-trigger time); freeze and resume; two cursors (a tap or a typed time) with their
+differences; every trip or fault drawn as a vertical line with its reason, and the rolling view
+held around a trip; the view's CSV made here and handed to the browser as a download, its PNG by
+each plot's save tool. The rules (trigger, capture, cursors, CSV) are plain Python in
+:mod:`hil.scope.view`. BokehJS is served from the bokeh package itself: nothing is fetched from
+the network.
 """
 from __future__ import annotations
 
@@ -270,11 +276,13 @@ class _Page:
         self.x_range = Range1d(0.0, self.window)
         figs, self.lines = {}, {}
         self.cursor_spans, self.trigger_spans = ([], []), []
+        # canvas, not webgl: a browser without a GPU (a VM, headless Chromium) renders WebGL in
+        # software, about ten times slower for these 2000 points a trace (0.5 against 6 frames/s measured)
         for key, label in (("position", "position (mm)"), ("error", "following error (um)"),
                            ("output", f"output ({server.output_unit})"), ("speed", "motor speed (mm/s)"),
                            ("state", "supervisor state")):
             f = figure(height=90 if key == "state" else 200, sizing_mode="stretch_width", x_range=self.x_range,
-                       y_axis_label=label, tools="pan,box_zoom,wheel_zoom,reset,save", output_backend="webgl")
+                       y_axis_label=label, tools="pan,box_zoom,wheel_zoom,reset,save", output_backend="canvas")
             f.vspan(x="t", source=self.events, line_color="red", line_width=2)
             for spans, colour in zip(self.cursor_spans, ("#444444", "#888888")):
                 spans.append(Span(location=None, dimension="height", line_color=colour, line_dash="dashed"))
