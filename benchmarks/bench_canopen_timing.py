@@ -24,8 +24,9 @@ under 200 us; 1 kHz: fewer than 1 in 1 000, p99 under 200 us, never two in a row
 ``--scope`` (issue 27): each run twice in one invocation, without and then with the live scope
 (the cycle writes every row into the scope's ring; its Bokeh server streams it to a page open in
 headless Chromium, a real client in its own process): the lateness and the cycles without their
-answer of both, and their ratio; the page's latency (the row's cycle to the frame that brought it
-into the page, ms: the page records when the newest row changed, on the same wall clock), its
+answer of both, and their ratio; the page's latency (from the cycle that wrote a row, as it ran,
+to the frame that brought the row into the page, ms: the page records when its newest row
+changes, on the same wall clock), its
 frames per second and the server's CPU time (its process, as the commands start it) as a share
 of one core (/proc).
 """
@@ -81,8 +82,9 @@ def loop(cfg, seconds, spin, ring=None):
         gc.freeze()
         gc.disable()
         clock.start()
-        t0_epoch = time.time()                   # the wall clock the scope's page stamps its frames with
         dt = be.cycle_time
+        # when each cycle ran, on the wall clock the scope's page stamps its frames with (both sides)
+        walls = np.zeros(n)
         missed_at = []
         try:
             for i in range(n):
@@ -92,6 +94,7 @@ def loop(cfg, seconds, spin, ring=None):
                     missed_at.append(i)
                 if fb.fault and not tripped:
                     tripped = fb.fault
+                walls[i] = time.time()
                 if ring is not None:
                     ring.write(i * dt, pos, fb.x_motor, fb.x_table, fb.x_tip, pos - fb.x_table, pos - fb.x_table,
                                0.0, fb.v_motor)
@@ -123,7 +126,7 @@ def loop(cfg, seconds, spin, ring=None):
            "supervisor_would_trip": be.miss_run_max >= limit, "pdo_miss_limit": limit, "first_fault": tripped,
            "sync_to_answer_p50_us": _pct(ans, 50), "sync_to_answer_p99_us": _pct(ans, 99),
            "sync_to_answer_max_us": _pct(ans, 100), "spin_us": spin * 1e6,
-           "cpu_latency_held": clock.cpu_latency.was_held, "t0_epoch": t0_epoch}
+           "cpu_latency_held": clock.cpu_latency.was_held, "_walls": walls}
     if rate in GOALS:
         ratio, p99 = GOALS[rate]
         out["goals_met"] = bool(be.missed_total <= ratio * n and be.miss_run_max < 2 and out["lateness_p99_us"] < p99)
@@ -262,8 +265,9 @@ class ScopePage:
         cpu, wall = _cpu_s(self.server.proc.pid) - self.cpu0, time.monotonic() - self.wall0
         time.sleep(1.0)                          # the last frames
         frames = json.loads(self.devtools.evaluate("JSON.stringify(window.__frames)"))
-        run = [(now * 1e-3, t) for now, t in frames if t <= res["seconds"]]
-        lat = np.array([now - (res["t0_epoch"] + t) for now, t in run])
+        walls = res["_walls"]
+        run = [(now * 1e-3, int(round(t / res["period_s"]))) for now, t in frames if t <= res["seconds"]]
+        lat = np.array([now - walls[i] for now, i in run if i < walls.size])
         return {"page_latency_p50_ms": float(np.percentile(lat, 50) * 1e3) if lat.size else None,
                 "page_latency_p99_ms": float(np.percentile(lat, 99) * 1e3) if lat.size else None,
                 "page_latency_max_ms": float(lat.max() * 1e3) if lat.size else None,
@@ -280,10 +284,13 @@ class ScopePage:
 def _looped(cfg, seconds, spin, scope: bool) -> dict:
     """The loop, without or with the live scope's page open and streaming."""
     if not scope:
-        return loop(cfg, seconds, spin)
-    with ScopePage() as page:
-        res = loop(cfg, seconds, spin, ring=page.ring)
-        res.update(page.figures(res))
+        res = loop(cfg, seconds, spin)
+    else:
+        with ScopePage() as page:
+            res = loop(cfg, seconds, spin, ring=page.ring)
+            res["period_s"] = 1.0 / res["rate_hz"]
+            res.update(page.figures(res))
+    res.pop("_walls")
     return res
 
 

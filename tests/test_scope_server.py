@@ -251,3 +251,36 @@ def test_the_server_thread_does_not_keep_a_real_time_priority(served):
     except PermissionError:
         pytest.skip("real-time scheduling not permitted here (CAP_SYS_NICE)")
     assert _wait(lambda: os.sched_getscheduler(tid) == os.SCHED_OTHER, 5.0)
+
+
+def test_the_server_in_its_own_process_reads_the_shared_ring(tmp_path):
+    """ScopeProcess (what the commands start): the page served by a child process from the ring
+    written here; the token checked there; a taken port one line; stopped, its file gone and the
+    ring still readable here."""
+    import os
+    import socket
+
+    from hil.errors import UserError
+    from hil.scope.server import ScopeProcess
+    server = ScopeProcess()
+    try:
+        server.ring.write(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0)
+        server.ring.event(0.0, "trip", "Überlast ✓")
+        url = server.start()
+        assert server.running and os.path.exists(server.path) and str(server.path).count("hil-scope-")
+        assert _get(url.split("?")[0])[0] == 403 and _get(url)[0] == 200
+        attached = ScopeRing.attach(server.path, server.ring.capacity, server.ring.n_events)
+        assert attached.window()[1][0, 1:9].tolist() == [1, 2, 3, 4, 5, 6, 7, 8]
+        assert attached.events()[1] == [(0, 0.0, "trip", "Überlast ✓")]
+        attached.close()
+        with socket.socket() as taken:
+            taken.bind(("127.0.0.1", 0))
+            taken.listen()
+            second = ScopeProcess(port=taken.getsockname()[1])
+            with pytest.raises(UserError, match=f"port {taken.getsockname()[1]}: cannot listen on 127.0.0.1"):
+                second.start()
+            assert not second.running and not os.path.exists(second.path)
+    finally:
+        server.stop()
+    assert not server.running and not os.path.exists(server.path)
+    assert server.ring.count == 1 and server.ring.window()[1][0, 1] == 1.0
