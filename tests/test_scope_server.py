@@ -284,3 +284,42 @@ def test_the_server_in_its_own_process_reads_the_shared_ring(tmp_path):
         server.stop()
     assert not server.running and not os.path.exists(server.path)
     assert server.ring.count == 1 and server.ring.window()[1][0, 1] == 1.0
+
+
+def test_normal_mode_rearms_after_each_window():
+    """x_cmd = 10 mm * sin(2 pi t) rises through 0 at t = 0, 1, 2, ...: in normal mode with 100 ms
+    before and 200 ms after, the page shows the window around each rising crossing in turn; the
+    last one it shows is at the last whole second of the rows fed."""
+    ring = ScopeRing()
+    server = ScopeServer(ring, period=0.02)
+    server.start()
+    try:
+        page = _page(server)
+
+        def setup():
+            page.source_select.value = "channel"
+            page.channel_select.value = "x_cmd"
+            page.level_input.value = "0"
+            page.pre_input.value = "100ms"
+            page.post_input.value = "200ms"
+            page.mode_select.value = "normal"
+        _in_page(page, setup)
+        t = np.arange(3500) * 1e-3 + 0.5            # from 0.5 s: the crossings at 1, 2 and 3 s
+        ch = {n: np.zeros_like(t) for n in ["x_motor", "x_table", "x_tip", "e_table", "e_tip", "torque"]}
+        ch.update(t=t, x_cmd=0.01 * np.sin(2 * np.pi * t))
+        seen = []
+
+        def watch():
+            if page.triggered_at is not None and (not seen or seen[-1] != page.triggered_at):
+                seen.append(page.triggered_at)
+            return len(seen) == 3
+        feeder = threading.Thread(target=feed, args=(ring, ch), kwargs={"pace": 2.0})    # twice real time
+        feeder.start()
+        try:
+            assert _wait(watch, 10.0), seen
+        finally:
+            feeder.join()
+        assert seen == [pytest.approx(1.0, abs=1e-9), pytest.approx(2.0, abs=1e-9), pytest.approx(3.0, abs=1e-9)]
+        assert page.armed and (page.x_range.start, page.x_range.end) == pytest.approx((2.9, 3.2))
+    finally:
+        server.stop()
