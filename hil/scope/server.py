@@ -89,7 +89,7 @@ class ScopeServer:
     """
 
     def __init__(self, ring: ScopeRing, port: int = 0, token: str | None = None, title: str = "hil scope",
-                 output_unit: str = "N m", max_points: int = 2000, period: float = 0.05):
+                 output_unit: str = "N m", max_points: int = 2000, period: float = 0.04):
         self.ring = ring
         self.port = int(port)
         self.token = token or secrets.token_urlsafe(16)
