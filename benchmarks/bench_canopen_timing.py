@@ -19,6 +19,16 @@ under 200 us; 1 kHz: fewer than 1 in 1 000, p99 under 200 us, never two in a row
     python benchmarks/bench_canopen_timing.py --transport socketcand --rate 250 --duration 600 --burner
     python benchmarks/bench_canopen_timing.py --all          # the full protocol (about 45 minutes)
     python benchmarks/bench_canopen_timing.py --duration 10 --json
+    python benchmarks/bench_canopen_timing.py --transport socketcand --rate 1000 --duration 30 --scope
+
+``--scope`` (issue 27): each run twice in one invocation, without and then with the live scope
+(the cycle writes every row into the scope's ring; its Bokeh server streams it to a page open in
+headless Chromium, a real client in its own process): the lateness and the cycles without their
+answer of both, and their ratio; the page's latency (from the cycle that wrote a row, as it ran,
+to the frame that brought the row into the page, ms: the page records when its newest row
+changes, on the same wall clock), its
+frames per second and the server's CPU time (its process, as the commands start it) as a share
+of one core (/proc).
 """
 from __future__ import annotations
 
@@ -54,9 +64,10 @@ def _pct(a, q):
     return float(np.percentile(a, q) * 1e6) if len(a) else float("nan")
 
 
-def loop(cfg, seconds, spin):
+def loop(cfg, seconds, spin, ring=None):
     """A standstill loop of ``seconds`` on the real-time clock (read, setpoint, SYNC, wait), as
-    hil.loop.ControlLoop runs it: the clock's wait is the backend's receive."""
+    hil.loop.ControlLoop runs it: the clock's wait is the backend's receive. ``ring``: the live
+    scope's ring, written every cycle as hil.loop.ControlLoop writes it."""
     be = CanopenBackend(cfg, lockstep=False)
     be.open()
     try:
@@ -71,6 +82,9 @@ def loop(cfg, seconds, spin):
         gc.freeze()
         gc.disable()
         clock.start()
+        dt = be.cycle_time
+        # when each cycle ran, on the wall clock the scope's page stamps its frames with (both sides)
+        walls = np.zeros(n)
         missed_at = []
         try:
             for i in range(n):
@@ -80,6 +94,10 @@ def loop(cfg, seconds, spin):
                     missed_at.append(i)
                 if fb.fault and not tripped:
                     tripped = fb.fault
+                walls[i] = time.time()
+                if ring is not None:
+                    ring.write(i * dt, pos, fb.x_motor, fb.x_table, fb.x_tip, pos - fb.x_table, pos - fb.x_table,
+                               0.0, fb.v_motor)
                 be.write_setpoint(Setpoint(position=pos))
                 be.sync()
                 clock.wait()
@@ -108,7 +126,7 @@ def loop(cfg, seconds, spin):
            "supervisor_would_trip": be.miss_run_max >= limit, "pdo_miss_limit": limit, "first_fault": tripped,
            "sync_to_answer_p50_us": _pct(ans, 50), "sync_to_answer_p99_us": _pct(ans, 99),
            "sync_to_answer_max_us": _pct(ans, 100), "spin_us": spin * 1e6,
-           "cpu_latency_held": clock.cpu_latency.was_held}
+           "cpu_latency_held": clock.cpu_latency.was_held, "_walls": walls}
     if rate in GOALS:
         ratio, p99 = GOALS[rate]
         out["goals_met"] = bool(be.missed_total <= ratio * n and be.miss_run_max < 2 and out["lateness_p99_us"] < p99)
@@ -151,7 +169,132 @@ def start_burner(seconds):
     return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us"):
+# the page records when the newest row it holds changes (every 5 ms), on the wall clock
+RECORDER = r"""(() => {
+  const src = Bokeh.documents[0].get_model_by_name('traces');
+  window.__frames = []; let last = null;
+  setInterval(() => {
+    const t = src.data.t, n = t.length;
+    if (n && t[n - 1] !== last) { last = t[n - 1]; window.__frames.push([performance.timeOrigin + performance.now(), last]); }
+  }, 5);
+  return 'recording';
+})()"""
+READY = "!!(window.Bokeh && Bokeh.documents.length && Bokeh.documents[0].get_model_by_name('traces'))"
+
+
+class _DevTools:
+    """A page's DevTools protocol (tornado's websocket client; tornado comes with bokeh)."""
+
+    def __init__(self, ws_url):
+        from tornado.ioloop import IOLoop
+        from tornado.websocket import websocket_connect
+        self.loop = IOLoop(make_current=False)
+        self.conn = self.loop.run_sync(lambda: websocket_connect(ws_url), timeout=30)
+        self.n = 0
+
+    def evaluate(self, expression):
+        self.n += 1
+        mid = self.n
+
+        async def call():
+            await self.conn.write_message(json.dumps({"id": mid, "method": "Runtime.evaluate",
+                                                      "params": {"expression": expression, "returnByValue": True}}))
+            while True:
+                reply = json.loads(await self.conn.read_message())
+                if reply.get("id") == mid:
+                    return reply["result"]["result"].get("value")
+        return self.loop.run_sync(call, timeout=60)
+
+    def close(self):
+        self.conn.close()
+        self.loop.close()
+
+
+def _cpu_s(pid) -> float:
+    """CPU time (user + system, s) of a process (Linux /proc)."""
+    with open(f"/proc/{pid}/stat") as fh:
+        fields = fh.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+class ScopePage:
+    """The live scope of a run as the commands start it (hil.scope.server.ScopeProcess: the ring a
+    shared mapping, the Bokeh server in its own process) with its page open in headless Chromium,
+    streaming."""
+
+    def __enter__(self):
+        import shutil
+        import tempfile
+        import urllib.request
+
+        from hil.scope.server import ScopeProcess
+        chromium = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
+        if chromium is None:
+            raise SystemExit("--scope: no Chromium installed (Debian: apt-get install chromium)")
+        self.server = ScopeProcess()
+        self.ring = self.server.ring
+        url = self.server.start()
+        self.profile = tempfile.mkdtemp(prefix="bench-scope-")
+        port = _free_port()
+        self.browser = subprocess.Popen([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                                         "--disable-background-networking", "--window-size=1400,1500",
+                                         # a page in front, as on a person's screen: no timer throttling
+                                         "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
+                                         "--disable-backgrounding-occluded-windows",
+                                         f"--user-data-dir={self.profile}", f"--remote-debugging-port={port}", url],
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        end, ws = time.monotonic() + 60, None
+        while ws is None and time.monotonic() < end:
+            time.sleep(0.2)
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=2) as r:
+                    ws = next((p["webSocketDebuggerUrl"] for p in json.loads(r.read()) if "/scope" in p["url"]), None)
+            except OSError:
+                pass
+        self.devtools = _DevTools(ws)
+        while not self.devtools.evaluate(READY):
+            if time.monotonic() > end:
+                raise RuntimeError("the scope's page did not load in Chromium")
+            time.sleep(0.2)
+        self.devtools.evaluate(RECORDER)
+        self.cpu0, self.wall0 = _cpu_s(self.server.proc.pid), time.monotonic()
+        return self
+
+    def figures(self, res) -> dict:
+        """After the run: the page's latency, frames per second, the server's CPU share."""
+        cpu, wall = _cpu_s(self.server.proc.pid) - self.cpu0, time.monotonic() - self.wall0
+        time.sleep(1.0)                          # the last frames
+        frames = json.loads(self.devtools.evaluate("JSON.stringify(window.__frames)"))
+        walls = res["_walls"]
+        run = [(now * 1e-3, int(round(t / res["period_s"]))) for now, t in frames if t <= res["seconds"]]
+        lat = np.array([now - walls[i] for now, i in run if i < walls.size])
+        return {"page_latency_p50_ms": float(np.percentile(lat, 50) * 1e3) if lat.size else None,
+                "page_latency_p99_ms": float(np.percentile(lat, 99) * 1e3) if lat.size else None,
+                "page_latency_max_ms": float(lat.max() * 1e3) if lat.size else None,
+                "page_frames_per_s": len(run) / res["seconds"], "server_cpu_pct_of_one_core": 100.0 * cpu / wall}
+
+    def __exit__(self, *exc):
+        import shutil
+        self.devtools.close()
+        _stop(self.browser, wait=10.0)
+        self.server.stop()
+        shutil.rmtree(self.profile, ignore_errors=True)
+
+
+def _looped(cfg, seconds, spin, scope: bool) -> dict:
+    """The loop, without or with the live scope's page open and streaming."""
+    if not scope:
+        res = loop(cfg, seconds, spin)
+    else:
+        with ScopePage() as page:
+            res = loop(cfg, seconds, spin, ring=page.ring)
+            res["period_s"] = 1.0 / res["rate_hz"]
+            res.update(page.figures(res))
+    res.pop("_walls")
+    return res
+
+
+def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False):
     period = f"{1000.0 / rate:g} ms"
     # start-up over SDO is not what is measured: a generous answer time, so that a loaded machine (the
     # burner, a test run beside it) does not abort the configuration before the cycle starts
@@ -170,7 +313,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us")
             over.update({"canopen.interface": "virtual", "canopen.channel": f"bench{os.getpid()}"})
             cfg = config.load(CONFIG, over)
             sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=over["canopen.channel"]), lockstep=False)
-            res = loop(cfg, seconds, spin)
+            res = _looped(cfg, seconds, spin, scope)
             from hil.commands.drive_sim import answer_stats
             drive_stats = answer_stats(sim.answer_times)
         else:
@@ -183,7 +326,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us")
             if not drive.stdout.readline():               # the server is up
                 raise RuntimeError("hil drive-sim did not start")
             over.update({"canopen.interface": "socketcand", "canopen.channel": "can0", "canopen.port": port})
-            res = loop(config.load(CONFIG, over), seconds, spin)
+            res = _looped(config.load(CONFIG, over), seconds, spin, scope)
             _stop(drive)
             line = drive.stdout.readline()
             drive_stats = json.loads(line) if line.strip() else {}
@@ -195,7 +338,8 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us")
     steal_after, wall = steal_seconds(), time.monotonic() - t_before
     steal = None if steal_before is None or steal_after is None else steal_after - steal_before
     res.update({"steal_s": steal, "steal_pct": None if steal is None else 100.0 * steal / (wall * (os.cpu_count() or 1)),
-                "transport": "virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)",
+                "transport": ("virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)")
+                + (" +scope" if scope else ""), "scope": scope,
                 "load": "one core busy" if burner else "idle",
                 "drive_answer_p50_us": drive_stats.get("answer_p50_us"),
                 "drive_answer_p99_us": drive_stats.get("answer_p99_us"),
@@ -225,6 +369,20 @@ def _table(results) -> str:
     return "\n".join(rows)
 
 
+def _scope_line(without: dict, with_scope: dict) -> str:
+    """The two runs of one setting side by side: the cycle's figures' ratio (with / without), the page's."""
+    def ratio(key):
+        a, b = without[key], with_scope[key]
+        return f"{b / a:.2f}" if a else ("1.00" if b == a else "inf")
+    w = with_scope
+    ms = "/".join("-" if w[k] is None else f"{w[k]:.0f}" for k in ("page_latency_p50_ms", "page_latency_p99_ms",
+                                                                    "page_latency_max_ms"))
+    return (f"  scope: lateness p50/p99/max {ratio('lateness_p50_us')}/{ratio('lateness_p99_us')}/"
+            f"{ratio('lateness_max_us')} x, cycles without answer {without['cycles_without_answer']} -> "
+            f"{w['cycles_without_answer']}; page latency p50/p99/max {ms} ms, {w['page_frames_per_s']:.1f} frames/s, "
+            f"server CPU {w['server_cpu_pct_of_one_core']:.1f} % of one core")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--transport", default="both", choices=("virtual", "socketcand", "both"),
@@ -245,6 +403,9 @@ def main(argv=None):
     ap.add_argument("--cpu-latency", default="0us", metavar="TIME",
                     help="with --priority: runtime.cpu_latency of the loop and hil drive-sim --cpu-latency, the CPUs' "
                          "wake-up latency held during the run (default 0us: idle CPUs poll; inf: no request)")
+    ap.add_argument("--scope", action="store_true",
+                    help="each run without and then with the live scope's page open and streaming (headless "
+                         "Chromium): both, their ratio, the page's latency, frames per second, the server's CPU")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
     if args.all:
@@ -257,10 +418,14 @@ def main(argv=None):
         seconds = args.duration if args.duration is not None else DEFAULT_SECONDS.get(rate, 60.0)
         for transport in transports:
             for burner in loads:
-                results.append(run_one(transport, rate, seconds, burner, spin, args.priority, args.cpu_latency))
-                if not args.json:
-                    print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
-                          flush=True)
+                for scope in ((False, True) if args.scope else (False,)):
+                    results.append(run_one(transport, rate, seconds, burner, spin, args.priority, args.cpu_latency,
+                                           scope))
+                    if not args.json:
+                        print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
+                              flush=True)
+                if args.scope and not args.json:
+                    print(_scope_line(results[-2], results[-1]), flush=True)
     info = {"cpus": os.cpu_count(), "switch_interval_s": sys.getswitchinterval(), "priority": args.priority,
             "kernel": os.uname().release}
     if args.json:

@@ -139,3 +139,187 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     assert main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed", "7000mm/min",
                  "--tacc", "200ms", "--scope", "--scope-port", "70000", "--out", str(tmp_path)]) == 2
     assert "--scope-port 70000: expected a port" in capsys.readouterr().err
+
+
+def _in_page(page, fn):
+    """Run ``fn`` in the page's own thread (Bokeh's next-tick callback, with the document's lock)."""
+    done, out = threading.Event(), []
+
+    def tick():
+        try:
+            out.append(fn())
+        finally:
+            done.set()
+    page.doc.add_next_tick_callback(tick)
+    assert done.wait(10)
+    return out[0] if out else None
+
+
+def _page(server):
+    assert _get(server.url)[0] == 200
+    assert _wait(lambda: server.sessions)
+    return server.sessions[-1]
+
+
+def test_a_trip_holds_the_rolling_view_with_the_cycles_before_it(served):
+    """The record ends in a trip at 2.999 s: the rolling view freezes around it (4 s of the 5 s time
+    base before it) and keeps every shown row before it; its reason is on the page."""
+    page = _page(served)
+    assert _wait(lambda: "held at the trip" in page.status.text)
+    assert page.freeze.active and page.frozen and page.freeze.label == "resume"
+    assert (page.x_range.start, page.x_range.end) == pytest.approx((2.999 - 4.0, 2.999 + 1.0))
+    t = np.asarray(page.source.data["t"])
+    assert t[0] == 0.0 and t[-1] == pytest.approx(2.997) and t.size == 1000
+    assert "following error 2.1 mm" in page.trips.text and page.events.data["t"] == [pytest.approx(2.999)]
+    _in_page(page, lambda: setattr(page.freeze, "active", False))       # resume: rolls on
+    assert not page.frozen and page.status.text == "rolling"
+
+
+def test_single_shot_on_a_rising_level_shows_pre_and_post_time():
+    """x_cmd = 100 mm/s * t crosses 50 mm at t = 0.5 s: armed single shot with 100 ms before and
+    50 ms after shows exactly that window, the trigger marked, then waits to be armed again."""
+    ring = ScopeRing()
+    server = ScopeServer(ring, period=0.02)
+    server.start()
+    try:
+        page = _page(server)
+
+        def setup():
+            page.source_select.value = "channel"
+            page.channel_select.value = "x_cmd"
+            page.slope_select.value = "rising"
+            page.level_input.value = "50"
+            page.pre_input.value = "100ms"
+            page.post_input.value = "50ms"
+            page.mode_select.value = "single"
+        _in_page(page, setup)
+        assert page.armed and "armed: waiting for x_cmd rising through 50 mm" in page.status.text
+        t = np.arange(1000) * 1e-3
+        ch = {n: np.zeros_like(t) for n in ["x_motor", "x_table", "x_tip", "e_table", "e_tip", "torque"]}
+        ch.update(t=t, x_cmd=0.1 * t)
+        feed(ring, ch, pace=None)
+        assert _wait(lambda: "single shot" in page.status.text)
+        assert not page.armed
+        assert page.triggered_at == pytest.approx(0.5, abs=1e-9)
+        assert (page.x_range.start, page.x_range.end) == pytest.approx((0.4, 0.55))
+        assert page.trigger_spans[0].location == pytest.approx(0.5)
+        shown = np.asarray(page.source.data["t"])
+        assert shown[0] == pytest.approx(0.4) and shown[-1] == pytest.approx(0.55) and shown.size == 151
+        np.testing.assert_allclose(page.source.data["x_cmd"], 100.0 * shown)
+        # a bad level is said on the page, the trigger kept
+        _in_page(page, lambda: setattr(page.level_input, "value", "fifty"))
+        assert "level 'fifty': expected a number in mm" in page.status.text and page.trigger.level == 50.0
+    finally:
+        server.stop()
+
+
+def test_cursors_and_the_csv_of_the_view(served):
+    page = _page(served)
+    assert _wait(lambda: page.frozen)                 # held at the trip
+
+    def cursors():
+        page.cursor_inputs[0].value = "1.0"
+        page.cursor_inputs[1].value = "1.0625"
+    _in_page(page, cursors)
+    assert "<b>B-A</b> 62.500 ms" in page.readout.text
+    assert page.cursor_spans[1][0].location == 1.0625
+    # x_tip = sin(2 pi 4 t) mm: 0 at A, 1 at B (within the interpolation between shown rows)
+    row = next(r for r in page.readout.text.split("<tr>") if r.startswith("<td>x_tip</td>"))
+    a, b, d = (float(c.split("</td>")[0]) for c in row.split("<td>")[2:5])
+    assert a == pytest.approx(0.0, abs=0.02) and b == pytest.approx(1.0, abs=0.02) and d == pytest.approx(b - a)
+    text = _in_page(page, page.export_csv)
+    lines = text.splitlines()
+    assert lines[0].startswith("# hil scope export 1") and lines[1].startswith("t [s],x_cmd [mm],x_motor [mm]")
+    data = np.loadtxt(lines[2:], delimiter=",")
+    t = np.asarray(page.source.data["t"])
+    keep = (t >= page.x_range.start) & (t <= page.x_range.end)
+    np.testing.assert_array_equal(data[:, 0], t[keep])
+    np.testing.assert_array_equal(data[:, 3], np.asarray(page.source.data["x_table"])[keep])
+    assert page.csv.text == text
+
+
+def test_the_server_thread_does_not_keep_a_real_time_priority(served):
+    """The loop's runtime.priority raises every thread of the process to SCHED_FIFO, the scope's
+    server too: the server's next frame puts its thread back to the ordinary policy."""
+    import os
+    if not hasattr(os, "sched_setscheduler"):
+        pytest.skip("no sched_setscheduler on this platform")
+    _page(served)
+    tid = served.native_id
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(10))
+    except PermissionError:
+        pytest.skip("real-time scheduling not permitted here (CAP_SYS_NICE)")
+    assert _wait(lambda: os.sched_getscheduler(tid) == os.SCHED_OTHER, 5.0)
+
+
+def test_the_server_in_its_own_process_reads_the_shared_ring(tmp_path):
+    """ScopeProcess (what the commands start): the page served by a child process from the ring
+    written here; the token checked there; a taken port one line; stopped, its file gone and the
+    ring still readable here."""
+    import os
+    import socket
+
+    from hil.errors import UserError
+    from hil.scope.server import ScopeProcess
+    server = ScopeProcess()
+    try:
+        server.ring.write(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0)
+        server.ring.event(0.0, "trip", "Überlast ✓")
+        url = server.start()
+        assert server.running and os.path.exists(server.path) and str(server.path).count("hil-scope-")
+        assert _get(url.split("?")[0])[0] == 403 and _get(url)[0] == 200
+        attached = ScopeRing.attach(server.path, server.ring.capacity, server.ring.n_events)
+        assert attached.window()[1][0, 1:9].tolist() == [1, 2, 3, 4, 5, 6, 7, 8]
+        assert attached.events()[1] == [(0, 0.0, "trip", "Überlast ✓")]
+        attached.close()
+        with socket.socket() as taken:
+            taken.bind(("127.0.0.1", 0))
+            taken.listen()
+            second = ScopeProcess(port=taken.getsockname()[1])
+            with pytest.raises(UserError, match=f"port {taken.getsockname()[1]}: cannot listen on 127.0.0.1"):
+                second.start()
+            assert not second.running and not os.path.exists(second.path)
+    finally:
+        server.stop()
+    assert not server.running and not os.path.exists(server.path)
+    assert server.ring.count == 1 and server.ring.window()[1][0, 1] == 1.0
+
+
+def test_normal_mode_rearms_after_each_window():
+    """x_cmd = 10 mm * sin(2 pi t) rises through 0 at t = 0, 1, 2, ...: in normal mode with 100 ms
+    before and 200 ms after, the page shows the window around each rising crossing in turn; the
+    last one it shows is at the last whole second of the rows fed."""
+    ring = ScopeRing()
+    server = ScopeServer(ring, period=0.02)
+    server.start()
+    try:
+        page = _page(server)
+
+        def setup():
+            page.source_select.value = "channel"
+            page.channel_select.value = "x_cmd"
+            page.level_input.value = "0"
+            page.pre_input.value = "100ms"
+            page.post_input.value = "200ms"
+            page.mode_select.value = "normal"
+        _in_page(page, setup)
+        t = np.arange(3500) * 1e-3 + 0.5            # from 0.5 s: the crossings at 1, 2 and 3 s
+        ch = {n: np.zeros_like(t) for n in ["x_motor", "x_table", "x_tip", "e_table", "e_tip", "torque"]}
+        ch.update(t=t, x_cmd=0.01 * np.sin(2 * np.pi * t))
+        seen = []
+
+        def watch():
+            if page.triggered_at is not None and (not seen or seen[-1] != page.triggered_at):
+                seen.append(page.triggered_at)
+            return len(seen) == 3
+        feeder = threading.Thread(target=feed, args=(ring, ch), kwargs={"pace": 2.0})    # twice real time
+        feeder.start()
+        try:
+            assert _wait(watch, 10.0), seen
+        finally:
+            feeder.join()
+        assert seen == [pytest.approx(1.0, abs=1e-9), pytest.approx(2.0, abs=1e-9), pytest.approx(3.0, abs=1e-9)]
+        assert page.armed and (page.x_range.start, page.x_range.end) == pytest.approx((2.9, 3.2))
+    finally:
+        server.stop()

@@ -87,6 +87,8 @@ def add_arguments(p) -> None:
                    help="gain margin to keep, e.g. 6dB; a bare number in dB (default 6dB)")
     p.add_argument("--out", metavar="DIR", default="out/frf", help="folder for plots and data (default out/frf)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    from hil.commands.scope import add_scope_options
+    add_scope_options(p)
 
 
 def _band(text: str):
@@ -179,6 +181,21 @@ def _check_travel(cfg, st, duration: float, x0: float) -> None:
         raise UserError(f"--speed {st.speed:g} m/s exceeds limits.speed {vmax:g} m/s")
 
 
+def _scope_feed(ring, rec, ctrl) -> None:
+    """The compiled run's record (every velocity period) into the live scope, one row per position
+    tick; the command is not in that record (NaN: no command, no following error shown)."""
+    import numpy as np
+
+    from hil.loop import CYCLE_CHANNELS
+    from hil.scope.ring import feed
+    d = rec.data[::ctrl.substeps]
+    t = np.arange(d.shape[0]) * rec.dt * ctrl.substeps
+    ch = {n: d[:, CYCLE_CHANNELS.index(n)] for n in ("x_motor", "x_table", "x_tip")}
+    nan = np.full(t.size, np.nan)
+    ch.update(t=t, x_cmd=nan, e_table=nan, e_tip=nan, torque=d[:, CYCLE_CHANNELS.index("u")])
+    feed(ring, ch, pace=None)
+
+
 def run(args) -> int:
     from hil import frf
     from hil.commands.move import load_config
@@ -200,49 +217,54 @@ def run(args) -> int:
     settle = frf.settle_time(plant_model, st)
     duration = st.lead_in + math.ceil(settle / st.period + st.periods) * st.period + 1.0
     _check_travel(cfg, st, duration, 0.0)
-    name = args.backend or cfg.get("backend.type", "sim")
-    backend = None
-    if name != "sim":
-        if args.sim_set:
-            raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
-        options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
+    from hil.commands.scope import check_scope_options, scope_for
+    check_scope_options(args)          # before anything moves
+    with scope_for(args, cfg, "frf") as ring:     # the page before the drive is enabled; held after the run
+        name = args.backend or cfg.get("backend.type", "sim")
+        backend = None
+        if name != "sim":
+            if args.sim_set:
+                raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
+            options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
+            try:
+                backend = open_backend(cfg, name, **options)
+            except (BackendError, BackendFault, TypeError, ValueError) as exc:
+                raise UserError(str(exc)) from None
+            if backend.closes != "none":
+                raise UserError(f"backend {name}: frf closes both loops on the host and needs the drive in torque mode")
+            supervisor = Supervisor(cfg)
+            supervisor.arm()          # a latched trip refuses motion: one line, exit 2
+            try:
+                backend.open()
+                # where the axis stands, before the drive is enabled: the experiment starts there, and
+                # its travel is checked from there
+                fb = backend.read_position()
+                if fb is not None:
+                    _check_travel(cfg, st, duration, fb.x_table)
+                backend.enable()
+            except BackendFault as exc:
+                backend.shutdown()
+                raise UserError(f"backend {name}: {exc.reason}") from None
+            except BaseException:
+                backend.shutdown()
+                raise
+        else:
+            refuse_if_tripped(cfg)
+            supervisor = None
+        from hil.commands.progress import shown
+        progress = frf.stderr_progress if shown(args) else None      # on a terminal (stderr: --json too)
         try:
-            backend = open_backend(cfg, name, **options)
-        except (BackendError, BackendFault, TypeError, ValueError) as exc:
+            result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
+                                 pm_min=pm_min, gm_min_db=gm_min_db, supervisor=supervisor, scope=ring)
+            if ring is not None and backend is None:   # the compiled run: its record into the scope at once
+                _scope_feed(ring, result.record, ctrl)
+        except RunStopped:
+            raise                     # stopped in the middle: the exit code of how (hil.errors.STOP_EXIT_CODES)
+        except (ValueError, RuntimeError) as exc:
             raise UserError(str(exc)) from None
-        if backend.closes != "none":
-            raise UserError(f"backend {name}: frf closes both loops on the host and needs the drive in torque mode")
-        supervisor = Supervisor(cfg)
-        supervisor.arm()          # a latched trip refuses motion: one line, exit 2
-        try:
-            backend.open()
-            # where the axis stands, before the drive is enabled: the experiment starts there, and
-            # its travel is checked from there
-            fb = backend.read_position()
-            if fb is not None:
-                _check_travel(cfg, st, duration, fb.x_table)
-            backend.enable()
-        except BackendFault as exc:
-            backend.shutdown()
-            raise UserError(f"backend {name}: {exc.reason}") from None
-        except BaseException:
-            backend.shutdown()
-            raise
-    else:
-        refuse_if_tripped(cfg)
-        supervisor = None
-    from hil.commands.progress import shown
-    progress = frf.stderr_progress if shown(args) else None      # on a terminal (stderr: --json too)
-    try:
-        result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
-                             pm_min=pm_min, gm_min_db=gm_min_db, supervisor=supervisor)
-    except RunStopped:
-        raise                     # stopped in the middle: the exit code of how (hil.errors.STOP_EXIT_CODES)
-    except (ValueError, RuntimeError) as exc:
-        raise UserError(str(exc)) from None
-    finally:
-        if backend is not None:
-            backend.shutdown()
+        finally:
+            if backend is not None:
+                backend.shutdown()
     keep_stable_gains(result, lambda key, value: load(args.config, dict(overrides, **{key: value})))
     out = Path(args.out)
     report = result.as_dict()

@@ -33,10 +33,13 @@ def add_arguments(p) -> None:
     p.add_argument("--speed", metavar="SPEED", default="600mm/min", help="jog speed (default 600mm/min)")
     p.add_argument("--amax", metavar="ACCELERATION", default="0.5m/s^2", help="acceleration (default 0.5m/s^2)")
     p.add_argument("--json", action="store_true", help="print as JSON")
+    from hil.commands.scope import add_scope_options
+    add_scope_options(p)
 
 
 def run(args) -> int:
     from hil.commands.move import _no_move, load_config
+    from hil.commands.scope import check_scope_options, scope_for
     from hil.drivers import BackendError, open_backend
     from hil.errors import UserError, stop_exit_code
     from hil.profiles import LimitError, MoveSpec, Trajectory
@@ -46,6 +49,7 @@ def run(args) -> int:
     if _no_move(cfg, parse_option(args.distance, "length", "--distance"), "--distance", args.json):
         return 0
     refuse_if_tripped(cfg)                 # before anything connects
+    check_scope_options(args)
     traj = Trajectory(start=0.0)           # a relative move: the runtime plans it from where the axis stands
     try:
         traj.move(MoveSpec(stroke=parse_option(args.distance, "length", "--distance"),
@@ -56,7 +60,9 @@ def run(args) -> int:
     try:
         backend = open_backend(cfg, args.backend)
         # the simulated plant starts at 0: checked here; an axis: checked from where it stands (runtime)
-        rec = run_trajectory(cfg, traj, backend=backend, settle=0.0, check=args.backend == "sim", start="follow")
+        with scope_for(args, cfg, "jog") as ring:
+            rec = run_trajectory(cfg, traj, backend=backend, settle=0.0, check=args.backend == "sim", start="follow",
+                                 scope=ring)
     except (LimitError, BackendError) as exc:
         raise UserError(str(exc)) from None
     if len(rec["t"]) < 1:

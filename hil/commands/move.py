@@ -169,12 +169,12 @@ def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:
 def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
-    from hil.commands.scope import parse_hold
+    from hil.commands.scope import check_scope_options
     from hil.profiles import AxisLimits, LimitError, check_limits, check_sampled
     from hil.units import SI_UNIT, fmt, parse_bounded
     cfg = load_config(args)
     band = parse_bounded(args.band, "length", "--band", positive=True, maximum=1.0)   # before anything moves
-    scope_hold = parse_hold(args.scope_hold, "--scope-hold")
+    check_scope_options(args)          # a bad --scope-port or --scope-hold: refused before anything moves
     if _no_move(cfg, parse_option(args.stroke, "length", "--stroke"), "--stroke", args.json):
         return 0
     traj = build_trajectory(args, cfg)
@@ -204,20 +204,10 @@ def run(args) -> int:
     from hil.errors import stop_exit_code, stop_kind
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    ring = server = None
-    if args.scope:
-        from hil.commands.scope import start_scope
-        from hil.scope.ring import ScopeRing
-        ring = ScopeRing()
-        server = start_scope(ring, args.scope_port, f"hil move: {cfg.get('meta.name') or cfg.source}",
-                             "N m" if cfg.rotary else "N", "move")
-    try:
+    from hil.commands.scope import scope_for
+    with scope_for(args, cfg, "move") as ring:
         rec = run_trajectory(cfg, traj, backend=backend, out_file=out / "move.csv", settle=0.0, check=False,
                              start="check" if args.start else "follow", scope=ring, realtime=args.realtime)
-    finally:
-        if server is not None:
-            from hil.commands.scope import hold
-            hold(server, scope_hold)
     ch = rec.channels
     if len(ch["t"]) < 2:
         raise UserError(f"the move did not start on {backend.name}: {rec.status}: {rec.reason}")

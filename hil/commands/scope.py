@@ -1,5 +1,9 @@
-"""``hil scope RECORD.csv``: replay a record into the live scope's page (issue 27)."""
+"""``hil scope RECORD.csv``: replay a record into the live scope's page (issue 27); and the
+``--scope`` options every command that moves an axis shares (:func:`add_scope_options`,
+:func:`scope_for`)."""
 from __future__ import annotations
+
+from contextlib import contextmanager
 
 HELP = "replay a record into the live scope: a local web page (127.0.0.1, a per-run token)"
 DESCRIPTION = """Serve the live scope's page on 127.0.0.1 and replay a record into it at --speed times
@@ -8,7 +12,7 @@ derivative of x_motor), the run's end and its trip reason. The URL, with the run
 printed on stderr; a request without the token is refused. The page stays up after the replay
 until Ctrl-C, or for --hold.
 
-The same page watches a run live: hil move --scope.
+The same page watches a run live: --scope on move, jog, home, sweep --backend and frf.
 
 example:
   hil scope out/move/move.csv --speed 0.5
@@ -33,20 +37,53 @@ def add_scope_options(p) -> None:
                    help="keep the scope's page up this long after the run (default 0s; Ctrl-C ends it early)")
 
 
+@contextmanager
+def scope_for(args, cfg, command: str):
+    """The run's scope: with ``--scope``, a ring buffer for the run and its server (the URL on
+    stderr), held ``--scope-hold`` after the run however it ends; without it, None (nothing started).
+
+    ``with scope_for(args, cfg, "jog") as ring: run_trajectory(..., scope=ring)``."""
+    if not getattr(args, "scope", False):
+        yield None
+        return
+    held = check_scope_options(args)
+    # the server in its own process: it never holds this process's interpreter lock, which the cycle needs
+    server = start_scope(None, args.scope_port, f"hil {command}: {cfg.get('meta.name') or cfg.source}",
+                         "N m" if cfg.rotary else "N", command)
+    try:
+        yield server.ring
+    finally:
+        hold(server, held)
+
+
+def check_scope_options(args) -> float | None:
+    """``--scope-port`` and ``--scope-hold`` checked (one line, exit 2), before anything moves;
+    returns the hold time (s)."""
+    from hil.errors import UserError
+    if not 0 <= args.scope_port <= 65535:
+        raise UserError(f"--scope-port {args.scope_port}: expected a port, 0 (any free one) to 65535")
+    return parse_hold(args.scope_hold, "--scope-hold")
+
+
 def parse_hold(text, option: str) -> float | None:
     from hil.units import parse_bounded
     return None if text is None else parse_bounded(text, "time", option, nonnegative=True, maximum=86400.0)
 
 
 def start_scope(ring, port: int, title: str, output_unit: str, command: str, option: str = "--scope-port"):
-    """Start the scope's server and say where it is on stderr; returns the server."""
+    """Start the scope's server and say where it is on stderr; returns the server. ``ring``: a
+    ring to serve in a thread of this process (a replay: no cycle to disturb); None: a server in
+    its own process with a ring of its own (``server.ring``), for a run (hil.scope.server.ScopeProcess)."""
     import sys
 
     from hil.errors import UserError
-    from hil.scope.server import ScopeServer
+    from hil.scope.server import ScopeProcess, ScopeServer
     if not 0 <= port <= 65535:
         raise UserError(f"{option} {port}: expected a port, 0 (any free one) to 65535")
-    server = ScopeServer(ring, port=port, title=title, output_unit=output_unit)
+    if ring is None:
+        server = ScopeProcess(port=port, title=title, output_unit=output_unit)
+    else:
+        server = ScopeServer(ring, port=port, title=title, output_unit=output_unit)
     url = server.start()
     print(f"hil {command}: scope at {url}", file=sys.stderr, flush=True)
     return server

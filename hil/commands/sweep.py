@@ -140,6 +140,8 @@ def add_arguments(p) -> None:
     p.add_argument("--no-plot", action="store_true", help="do not write the figure")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    from hil.commands.scope import add_scope_options
+    add_scope_options(p)
 
 
 # the most runs one sweep asks for (each is a whole closed-loop run; 10^8 grew to 6.9 GB)
@@ -315,6 +317,12 @@ def run(args) -> int:
         check_scheduler_address(args.scheduler)
     from hil.supervisor import refuse_if_tripped
     refuse_if_tripped(cfg)             # a trip not reset refuses motion on every backend
+    from hil.commands.scope import check_scope_options
+    check_scope_options(args)          # before anything runs
+    if args.scope and not args.backend:
+        raise UserError("--scope: the model sweep moves no axis (it runs the compiled model in worker processes); "
+                        "with --backend sim, canopen or serial its moves run through the runtime, and the scope "
+                        "shows them")
     # an unstable loop has no overshoot to report (issue 18): refused, for the compared model too
     from hil.closed_loop import check_loop_stability
     for c in (cfg, cmp_cfg):
@@ -329,10 +337,12 @@ def run(args) -> int:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise UserError(f"--out {args.out}: cannot create the folder ({exc.strerror or exc})") from None
+    from hil.commands.scope import scope_for
     try:
-        report = run_sweep(cfg, s, compare_cfg=cmp_cfg, out_dir=out, jobs=args.jobs, scheduler=args.scheduler,
-                           backend=args.backend, progress=not args.no_progress and shown(args),
-                           resume=not args.restart)
+        with scope_for(args, cfg, "sweep") as ring:
+            report = run_sweep(cfg, s, compare_cfg=cmp_cfg, out_dir=out, jobs=args.jobs, scheduler=args.scheduler,
+                               backend=args.backend, progress=not args.no_progress and shown(args),
+                               resume=not args.restart, scope=ring)
     except LimitError as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:

@@ -55,14 +55,15 @@ class FrfResult:
 
 
 def measure(plant_true, plant_model, ctrl, st: FrfSettings, backend=None, progress=None, pm_min: float = 45.0,
-            gm_min_db: float = 6.0, supervisor=None) -> FrfResult:
+            gm_min_db: float = 6.0, supervisor=None, scope=None) -> FrfResult:
     """Excite, estimate, set against the model, fit the modes, suggest. ``plant_true`` is what the
-    simulated run uses (None with a backend); ``plant_model`` the config's model."""
+    simulated run uses (None with a backend); ``plant_model`` the config's model; ``scope``: the
+    live scope's ring the backend's cycle writes into."""
     logger.info("frf: %s excitation of %s on %s", st.signal, st.input, getattr(backend, "name", "the simulated plant"))
     if backend is None:
         rec = run_sim(plant_true, ctrl, st, progress)
     else:
-        rec = run_backend(backend, ctrl, st, progress, supervisor=supervisor, plant=plant_model)
+        rec = run_backend(backend, ctrl, st, progress, supervisor=supervisor, plant=plant_model, scope=scope)
     if progress:
         progress("estimating the responses")
     resp = estimate(rec, ctrl)

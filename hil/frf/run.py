@@ -148,14 +148,15 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
     return FrfRecord(out, tv, exc, start, st.periods, int(sat), plant.tip != plant.table, st.input, "sim")
 
 
-def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, plant=None, clock=None) -> FrfRecord:
+def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, plant=None, clock=None,
+                scope=None) -> FrfRecord:
     """The same experiment cycle by cycle through the backend contract (hil.drivers.base), on
     :class:`hil.loop.ControlLoop` with the excitation as its :class:`~hil.loop.Injection`: the
     host closes both loops, so the backend must take torque (``closes == "none"``). Works on any
     such backend (the simulated plant, a CiA 402 drive in cyclic torque mode); slower than
     :func:`run_sim` on the simulated plant. Paced by ``clock`` (default: hil.loop's simulated
     clock for a simulated backend, the real-time clock otherwise); ``supervisor.check`` every
-    position tick. ``plant``: the model, for the settling time.
+    position tick. ``plant``: the model, for the settling time. ``scope``: the live scope's ring.
 
     Raises
     ------
@@ -170,7 +171,7 @@ def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, 
     injection = Injection(r, st.input)
     # as the compiled run (run_sim): no acceleration feed-forward on the working point's ramp
     loop = ControlLoop(backend, replace(ctrl, acc_ff=0.0), clock=clock, supervisor=supervisor,
-                       injection=injection, progress=(lambda done: progress(f"  {done:5.1%}")) if progress else None)
+                       injection=injection, scope=scope, progress=(lambda done: progress(f"  {done:5.1%}")) if progress else None)
     result = loop.run(x_cmd[:-1], x_after=x_cmd[-1])
     if result.status != "complete":      # stopped (the loop commanded the controlled stop): how, in the exit code
         raise RunStopped(f"frf did not complete: {result.status}: {result.reason}", result.status, result.reason)

@@ -1,11 +1,13 @@
 """The live scope's page: a Bokeh server on 127.0.0.1 that streams a :class:`ScopeRing` to a
 browser (issue 27).
 
-The server runs in its own thread with its own event loop; a periodic callback of each page
+:class:`ScopeServer` runs in a thread with its own event loop; a periodic callback of each page
 (every ``period`` s) copies the rows written since its last call out of the ring (lock-free, see
 :mod:`hil.scope.ring`), keeps every ``stride``-th row so that the window on screen holds at most
-``max_points`` points per trace, and sends them with ``ColumnDataSource.stream``. The cycle never
-waits for it.
+``max_points`` points per trace, and sends them with ``ColumnDataSource.stream``. For a run, the
+commands use :class:`ScopeProcess`: the same server in a process of its own (``python -m
+hil.scope.server``), the ring a shared file mapping, so that the server never holds the
+interpreter lock of the process whose cycle writes the ring. The cycle never waits for it.
 
 Access: only 127.0.0.1 is bound; the page's URL carries a per-run token (``?token=...``). A
 request for the page without it or with a wrong one is answered 403 (Bokeh's auth hook: the
@@ -13,17 +15,22 @@ request is redirected to a handler that refuses). The page's websocket needs a s
 with a per-run secret (Bokeh's signed sessions), which only an authorised page load hands out,
 and an ``Origin`` of 127.0.0.1:PORT or localhost:PORT (``allow_websocket_origin``).
 
-The page: positions (mm), following errors (um), the controller's output (N m or N), the motor's
-speed (mm/s) and the supervisor's state; channels chosen with check boxes; a rolling window
-(Select); freeze and resume; every trip or fault drawn as a vertical span with its reason; export
-of the rows in view as CSV (in the browser, no server round trip). BokehJS is served from the
-bokeh package itself: nothing is fetched from the network.
+The page (:class:`_Page`): positions (mm), following errors (um), the controller's output (N m or
+N), the motor's speed (mm/s) and the supervisor's state; channels chosen with check boxes; modes
+rolling, normal and single shot on a trigger (a channel's level or edge, a trip, a move's start;
+pre- and post-trigger time); freeze and resume; two cursors (a tap or a typed time) with their
+differences; every trip or fault drawn as a vertical line with its reason, and the rolling view
+held around a trip; the view's CSV made here and handed to the browser as a download, its PNG by
+each plot's save tool. The rules (trigger, capture, cursors, CSV) are plain Python in
+:mod:`hil.scope.view`. BokehJS is served from the bokeh package itself: nothing is fetched from
+the network.
 """
 from __future__ import annotations
 
 import asyncio
 import hmac
 import logging
+import os
 import secrets
 import threading
 
@@ -31,7 +38,7 @@ import numpy as np
 
 from hil.scope.ring import SCOPE_CHANNELS, ScopeRing
 
-__all__ = ["ScopeServer", "DISPLAY", "WINDOWS"]
+__all__ = ["ScopeServer", "ScopeProcess", "DISPLAY", "WINDOWS"]
 
 log = logging.getLogger(__name__)
 
@@ -46,18 +53,13 @@ COLOURS = {"x_cmd": "black", "x_motor": "#1f77b4", "x_table": "#2ca02c", "x_tip"
            "e_table": "#2ca02c", "e_tip": "#d62728", "output": "#9467bd", "speed": "#8c564b", "state": "#ff7f0e"}
 REFUSED = "refused: this scope's URL carries a token (printed on stderr where it was started)"
 
-_EXPORT_JS = """
-const d = src.data, t = d['t'], x0 = xr.start, x1 = xr.end;
-const cols = Object.keys(d).filter(c => c !== 'index');
-let out = cols.join(',') + '\\n';
-for (let i = 0; i < t.length; i++) {
-  if (t[i] < x0 || t[i] > x1) continue;
-  out += cols.map(c => d[c][i]).join(',') + '\\n';
-}
-const blob = new Blob([out], {type: 'text/csv'});
+MODES = ("rolling", "normal", "single")
+
+# the one piece of JavaScript: hand the CSV the server made (hil.scope.view.view_csv) to the browser
+_DOWNLOAD_JS = """
 const a = document.createElement('a');
-a.href = URL.createObjectURL(blob); a.download = 'scope.csv';
-document.body.appendChild(a); a.click(); a.remove();
+a.href = URL.createObjectURL(new Blob([src.text], {type: 'text/csv'}));
+a.download = 'scope.csv'; document.body.appendChild(a); a.click(); a.remove();
 """
 
 
@@ -87,7 +89,7 @@ class ScopeServer:
     """
 
     def __init__(self, ring: ScopeRing, port: int = 0, token: str | None = None, title: str = "hil scope",
-                 output_unit: str = "N m", max_points: int = 2000, period: float = 0.05):
+                 output_unit: str = "N m", max_points: int = 2000, period: float = 0.04):
         self.ring = ring
         self.port = int(port)
         self.token = token or secrets.token_urlsafe(16)
@@ -97,6 +99,7 @@ class ScopeServer:
         self.period = float(period)
         self.sessions = []            # the live pages' state (tests read what was streamed)
         self._thread = None
+        self.native_id = None         # the server thread's id (Linux: its task id)
         self._loop = None
         self._ready = threading.Event()
         self._error = None
@@ -104,6 +107,10 @@ class ScopeServer:
     @property
     def url(self) -> str:
         return f"http://127.0.0.1:{self.port}/scope?token={self.token}"
+
+    @property
+    def running(self) -> bool:
+        return self._loop is not None
 
     # --- the server's thread ------------------------------------------------------------------------
     def start(self) -> str:
@@ -122,6 +129,7 @@ class ScopeServer:
         return self.url
 
     def _serve(self, sockets) -> None:
+        self.native_id = threading.get_native_id()
         try:
             loop = asyncio.new_event_loop()
             asyncio.set_event_loop(loop)
@@ -172,6 +180,19 @@ class ScopeServer:
         self.sessions.append(page)
 
 
+def ordinary_priority() -> None:
+    """Keep the calling thread (the server's) at the ordinary scheduling policy. The loop, with
+    ``runtime.priority``, raises every thread of the process to its real-time priority, this one
+    too, which would then compete with the cycle; called on every frame (one system call)."""
+    if not hasattr(os, "sched_getscheduler"):
+        return
+    try:
+        if os.sched_getscheduler(0) != os.SCHED_OTHER:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError:              # not Linux-like, or not allowed: nothing to undo then either
+        pass
+
+
 def _token_auth(token: str):
     """Bokeh's auth hook: the page with ``?token=`` right; the websocket (its session id is signed
     with the run's secret, given only with an authorised page); anything else redirected to
@@ -205,9 +226,16 @@ def _token_auth(token: str):
 
 
 class _Page:
-    """One browser page: its figures, its data source and its periodic update."""
+    """One browser page: its figures, its data source, its controls and its periodic update.
+
+    Modes (``mode`` Select): ``rolling`` streams the newest rows over the time base; ``normal``
+    shows the window around each trigger, re-arming after it; ``single`` shows the first trigger
+    after *arm* and holds it. A trip in the rolling view holds the view around the trip (the
+    cycles before it stay on the page until *resume*). The trigger, the capture, the cursors and
+    the CSV are plain Python (:mod:`hil.scope.view`)."""
 
     def __init__(self, server: ScopeServer, doc):
+        from bokeh.events import Tap
         from bokeh.layouts import column, row
         from bokeh.models import (
             Button,
@@ -216,34 +244,58 @@ class _Page:
             CustomJS,
             Div,
             LabelSet,
+            RadioButtonGroup,
             Range1d,
             Select,
+            Span,
+            TextInput,
             Toggle,
         )
         from bokeh.plotting import figure
+
+        from hil.scope.view import SLOPES, Trigger
         self.server, self.ring, self.doc = server, server.ring, doc
         self.window = 5.0
+        self.mode = "rolling"
         self.frozen = False
+        self.armed = False
         self.next_row = 0
         self.next_event = 0
         self.stride = 1
-        self.source = ColumnDataSource(_columns(np.zeros((0, len(SCOPE_CHANNELS)))))
-        self.events = ColumnDataSource({"t": [], "kind": [], "reason": [], "y": []})
+        self.trip_times: list[float] = []
+        self.ended_at = None                 # the time of the last end of a run (complete, trip, ...)
+        self.search_row, self.search_t, self.pending = 0, -np.inf, None
+        self.triggered_at = None
+        self.cursor_t = [None, None]
+        self.exports = 0
+        self.trigger = Trigger(source="trip", channel="e_table", slope="rising", level=0.0, pre=1.0, post=0.2)
+        self.units = {n: DISPLAY[n][1] for n in SCOPE_CHANNELS[1:]}
+        self.units["output"] = server.output_unit
+        self.source = ColumnDataSource(_columns(np.zeros((0, len(SCOPE_CHANNELS)))), name="traces")
+        self.events = ColumnDataSource({"t": [], "kind": [], "reason": [], "y": []}, name="trip_markers")
         self.x_range = Range1d(0.0, self.window)
-        units = dict(DISPLAY)
-        units["output"] = (1.0, server.output_unit, "output")
         figs, self.lines = {}, {}
+        self.cursor_spans, self.trigger_spans = ([], []), []
+        # canvas, not webgl: a browser without a GPU (a VM, headless Chromium) renders WebGL in
+        # software, about ten times slower for these 2000 points a trace (0.5 against 6 frames/s measured)
         for key, label in (("position", "position (mm)"), ("error", "following error (um)"),
                            ("output", f"output ({server.output_unit})"), ("speed", "motor speed (mm/s)"),
                            ("state", "supervisor state")):
             f = figure(height=90 if key == "state" else 200, sizing_mode="stretch_width", x_range=self.x_range,
-                       y_axis_label=label, tools="pan,box_zoom,wheel_zoom,reset,save", output_backend="webgl")
+                       y_axis_label=label, tools="pan,box_zoom,wheel_zoom,reset,save", output_backend="canvas")
             f.vspan(x="t", source=self.events, line_color="red", line_width=2)
+            for spans, colour in zip(self.cursor_spans, ("#444444", "#888888")):
+                spans.append(Span(location=None, dimension="height", line_color=colour, line_dash="dashed"))
+                f.add_layout(spans[-1])
+            self.trigger_spans.append(Span(location=None, dimension="height", line_color="orange", line_width=2))
+            f.add_layout(self.trigger_spans[-1])
+            f.on_event(Tap, lambda event: self._tap(event.x))
             figs[key] = f
         for name in SCOPE_CHANNELS[1:]:
-            fig = figs[units[name][2]]
+            fig = figs[DISPLAY[name][2]]
+            unit = self.units[name]
             self.lines[name] = fig.line("t", name, source=self.source, color=COLOURS[name],
-                                        legend_label=f"{name} [{units[name][1]}]" if units[name][1] else name)
+                                        legend_label=f"{name} [{unit}]" if unit else name)
         for f in figs.values():
             f.legend.location = "top_left"
             f.legend.click_policy = "hide"
@@ -253,33 +305,160 @@ class _Page:
         names = list(SCOPE_CHANNELS[1:])
         self.channels = CheckboxGroup(labels=names, active=list(range(len(names))), inline=True)
         self.channels.on_change("active", lambda attr, old, new: self._show(names, new))
+        self.mode_select = Select(title="mode", value="rolling", options=list(MODES), width=100, name="mode")
+        self.mode_select.on_change("value", lambda attr, old, new: self._set_mode(new))
         self.window_select = Select(title="time base", value="5 s", options=list(WINDOWS), width=100)
         self.window_select.on_change("value", lambda attr, old, new: self._set_window(float(new.split()[0])))
-        self.freeze = Toggle(label="freeze", active=False, width=100)
+        self.freeze = Toggle(label="freeze", active=False, width=100, name="freeze")
         self.freeze.on_change("active", lambda attr, old, new: self._freeze(new))
-        export = Button(label="export CSV", width=100)
-        export.js_on_event("button_click", CustomJS(args={"src": self.source, "xr": self.x_range}, code=_EXPORT_JS))
-        self.trips = Div(text="no trip")
+        arm = Button(label="arm", width=80, name="arm")
+        arm.on_click(self._arm_clicked)
+        export = Button(label="export CSV", width=100, name="export")
+        export.on_click(self.export_csv)
+        # the CSV is made here (view_csv); the page only hands the text to the browser as a download
+        self.csv = Div(text="", visible=False, name="csv")
+        self.csv.js_on_change("text", CustomJS(args={"src": self.csv}, code=_DOWNLOAD_JS))
+        self.source_select = Select(title="trigger on", value="trip", width=110, name="trigger_source",
+                                    options=[("channel", "a channel"), ("trip", "a trip"), ("move", "a move's start")])
+        self.channel_select = Select(title="channel", value="e_table", options=names, width=100, name="trigger_channel")
+        self.slope_select = Select(title="slope", value="rising", options=list(SLOPES), width=90, name="trigger_slope")
+        self.level_input = TextInput(title=f"level ({self.units['e_table']})", value="0", width=90, name="level")
+        self.pre_input = TextInput(title="pre-trigger", value="1s", width=80, name="pre")
+        self.post_input = TextInput(title="post-trigger", value="200ms", width=80, name="post")
+        for w in (self.source_select, self.channel_select, self.slope_select, self.level_input, self.pre_input,
+                  self.post_input):
+            w.on_change("value", lambda attr, old, new: self._trigger_changed())
+        self.cursor_pick = RadioButtonGroup(labels=["tap sets A", "tap sets B"], active=0)
+        self.cursor_inputs = (TextInput(title="cursor A (s)", value="", width=90, name="cursor_a"),
+                              TextInput(title="cursor B (s)", value="", width=90, name="cursor_b"))
+        for i, w in enumerate(self.cursor_inputs):
+            w.on_change("value", lambda attr, old, new, i=i: self._cursor_typed(i, new))
+        self.readout = Div(text="", name="readout")
+        self.status = Div(text="rolling", name="status")
+        self.trips = Div(text="no trip", name="trips")
         doc.title = server.title
         doc.add_root(column(Div(text=f"<b>{server.title}</b>"),
-                            row(self.window_select, self.freeze, export, self.trips), self.channels,
-                            *figs.values(), sizing_mode="stretch_width"))
+                            row(self.mode_select, self.window_select, self.freeze, arm, export, self.status),
+                            row(self.source_select, self.channel_select, self.slope_select, self.level_input,
+                                self.pre_input, self.post_input),
+                            row(self.cursor_pick, *self.cursor_inputs, self.readout),
+                            self.trips, self.channels, *figs.values(), self.csv, sizing_mode="stretch_width"))
         doc.add_periodic_callback(self.update, int(server.period * 1000))
 
+    # --- controls ------------------------------------------------------------------------------------
     def _show(self, names, active) -> None:
         for i, n in enumerate(names):
             self.lines[n].visible = i in active
+        self._readout()
 
     def _set_window(self, seconds: float) -> None:
         self.window = seconds
-        self._reload()
+        if self.mode == "rolling" and not self.frozen:
+            self._reload()
 
     def _freeze(self, frozen: bool) -> None:
         self.frozen = frozen
         self.freeze.label = "resume" if frozen else "freeze"
         if not frozen:
-            self._reload()
+            if self.mode == "rolling":
+                self._reload()
+                self.status.text = "rolling"
+            else:
+                self._arm()
 
+    def _set_mode(self, mode: str) -> None:
+        self.mode = mode
+        if self.freeze.active:
+            self.freeze.active = False        # its callback rolls on or arms
+        elif mode == "rolling":
+            self.armed, self.pending = False, None
+            for s in self.trigger_spans:
+                s.location = None
+            self._reload()
+            self.status.text = "rolling"
+        else:
+            self._arm()
+
+    def _arm_clicked(self) -> None:
+        if self.mode == "rolling":
+            self.mode_select.value = "single"     # its callback arms
+        elif self.freeze.active:
+            self.freeze.active = False
+        else:
+            self._arm()
+
+    def _arm(self) -> None:
+        """Wait for the trigger in the rows written from now on."""
+        self.armed, self.pending = True, None
+        self.search_row = max(self.ring.count - 1, 0)
+        self.search_t = self.ring.last_t if self.ring.count else -np.inf
+        self.status.text = f"armed: waiting for {self.trigger.describe(self.units.get(self.trigger.channel, ''))}"
+
+    def _trigger_changed(self) -> None:
+        """The trigger's settings from the page (errors said in the status line, the old ones kept)."""
+        from hil.units import parse_option
+        channel = self.channel_select.value
+        self.level_input.title = f"level ({self.units.get(channel, '')})"
+        try:
+            level = float(self.level_input.value)
+            if not np.isfinite(level):
+                raise ValueError
+        except ValueError:
+            self.status.text = f"level {self.level_input.value!r}: expected a number in {self.units.get(channel)}"
+            return
+        try:
+            pre = parse_option(self.pre_input.value, "time", "pre-trigger")
+            post = parse_option(self.post_input.value, "time", "post-trigger")
+        except Exception as exc:           # a UnitError: its one line
+            self.status.text = str(exc)
+            return
+        if pre < 0 or post < 0:
+            self.status.text = "pre- and post-trigger time: expected 0 s or more"
+            return
+        t = self.trigger
+        t.source, t.channel, t.slope, t.level, t.pre, t.post = (self.source_select.value, channel,
+                                                                self.slope_select.value, level, pre, post)
+        if self.mode != "rolling":
+            self._arm()
+
+    def _tap(self, x) -> None:
+        if x is not None:
+            self.cursor_inputs[self.cursor_pick.active].value = f"{x:.6f}"     # its callback sets the cursor
+
+    def _cursor_typed(self, which: int, text: str) -> None:
+        try:
+            value = float(text) if text.strip() else None
+        except ValueError:
+            self.status.text = f"cursor {'AB'[which]} {text!r}: expected a time in s"
+            return
+        self.cursor_t[which] = value
+        for s in self.cursor_spans[which]:
+            s.location = value
+        self._readout()
+
+    def _readout(self) -> None:
+        """Both cursors' times, their difference, and each shown channel's values there."""
+        from hil.scope.view import cursor_values
+        ta, tb = self.cursor_t
+        if ta is None or tb is None:
+            self.readout.text = "tap a plot (or type a time) to place cursors A and B"
+            return
+        shown = [n for n in SCOPE_CHANNELS[1:] if self.lines[n].visible]
+        cells = "".join(f"<tr><td>{n}</td><td>{a:.6g}</td><td>{b:.6g}</td><td>{d:.6g}</td><td>{self.units[n]}</td></tr>"
+                        for n, a, b, d in cursor_values(self.source.data, shown, ta, tb))
+        self.readout.text = (f"<b>A</b> {ta:.6f} s, <b>B</b> {tb:.6f} s, <b>B-A</b> {(tb - ta) * 1e3:.3f} ms"
+                             f"<table><tr><th></th><th>A</th><th>B</th><th>B-A</th><th></th></tr>{cells}</table>")
+
+    def export_csv(self) -> str:
+        """The rows in view as CSV (each column with its unit): handed to the browser as a download."""
+        from hil.scope.view import view_csv
+        self.exports += 1
+        x0, x1 = self.x_range.start, self.x_range.end
+        text = view_csv(self.source.data, {"t": "s", **self.units}, x0, x1, names=SCOPE_CHANNELS[1:])
+        self.csv.text = f"# hil scope export {self.exports}: t {x0:.6f} s to {x1:.6f} s\n" + text
+        return self.csv.text
+
+    # --- the data ------------------------------------------------------------------------------------
     def _stride_for(self, rows_per_s: float) -> int:
         return max(1, int(np.ceil(self.window * rows_per_s / self.server.max_points)))
 
@@ -298,14 +477,28 @@ class _Page:
 
     def update(self) -> None:
         """The periodic callback (the server's thread): new rows and events from the ring."""
+        ordinary_priority()
         self.next_event, new = self.ring.events(self.next_event)
+        trips = []
         for row, t, kind, reason in new:
             if kind in ("trip", "fault", "aborted"):
                 text = f"{kind} at {t:.4f} s: {reason}"
                 self.events.stream({"t": [t], "kind": [kind], "reason": [text], "y": [0.0]})
                 self.trips.text = "<span style='color:red'>" + "<br>".join(self.events.data["reason"]) + "</span>"
+                self.trip_times.append(t)
+                trips.append(t)
+            if kind != "start":
+                self.ended_at = t
         if self.frozen:
             return
+        if self.mode == "rolling":
+            self._roll()
+            if trips:
+                self._hold_at(trips[0])
+        elif self.armed:
+            self._look_for_trigger()
+
+    def _roll(self) -> None:
         first, rows = self.ring.window(since=self.next_row)
         if rows.shape[0] == 0:
             return
@@ -317,9 +510,157 @@ class _Page:
         if keep.any():
             self.source.stream(_columns(rows[keep]), rollover=self.server.max_points)
         self._follow()
+        if self.cursor_t[0] is not None and self.cursor_t[1] is not None:
+            self._readout()
+
+    def _hold_at(self, t_trip: float) -> None:
+        """A trip in the rolling view: hold the view around it (most of the time base before it)."""
+        self.freeze.active = True             # its callback freezes
+        self.x_range.start, self.x_range.end = t_trip - 0.8 * self.window, t_trip + 0.2 * self.window
+        self.status.text = f"held at the trip at {t_trip:.4f} s (resume rolls on)"
+
+    def _look_for_trigger(self) -> None:
+        """Armed: find the trigger in the rows since the last look, then wait for its post-trigger
+        time (or the run's end) and show the capture."""
+        from hil.scope.view import capture
+        if self.pending is None:
+            first, rows = self.ring.window(since=max(self.search_row - 2, 0))
+            if rows.shape[0] == 0 and not self.trip_times:
+                return
+            hit = self.trigger.find(_columns(rows), self.trip_times, self.search_t)
+            self.search_row = first + rows.shape[0]
+            if hit is None:
+                return
+            self.pending = hit
+            self.status.text = f"triggered at {hit:.4f} s: waiting for the post-trigger time"
+        t_trig, post = self.pending, self.trigger.post
+        if self.ring.last_t < t_trig + post and not (self.ended_at is not None and self.ended_at >= t_trig):
+            return
+        first, rows = self.ring.window(most=self.ring.capacity)
+        shown = capture(rows, t_trig, self.trigger.pre, post, self.server.max_points)
+        self.source.data = _columns(shown)
+        self.x_range.start, self.x_range.end = t_trig - self.trigger.pre, t_trig + post
+        for s in self.trigger_spans:
+            s.location = t_trig
+        self.triggered_at, self.pending = t_trig, None
+        if self.mode == "single":
+            self.armed = False
+            self.status.text = f"single shot: triggered at {t_trig:.4f} s (arm for the next)"
+        else:
+            # the next trigger after the window shown; its rows are searched from there
+            self.search_t = t_trig + post
+            self.search_row = first + int(np.searchsorted(rows[:, 0], self.search_t, side="left"))
+            self.status.text = f"triggered at {t_trig:.4f} s"
+        if self.cursor_t[0] is not None and self.cursor_t[1] is not None:
+            self._readout()
 
     def _follow(self) -> None:
         t = self.source.data["t"]
         if len(t):
             end = float(t[-1])
             self.x_range.start, self.x_range.end = max(end - self.window, float(t[0])), max(end, float(t[0]) + 1e-3)
+
+
+class ScopeProcess:
+    """The scope's server in a process of its own (what the commands use): the ring is a shared
+    file mapping (``/dev/shm`` where there is one) the cycle writes here and the server reads there,
+    so the server never holds this process's interpreter lock, which the cycle needs (a thread
+    here would: at ordinary priority, preempted while holding it, it stalls a real-time loop;
+    at the loop's priority it competes with it). The token goes to the child on its stdin (not its
+    command line, which other users of the machine can read); closing that pipe (or this process
+    ending) stops it.
+
+    Parameters: as :class:`ScopeServer`, less the ring (made here: ``capacity`` rows, ``events``).
+    """
+
+    def __init__(self, capacity: int = 1 << 16, events: int = 64, port: int = 0, token: str | None = None,
+                 title: str = "hil scope", output_unit: str = "N m", max_points: int = 2000, period: float = 0.04):
+        import tempfile
+        from pathlib import Path
+        self.port, self.token = int(port), token or secrets.token_urlsafe(16)
+        self.title, self.output_unit, self.max_points, self.period = title, output_unit, int(max_points), float(period)
+        folder = Path("/dev/shm") if Path("/dev/shm").is_dir() else Path(tempfile.gettempdir())
+        fd, path = tempfile.mkstemp(prefix="hil-scope-", dir=folder)
+        os.close(fd)
+        self.path = path
+        self.ring = ScopeRing(capacity, events, path=path)
+        self.proc = None
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}/scope?token={self.token}"
+
+    @property
+    def running(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def start(self) -> str:
+        """Start the server's process; returns the URL once it listens (a bad port: UserError)."""
+        import subprocess
+        import sys
+        from pathlib import Path
+
+        import hil
+        from hil.errors import UserError
+        root = str(Path(hil.__file__).resolve().parents[1])
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "hil.scope.server", self.path, str(self.ring.capacity), str(self.ring.n_events),
+             str(self.port), self.title, self.output_unit, str(self.max_points), str(self.period)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
+        self.proc.stdin.write(self.token + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline().strip()
+        if not line.isdigit():
+            self.stop()
+            raise UserError(line.removeprefix("error: ") or "the scope's server did not start")
+        self.port = int(line)
+        return self.url
+
+    def stop(self) -> None:
+        """Stop the server's process; the ring stays readable here (its file is removed)."""
+        import subprocess
+        if self.proc is not None:
+            try:
+                self.proc.stdin.close()
+            except OSError:
+                pass
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+            self.proc.stdout.close()
+        try:
+            os.unlink(self.path)
+        except FileNotFoundError:
+            pass
+
+
+def _serve_shared(argv: list[str]) -> int:
+    """The child of :class:`ScopeProcess`: serve the ring mapped from ``argv[0]`` until stdin closes."""
+    import sys
+    path, capacity, events, port, title, unit, max_points, period = argv
+    token = sys.stdin.readline().strip()
+    ring = ScopeRing.attach(path, int(capacity), int(events))
+    server = ScopeServer(ring, port=int(port), token=token, title=title, output_unit=unit,
+                         max_points=int(max_points), period=float(period))
+    try:
+        server.start()
+    except Exception as exc:               # said by the parent, in one line
+        print(f"error: {exc}", flush=True)
+        return 2
+    print(server.port, flush=True)
+    try:
+        sys.stdin.read()                   # until the parent closes it, or ends
+    except KeyboardInterrupt:              # Ctrl-C reaches the whole process group: the parent decides
+        sys.stdin.read()
+    server.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    import signal
+    import sys
+    signal.signal(signal.SIGINT, signal.SIG_IGN)     # Ctrl-C is the parent's: it ends the hold, then closes stdin
+    sys.exit(_serve_shared(sys.argv[1:]))

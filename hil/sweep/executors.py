@@ -104,8 +104,8 @@ class BackendExecutor:
     returns to that start (its return move), and the next one is refused unless the axis is found
     back there (``limits.start_window``)."""
 
-    def __init__(self, backend, out_dir):
-        self.backend, self.out_dir = backend, out_dir
+    def __init__(self, backend, out_dir, scope=None):
+        self.backend, self.out_dir, self.scope = backend, out_dir, scope     # scope: the live scope's ring
         self.start: float | None = None          # the sweep's start, as measured before the first run
 
     def map(self, cfg, tasks):
@@ -115,7 +115,7 @@ class BackendExecutor:
     def one(self, cfg, key, spec):
         if spec.analysis == "transmission":      # a model analysis: the axis is not needed
             return run_task(cfg, key, spec)
-        fig = run_on_backend(cfg, spec, self.backend, self.out_dir, start=self.start)
+        fig = run_on_backend(cfg, spec, self.backend, self.out_dir, start=self.start, scope=self.scope)
         if self.start is None:
             self.start = fig.get("start_m")
         return key, fig
