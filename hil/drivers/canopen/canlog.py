@@ -133,9 +133,10 @@ class BusRecorder(can.Listener):
                 logger.info("CAN trace: %d frames in %s", self.frames, self.path)
 
 
-def attach(network) -> BusRecorder | None:
-    """A recorder on a connected ``canopen.Network`` when one was requested, else None."""
-    path = requested()
+def attach(network, path: str | Path | None = None) -> BusRecorder | None:
+    """A recorder on a connected ``canopen.Network`` into ``path`` (the backend's ``can_log``
+    option), else where one was requested (:func:`request`), else None."""
+    path = path or requested()
     if path is None or network is None:
         return None
     return BusRecorder(path).attach(getattr(network, "notifier", None), getattr(network, "bus", None))
