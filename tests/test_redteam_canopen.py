@@ -383,10 +383,10 @@ def _reset(sim) -> None:
         sim._set_state("SWITCH ON DISABLED")
         sim.node.nmt.state = "PRE-OPERATIONAL"
         sim.plant.home_at(0.0)
-        sim.plant._u_act = 0.0
+        sim.plant.clear_output()
         sim.rx.clear()
         sim.target_position = sim.target_velocity = sim.target_torque = 0
-        sim._qs = None
+        sim.stop_ramp.state = None
         sim.clear_injections()
 
 
