@@ -40,7 +40,7 @@ def run(args) -> int:
     refuse_if_tripped(cfg)            # homing may move the axis: a latched trip refuses it too
     offset = parse_option(args.offset, "length", "--offset")
     require_supervision(cfg, "canopen")
-    be = CanopenBackend(cfg)
+    be = CanopenBackend(cfg, can_log=getattr(args, "can_log", None))
     try:
         with be:                   # opened (full start-up); shut down (disabled, closed) at the end
             out = be.home(offset=offset, method=args.method)

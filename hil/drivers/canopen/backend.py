@@ -87,6 +87,7 @@ class CanopenBackend(Backend):
 
     name = "canopen"
     misses_answers = True         # a SYNC without its TPDO in time (Feedback.stale)
+    records_can = True            # takes open_backend's can_log (a trace of the bus)
 
     def __init__(self, cfg, bus=None, interface: str | None = None, channel: str | None = None,
                  mode: str | None = None, lockstep: bool | None = None, node_id: int | None = None,
