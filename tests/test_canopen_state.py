@@ -69,3 +69,25 @@ def test_importing_the_backend_leaves_python_cans_logging_alone():
                          env={**os.environ, "PYTHONPATH": root})
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["0", "1"]
+
+
+def test_the_backends_parts_are_short_and_say_whether_they_run_in_the_cycle():
+    """No function of the CANopen and serial backends (and their simulated drives) over 80 lines;
+    every method of the backends' contract says in its docstring whether it is real-time."""
+    import ast
+    import inspect
+
+    from hil.drivers.canopen.backend import CanopenBackend
+    from hil.drivers.serial.backend import SerialBackend
+    drivers = Path(hil.__file__).parent / "drivers"
+    long = []
+    for path in [*drivers.glob("canopen/*.py"), *drivers.glob("serial/*.py"), drivers / "rt.py"]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef) and node.end_lineno - node.lineno + 1 > 80:
+                long.append(f"{path.name}:{node.name}")
+    assert long == []
+    contract = ("open", "enable", "read_feedback", "write_setpoint", "quick_stop", "disable", "close")
+    for cls in (CanopenBackend, SerialBackend):
+        unmarked = [m for m in contract + ("sync",) if m in vars(cls)
+                    and "real-time" not in (inspect.getdoc(getattr(cls, m)) or "")]
+        assert unmarked == [], (cls.__name__, unmarked)
