@@ -20,7 +20,10 @@ CYCLES = 1000
 # libraries that fill up and stop (a few kB, not growing with the cycles); one float kept per
 # cycle is 32 kB
 GROWTH_LIMIT = 24_000
-# the backend's own modules (the simulated drive beside it in this process excluded): nothing
+# the backend's own modules (the simulated drive beside it in this process excluded): nothing but
+# the noise of a received value replaced by one of another size (a small int is shared, a larger
+# one is not)
+OWN_LIMIT = 1000
 BACKEND_FILES = ("*/hil/drivers/canopen/backend.py", "*/hil/drivers/canopen/link.py",
                  "*/hil/drivers/canopen/tracker.py", "*/hil/drivers/canopen/heartbeat.py",
                  "*/hil/drivers/rt.py", "*/hil/drivers/serial/backend.py", "*/hil/drivers/serial/protocol.py")
@@ -63,7 +66,7 @@ def test_the_canopen_cycle_keeps_nothing_per_cycle():
 
         grown, in_backend = _growth(cycle)
         assert be.missed_total == 0 and len(be.answer_latency) >= CYCLES
-        assert in_backend <= 0 and grown < GROWTH_LIMIT, f"{in_backend}, {grown} bytes more after {CYCLES} cycles"
+        assert in_backend < OWN_LIMIT and grown < GROWTH_LIMIT, f"{in_backend}, {grown} bytes more after {CYCLES} cycles"
     finally:
         be.shutdown()
         sim.close()
@@ -90,7 +93,7 @@ def test_the_serial_cycle_keeps_nothing_per_cycle():
             be.sync()
 
         grown, in_backend = _growth(cycle)
-        assert in_backend <= 0 and grown < GROWTH_LIMIT, f"{in_backend}, {grown} bytes more after {CYCLES} cycles"
+        assert in_backend < OWN_LIMIT and grown < GROWTH_LIMIT, f"{in_backend}, {grown} bytes more after {CYCLES} cycles"
         be.shutdown()
     finally:
         drive.stop()
