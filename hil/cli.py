@@ -147,10 +147,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        if args.can_log:
+        if args.can_log:           # checked here; each command passes it to the backend it opens
             from hil.drivers.canopen import canlog
             try:
-                canlog.request(args.can_log)
+                canlog.check(args.can_log)
             except ValueError as exc:
                 print(f"hil {args.command}: error: {exc}", file=sys.stderr)
                 return 2
@@ -182,10 +182,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hil {args.command}: error: a write failed ({exc.strerror}): standard output or a file of the "
               f"command; free space or write elsewhere (--out)", file=sys.stderr)
         return 2
-    finally:
-        if args.can_log:
-            from hil.drivers.canopen import canlog
-            canlog.request(None)
 
 
 def _stdout_closed() -> int:

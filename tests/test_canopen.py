@@ -189,7 +189,7 @@ def test_drive_over_socketcand_on_loopback():
         for _ in range(20):
             be.read_feedback()
             be.sync()
-            be._event.wait(1.0)
+            be.answers.event.wait(1.0)
         assert be.answer_latency and be.late_total == 0
         be.disable()
         assert be.status()["state"] == "READY TO SWITCH ON"

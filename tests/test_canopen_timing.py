@@ -41,7 +41,7 @@ class _Watch:
 
         def on_message_received(listener, msg):
             be = box.get("be")
-            if be is not None and msg.arbitration_id in be._decode:
+            if be is not None and msg.arbitration_id in be.answers.decode:
                 watch.via_listener += 1
                 if be.cycling:
                     watch.via_listener_cycling += 1
@@ -50,14 +50,14 @@ class _Watch:
         monkeypatch.setattr(canopen.network.MessageListener, "on_message_received", on_message_received)
 
     def wrap(self, be):
-        orig = be._on_tpdo
+        orig = be.answers.on_tpdo
 
         def on_tpdo(*a):
             if be.cycling:
                 self.decoders.add(threading.current_thread().name)
             return orig(*a)
 
-        be._on_tpdo = on_tpdo
+        be.answers.on_tpdo = on_tpdo
 
 
 def _hold(cfg, ticks):

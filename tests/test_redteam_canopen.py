@@ -325,7 +325,7 @@ def test_a_bus_error_with_a_traceback_in_its_text_is_one_line():
     server dies (kill -9 of hil drive-sim); the reason (screen, move.json, latch) is one line."""
     import can
 
-    from hil.drivers.canopen.backend import _one_line
+    from hil.drivers.canopen.link import one_line as _one_line
     exc = can.CanOperationError("Failed to receive: [Errno 104] Connection reset by peer  Traceback (most recent "
                                 "call last):\n  File \"x.py\", line 1, in f\nConnectionResetError: [Errno 104]")
     text = _one_line(exc)
@@ -340,11 +340,10 @@ def test_can_log_refuses_a_symbolic_link(tmp_path):
     link = tmp_path / "trace.asc"
     link.symlink_to(target)
     with pytest.raises(ValueError, match="symbolic link"):
-        canlog.request(link)
+        canlog.check(link)
     with pytest.raises(ValueError, match="symbolic link"):
         canlog.BusRecorder(link)
     assert target.read_text() == "keep me"
-    canlog.request(None)
 
 
 # -- 6. a fuzzer of CAN frames sent to the simulated drive ----------------------------------------------
@@ -383,10 +382,10 @@ def _reset(sim) -> None:
         sim._set_state("SWITCH ON DISABLED")
         sim.node.nmt.state = "PRE-OPERATIONAL"
         sim.plant.home_at(0.0)
-        sim.plant._u_act = 0.0
+        sim.plant.clear_output()
         sim.rx.clear()
         sim.target_position = sim.target_velocity = sim.target_torque = 0
-        sim._qs = None
+        sim.stop_ramp.state = None
         sim.clear_injections()
 
 
@@ -451,14 +450,14 @@ def test_a_dead_link_under_the_library_threads_is_one_line_not_a_traceback(monke
     both errors as its one-line 'lost communication'."""
     import threading
 
-    from hil.drivers.canopen.backend import _BusErrors
+    from hil.drivers.canopen.link import BusErrors as _BusErrors
     died = []
     monkeypatch.setattr(threading, "excepthook", lambda args: died.append(args.exc_value))
     cfg, sim, be = rig(prefix="dead")
     sim.close()
     bus = _DeadBus()
     try:
-        errors = _BusErrors(be)
+        errors = _BusErrors(be.link)
         notifier = can.Notifier(bus, [errors], timeout=0.01)
         task = bus.send_periodic(can.Message(arbitration_id=0x77F, data=[5], is_extended_id=False), 0.01,
                                  autostart=False)
@@ -476,5 +475,5 @@ def test_a_dead_link_under_the_library_threads_is_one_line_not_a_traceback(monke
     # the dead socket fails at once on every receive: the notifier's thread must not spin on it
     # (it logged 24 000 lines in one test run): at most one error per IDLE_AFTER_ERROR, plus the first
     assert len(calls) <= 0.5 / _BusErrors.IDLE_AFTER_ERROR + 2, len(calls)
-    assert be._rx_error.startswith("lost communication: the CAN bus failed (") and "\n" not in be._rx_error
+    assert be.link.rx_error.startswith("lost communication: the CAN bus failed (") and "\n" not in be.link.rx_error
     be.close()

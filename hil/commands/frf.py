@@ -227,7 +227,7 @@ def run(args) -> int:
                 raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
             options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
             try:
-                backend = open_backend(cfg, name, **options)
+                backend = open_backend(cfg, name, can_log=getattr(args, "can_log", None), **options)
             except (BackendError, BackendFault, TypeError, ValueError) as exc:
                 raise UserError(str(exc)) from None
             if backend.closes != "none":

@@ -47,7 +47,7 @@ def run(args) -> int:
     offset = parse_option(args.offset, "length", "--offset")
     require_supervision(cfg, "canopen")
     check_scope_options(args)
-    be = CanopenBackend(cfg)
+    be = CanopenBackend(cfg, can_log=getattr(args, "can_log", None))
     with scope_for(args, cfg, "home") as ring:
         try:
             with be:                   # opened (full start-up); shut down (disabled, closed) at the end

@@ -58,7 +58,7 @@ def run(args) -> int:
         raise UserError(str(exc)) from None
     traj.dwell(0.1)
     try:
-        backend = open_backend(cfg, args.backend)
+        backend = open_backend(cfg, args.backend, can_log=getattr(args, "can_log", None))
         # the simulated plant starts at 0: checked here; an axis: checked from where it stands (runtime)
         with scope_for(args, cfg, "jog") as ring:
             rec = run_trajectory(cfg, traj, backend=backend, settle=0.0, check=args.backend == "sim", start="follow",

@@ -198,7 +198,7 @@ def run(args) -> int:
     from hil.drivers import BackendError, open_backend
     from hil.runtime import run_trajectory
     try:
-        backend = open_backend(cfg, args.backend)
+        backend = open_backend(cfg, args.backend, can_log=getattr(args, "can_log", None))
     except BackendError as exc:
         raise UserError(str(exc)) from None
     from hil.errors import stop_exit_code, stop_kind

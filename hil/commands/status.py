@@ -51,7 +51,7 @@ def connected(args):
     from hil.commands.move import load_config
     from hil.drivers.canopen.backend import CanopenBackend
     cfg = load_config(args)
-    be = CanopenBackend(cfg)                 # a mistake in the config (e.g. the EDS): ConfigError, exit 2
+    be = CanopenBackend(cfg, can_log=getattr(args, "can_log", None))   # a mistake in the config (e.g. the EDS): ConfigError, exit 2
     try:
         be.connect()
         be.node.sdo[0x1000].raw

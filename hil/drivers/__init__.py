@@ -38,11 +38,13 @@ def require_supervision(cfg, name: str) -> None:
                           f"set them, or supervisor.unsupervised = true to run without")
 
 
-def open_backend(cfg, name: str | None = None, **options) -> Backend:
+def open_backend(cfg, name: str | None = None, can_log: str | None = None, **options) -> Backend:
     """The backend named by ``name`` or by the config's ``backend.type``, built but not yet opened:
     ``with open_backend(cfg) as b:`` opens it and shuts it down (hil.drivers.base) however the block
     ends. A configuration mistake raises :class:`hil.errors.ConfigError` here, before anything
-    connects, and so is a real backend without the supervisor's windows (:func:`require_supervision`)."""
+    connects, and so is a real backend without the supervisor's windows (:func:`require_supervision`).
+    ``can_log``: a file to trace the CAN bus into (``hil --can-log``), given to a backend on a CAN
+    bus (``records_can``), ignored by the others; ``options`` go to the backend's class."""
     name = name or cfg.get("backend.type", "sim")
     if name not in BACKENDS:
         raise BackendError(f"unknown backend {name!r} (known: {', '.join(BACKENDS)})")
@@ -52,4 +54,7 @@ def open_backend(cfg, name: str | None = None, **options) -> Backend:
         mod = importlib.import_module(modname)
     except ModuleNotFoundError as exc:
         raise BackendError(f"backend {name!r} is not available in this installation ({exc})") from None
-    return getattr(mod, clsname)(cfg, **options)
+    cls = getattr(mod, clsname)
+    if can_log is not None and getattr(cls, "records_can", False):
+        options["can_log"] = can_log
+    return cls(cfg, **options)

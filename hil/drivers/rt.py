@@ -9,6 +9,8 @@ cycle): nothing here blocks or allocates in a cycle.
   then milliseconds later. A request of 0 us keeps idle CPUs polling: every wake-up (the drive's
   answer, the next deadline) costs microseconds, for the price of CPUs that never sleep while the
   loop runs.
+- :class:`SampleBuffer`: the last samples of a per-cycle figure (a latency) in a buffer allocated
+  once: appending in the cycle allocates nothing, however long the run.
 """
 from __future__ import annotations
 
@@ -16,7 +18,9 @@ import math
 import os
 import struct
 
-__all__ = ["fine_timer_slack", "CpuLatencyRequest", "CPU_DMA_LATENCY"]
+import numpy as np
+
+__all__ = ["fine_timer_slack", "CpuLatencyRequest", "CPU_DMA_LATENCY", "SampleBuffer"]
 
 PR_SET_TIMERSLACK = 29          # linux/prctl.h
 CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
@@ -87,3 +91,45 @@ class CpuLatencyRequest:
                 os.close(fd)
             except OSError:
                 pass
+
+
+class SampleBuffer:
+    """The last ``capacity`` samples of a figure measured once a cycle, in a float array allocated
+    once (a ring): :meth:`append` is real-time (no allocation), ``total`` counts every sample
+    appended. Reads like the list it replaces: ``len``, truth, iteration and ``numpy.asarray``
+    give the samples held, oldest first (not real-time: a copy)."""
+
+    def __init__(self, capacity: int = 1 << 16):
+        self._data = np.zeros(int(capacity))
+        self.capacity = int(capacity)
+        self.total = 0
+
+    def append(self, value: float) -> None:
+        self._data[self.total % self.capacity] = value
+        self.total += 1
+
+    def clear(self) -> None:
+        self.total = 0
+
+    def __len__(self) -> int:
+        return min(self.total, self.capacity)
+
+    def __bool__(self) -> bool:
+        return self.total > 0
+
+    def values(self) -> np.ndarray:
+        """The samples held, oldest first (a copy)."""
+        if self.total <= self.capacity:
+            return self._data[:self.total].copy()
+        i = self.total % self.capacity
+        return np.concatenate((self._data[i:], self._data[:i]))
+
+    def __array__(self, dtype=None, copy=None):
+        v = self.values()
+        return v if dtype is None else v.astype(dtype)
+
+    def __iter__(self):
+        return iter(self.values().tolist())
+
+    def __getitem__(self, index):
+        return self.values().tolist()[index]

@@ -204,3 +204,40 @@ class SimulatedPlant(Backend):
 
     def close(self) -> None:
         self.enabled = False
+
+    # -- for a drive simulator that runs this plant as its shaft (hil.drivers.canopen.drive_sim,
+    #    hil.drivers.serial.drive_sim): its own stop ramp, a change of mode, a fresh enable -------
+    @property
+    def law_params(self) -> np.ndarray:
+        """The controller's parameters as hil.control's laws take them (read only)."""
+        return self._p
+
+    @property
+    def output_actual(self) -> float:
+        """The torque (or output) the current loop delivers now."""
+        return self._u_act
+
+    def step_output(self, u: float) -> None:
+        """One velocity period with the output ``u`` commanded (the drive's own loop computed it;
+        real-time)."""
+        self._step(u)
+
+    def restart_interpolation(self) -> None:
+        """The next position setpoint starts the interpolation afresh (a fresh enable)."""
+        self._prev_position = None
+
+    def restart_velocity_loop(self) -> None:
+        """The velocity loop's integral and speed filter start from zero."""
+        self._s = new_velocity_state()
+
+    def clear_output(self) -> None:
+        """No current flows and no setpoint is pending (after a warm-up run)."""
+        self._u_act = 0.0
+        self._set = Setpoint()
+
+    def take_over(self, other: "SimulatedPlant") -> None:
+        """Continue ``other``'s motion (a drive that changed its mode of operation): its state, its
+        current, its position as the last setpoint."""
+        self.x[:] = other.x
+        self._u_act = other._u_act
+        self._prev_position = other.x[0]

@@ -15,8 +15,9 @@ Writing is the logger's (a buffered file write under a lock, the notifier and th
 both write). It is for commissioning and fault finding, not for timing figures: a run with a trace
 does a little more per frame.
 
-The command line asks for it once (:func:`request`, ``hil --can-log FILE``); the canopen backend
-attaches a recorder when it connects (:func:`attach`) and stops it when it closes.
+The command line checks the name once (:func:`check`, ``hil --can-log FILE``) and passes it to the
+backend it opens (``open_backend(cfg, can_log=FILE)``; no process-wide setting); the canopen
+backend attaches a recorder when it connects (:func:`attach`) and stops it when it closes.
 """
 from __future__ import annotations
 
@@ -28,26 +29,24 @@ from pathlib import Path
 
 import can
 
-__all__ = ["BusRecorder", "request", "requested", "attach"]
+__all__ = ["BusRecorder", "check", "attach", "FORMATS"]
 
 logger = logging.getLogger(__name__)
 
-_requested: list[str] = []
 # the formats of python-can's writers that need no further package (its .mf4 needs asammdf)
 FORMATS = (".asc", ".blf", ".log", ".csv", ".trc")
 
 
-def request(path: str | Path | None) -> None:
-    """Record the bus of every canopen backend this process connects into ``path`` (None: stop
-    asking). The suffix names the format (python-can: .asc, .blf, .log, .csv, ...)."""
-    _requested.clear()
-    if path:
-        suffix = Path(path).suffix.lower()
-        if suffix not in FORMATS:
-            raise ValueError(f"--can-log {path}: expected a file ending in {', '.join(FORMATS)} (the format "
-                             f"python-can writes), got {suffix or 'no suffix'}")
-        _refuse_link(path)
-        _requested.append(str(path))
+def check(path: str | Path) -> str:
+    """The trace's file name checked before anything connects: the suffix names the format
+    (python-can: .asc, .blf, .log, .csv, .trc) and no symbolic link stands there; ValueError
+    saying what is wrong, else the name."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in FORMATS:
+        raise ValueError(f"--can-log {path}: expected a file ending in {', '.join(FORMATS)} (the format "
+                         f"python-can writes), got {suffix or 'no suffix'}")
+    _refuse_link(path)
+    return str(path)
 
 
 def _refuse_link(path) -> None:
@@ -55,10 +54,6 @@ def _refuse_link(path) -> None:
     file the user may write), as hil.io.safe_write does for every output."""
     if Path(path).is_symlink():
         raise ValueError(f"--can-log {path}: is a symbolic link; refusing to write through it")
-
-
-def requested() -> str | None:
-    return _requested[0] if _requested else None
 
 
 class BusRecorder(can.Listener):
@@ -133,9 +128,9 @@ class BusRecorder(can.Listener):
                 logger.info("CAN trace: %d frames in %s", self.frames, self.path)
 
 
-def attach(network) -> BusRecorder | None:
-    """A recorder on a connected ``canopen.Network`` when one was requested, else None."""
-    path = requested()
+def attach(network, path: str | Path | None) -> BusRecorder | None:
+    """A recorder into ``path`` (the backend's ``can_log`` option) on a connected
+    ``canopen.Network``; None where no trace was asked for."""
     if path is None or network is None:
         return None
     return BusRecorder(path).attach(getattr(network, "notifier", None), getattr(network, "bus", None))

@@ -242,6 +242,8 @@ class SerialBackend(Backend):
 
     # -- one transaction ---------------------------------------------------------------------------
     def _readline(self, deadline: float) -> bytes:
+        """One reply line by ``deadline`` (real-time: ``select`` on the descriptor, no allocation
+        beyond the line)."""
         ser, eol, cap = self._ser, self.cs.line_ending, self.cs.max_reply + 8
         try:
             fd = ser.fileno()
@@ -274,7 +276,7 @@ class SerialBackend(Backend):
 
     def transact(self, op: str, setup: bool = False, **values) -> dict:
         """Send ``op`` and return the named groups of its confirmed reply; retry within the budget,
-        then raise BackendFault."""
+        then raise BackendFault (real-time in the cycle; with ``setup``, not)."""
         try:                # never anything but one line of printable ASCII (protocol.CommandSet.frame)
             frame = self.cs.encode(op, **values)
         except UnsafeCommand as exc:
@@ -322,6 +324,7 @@ class SerialBackend(Backend):
 
     # -- the contract --------------------------------------------------------------------------------
     def open(self) -> None:
+        """Open the port, identify the drive, arm its watchdog (not real-time)."""
         self._faulted = ""
         self._open = True
         self._open_port()
@@ -335,6 +338,7 @@ class SerialBackend(Backend):
         return self.read_feedback(setup=True)
 
     def enable(self) -> None:
+        """Clear a fault where the command set can, enable, check (not real-time)."""
         fb = self.read_feedback(setup=True)
         if fb.fault and self.cs.has("clear_fault"):
             self.transact("clear_fault", setup=True)
@@ -345,8 +349,9 @@ class SerialBackend(Backend):
         self.enabled = True
 
     def read_feedback(self, setup: bool = False) -> Feedback:
-        """The drive's reading. In the cycle a failed read is reported in ``Feedback.fault`` (the
-        positions are the last ones read); with ``setup`` (enable) it raises BackendFault."""
+        """The drive's reading (real-time). In the cycle a failed read is reported in
+        ``Feedback.fault`` (the positions are the last ones read); with ``setup`` (enable, not
+        real-time) it raises BackendFault."""
         try:
             g = self.transact("read", setup=setup)
         except BackendFault as exc:
@@ -365,6 +370,7 @@ class SerialBackend(Backend):
         return fb
 
     def write_setpoint(self, setpoint: Setpoint) -> None:
+        """The setpoint, confirmed by the drive's echo (real-time)."""
         if self.closes == "both":
             self.transact("set_position", position=self._counts("set_position", setpoint.position * self.k_pos))
         else:
@@ -372,7 +378,7 @@ class SerialBackend(Backend):
 
     def _counts(self, op: str, value: float) -> int:
         """A setpoint in whole drive units; a NaN or infinite one, or one of more digits than a
-        reply can confirm (protocol: 12), is never sent (BackendFault)."""
+        reply can confirm (protocol: 12), is never sent (BackendFault). Real-time."""
         if not math.isfinite(value) or abs(value) >= 1e12:
             self._faulted = (f"setpoint refused: serial {op}: {value!r} is not a finite number of at most 12 digits "
                              f"(drive units); not sent")
@@ -380,13 +386,14 @@ class SerialBackend(Backend):
         return round(value)
 
     def quick_stop(self) -> None:
+        """The drive's quick stop (or disable), in the cycle of a trip (real-time)."""
         op = "quick_stop" if self.cs.has("quick_stop") else "disable"
         self.enabled = False
         self.transact(op, setup=True)
 
     def disable(self) -> None:
         """Disable; after a fault (link likely gone) a failure here is recorded, not raised: the
-        drive's watchdog stops it. Nothing before :meth:`open` or after :meth:`close`."""
+        drive's watchdog stops it. Nothing before :meth:`open` or after :meth:`close` (not real-time)."""
         was = self.enabled
         self.enabled = False
         if not self._open or not self._open_once or self._ser is None and self._faulted:
@@ -398,5 +405,6 @@ class SerialBackend(Backend):
                 raise
 
     def close(self) -> None:
+        """Release the port (not real-time; safe twice)."""
         self._open = False
         self._close_port()

@@ -138,9 +138,8 @@ class _Drive:
         self._quick_stop_step()
         pl.disable()
         pl.home_at(0.0)
-        pl._prev_position = None
-        pl._u_act = 0.0
-        pl._set = Setpoint()
+        pl.restart_interpolation()
+        pl.clear_output()
         pl.time = 0.0
 
     # -- replies -------------------------------------------------------------------------------
@@ -265,7 +264,7 @@ class _Drive:
                 return self._error(3)
             self.enabled, self.stopping = True, False
             pl.enable()
-            pl._prev_position = None
+            pl.restart_interpolation()
             self.t_next = time.perf_counter() + self.period
             return self._reply(op, {})
         if op == "quick_stop":
@@ -316,7 +315,7 @@ class _Drive:
         kp = pl.ctrl.kp
         for _ in range(pl.ctrl.substeps):
             u = -kp * pl.x[n] * pl.ctrl.speed_scale
-            pl._step(max(-self.tmax, min(self.tmax, u)))
+            pl.step_output(max(-self.tmax, min(self.tmax, u)))
 
     def _stop_cycle(self) -> None:
         self._quick_stop_step()
