@@ -38,7 +38,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from hil.commands.move import _no_move, load_config
     from hil.drivers import BackendError, open_backend
-    from hil.errors import UserError, stop_exit_code
+    from hil.errors import UserError
     from hil.profiles import LimitError, MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     from hil.supervisor import refuse_if_tripped
@@ -71,4 +71,4 @@ def run(args) -> int:
         from hil.supervisor import trip_hint
         print(f"jog DID NOT COMPLETE: {rec.status}: {rec.reason}; the axis stopped at {out['end_m'] * 1e3:.3f} mm "
               f"(from {start * 1e3:.3f} mm); {trip_hint(cfg)}")
-    return stop_exit_code(rec.status, rec.reason)
+    return rec.stop.exit_code
