@@ -25,12 +25,12 @@ from hil.config import Config, Field, field_for, register_section
 from hil.errors import ConfigError, UnitError
 from hil.sim_plant.chain import Chain
 from hil.sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
-from hil.sim_plant.effects import ALIASES, CATALOGUE, Combination, Effect, Param, RecordEffect, effect
+from hil.sim_plant.effects import ALIASES, CATALOGUE, ByActuator, Combination, Effect, Param, RecordEffect, effect
 from hil.sim_plant.plant import Friction, Plant
 from hil.units import parse
 
-__all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "default_parameters",
-           "load_components", "components_from_dict"]
+__all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "configure",
+           "default_parameters", "load_components", "components_from_dict"]
 
 
 # --- the plant -----------------------------------------------------------------------------------
@@ -81,8 +81,16 @@ def _effects_field(key: str) -> Field | None:
     eff = effect(parts[1])
     for p in eff.params:
         if p.name == parts[2]:
-            return Field(p.kind, f"{eff.name}: {p.doc}", default=None, required=False)
+            return Field(_schema_kind(p), f"{eff.name}: {p.doc}", default=None, required=False)
     return None
+
+
+def _schema_kind(p: Param):
+    """The config schema's kind of an effect's parameter: its kind, or a callable of the config's
+    values where it depends on ``actuator.type`` (:class:`~hil.sim_plant.effects.ByActuator`)."""
+    if isinstance(p.kind, ByActuator):
+        return lambda values: p.kind_for(values.get("actuator.type", "rotary") == "rotary")
+    return p.kind
 
 
 register_section("effects", _effects_field,
@@ -157,6 +165,8 @@ class ParameterEffect(Effect):
         self.description = f"re-identify {key} ({f.doc})"
         value = cfg.get(key) if cfg is not None else None
         kind = f.kind
+        if callable(kind):           # the schema's kind of actuator.type, as the physics' parameters say it
+            kind = ByActuator(kind({"actuator.type": "rotary"}), kind({"actuator.type": "linear"}))
         if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
             value = None
         g = float(value) if value else 1.0
@@ -167,10 +177,21 @@ class ParameterEffect(Effect):
         return True
 
     def apply(self, plant, values):      # pragma: no cover - parameters act on the config
-        raise TypeError("parameter effects act on the config: use configure()")
+        raise TypeError("parameter effects act on the config: use hil.plant_config.configure()")
 
-    def configure(self, cfg, values):
-        return cfg.with_values({self.key: float(values["value"])})
+
+def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:
+    """A new config with the effect ``eff`` switched on with ``values``: a catalogue effect's
+    section ``[effects.<name>]``, a combination's members one after the other, a
+    ``parameter:<key>`` effect's key itself. The one place an effect becomes configuration keys
+    (the physics, hil.sim_plant, takes parameters and knows no configuration)."""
+    if isinstance(eff, Combination):
+        for m, v in zip(eff.members, eff.split(values)):
+            cfg = configure(m, cfg, v)
+        return cfg
+    if isinstance(eff, ParameterEffect):
+        return cfg.with_values({eff.key: float(values["value"])})
+    return cfg.with_values({f"effects.{eff.name}.{k}": float(v) for k, v in values.items()})
 
 
 def candidate(name: str, cfg: Config | None = None) -> Effect:

@@ -188,7 +188,7 @@ def fitted_stderr(cfg, steps) -> dict:
     to the keys they set (a later step, the joint fit, wins)."""
     import math
 
-    from hil.plant_config import candidate
+    from hil.plant_config import candidate, configure
     out: dict = {}
     for s in steps:
         try:
@@ -197,13 +197,13 @@ def fitted_stderr(cfg, steps) -> dict:
             continue
         vals = dict(s.params)
         try:
-            ref = eff.configure(cfg, vals)
+            ref = configure(eff, cfg, vals)
         except ValueError:
             continue
         for name, se in s.stderr.items():
             bumped = dict(vals, **{name: vals[name] * (1 + 1e-3) + 1e-9})
             try:
-                other = eff.configure(cfg, bumped)
+                other = configure(eff, cfg, bumped)
             except ValueError:
                 continue
             keys = [k for k, v in other.values.items() if v != ref.values.get(k)]

@@ -11,7 +11,7 @@ from __future__ import annotations
 import multiprocessing as mp
 
 from hil.ident.fit import evaluate
-from hil.plant_config import candidate
+from hil.plant_config import candidate, configure
 
 __all__ = ["evaluate_many"]
 
@@ -50,7 +50,7 @@ def evaluate_many(replay, work, res0, jobs, progress):
                     if progress:
                         progress(c.effect if c else "?")
                     if c is not None:
-                        c.cfg = candidate(c.effect, replay.cfg).configure(replay.cfg, c.params)
+                        c.cfg = configure(candidate(c.effect, replay.cfg), replay.cfg, c.params)
                     out.append(c)
             _WORK.clear()
             return out

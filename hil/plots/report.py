@@ -278,12 +278,7 @@ def _param_units(cfg, effect: str) -> dict:
         return {}
     out = {}
     for p in getattr(eff, "params", ()):
-        kind = p.kind
-        if callable(kind):
-            try:
-                kind = kind(cfg)
-            except Exception:       # a kind that needs more of the config than there is: no unit
-                kind = None
+        kind = p.kind_for(cfg.rotary)
         unit = SI_UNIT.get(kind, "") if isinstance(kind, str) else ""
         out[p.name] = {"1": "", "1/s": "Hz"}.get(unit, unit)
     return out
