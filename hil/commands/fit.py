@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from hil.commands.compare import add_common, load_records, make_records, make_replay
+from hil.commands.record_inputs import add_common, load_records, make_records, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
 

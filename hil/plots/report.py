@@ -31,7 +31,7 @@ __all__ = ["write_report", "write_diagnosis_report", "write_sweep_report", "writ
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 
-# what each figure of hil.plots.compare shows, by its file's stem (without a tag)
+# what each figure of hil.plots.residual_figures shows, by its file's stem (without a tag)
 CAPTIONS = {
     "overlay": "Measured and simulated channels against time, each with its residual (measured minus simulated) "
                "beneath on the same time axis; the legend gives each model's fit (NRMSE) %.",
@@ -232,9 +232,9 @@ def write_report(path: Path, title: str, analysis: dict, figures: list[Path], af
     title : str
         Its title.
     analysis, after : dict
-        hil.ident.compare.analyse of the model, and of the fitted model (or None).
+        hil.ident.residual_analysis.analyse of the model, and of the fitted model (or None).
     figures : list of Path
-        PNGs to embed (hil.plots.compare.comparison_figures: the correlation figure, MATLAB resid's,
+        PNGs to embed (hil.plots.residual_figures.comparison_figures: the correlation figure, MATLAB resid's,
         goes to the residual analysis, the others to the figures).
     diagnosis : dict, optional
         The diagnosis as ``hil diagnose --json`` prints it (the verdict, the ranking, the chain).
