@@ -30,7 +30,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
-from hil.config import Field, register_section
+from hil.config import SUPERVISOR_SECTION
 from hil.drivers.base import fault_kind
 from hil.errors import StopKind, SupervisorTripped, UserError
 
@@ -95,26 +95,7 @@ def refuse_if_tripped(cfg) -> None:
     Supervisor(cfg).arm()
 
 
-SECTION = {
-    "supervisor.stop": Field("str", "controlled stop on a trip: quick_stop (CiA 402 quick stop) or disable",
-                             default="quick_stop", choices=("quick_stop", "disable")),
-    "supervisor.tolerance": Field("dimensionless", "relative margin on the speed/acceleration/jerk/torque limits",
-                                  default=0.05, nonnegative=True),
-    "supervisor.overrun_cycles": Field("dimensionless", "watchdog: a cycle that starts this many periods late "
-                                       "trips (real-time clock only)", default=2.0, positive=True),
-    "supervisor.frozen_cycles": Field("int", "position reading unchanged this many ticks while commanded to move",
-                                      maximum=1_000_000,
-                                      default=10, positive=True),
-    "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True,
-                                maximum=1_000_000),
-    "supervisor.unsupervised": Field("bool", "true: let a real backend (canopen, serial) run without the "
-                                     "supervisor's windows (limits.following_error_table); default false: refused "
-                                     "before anything connects", default=False),
-    "supervisor.latch_file": Field("str", "file that keeps a trip across processes until 'hil reset'; default "
-                                   "latch.json in $HIL_STATE_DIR, $XDG_STATE_HOME/compliant-axis-hil or "
-                                   "~/.local/state/compliant-axis-hil", default=""),
-}
-register_section("supervisor", lambda key: SECTION.get(key), lambda: list(SECTION))
+SECTION = SUPERVISOR_SECTION        # the [supervisor] keys (their schema is hil.config's)
 
 
 class Trip(NamedTuple):

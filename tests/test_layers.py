@@ -230,8 +230,8 @@ def _config_accesses(path: Path, sections: set[str]) -> list[tuple[int, str, str
 
 
 def _config_sections() -> set[str]:
-    from hil.config import _known_sections
-    return set(_known_sections())
+    from hil.config import SCHEMA, SECTION_NAMES
+    return {k.split(".", 1)[0] for k in SCHEMA} | set(SECTION_NAMES)
 
 
 def _driver_may_read(module: str, key: str) -> bool:
