@@ -229,7 +229,7 @@ class Supervisor:
     """Checks :data:`RULES` every position tick (:meth:`check`, then :meth:`check_setpoint`), trips
     on the first that fails (:meth:`trip`: the reason, its :class:`~hil.errors.StopKind` in
     ``trip_kind``, the latch). The cycle allocates no container: the quantities go into one
-    preallocated list, the history keeps tuples."""
+    preallocated list, the last cycles into a preallocated ring of rows (:attr:`history`)."""
 
     def __init__(self, cfg, period: float | None = None, real_time: bool = False, latch_file: str | None = None):
         self.cfg = cfg

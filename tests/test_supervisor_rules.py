@@ -215,3 +215,13 @@ def test_the_per_cycle_check_allocates_nothing_that_lives_on(tmp_path):
                 if s.traceback[0].filename.endswith("supervisor.py"))
     assert grown < 512, grown            # nothing per cycle (2 600 cycles)
     assert worst < 160, worst
+
+
+def test_a_stopped_run_raises_with_the_exit_code_of_its_kind():
+    """RunStopped (a sweep's run, an frf) takes its exit code from the kind it is given, whatever
+    its reason says (before: read back from the reason's first words)."""
+    from hil.errors import RunStopped
+    for kind in StopKind:
+        e = RunStopped("stopped", RunStatus.TRIPPED, "drive fault: words that no longer decide", kind)
+        assert e.exit_code == kind.exit_code and e.stop is kind
+    assert [k.exit_code for k in StopKind] == [0, 1, 3, 4, 5, 130]
