@@ -182,7 +182,8 @@ def effects_reference() -> str:
         out += ["| parameter | kind | SI unit | lower | upper | guess | fitted | meaning |",
                 "|---|---|---|---|---|---|---|---|"]
         for p in eff.params:
-            kind, unit = _kind_and_unit(p.kind)
+            kind, unit = _kind_and_unit(p.kind if isinstance(p.kind, str) else
+                                        (lambda v, p=p: p.kind_for(v["actuator.type"] == "rotary")))
             if kind == "frequency":
                 unit = "Hz (1/s)"
             out.append(f"| `{p.name}` | {kind} | {_cell(unit) or '-'} | {p.lower:g} | {p.upper:g} | {p.guess:g} | "

@@ -5,8 +5,10 @@ from the command line (``--set plant.c2=33``) and to re-identify it (``parameter
 Values are stored in SI; files may write them with units (``"10 mm"``).
 
 The schema is data (:data:`SCHEMA`), so that validation, the documentation in
-``config/SCHEMA.md`` and the command line all read the same table. Backends and plant effects add
-their own sections through :func:`register_section`.
+``config/SCHEMA.md`` and the command line all read the same table. The sections beside it are
+listed here (:data:`SECTION_NAMES`): ``[supervisor]``, ``[noise]`` and ``[effects.<name>]`` (the
+effect catalogue's parameters) as data of this module, the backends' ``[canopen]`` and
+``[serial]`` registered by their modules (:func:`register_section`).
 
 The example configurations of ``config/`` ship in the package (``hil/examples`` in a wheel):
 :func:`load` reads one by name (``paper_bench.toml``, or ``config/paper_bench.toml`` as the README
@@ -211,15 +213,85 @@ SCHEMA: dict[str, Field] = {
                                      "\"backlash.gap > 10um\"); a record beyond one is flagged", default=None),
 }
 
-# Sections whose keys other modules define (backends, effects). name -> callback(key) -> Field | None
-_SECTIONS: dict[str, Callable[[str], Field | None]] = {}
-# The module that registers each such section, imported the first time one of its keys is read.
-SECTION_PROVIDERS = {"effects": "hil.plant_config", "serial": "hil.drivers.serial.backend", "canopen": "hil.drivers.canopen.backend",
-                     "supervisor": "hil.supervisor", "noise": "hil.plant_config"}
+# The [supervisor] section (hil.supervisor reads it)
+SUPERVISOR_SECTION = {
+    "supervisor.stop": Field("str", "controlled stop on a trip: quick_stop (CiA 402 quick stop) or disable",
+                             default="quick_stop", choices=("quick_stop", "disable")),
+    "supervisor.tolerance": Field("dimensionless", "relative margin on the speed/acceleration/jerk/torque limits",
+                                  default=0.05, nonnegative=True),
+    "supervisor.overrun_cycles": Field("dimensionless", "watchdog: a cycle that starts this many periods late "
+                                       "trips (real-time clock only)", default=2.0, positive=True),
+    "supervisor.frozen_cycles": Field("int", "position reading unchanged this many ticks while commanded to move",
+                                      maximum=1_000_000,
+                                      default=10, positive=True),
+    "supervisor.history": Field("int", "cycles kept for the trip record", default=50, positive=True,
+                                maximum=1_000_000),
+    "supervisor.unsupervised": Field("bool", "true: let a real backend (canopen, serial) run without the "
+                                     "supervisor's windows (limits.following_error_table); default false: refused "
+                                     "before anything connects", default=False),
+    "supervisor.latch_file": Field("str", "file that keeps a trip across processes until 'hil reset'; default "
+                                   "latch.json in $HIL_STATE_DIR, $XDG_STATE_HOME/compliant-axis-hil or "
+                                   "~/.local/state/compliant-axis-hil", default=""),
+}
+
+# the [noise] section: the channels whose sensor noise a configuration may give, and their kinds
+NOISE_KINDS = {"x_motor": "length", "x_table": "length", "x_tip": "length", "torque": "torque", "force": "force",
+               "command": "voltage", "e_table": "length", "e_tip": "length"}
 
 
+def _effects_field(key: str) -> Field | None:
+    """Fields of the ``effects.<name>.<param>`` keys: the catalogue's parameters (hil.sim_plant,
+    the layer below; imported here when first asked: it compiles)."""
+    from hil.sim_plant.effects import ALIASES, CATALOGUE, effect
+    parts = key.split(".")
+    if len(parts) != 3 or ALIASES.get(parts[1], parts[1]) not in CATALOGUE:
+        return None
+    eff = effect(parts[1])
+    for p in eff.params:
+        if p.name == parts[2]:
+            return Field(_param_kind(p), f"{eff.name}: {p.doc}", default=None, required=False)
+    return None
+
+
+def _param_kind(p):
+    """The schema's kind of an effect's parameter: its kind, or a callable of the config's values
+    where it depends on ``actuator.type`` (:class:`hil.sim_plant.effects.ByActuator`)."""
+    if isinstance(p.kind, str):
+        return p.kind
+    return lambda values: p.kind_for(_rotary(values))
+
+
+def _effects_keys() -> list[str]:
+    from hil.sim_plant.effects import CATALOGUE
+    return [f"effects.{n}.{p.name}" for n, e in CATALOGUE.items() for p in e.params]
+
+
+def _noise_field(key: str) -> Field | None:
+    parts = key.split(".")
+    if len(parts) != 2 or parts[1] not in NOISE_KINDS:
+        return None
+    return Field(NOISE_KINDS[parts[1]], f"RMS noise of the {parts[1]} sensor (before quantization): the "
+                 f"noise floor of hil diagnose", default=None, nonnegative=True)
+
+
+# The sections beside SCHEMA, explicitly: name -> field of a key (None: not one of its keys).
+_SECTIONS: dict[str, Callable[[str], Field | None]] = {
+    "supervisor": SUPERVISOR_SECTION.get,
+    "effects": _effects_field,
+    "noise": _noise_field,
+}
 # The keys each such section knows, where its owner lists them (for "did you mean").
-_SECTION_KEYS: dict[str, Callable[[], list[str]]] = {}
+_SECTION_KEYS: dict[str, Callable[[], list[str]]] = {
+    "supervisor": lambda: list(SUPERVISOR_SECTION),
+    "effects": _effects_keys,
+    "noise": lambda: [f"noise.{c}" for c in NOISE_KINDS],
+}
+# The backends' sections are defined with the backends (hil.drivers, a layer above this module):
+# each registers its section (register_section) when imported, the first time one of its keys is
+# read. To become data of this module when the backends' settings are parts of their own.
+SECTION_PROVIDERS = {"serial": "hil.drivers.serial.backend", "canopen": "hil.drivers.canopen.backend"}
+# every section beside SCHEMA's
+SECTION_NAMES = ("supervisor", "effects", "noise", "canopen", "serial")
 
 
 def register_section(prefix: str, lookup: Callable[[str], Field | None],
@@ -279,7 +351,7 @@ def _flatten(table: dict, prefix: str = "") -> dict[str, Any]:
 
 
 def _known_sections() -> list[str]:
-    return sorted({k.split(".", 1)[0] for k in SCHEMA} | set(SECTION_PROVIDERS))
+    return sorted({k.split(".", 1)[0] for k in SCHEMA} | set(SECTION_NAMES))
 
 
 def _known_in_section(section: str) -> str:

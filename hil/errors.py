@@ -12,8 +12,10 @@ catches that root, prints one line and exits with the error's ``exit_code``:
 
 A run that moved and did not complete ends with the exit code of *how* it stopped,
 :data:`STOP_EXIT_CODES` (one fault rule for every backend: each of these ends in the configured
-controlled stop and a record closed with its status and reason; :func:`stop_kind` reads which
-from the reason's first words, which the backends and the supervisor write that way)::
+controlled stop and a record closed with its status and reason). How it stopped is a
+:class:`StopKind`, decided where the stop is decided (a supervisor rule, the backend's fault, the
+loop's interrupt) and carried with the run's :class:`RunStatus` to the exit code, as Ruckig's
+``Result`` is; nothing reads it back from the reason's words::
 
     0    complete
     1    drive_fault   the drive reported a fault (EMCY / FAULT state, a fault code, a refusal)
@@ -43,9 +45,11 @@ a configuration into it turns those into :class:`ConfigError` naming the key.
 """
 from __future__ import annotations
 
+from enum import StrEnum
+
 __all__ = ["HilError", "ConfigError", "BackendError", "UnitError", "LimitError", "MeasurementError",
            "UnstableLoopError", "UserError", "SupervisorTripped", "BackendFault", "RunStopped",
-           "STOP_EXIT_CODES", "stop_kind", "stop_exit_code"]
+           "STOP_EXIT_CODES", "StopKind", "RunStatus"]
 
 # how a run that moved ended -> the command's exit code (README, Safety: the exit codes)
 STOP_EXIT_CODES = {
@@ -63,29 +67,32 @@ STOP_EXIT_CODES = {
 # anything is printed); only the printing stopped. Never 1, which says drive fault.
 STDOUT_CLOSED_EXIT = 141
 
-# the first words of a stop reason, as the backends (hil.drivers.base's fault rule), the loop and the
-# supervisor write them -> the kind of stop
-_REASON_KINDS = (("drive fault", "drive_fault"), ("lost communication", "link"), ("loop overrun", "overrun"),
-                 ("interrupted", "interrupt"))
+
+class StopKind(StrEnum):
+    """How a run ended (the keys of :data:`STOP_EXIT_CODES`); ``exit_code`` is the command's. A
+    ``StrEnum``: it prints and writes to JSON as its value (``"drive_fault"``)."""
+    COMPLETE = "complete"
+    DRIVE_FAULT = "drive_fault"
+    TRIP = "trip"
+    LINK = "link"
+    OVERRUN = "overrun"
+    INTERRUPT = "interrupt"
+
+    @property
+    def exit_code(self) -> int:
+        return STOP_EXIT_CODES[self.value]
 
 
-def stop_kind(status: str, reason: str = "") -> str:
-    """The kind of stop (a key of :data:`STOP_EXIT_CODES`) of a run that ended with ``status``
-    (complete, tripped, fault, aborted) and ``reason``."""
-    if status == "complete":
-        return "complete"
-    low = (reason or "").lower()
-    for words, kind in _REASON_KINDS:
-        if low.startswith(words):
-            return kind
-    if status == "fault":            # a setpoint not delivered, without a more precise reason
-        return "link"
-    return "trip"
-
-
-def stop_exit_code(status: str, reason: str = "") -> int:
-    """The exit code of a run that ended with ``status`` and ``reason`` (:data:`STOP_EXIT_CODES`)."""
-    return STOP_EXIT_CODES[stop_kind(status, reason)]
+class RunStatus(StrEnum):
+    """The status a run's record closes with (``hil.io.recorder``; written as its value): complete,
+    tripped (a supervisor rule or a fault the backend reported), fault (a setpoint not delivered),
+    aborted (Ctrl-C, an unexpected error), refused (before motion)."""
+    RUNNING = "running"
+    COMPLETE = "complete"
+    TRIPPED = "tripped"
+    FAULT = "fault"
+    ABORTED = "aborted"
+    REFUSED = "refused"
 
 
 class HilError(Exception):
@@ -131,9 +138,11 @@ class BackendFault(HilError, RuntimeError):
     exit_code = 1
     label = "drive fault"
 
-    def __init__(self, reason: str):
+    def __init__(self, reason: str, kind: StopKind | None = None):
         super().__init__(reason)
         self.reason = reason
+        # drive_fault or link where the backend says which (hil.drivers.base's fault rule)
+        self.kind = kind
 
 
 class RunStopped(HilError):
@@ -141,7 +150,7 @@ class RunStopped(HilError):
     stopped (:data:`STOP_EXIT_CODES`)."""
     label = "stopped"
 
-    def __init__(self, message: str, status: str, reason: str):
+    def __init__(self, message: str, status: RunStatus, reason: str, stop: StopKind):
         super().__init__(message)
-        self.status, self.reason = status, reason
-        self.exit_code = stop_exit_code(status, reason)
+        self.status, self.reason, self.stop = status, reason, stop
+        self.exit_code = stop.exit_code

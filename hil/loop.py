@@ -27,8 +27,9 @@ supervisor (at a position tick through its check, between ticks here), a trip co
 configured controlled stop in the same cycle and ends the run ``tripped``; a
 :class:`~hil.errors.BackendFault` raised in the cycle ends it ``fault`` (latched in the supervisor
 like a trip), Ctrl-C ``aborted``, each after the same controlled stop, which never raises (what
-fails is logged: the link may be gone). The reason's first words say the kind of stop, and so the
-command's exit code (hil.errors.stop_kind, STOP_EXIT_CODES).
+fails is logged: the link may be gone). The result carries the kind of stop
+(:class:`hil.errors.StopKind`, decided where the stop is: the supervisor's rule, the backend's
+fault), and so the command's exit code (STOP_EXIT_CODES).
 """
 from __future__ import annotations
 
@@ -43,8 +44,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
-from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
+from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint, fault_kind
 from hil.drivers.rt import CpuLatencyRequest, fine_timer_slack
+from hil.errors import RunStatus, StopKind
 from hil.scope.ring import ScopeRing
 
 __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]
@@ -205,9 +207,10 @@ class Injection:
 @dataclass
 class LoopResult:
     ticks: int
-    status: str                    # complete | tripped | fault | aborted
+    status: RunStatus
     reason: str = ""
     clock: dict = field(default_factory=dict)
+    stop: StopKind = StopKind.COMPLETE     # how it ended: the command's exit code
 
 
 class ControlLoop:
@@ -304,7 +307,7 @@ class ControlLoop:
             gc.disable()
         self.clock.start()
         k = 0
-        status, reason = "complete", ""
+        status, reason, kind = RunStatus.COMPLETE, "", StopKind.COMPLETE
         try:
             for k in range(K):
                 tp = self.ctrl.position_period
@@ -317,12 +320,12 @@ class ControlLoop:
                         # the supervisor checks once a tick: a fault between ticks trips it here, the same way
                         latch = getattr(self.supervisor, "trip", None)
                         if latch is None:
-                            raise BackendFault(fb.fault)
-                        latch(k * self.ctrl.position_period, fb.fault, fb)
+                            raise BackendFault(fb.fault, fb.fault_kind)
+                        kind = fault_kind(fb.fault, fb.fault_kind, StopKind.TRIP)
+                        latch(k * self.ctrl.position_period, fb.fault, fb, kind)
                         self._stop(b)
-                        status, reason = "tripped", fb.fault
                         self._event(k, "trip", fb.fault)
-                        return self._end(k, status, reason)
+                        return self._end(k, RunStatus.TRIPPED, fb.fault, kind)
                     # the setpoint of this cycle (from the loops the backend does not close)
                     if b.closes == "both":
                         sp, out = Setpoint(position=cmd[k + 1]), fb.output
@@ -354,9 +357,9 @@ class ControlLoop:
                                 trip = check_next(k * self.ctrl.position_period, cmd[k + 1])
                             if trip:
                                 self._stop(b)
-                                status, reason = "tripped", trip
                                 self._event(k, "trip", trip)
-                                return self._end(k, status, reason)
+                                kind = getattr(self.supervisor, "trip_kind", None) or StopKind.TRIP
+                                return self._end(k, RunStatus.TRIPPED, trip, kind)
                     b.write_setpoint(sp)
                     b.sync()
                     self.clock.wait()
@@ -367,19 +370,19 @@ class ControlLoop:
                         self.progress = None
         except BackendFault as exc:
             self._stop(b)
-            status, reason = "fault", exc.reason
+            status, reason, kind = RunStatus.FAULT, exc.reason, fault_kind(exc.reason, exc.kind, StopKind.LINK)
             self._event(k, "fault", reason)
             latch = getattr(self.supervisor, "trip", None)
             if latch is not None:        # latched like a trip: motion refused until 'hil reset'
-                latch(k * self.ctrl.position_period, reason)
+                latch(k * self.ctrl.position_period, reason, None, kind)
         except KeyboardInterrupt:
             self._stop(b)
-            status, reason = "aborted", "interrupted (Ctrl-C)"
+            status, reason = RunStatus.ABORTED, "interrupted (Ctrl-C)"
             self._event(k, "aborted", reason)
             raise
         except Exception as exc:
             self._stop(b)
-            status, reason = "aborted", f"{type(exc).__name__}: {exc}"
+            status, reason = RunStatus.ABORTED, f"{type(exc).__name__}: {exc}"
             self._event(k, "aborted", reason)
             raise
         finally:
@@ -393,7 +396,7 @@ class ControlLoop:
                 self.recorder.close(status, reason)
         if status == "complete":
             self._event(K - 1, "complete", "")
-        return self._end(K, status, reason)
+        return self._end(K, status, reason, kind)
 
     def _event(self, k: int, kind: str, reason: str) -> None:
         """An event of the scope at position tick ``k`` (real-time; nothing without a scope)."""
@@ -413,9 +416,9 @@ class ControlLoop:
         except Exception as exc:
             log.warning("%s backend: the controlled stop (%s) failed: %s", backend.name, how, exc)
 
-    def _end(self, ticks: int, status: str, reason: str) -> LoopResult:
+    def _end(self, ticks: int, status: RunStatus, reason: str, kind: StopKind) -> LoopResult:
         clock = self.clock.stats() if hasattr(self.clock, "stats") else {}
-        return LoopResult(ticks, status, reason, clock)
+        return LoopResult(ticks, status, reason, clock, kind)
 
 
 # the columns _record fills, in the order of hil.runtime.record_channels

@@ -5,9 +5,10 @@
   (:func:`apply_effects`). Everything in linear units on the load side: mass 1 is the motor's
   inertia reflected through the pitch, and its torque enters as the force f = tau 2 pi / p
   (Eq. 12, 23).
-* The ``[effects.<name>]`` config section (its keys are the catalogue's parameters, registered
-  with :func:`hil.config.register_section` on import), and the ``parameter:<key>`` effects that
-  re-identify a value the config already has (:class:`ParameterEffect`, :func:`candidate`).
+* An effect switched on in a configuration (:func:`configure`: the ``[effects.<name>]`` section,
+  whose keys hil.config takes from the catalogue's parameters), and the ``parameter:<key>``
+  effects that re-identify a value the config already has (:class:`ParameterEffect`,
+  :func:`candidate`).
 * The components file (catalogue data with units, Appendix 2 and 3) read into SI values for
   :func:`hil.sim_plant.components.equivalents` (:func:`load_components`).
 
@@ -21,16 +22,16 @@ import re
 import tomllib
 from pathlib import Path
 
-from hil.config import Config, Field, field_for, register_section
+from hil.config import NOISE_KINDS, Config, field_for
 from hil.errors import ConfigError, UnitError
 from hil.sim_plant.chain import Chain
 from hil.sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
-from hil.sim_plant.effects import ALIASES, CATALOGUE, Combination, Effect, Param, RecordEffect, effect
+from hil.sim_plant.effects import ByActuator, Combination, Effect, Param, RecordEffect, effect
 from hil.sim_plant.plant import Friction, Plant
 from hil.units import parse
 
-__all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "default_parameters",
-           "load_components", "components_from_dict"]
+__all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "configure",
+           "default_parameters", "load_components", "components_from_dict"]
 
 
 # --- the plant -----------------------------------------------------------------------------------
@@ -71,37 +72,8 @@ def plant_from_config(cfg: Config) -> Plant:
     return apply_effects(plant, cfg)
 
 
-# --- the effects' config section ------------------------------------------------------------------
-
-def _effects_field(key: str) -> Field | None:
-    """Config fields of the ``effects.<name>.<param>`` keys: the catalogue's parameters."""
-    parts = key.split(".")
-    if len(parts) != 3 or ALIASES.get(parts[1], parts[1]) not in CATALOGUE:
-        return None
-    eff = effect(parts[1])
-    for p in eff.params:
-        if p.name == parts[2]:
-            return Field(p.kind, f"{eff.name}: {p.doc}", default=None, required=False)
-    return None
-
-
-register_section("effects", _effects_field,
-                 lambda: [f"effects.{n}.{p.name}" for n, e in CATALOGUE.items() for p in e.params])
-
-# --- the sensors' noise: [noise] <channel> = RMS (hil.ident.noise reads it for the noise floor) -----
-_NOISE_KINDS = {"x_motor": "length", "x_table": "length", "x_tip": "length", "torque": "torque", "force": "force",
-                "command": "voltage", "e_table": "length", "e_tip": "length"}
-
-
-def _noise_field(key: str) -> Field | None:
-    parts = key.split(".")
-    if len(parts) != 2 or parts[1] not in _NOISE_KINDS:
-        return None
-    return Field(_NOISE_KINDS[parts[1]], f"RMS noise of the {parts[1]} sensor (before quantization): the "
-                 f"noise floor of hil diagnose", default=None, nonnegative=True)
-
-
-register_section("noise", _noise_field, lambda: [f"noise.{c}" for c in _NOISE_KINDS])
+# the sensors' noise section's channels and their kinds (hil.config's [noise]; hil.ident.noise reads them)
+_NOISE_KINDS = NOISE_KINDS
 
 
 def _configured_effects(cfg: Config):
@@ -157,6 +129,8 @@ class ParameterEffect(Effect):
         self.description = f"re-identify {key} ({f.doc})"
         value = cfg.get(key) if cfg is not None else None
         kind = f.kind
+        if callable(kind):           # the schema's kind of actuator.type, as the physics' parameters say it
+            kind = ByActuator(kind({"actuator.type": "rotary"}), kind({"actuator.type": "linear"}))
         if not (isinstance(value, (int, float)) and not isinstance(value, bool)):
             value = None
         g = float(value) if value else 1.0
@@ -167,10 +141,21 @@ class ParameterEffect(Effect):
         return True
 
     def apply(self, plant, values):      # pragma: no cover - parameters act on the config
-        raise TypeError("parameter effects act on the config: use configure()")
+        raise TypeError("parameter effects act on the config: use hil.plant_config.configure()")
 
-    def configure(self, cfg, values):
-        return cfg.with_values({self.key: float(values["value"])})
+
+def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:
+    """A new config with the effect ``eff`` switched on with ``values``: a catalogue effect's
+    section ``[effects.<name>]``, a combination's members one after the other, a
+    ``parameter:<key>`` effect's key itself. The one place an effect becomes configuration keys
+    (the physics, hil.sim_plant, takes parameters and knows no configuration)."""
+    if isinstance(eff, Combination):
+        for m, v in zip(eff.members, eff.split(values)):
+            cfg = configure(m, cfg, v)
+        return cfg
+    if isinstance(eff, ParameterEffect):
+        return cfg.with_values({eff.key: float(values["value"])})
+    return cfg.with_values({f"effects.{eff.name}.{k}": float(v) for k, v in values.items()})
 
 
 def candidate(name: str, cfg: Config | None = None) -> Effect:

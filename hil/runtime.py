@@ -32,9 +32,9 @@ import numpy as np
 from hil.closed_loop import check_loop_stability
 from hil.control import controller_from_config
 from hil.drivers import open_backend
-from hil.drivers.base import BackendFault
+from hil.drivers.base import BackendFault, fault_kind
 from hil.drivers.sim import SimulatedPlant
-from hil.errors import HilError, UserError
+from hil.errors import HilError, RunStatus, StopKind, UserError
 from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop, LoopResult
@@ -60,11 +60,12 @@ def record_channels(rotary: bool, stale: bool = False) -> list[str]:
 class RunRecord:
     """A recorded run: channels (SI), how it ended, and where the file is."""
     channels: dict[str, np.ndarray]
-    status: str = "complete"
+    status: RunStatus = RunStatus.COMPLETE
     reason: str = ""
     path: Path | None = None
     loop: dict = field(default_factory=dict)
     start: float | None = None          # where the run started (m; on an axis: as measured)
+    stop: StopKind = StopKind.COMPLETE  # how it ended: the command's exit code (hil.errors.StopKind)
 
     def __getitem__(self, name):
         return self.channels[name]
@@ -130,11 +131,11 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         ch = sim.channels()
         chans = {n: ch[n] for n in names}
         # the supervisor's rules on the record: the run ends where the axis would have tripped
-        status, reason = "complete", ""
+        status, reason, kind = RunStatus.COMPLETE, "", StopKind.COMPLETE
         trip = check_record(cfg, chans, v_motor=sim.v[:, 0], period=tp)
         if trip is not None:
-            k, reason = trip
-            status = "tripped"
+            k, reason, kind = trip
+            status = RunStatus.TRIPPED
             chans = {n: v[:k + 1] for n, v in chans.items()}
         if out_file is not None:
             with Recorder(out_file, names, info) as rec:
@@ -143,7 +144,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         if scope is not None:
             feed_scope(scope, chans, speed=sim.v[:len(chans["t"]), 0], status=status, reason=reason,
                        pace=1.0 if realtime else None)
-        return RunRecord(chans, status, reason, Path(out_file) if out_file else None, start=float(x_cmd[0]))
+        return RunRecord(chans, status, reason, Path(out_file) if out_file else None, start=float(x_cmd[0]),
+                         stop=kind)
     # cycle by cycle, on the backend's clock
     ctrl = controller_from_config(cfg, getattr(backend, "plant", None) or _plant_scales(cfg))
     rec = Recorder(out_file, names, info) if out_file is not None else _MemoryRecorder(names)
@@ -166,12 +168,12 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
             backend.enable()
             result: LoopResult = loop.run(x_cmd)
     except BackendFault as exc:          # open, read_position or enable failed: nothing moved
-        result = LoopResult(0, "fault", exc.reason)
+        result = LoopResult(0, RunStatus.FAULT, exc.reason, stop=fault_kind(exc.reason, exc.kind, StopKind.LINK))
     except HilError as exc:              # refused before motion (the start, the limits): one line, exit 2
-        rec.close("refused", str(exc), {"start": started})
+        rec.close(RunStatus.REFUSED, str(exc), {"start": started})
         raise
     except BaseException as exc:         # e.g. an interface not installed, Ctrl-C: the record says why
-        rec.close("aborted", "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else
+        rec.close(RunStatus.ABORTED, "interrupted (Ctrl-C)" if isinstance(exc, KeyboardInterrupt) else
                   f"{type(exc).__name__}: {exc}")
         raise
     logger.info("run on %s: %s%s", getattr(backend, "name", "sim"), result.status,
@@ -185,7 +187,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     else:                  # stopped before it moved (e.g. the drive did not answer at start-up)
         chans = {n: np.zeros(0) for n in names}
     return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock,
-                     start=float(x_cmd[0]))
+                     start=float(x_cmd[0]), stop=result.stop)
 
 
 def _plant_scales(cfg):

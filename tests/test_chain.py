@@ -12,7 +12,7 @@ from hil.ident import Replay, synthesize
 from hil.ident.chain import diagnose_chain
 from hil.ident.noise import quantization_step, record_noise, standstill_noise
 from hil.io.measurement import Measurement
-from hil.plant_config import candidate
+from hil.plant_config import candidate, configure
 from hil.sim_plant import kernel
 from hil.sim_plant.effects import CATALOGUE, Effect, Param
 
@@ -23,7 +23,7 @@ def _truth(effects):
     """The paper bench with the hidden effects switched on (catalogue names or parameter:<key>)."""
     cfg = CFG
     for name, vals in effects:
-        cfg = candidate(name, cfg).configure(cfg, vals)
+        cfg = configure(candidate(name, cfg), cfg, vals)
     return cfg
 
 
@@ -61,7 +61,7 @@ def _bump_record(force, seed=3):
     eff = LocalBump()
     CATALOGUE[eff.name] = eff
     try:
-        cfg = eff.configure(CFG, {"force": force, "centre": 0.03, "width": 4e-3})
+        cfg = configure(eff, CFG, {"force": force, "centre": 0.03, "width": 4e-3})
         ch, _ = synthesize(cfg, None, duration=6.0, seed=seed)
     finally:
         del CATALOGUE[eff.name]

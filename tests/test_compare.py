@@ -46,7 +46,7 @@ def analyses():
     with that friction (the fitted model: near the record)."""
     from hil.config import load
     from hil.ident import Replay
-    from hil.ident.compare import analyse
+    from hil.ident.residual_analysis import analyse
     from hil.ident.synth import synthesize
     from hil.io.measurement import Measurement
     cfg = load(BENCH)
@@ -67,7 +67,7 @@ def _fit_by_hand(y, yhat) -> float:
 
 
 def test_overlay_has_the_residual_beneath_on_one_time_axis_and_the_fit_in_the_legend(analyses):
-    from hil.plots.compare import overlay_figure
+    from hil.plots.residual_figures import overlay_figure
     a, b = analyses
     fig = overlay_figure(a, b)
     chans = list(a["_arrays"]["measured"])

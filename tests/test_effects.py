@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from hil.config import load
-from hil.plant_config import candidate, record_effects
+from hil.plant_config import candidate, configure, record_effects
 from hil.sim_plant.effects import CATALOGUE
 from hil.simulate import simulate_config
 
@@ -24,7 +24,7 @@ def test_catalogue_names():
 def test_effect_changes_response(name):
     from hil.ident.synth import HIDDEN_DEFAULTS
     base = simulate_config(CFG, X).channels()
-    cfg = candidate(name).configure(CFG, HIDDEN_DEFAULTS[name])
+    cfg = configure(candidate(name), CFG, HIDDEN_DEFAULTS[name])
     r = simulate_config(cfg, X).channels()
     for eff, vals in record_effects(cfg):       # an artefact of the recording acts on the channels recorded
         r = eff.apply_record(r["t"], r, vals)
@@ -36,11 +36,11 @@ def test_constant_force_static_deflection():
     # a constant force F on a P-I loop at rest: the integrator takes it, the torque settles at F p / 2 pi
     F = 400.0
     x = np.zeros(2000)
-    r = simulate_config(candidate("constant_force").configure(CFG, {"force": F}), x)
+    r = simulate_config(configure(candidate("constant_force"), CFG, {"force": F}), x)
     assert r.u[-1] == pytest.approx(-F * 0.01 / (2 * np.pi), rel=1e-3)
 
 
 def test_parameter_effect_sets_key():
     eff = candidate("parameter:c2", CFG)
     assert eff.name == "parameter:plant.c2"
-    assert eff.configure(CFG, {"value": 40.0})["plant.c2"] == 40.0
+    assert configure(eff, CFG, {"value": 40.0})["plant.c2"] == 40.0

@@ -299,7 +299,6 @@ def _stalling_backend(cfg, at=30, stall=0.02, ctrl_c=False):
 
 
 def test_a_loop_overrun_ends_the_same_way(tmp_path):
-    from hil.errors import stop_exit_code
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     cfg = config.load(BENCH)
@@ -308,7 +307,7 @@ def test_a_loop_overrun_ends_the_same_way(tmp_path):
     b = _stalling_backend(cfg, at=30, stall=5 * cfg["control.position_period"])
     rec = run_trajectory(cfg, traj, backend=b, out_file=tmp_path / "run.csv", settle=0.1)
     assert rec.status == "tripped" and rec.reason.startswith("loop overrun"), rec.reason
-    assert stop_exit_code(rec.status, rec.reason) == 5 and b.stopped
+    assert rec.stop.exit_code == 5 and b.stopped
     status = json.loads((tmp_path / "run.json").read_text())
     assert status["status"] == "tripped" and status["reason"] == rec.reason
     assert _latch()["reason"] == rec.reason

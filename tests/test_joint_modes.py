@@ -11,7 +11,7 @@ from hil.ident import Replay, diagnose, synthesize
 from hil.ident.synth import _ramp_move, move_sequence
 from hil.ident.unexplained import HALF_GAP, gap_closed
 from hil.io.measurement import Measurement
-from hil.plant_config import candidate, plant_from_config
+from hil.plant_config import candidate, configure, plant_from_config
 
 CFG = load("config/paper_bench.toml")
 TP = CFG["control.position_period"]
@@ -34,8 +34,8 @@ def _pair_record(level, v0, seed=1):
     # the model's viscous friction is too high; the axis has Coulomb friction and a lower slope, so
     # that at the bench's one speed they cancel: each alone barely changes the error
     dc = -level / (SP * v0)
-    truth = candidate("coulomb_friction", CFG).configure(CFG, {"level": level})
-    truth = candidate("viscous_friction", truth).configure(truth, {"coefficient": dc})
+    truth = configure(candidate("coulomb_friction", CFG), CFG, {"level": level})
+    truth = configure(candidate("viscous_friction", truth), truth, {"coefficient": dc})
     ch, _ = synthesize(truth, None, x_cmd=_servo_command(v0, seed), seed=seed)
     return Replay(Measurement(ch, source="synth: servo bench"), CFG), dc
 
@@ -90,7 +90,7 @@ def test_mode_starts_from_residual_peaks_not_the_command_line(mass, freq, line, 
     # residual's strongest peak
     from hil.ident.residual import spectrum_peaks
     from hil.ident.starts import mode_targets
-    rich = candidate("compliant_mode", CFG).configure(CFG, {"mass": mass, "frequency": freq, "damping_ratio": 0.02})
+    rich = configure(candidate("compliant_mode", CFG), CFG, {"mass": mass, "frequency": freq, "damping_ratio": 0.02})
     f_mode = _first_mode(rich)
     assert f_mode < 0.92 * _first_mode(CFG)
     f_line = line * f_mode

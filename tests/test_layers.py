@@ -183,3 +183,95 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     assert layer_of("hil.commands.move")[1] > layer_of("hil.sim_plant.probe")[1]
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": set()}) is None
+
+
+# --- configuration access below the configuration's layer (issue 28, item 4) ---------------------
+
+# What a backend may read of the configuration besides its own section (hil.drivers.<name> reads
+# <name>.*; hil.drivers itself, the registry, backend.*): what a drive is set up with before it
+# moves: the cycle, the controller's output limit, the axis limits the drive also guards on its
+# side, the screw's pitch, the controlled stop, and whether the supervisor may be left out.
+DRIVER_SHARED_KEYS = {"control.position_period", "control.velocity_period", "control.output_limit",
+                      "limits.travel_min", "limits.travel_max", "limits.speed", "limits.torque",
+                      "limits.following_error_table", "plant.pitch", "supervisor.stop", "supervisor.unsupervised"}
+
+
+def _config_accesses(path: Path, sections: set[str]) -> list[tuple[int, str, str]]:
+    """(line, how, key) of every duck-typed configuration access in a module: a subscript or a
+    ``.get``/``.section`` by a dotted key whose first part is a configuration section (a literal,
+    or an f-string whose literal start names the section: ``cfg[f"effects.{name}.{k}"]``), and
+    every ``.with_values`` call (which makes configurations)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    out = []
+
+    def key_of(node) -> str | None:
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            text = node.value
+        elif isinstance(node, ast.JoinedStr) and node.values and isinstance(node.values[0], ast.Constant):
+            text = node.values[0].value + "{}"
+        else:
+            return None
+        head = text.split(".", 1)[0]
+        return text if "." in text and head in sections else None
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Subscript):
+            key = key_of(node.slice)
+            if key:
+                out.append((node.lineno, "[]", key))
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            if node.func.attr == "with_values":
+                out.append((node.lineno, ".with_values", ""))
+            elif node.func.attr in ("get", "section") and node.args:
+                key = key_of(node.args[0])
+                if key:
+                    out.append((node.lineno, f".{node.func.attr}", key))
+    return out
+
+
+def _config_sections() -> set[str]:
+    from hil.config import SCHEMA, SECTION_NAMES
+    return {k.split(".", 1)[0] for k in SCHEMA} | set(SECTION_NAMES)
+
+
+def _driver_may_read(module: str, key: str) -> bool:
+    parts = module.split(".")
+    own = parts[2] if len(parts) > 2 else "backend"          # hil.drivers.<own>..., hil.drivers: backend.*
+    return key.split(".", 1)[0] == own or key in DRIVER_SHARED_KEYS
+
+
+def test_physics_and_backends_know_no_configuration_syntax():
+    """``hil.sim_plant`` takes parameters: no configuration key (``cfg["plant.m1"]``,
+    ``values.get("actuator.type")``, ``cfg[f"effects.{name}.{k}"]``) and no ``.with_values`` in it;
+    hil.plant_config reads the configuration into it and switches effects on. ``hil.drivers``: a
+    backend is built from the configuration and may read its own section and
+    :data:`DRIVER_SHARED_KEYS`, and makes no configurations (no ``.with_values``). The imports
+    cannot show this (the configuration is passed in, duck-typed); the syntax tree does."""
+    sections = _config_sections()
+    bad = []
+    for name, path in sorted(_modules().items()):
+        if name.startswith("hil.sim_plant"):
+            bad += [f"{name}:{line} {how} {key}" for line, how, key in _config_accesses(path, sections)]
+        elif name.startswith("hil.drivers"):
+            bad += [f"{name}:{line} {how} {key}" for line, how, key in _config_accesses(path, sections)
+                    if how == ".with_values" or not _driver_may_read(name, key)]
+    assert not bad, "configuration syntax below the configuration's layer:\n  " + "\n  ".join(bad)
+
+
+def test_the_checker_sees_duck_typed_config_access(tmp_path):
+    """The checker itself, on the forms it must see (what hil.sim_plant.effects did before: an
+    f-string key into ``with_values``, ``values.get("actuator.type")``), and not on a parameter
+    dictionary's own dotted names (a combination's ``values[f"{n}.{p.name}"]``)."""
+    mod = tmp_path / "probe.py"
+    mod.write_text("def f(cfg, values, n, p):\n"
+                   "    cfg.with_values({f'effects.{n}.{p}': 1.0})\n"
+                   "    values.get('actuator.type', 'rotary')\n"
+                   "    cfg['plant.m1']\n"
+                   "    cfg[f'effects.{n}.level']\n"
+                   "    values[f'{n}.{p}']\n"
+                   "    values['stiffness.k_em']\n")
+    found = [(line, how) for line, how, _ in _config_accesses(mod, {"effects", "actuator", "plant"})]
+    assert found == [(2, ".with_values"), (3, ".get"), (4, "[]"), (5, "[]")]
+    assert _driver_may_read("hil.drivers.canopen.backend", "canopen.node_id")
+    assert not _driver_may_read("hil.drivers.canopen.backend", "serial.port")
+    assert not _driver_may_read("hil.drivers.sim", "effects.backlash.gap")

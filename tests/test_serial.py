@@ -22,7 +22,7 @@ from hil.drivers.serial.protocol import (  # noqa: E402
     UnexpectedReply,
     render_reply,
 )
-from hil.errors import ConfigError, stop_kind  # noqa: E402
+from hil.errors import ConfigError, StopKind  # noqa: E402
 
 CONFIG = "config/serial_ascii_example.toml"
 # generous per-attempt timeouts: a shared 2-core test machine delays a pty reply by several ms
@@ -202,7 +202,7 @@ def test_vanished_port(cfg, drive):
     rec = run_trajectory(cfg, traj, backend=b, settle=0.2)
     # lost communication, whether the port vanished on a read (tripped) or on a setpoint (fault)
     # (issue 16: the run now reads the position before it enables the drive, one command more)
-    assert stop_kind(rec.status, rec.reason) == "link" and "port lost" in rec.reason, rec.reason
+    assert rec.stop is StopKind.LINK and "port lost" in rec.reason, rec.reason
     assert time.perf_counter() - t0 < 5
     drive.proc.join(5)
     assert not drive.alive

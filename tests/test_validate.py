@@ -11,7 +11,7 @@ from hil.config import load
 from hil.ident import Replay, synthesize
 from hil.ident.synth import _ramp_move
 from hil.io.measurement import Measurement, write
-from hil.plant_config import candidate
+from hil.plant_config import candidate, configure
 
 CFG = load("config/paper_bench.toml")
 TP = CFG["control.position_period"]
@@ -20,7 +20,7 @@ TP = CFG["control.position_period"]
 def _truth(effects):
     cfg = CFG
     for name, vals in effects:
-        cfg = candidate(name, cfg).configure(cfg, vals)
+        cfg = configure(candidate(name, cfg), cfg, vals)
     return cfg
 
 
@@ -144,7 +144,7 @@ def test_records_objective_sums_the_records():
     b, _ = synthesize(truth, None, duration=2.0, seed=4)
     ra, rb = Replay(Measurement(a, source="a"), CFG), Replay(Measurement(b, source="b"), CFG)
     both = Records([ra, rb])
-    cfg = candidate("coulomb_friction", CFG).configure(CFG, {"level": 1.0})
+    cfg = configure(candidate("coulomb_friction", CFG), CFG, {"level": 1.0})
     vec = both.objective.vector(both.residuals(cfg))
     want = sum(float(np.sum(r.objective.vector(r.residuals(cfg)) ** 2)) for r in (ra, rb))
     assert float(np.sum(vec ** 2)) == pytest.approx(want, rel=1e-12)

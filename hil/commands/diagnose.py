@@ -1,7 +1,7 @@
 """``hil diagnose``: which physical effect is the model missing?"""
 from __future__ import annotations
 
-from hil.commands.compare import add_common, load_records, make_records, make_replay
+from hil.commands.record_inputs import add_common, load_records, make_records, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
 
@@ -160,8 +160,8 @@ def run(args) -> int:
             candidate(n, cfg)
         except KeyError as exc:
             raise UserError(str(exc).strip("'\"")) from None
-    from hil.commands.compare import prompt_interrupt
     from hil.commands.progress import bar
+    from hil.commands.record_inputs import prompt_interrupt
     # Ctrl-C ends it at once, inside the compiled fits too
     with prompt_interrupt(), bar("diagnose", args) as prog:
         if args.no_chain or args.max_steps <= 1:
@@ -274,10 +274,10 @@ def write_html_report(path, d, rp, cfg, args, record) -> None:
     import tempfile
     from pathlib import Path
 
-    from hil.ident.compare import analyse
+    from hil.ident.residual_analysis import analyse
     from hil.io.safe_write import refuse_inputs
-    from hil.plots.compare import comparison_figures
     from hil.plots.report import write_diagnosis_report
+    from hil.plots.residual_figures import comparison_figures
     data = [args.data] if isinstance(args.data, str) else list(args.data)
     refuse_inputs(path, (*data, args.config, *(getattr(args, "validate", None) or [])))
     first = getattr(rp, "parts", [rp])[0]          # several records: the residual analysis of the first

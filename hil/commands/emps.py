@@ -93,7 +93,6 @@ def missing_record_message(data: str) -> str:
 
 
 def run(args) -> int:
-    from hil.ident.compare import analyse
     from hil.ident.emps import (
         PUBLISHED,
         PUBLISHED_VALIDATION,
@@ -103,8 +102,9 @@ def run(args) -> int:
         validate_emps,
         validation_markdown,
     )
-    from hil.plots.compare import comparison_figures, error_fall_figure
+    from hil.ident.residual_analysis import analyse
     from hil.plots.report import write_report
+    from hil.plots.residual_figures import comparison_figures, error_fall_figure
     if not Path(args.data).exists():
         raise UserError(missing_record_message(args.data))
     for v in args.validate:

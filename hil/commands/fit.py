@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from hil.commands.compare import add_common, load_records, make_records, make_replay
+from hil.commands.record_inputs import add_common, load_records, make_records, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
 
@@ -197,7 +197,7 @@ def fitted_stderr(cfg, steps) -> dict:
     to the keys they set (a later step, the joint fit, wins)."""
     import math
 
-    from hil.plant_config import candidate
+    from hil.plant_config import candidate, configure
     out: dict = {}
     for s in steps:
         try:
@@ -206,13 +206,13 @@ def fitted_stderr(cfg, steps) -> dict:
             continue
         vals = dict(s.params)
         try:
-            ref = eff.configure(cfg, vals)
+            ref = configure(eff, cfg, vals)
         except ValueError:
             continue
         for name, se in s.stderr.items():
             bumped = dict(vals, **{name: vals[name] * (1 + 1e-3) + 1e-9})
             try:
-                other = eff.configure(cfg, bumped)
+                other = configure(eff, cfg, bumped)
             except ValueError:
                 continue
             keys = [k for k, v in other.values.items() if v != ref.values.get(k)]

@@ -41,7 +41,7 @@ def run(args) -> int:
     from hil.commands.move import _no_move, load_config
     from hil.commands.scope import check_scope_options, scope_for
     from hil.drivers import BackendError, open_backend
-    from hil.errors import UserError, stop_exit_code
+    from hil.errors import UserError
     from hil.profiles import LimitError, MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     from hil.supervisor import refuse_if_tripped
@@ -77,4 +77,4 @@ def run(args) -> int:
         from hil.supervisor import trip_hint
         print(f"jog DID NOT COMPLETE: {rec.status}: {rec.reason}; the axis stopped at {out['end_m'] * 1e3:.3f} mm "
               f"(from {start * 1e3:.3f} mm); {trip_hint(cfg)}")
-    return stop_exit_code(rec.status, rec.reason)
+    return rec.stop.exit_code

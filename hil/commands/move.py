@@ -201,7 +201,6 @@ def run(args) -> int:
         backend = open_backend(cfg, args.backend, can_log=getattr(args, "can_log", None))
     except BackendError as exc:
         raise UserError(str(exc)) from None
-    from hil.errors import stop_exit_code, stop_kind
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     from hil.commands.scope import scope_for
@@ -220,9 +219,9 @@ def run(args) -> int:
     if rec.status != "complete":
         # a run that did not complete: say so first, and no overshoot or settling figures for it
         png = plot_move(ch, out / "move.png", title=title, stopped=(rec.status, rec.reason))
-        kind = stop_kind(rec.status, rec.reason)
+        kind = rec.stop
         summary = {"status": rec.status, "reason": rec.reason, "stop": kind,
-                   "exit_code": stop_exit_code(rec.status, rec.reason), "stopped_at_s": float(ch["t"][-1]),
+                   "exit_code": kind.exit_code, "stopped_at_s": float(ch["t"][-1]),
                    "start_m": traj.start, "record": str(rec.path), "plot": str(png), "backend": backend.name}
         if args.json:
             print(dumps(summary, indent=2))

@@ -124,7 +124,7 @@ def _param_values(args, cfg) -> tuple[dict | None, dict]:
             eff = candidate(args.effect, cfg)
         except KeyError as exc:
             raise UserError(str(exc).strip("'\"")) from None
-        kinds = {p.name: (p.kind(cfg.values) if callable(p.kind) else p.kind) for p in eff.params}
+        kinds = {p.name: p.kind_for(cfg.rotary) for p in eff.params}
     if not args.param:
         return None, kinds
     if not args.effect:

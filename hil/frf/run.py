@@ -174,7 +174,8 @@ def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, 
                        injection=injection, scope=scope, progress=(lambda done: progress(f"  {done:5.1%}")) if progress else None)
     result = loop.run(x_cmd[:-1], x_after=x_cmd[-1])
     if result.status != "complete":      # stopped (the loop commanded the controlled stop): how, in the exit code
-        raise RunStopped(f"frf did not complete: {result.status}: {result.reason}", result.status, result.reason)
+        raise RunStopped(f"frf did not complete: {result.status}: {result.reason}", result.status, result.reason,
+                         result.stop)
     data = injection.data
     saturated = int(np.count_nonzero(np.abs(data[:, CH.index("u")]) >= ctrl.output_limit))
     tip_measured = not np.isnan(data[:, CH.index("x_tip")]).any()

@@ -24,7 +24,6 @@ Modules, each importing only those above it:
 - ``synth``: records of a richer plant with a hidden effect.
 """
 from hil.ident.chain import diagnose_chain
-from hil.ident.compare import analyse, metrics
 from hil.ident.diagnosis import Combo, candidate_names, diagnose, pair_score
 from hil.ident.emps import EmpsResult, run_emps
 from hil.ident.fit import Candidate, evaluate, fit_effects, joint_refit
@@ -33,6 +32,7 @@ from hil.ident.inverse import idim_ls
 from hil.ident.noise import record_noise
 from hil.ident.replay import POSITION_CHANNELS, Replay
 from hil.ident.residual import motion_phases, periodic_in_position, spectrum_peaks
+from hil.ident.residual_analysis import analyse, metrics
 from hil.ident.scores import MIN_SCORE, bic_score, effective_samples, noise_floor, nrmse_fit, relative_error
 from hil.ident.synth import HIDDEN_DEFAULTS, synthesize
 

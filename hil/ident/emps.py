@@ -32,7 +32,7 @@ from hil.ident.progress import expect
 from hil.ident.replay import Replay
 from hil.ident.scores import relative_error
 from hil.io.importers import read_mat
-from hil.plant_config import candidate
+from hil.plant_config import candidate, configure
 
 logger = logging.getLogger(__name__)
 
@@ -203,7 +203,7 @@ def _step_rows(rp, cfg_before, step, later: bool = False) -> list:
             label = f"{' + '.join(st.effect.split('+'))} refitted together"
             rows.append({"step": label, "short": "joint refit", "params": params_of(st.cfg), **errors(rp, st.cfg)})
             continue
-        cur = candidate(st.effect, cur).configure(cur, st.params)
+        cur = configure(candidate(st.effect, cur), cur, st.params)
         label = f"+ {st.effect}" + (" (the next verdict, fitted on top)" if later else "")
         rows.append({"step": label, "short": f"+ {st.effect}", "params": params_of(cur), **errors(rp, cur)})
     if step["_joint"] is not None:

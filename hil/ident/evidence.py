@@ -32,7 +32,7 @@ import numpy as np
 
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
-from hil.plant_config import candidate, plant_from_config
+from hil.plant_config import candidate, configure, plant_from_config
 from hil.sim_plant.effects import ALIASES
 from hil.sim_plant.modal import transmission_mode
 from hil.units import fmt_si
@@ -170,10 +170,10 @@ def _stiffness_evidence(name, vals, replay, res0) -> str:
     chans = list(replay.objective.weights)
     ks = [k for n, k in vals.items() if n.startswith("k_")]
     try:
-        res1 = replay.residuals(eff.configure(cfg, vals))
+        res1 = replay.residuals(configure(eff, cfg, vals))
         best = None
         for k in (k0, kmean, k1):
-            r = replay.residuals(eff.configure(cfg, dict(vals, **{n: k for n in vals if n.startswith("k_")})))
+            r = replay.residuals(configure(eff, cfg, dict(vals, **{n: k for n in vals if n.startswith("k_")})))
             cost = float(np.sum(replay.objective.vector(r) ** 2))
             if best is None or cost < best[0]:
                 best = (cost, r)

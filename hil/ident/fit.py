@@ -33,7 +33,7 @@ from hil.ident.objective import Objective
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, SIGNIFICANT_ABOVE_NOISE, bic_score
 from hil.ident.starts import record_scales, starting_values
-from hil.plant_config import candidate
+from hil.plant_config import candidate, configure
 from hil.sim_plant.effects import Effect
 
 logger = logging.getLogger(__name__)
@@ -116,7 +116,7 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
         def fun(z, held=held):
             vals = dict(held, **dict(zip(names, z * scale)))
             try:
-                cfg = eff.configure(base_cfg, vals)
+                cfg = configure(eff, base_cfg, vals)
                 return obj.vector(obj.residuals(cfg))
             except (ValueError, ZeroDivisionError, FloatingPointError):
                 return np.full(obj.n, 1e3)
@@ -135,7 +135,7 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
     logger.debug("%s fitted: %s (cost %.4g, %d evaluations)", eff.name, vals, best[0], total)
     if stderr is not None:
         stderr.update(zip(names, standard_errors(best[2], best[3]).tolist()))
-    cfg = eff.configure(base_cfg, vals)
+    cfg = configure(eff, base_cfg, vals)
     return vals, cfg, obj.residuals(cfg), total
 
 

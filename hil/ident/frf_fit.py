@@ -20,7 +20,7 @@ from scipy.optimize import least_squares
 from hil.control import controller_from_config
 from hil.errors import MeasurementError
 from hil.frf import model_responses
-from hil.plant_config import candidate, plant_from_config
+from hil.plant_config import candidate, configure, plant_from_config
 from hil.sim_plant.effects import Combination
 
 __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RESPONSES"]
@@ -188,7 +188,7 @@ def fit_frf(cfg, data: FrfData, names: list[str], min_coherence: float = 0.8, ma
 
     def f(z):
         try:
-            return _residuals(eff.configure(cfg, to_values(z)), data, min_coherence)[0]
+            return _residuals(configure(eff, cfg, to_values(z)), data, min_coherence)[0]
         except (ValueError, np.linalg.LinAlgError):
             return np.full(n_res, 1e3)
 
@@ -201,7 +201,7 @@ def fit_frf(cfg, data: FrfData, names: list[str], min_coherence: float = 0.8, ma
     z0 = np.clip(z0, lo + 1e-9, hi - 1e-9)
     sol = least_squares(f, z0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
     values = to_values(sol.x)
-    new_cfg = eff.configure(cfg, values)
+    new_cfg = configure(eff, cfg, values)
     r1, per1 = _residuals(new_cfg, data, min_coherence)
     return FrfFit(eff.name, values, float(np.sqrt(np.mean(r0 ** 2) * 1.0)), float(np.sqrt(np.mean(r1 ** 2))),
                   {k: {"before": per0.get(k), "after": per1.get(k)} for k in per0}, new_cfg)

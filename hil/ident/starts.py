@@ -31,6 +31,7 @@ import numpy as np
 from hil.control import controller_from_config
 from hil.ident.replay import Replay
 from hil.ident.residual import periodic_in_position, spectrum_peaks
+from hil.plant_config import configure
 from hil.sim_plant.effects import Combination, Effect
 
 __all__ = ["record_scales", "starting_values", "mode_targets", "command_lines", "LINE_ABOVE", "LINE_TOL",
@@ -209,7 +210,7 @@ def _costs(eff, replay, starts, cfg) -> list[float]:
     costs = []
     for s in starts:
         try:
-            costs.append(float(np.sum(obj.vector(obj.residuals(eff.configure(cfg, s))) ** 2)))
+            costs.append(float(np.sum(obj.vector(obj.residuals(configure(eff, cfg, s))) ** 2)))
         except ValueError:
             costs.append(math.inf)
     return costs

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from hil.plant_config import candidate, record_effects
+from hil.plant_config import candidate, configure, record_effects
 from hil.sim_plant.effects import ALIASES
 from hil.simulate import simulate_config
 
@@ -129,7 +129,7 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
             next((v for k, v in HIDDEN_DEFAULTS.items() if ALIASES.get(k) == effect), {})
         vals = dict(defaults) if values is None else dict(values)
         vals = {p.name: vals.get(p.name, p.guess) for p in eff.params}
-        rich = eff.configure(cfg, vals)
+        rich = configure(eff, cfg, vals)
     else:
         vals = {}
     tp = cfg["control.position_period"]

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from hil.io.safe_write import write_atomic
-from hil.plots.compare import _channel_units, fit_label
+from hil.plots.residual_figures import _channel_units, fit_label
 
 __all__ = ["write_interactive"]
 
@@ -67,7 +67,7 @@ def interactive_layout(analysis: dict, after: dict | None = None, names=("model"
 
 def write_interactive(analysis: dict, path: Path, title: str, after: dict | None = None,
                       names=("model", "fitted model")) -> Path:
-    """Write the interactive overlay of ``analysis`` (hil.ident.compare.analyse; ``after``: the
+    """Write the interactive overlay of ``analysis`` (hil.ident.residual_analysis.analyse; ``after``: the
     fitted model's) to ``path``: one HTML file with BokehJS inline. Returns the path."""
     from bokeh.embed import file_html
     from bokeh.resources import INLINE

@@ -31,7 +31,7 @@ __all__ = ["write_report", "write_diagnosis_report", "write_sweep_report", "writ
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 
-# what each figure of hil.plots.compare shows, by its file's stem (without a tag)
+# what each figure of hil.plots.residual_figures shows, by its file's stem (without a tag)
 CAPTIONS = {
     "overlay": "Measured and simulated channels against time, each with its residual (measured minus simulated) "
                "beneath on the same time axis; the legend gives each model's fit (NRMSE) %.",
@@ -232,9 +232,9 @@ def write_report(path: Path, title: str, analysis: dict, figures: list[Path], af
     title : str
         Its title.
     analysis, after : dict
-        hil.ident.compare.analyse of the model, and of the fitted model (or None).
+        hil.ident.residual_analysis.analyse of the model, and of the fitted model (or None).
     figures : list of Path
-        PNGs to embed (hil.plots.compare.comparison_figures: the correlation figure, MATLAB resid's,
+        PNGs to embed (hil.plots.residual_figures.comparison_figures: the correlation figure, MATLAB resid's,
         goes to the residual analysis, the others to the figures).
     diagnosis : dict, optional
         The diagnosis as ``hil diagnose --json`` prints it (the verdict, the ranking, the chain).
@@ -278,12 +278,7 @@ def _param_units(cfg, effect: str) -> dict:
         return {}
     out = {}
     for p in getattr(eff, "params", ()):
-        kind = p.kind
-        if callable(kind):
-            try:
-                kind = kind(cfg)
-            except Exception:       # a kind that needs more of the config than there is: no unit
-                kind = None
+        kind = p.kind_for(cfg.rotary)
         unit = SI_UNIT.get(kind, "") if isinstance(kind, str) else ""
         out[p.name] = {"1": "", "1/s": "Hz"}.get(unit, unit)
     return out

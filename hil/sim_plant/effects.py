@@ -12,7 +12,7 @@ A configuration switches an effect on by giving its section, e.g.::
     force = "-3.2 N"
 
 (read by hil.plant_config, which also holds the ``parameter:<key>`` effects that re-identify a
-config value). Some parameters are settings, not strengths (``Param.fit`` False: where a
+config value, and switches an effect on in a configuration: ``hil.plant_config.configure``). Some parameters are settings, not strengths (``Param.fit`` False: where a
 stiffness is given along the travel): a fit holds them. An effect whose error is not convex in
 its parameter (a delay) gives a grid of starting values over the physically possible range
 (:meth:`Effect.grid`). A :class:`RecordEffect` is an artefact of the recording (a channel's time
@@ -31,20 +31,35 @@ from hil.sim_plant import kernel
 from hil.sim_plant.chain import Chain
 from hil.sim_plant.plant import Friction, Plant
 
-__all__ = ["Param", "Effect", "CATALOGUE", "ALIASES", "register", "effect", "Combination", "RecordEffect"]
+__all__ = ["Param", "ByActuator", "Effect", "CATALOGUE", "ALIASES", "register", "effect", "Combination",
+           "RecordEffect"]
+
+
+@dataclass(frozen=True)
+class ByActuator:
+    """A parameter's unit kind that depends on the actuator: ``rotary`` where a motor turns a
+    screw (a torque), ``linear`` on a linear motor (a force)."""
+    rotary: str
+    linear: str
 
 
 @dataclass(frozen=True)
 class Param:
-    """One parameter of an effect. ``kind`` is a unit kind of hil.units (or a callable of the
-    config values, like the config schema's); bounds and guess are SI."""
+    """One parameter of an effect. ``kind`` is a unit kind of hil.units, or a :class:`ByActuator`
+    (:meth:`kind_for` says which); bounds and guess are SI."""
     name: str
-    kind: object
+    kind: str | ByActuator
     lower: float
     upper: float
     guess: float
     doc: str
     fit: bool = True       # False: a setting of the effect (a place, not a strength), held during a fit
+
+    def kind_for(self, rotary: bool) -> str:
+        """The unit kind on a rotary (motor and screw) or a linear actuator."""
+        if isinstance(self.kind, ByActuator):
+            return self.kind.rotary if rotary else self.kind.linear
+        return self.kind
 
 
 class Effect(ABC):
@@ -85,10 +100,6 @@ class Effect(ABC):
         ``ctrl``: the controller settings (hil.control.ControllerSettings: its periods)."""
         return []
 
-    def configure(self, cfg, values: dict[str, float]):
-        """A new config with this effect switched on with ``values`` (the section [effects.<name>])."""
-        return cfg.with_values({f"effects.{self.name}.{k}": float(v) for k, v in values.items()})
-
     def _need_link(self, plant: Plant) -> None:
         if plant.n < 2:
             raise ValueError(f"{self.name}: needs a chain of at least 2 masses (a transmission link)")
@@ -122,12 +133,9 @@ def effect(name: str) -> Effect:
         raise KeyError(f"unknown effect {name!r} ({hint}known: {', '.join(sorted(CATALOGUE))})") from None
 
 
-def _motor_force_kind(values):
-    return "torque" if values.get("actuator.type", "rotary") == "rotary" else "force"
-
-
-def _motor_damping_kind(values):
-    return "rot_damping" if values.get("actuator.type", "rotary") == "rotary" else "damping"
+# the kinds of a force and of a damping acting on the motor
+_motor_force_kind = ByActuator("torque", "force")
+_motor_damping_kind = ByActuator("rot_damping", "damping")
 
 
 def _to_linear(plant: Plant) -> float:
@@ -585,11 +593,6 @@ class Combination(Effect):
         for m, v in zip(self.members, self.split(values)):
             plant = m.apply(plant, v)
         return plant
-
-    def configure(self, cfg, values):
-        for m, v in zip(self.members, self.split(values)):
-            cfg = m.configure(cfg, v)
-        return cfg
 
     def guess(self, plant, scale):
         return {f"{n}.{k}": v for n, m in zip(self.names, self.members) for k, v in m.guess(plant, scale).items()}

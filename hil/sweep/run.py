@@ -216,7 +216,8 @@ def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float 
                         f"{rec.reason}")
     if getattr(rec, "status", "complete") != "complete":
         raise RunStopped(f"run at j_max {move.j_max:.4g} m/s^3 stopped: {rec.status}: {rec.reason}; the runs "
-                         f"finished before it are kept and the sweep resumes from there", rec.status, rec.reason)
+                         f"finished before it are kept and the sweep resumes from there", rec.status, rec.reason,
+                         rec.stop)
     if rec.start is not None and rec.start != traj.start:     # planned from where the axis stood
         move = traj.shifted(rec.start - traj.start).moves[0]
     ch = rec.channels

@@ -16,7 +16,7 @@ from hil.io.safe_write import save_figure
 from hil.plots.engineering import display_unit
 
 # the input MATLAB's resid correlates the residual with: here the commanded velocity (the
-# derivative of x_cmd, the record's input), as hil.ident.compare's cross-correlation
+# derivative of x_cmd, the record's input), as hil.ident.residual_analysis's cross-correlation
 INPUT_NAME = "commanded velocity"
 
 

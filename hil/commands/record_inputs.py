@@ -1,0 +1,110 @@
+"""The record inputs shared by ``hil compare``, ``hil diagnose`` and ``hil fit``: their common
+options (the record(s), ``--config``, ``--set``, ``--map``, ``--channels``, ``--align``,
+``--open-loop``), reading the configuration and the records (each refused or warned about as
+:func:`hil.io.measurement.check_usable` and :func:`hil.io.importers.data_warnings` say), the replay
+of a record through the model (one, or several fitted as one), and the Ctrl-C of a long replay.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+__all__ = ["add_common", "load_inputs", "load_records", "make_records", "make_replay", "prompt_interrupt"]
+
+
+def add_common(parser, records: bool = False) -> None:
+    """The record(s), config, --set, --map, --channels, --align, --json; ``records``: any number of
+    records of one axis, fitted together, and ``--validate RECORD...`` (hil fit, hil diagnose)."""
+    formats = "CSV in the project's format, a text log, an Excel .xlsx sheet, or a MATLAB .mat record (v7.3 too)"
+    if records:
+        parser.add_argument("data", nargs="+", help=f"measurement(s) of one axis, fitted together: {formats}")
+        parser.add_argument("--validate", action="extend", nargs="+", default=[], metavar="RECORD",
+                            help="records not used for the fit: their errors are reported beside the "
+                                 "estimation records' (the same --map)")
+    else:
+        parser.add_argument("data", help=f"measurement: {formats}")
+    parser.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a parameter")
+    parser.add_argument("--map", action="append", default=[], metavar="SOURCE=CHANNEL[unit]",
+                        help="column, variable or expression -> channel, the same for every format: "
+                             "pos=x_table[mm], vir*gtau=force, data[:,2]=x_motor (0-based column; data(:,3) "
+                             "1-based as in MATLAB) (repeatable, or comma-separated)")
+    parser.add_argument("--sheet", default=None, metavar="NAME", help="the sheet of an Excel file (default: the first)")
+    parser.add_argument("--open-loop", action="store_true",
+                        help="an open-loop run (torque steps, a chirp): the recorded torque (rotary) or command/force "
+                             "(linear) drives the plant, no position loop; the positions are compared")
+    parser.add_argument("--channels", metavar="CHANNELS", default=None, help="comma-separated channels to use (default: all measured)")
+    parser.add_argument("--align", action="store_true", help="align each channel in time by cross-correlation")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def load_inputs(args):
+    """The config (``--config`` with ``--set``) and the record (``data`` with ``--map``)."""
+    from hil.config import load, parse_assignment
+    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    return cfg, _read_record(args, cfg, args.data)
+
+
+def _read_record(args, cfg, path):
+    import sys
+
+    from hil.io.importers import data_warnings, parse_mapping, read_any
+    from hil.io.measurement import check_usable
+    meas = read_any(path, parse_mapping(args.map) or None, sheet=getattr(args, "sheet", None))
+    # degenerate records are refused, never diagnosed
+    check_usable(meas, (cfg["limits.travel_min"], cfg["limits.travel_max"]), cfg["control.position_period"],
+                 cfg["control.velocity_period"], open_loop=getattr(args, "open_loop", False))
+    # what can still be replayed but deserves a look: outliers, gaps, a slow log
+    meas.warnings = data_warnings(meas, cfg["control.position_period"])
+    for w in meas.warnings:
+        print(f"warning: {w}", file=sys.stderr)        # each warning names its file already
+    return meas
+
+
+def load_records(args):
+    """The config, the estimation records (``data``: one or more) and the ``--validate`` records,
+    each read with the same ``--map``."""
+    from hil.config import load, parse_assignment
+    cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
+    paths = [args.data] if isinstance(args.data, str) else list(args.data)
+    est = [_read_record(args, cfg, p) for p in paths]
+    val = [_read_record(args, cfg, p) for p in getattr(args, "validate", None) or []]
+    return cfg, est, val
+
+
+def make_records(args, cfg, measurements):
+    """One record: its Replay; several: :class:`hil.ident.records.Records`, fitted as one, on the
+    channels every record has (or ``--channels``)."""
+    from hil.ident.records import Records, common_channels
+    if len(measurements) == 1:
+        return make_replay(args, cfg, measurements[0])
+    parts = [make_replay(args, cfg, m) for m in measurements]
+    chans = common_channels(parts)
+    if any(p.channels != chans for p in parts):
+        from hil.ident.replay import Replay
+        parts = [Replay(m, cfg, chans, align=getattr(args, "align", False),
+                        open_loop=getattr(args, "open_loop", False)) for m in measurements]
+    return Records(parts)
+
+
+def make_replay(args, cfg, meas):
+    """The record replayed through the config, on the ``--channels`` asked for, ``--align``-ed."""
+    from hil.ident.replay import Replay
+    chans = args.channels.split(",") if getattr(args, "channels", None) else None
+    return Replay(meas, cfg, chans, align=getattr(args, "align", False), open_loop=getattr(args, "open_loop", False))
+
+
+@contextmanager
+def prompt_interrupt():
+    """Ctrl-C ends the process at once inside the block (the default action of SIGINT): the
+    compiled replay holds the interpreter for seconds on a long record, where a KeyboardInterrupt
+    would wait for it. For computing only: nothing may be half-written inside the block."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
