@@ -86,10 +86,10 @@ def _timed(f):
 def chain_figures(cfg, jobs) -> None:
     """The chain on a 6 s record of the paper bench (4 ms, four channels) with Coulomb friction and
     a compliant mode hidden, against one diagnosis of the same record."""
-    from hil.plant_config import candidate
-    truth = candidate("coulomb_friction", cfg).configure(cfg, {"level": 2.2})
-    truth = candidate("compliant_mode", truth).configure(truth, {"mass": 2.0, "frequency": 25.0,
-                                                                 "damping_ratio": 0.02})
+    from hil.plant_config import candidate, configure
+    truth = configure(candidate("coulomb_friction", cfg), cfg, {"level": 2.2})
+    truth = configure(candidate("compliant_mode", truth), truth, {"mass": 2.0, "frequency": 25.0,
+                                                                  "damping_ratio": 0.02})
     ch, _ = synthesize(truth, None, duration=6.0, seed=3)
     rp = Replay(Measurement(ch, source="bench chain"), cfg)
     diagnose(rp, ["coulomb_friction"], jobs=1)          # compile (or load the cached compiled loop)

@@ -154,7 +154,7 @@ def _run(args) -> int:
     def progress(done, total, record):
         print(f"fleet: {done}/{total} diagnosed: {Path(record).name}", file=sys.stderr, flush=True)
 
-    from hil.commands.compare import prompt_interrupt
+    from hil.commands.record_inputs import prompt_interrupt
     with prompt_interrupt():
         res = run_fleet(entries, configs, args.config, settings, args.out, scheduler=args.scheduler, jobs=args.jobs,
                         progress=progress)

@@ -96,7 +96,7 @@ def tracked_kinds(cfg, track) -> dict[str, str]:
         except KeyError as exc:
             raise ConfigError(f"fleet.track: {str(exc).strip(chr(39) + chr(34))}") from None
         for p in eff.fitted_params:
-            out[f"{name}.{p.name}"] = p.kind(cfg.values) if callable(p.kind) else p.kind
+            out[f"{name}.{p.name}"] = p.kind_for(cfg.rotary)
     return out
 
 

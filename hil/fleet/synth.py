@@ -82,7 +82,7 @@ def _param_kind(cfg, effect: str, param: str, where: str) -> str:
         raise ConfigError(f"{where}: {str(exc).strip(chr(39) + chr(34))}") from None
     for p in eff.params:
         if p.name == param:
-            return p.kind(cfg.values) if callable(p.kind) else p.kind
+            return p.kind_for(cfg.rotary)
     raise ConfigError(f"{where}: {effect} has no parameter {param!r} (its parameters: "
                       f"{', '.join(p.name for p in eff.params)})")
 
@@ -170,7 +170,7 @@ def synthesize_fleet(cfg, spec: dict, out_dir, config_path: str, inputs=()) -> d
     from hil.ident.synth import move_sequence, synthesize
     from hil.io.measurement import write
     from hil.io.safe_write import write_atomic
-    from hil.plant_config import candidate
+    from hil.plant_config import candidate, configure
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     x_cmd = move_sequence(spec["duration"], cfg["control.position_period"], 0)
@@ -185,7 +185,7 @@ def synthesize_fleet(cfg, spec: dict, out_dir, config_path: str, inputs=()) -> d
             rich = cfg
             for e, ps in vals.items():
                 eff = candidate(e, rich)
-                rich = eff.configure(rich, {p.name: ps.get(p.name, p.guess) for p in eff.params})
+                rich = configure(eff, rich, {p.name: ps.get(p.name, p.guess) for p in eff.params})
             ch, _ = synthesize(rich, None, duration=spec["duration"], sample_period=spec["sample_period"],
                                seed=seed % 100000, x_cmd=x_cmd)
             name = f"{axis}_{date}.csv"

@@ -27,7 +27,7 @@ and the configuration file, raised when the backend is built, and so is a device
 not exist when :meth:`open` first opens it; a port that exists but does not open (busy, no
 permission) is a BackendFault at :meth:`open`. Every fault's reason starts with ``drive fault``
 (the drive's fault code or its refusal) or ``lost communication`` (no, late or garbled answer
-beyond the retries, the port lost), the same words as the other backends' (hil.errors.stop_kind).
+beyond the retries, the port lost), the same words as the other backends' (hil.drivers.base.fault_kind).
 """
 from __future__ import annotations
 
@@ -314,7 +314,7 @@ class SerialBackend(Backend):
                 last = f"port lost: {exc.reason}"
             if attempt < self.retries:
                 self.stats.note(last)
-        # the first words say the kind of stop (hil.errors.stop_kind), as on every backend: the
+        # the first words say the kind of stop (hil.drivers.base.fault_kind), as on every backend: the
         # drive's refusal is the drive's doing, everything else is the link's
         kind = "drive fault" if last.startswith("refused") else "lost communication"
         reason = (f"{kind}: serial {op}: {last} (after {attempt + 1} attempt(s), "
