@@ -132,10 +132,10 @@ class RealTimeClock:
 
     def start(self, cycles: int | None = None) -> None:
         """Start the run's clock (not real-time): the real-time scheduling asked for, the lateness
-        buffer ready for ``cycles`` wake-ups (default: the size it has, at least
-        :data:`LATENESS_SAMPLES`)."""
-        if cycles is not None and cycles > self._late.size:
-            self._late = np.zeros(int(cycles))
+        buffer ready for ``cycles`` wake-ups (default: the size it has, :data:`LATENESS_SAMPLES`
+        at first)."""
+        if cycles is not None and cycles != self._late.size:
+            self._late = np.zeros(max(int(cycles), 1))
         self._cycles = 0
         self._late_max = 0.0
         if self.priority > 0 and hasattr(os, "sched_setscheduler"):
