@@ -33,6 +33,7 @@ bounded time); the builders (:func:`controller_from_config`, :func:`loop_terms`,
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass, replace
 from enum import IntEnum
 
@@ -46,7 +47,7 @@ __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velo
            "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "history_push", "history_read", "LoopTerms",
            "loop_terms",
            "lag_alpha", "P", "S", "T", "LOOP_STATE", "LOOP_TERMS", "velocity_step", "encoders", "feedback_position",
-           "position_tick", "delay_ring", "velocity_cycle", "injected_velocity_cycle", "actuate", "plant_period",
+           "position_tick", "delay_ring", "Terms", "terms_of", "speed_feedback", "velocity_cycle", "injected_velocity_cycle", "actuate", "plant_period",
            "plant_cycle"]
 
 
@@ -96,6 +97,10 @@ T = _named_indices("T", LOOP_TERMS, "Indices into the loop terms' array (:attr:`
                    "dry friction present (flags 1.0 / 0.0).")
 _STATE_SIZE = int(S.SIZE)
 
+#: the loop terms as the compiled stages read them, by name (``t.lag_alpha``): a tuple of floats, a
+#: value, so that compiled loops keep it in registers (:func:`terms_of` builds it from the array)
+Terms = namedtuple("Terms", LOOP_TERMS)
+
 
 @dataclass(frozen=True)
 class ControllerSettings:
@@ -118,6 +123,13 @@ class ControllerSettings:
     @property
     def substeps(self) -> int:
         return int(round(self.position_period / self.velocity_period))
+
+    def speed_filter(self) -> np.ndarray | None:
+        """The speed filter's taps where the velocity loop reads the filtered motor positions
+        (``position_difference``), None where it reads the motor's speed (the compiled loops then
+        leave the filter out; :func:`speed_feedback`)."""
+        taps = self.as_array()
+        return taps[P.TAPS:P.TAPS + int(taps[P.N_TAPS])].copy() if taps[P.N_TAPS] > 0.0 else None
 
     def as_array(self) -> np.ndarray:
         if len(self.velocity_filter) > P.MAX_TAPS:
@@ -162,8 +174,8 @@ def new_velocity_state():
 
 @njit(cache=True, inline="always")
 def measured_speed(p, s, v_motor, x_motor):
-    """The speed the velocity loop sees: the motor's speed, or the backward difference of the
-    FIR-filtered motor position (then the history in ``s`` advances)."""
+    """Read feedback (real-time): the speed the velocity loop sees: the motor's speed, or the
+    backward difference of the FIR-filtered motor position (then the history in ``s`` advances)."""
     n = int(p[P.N_TAPS])
     if n == 0:
         return v_motor * p[P.SPEED_SCALE]
@@ -270,24 +282,45 @@ def history_read(hbuf, d_int, d_frac):
 # velocity law, write command, record; and on the simulated plant, the plant over one velocity
 # period. The compiled loop (hil.simulate), the host's cycle loop (hil.loop) and the simulated
 # backend (hil.drivers.sim) compose these, so that each stage is written once. Their records are
-# arrays named by fields: the settings ``p`` (:class:`P`), the loop's state ``s`` (:data:`S`), the
-# loop terms ``t`` (:data:`T`); the plant is its discretized matrices ``Ad``, ``Bd``, the friction
-# tuple ``fric`` and the effect table ``codes``, ``eparams`` (``codes`` None without effects:
-# compiled away). All are real-time: no allocation, bounded time.
+# named by fields: the settings ``p`` (an array, :class:`P`), the loop's state ``s`` (an array,
+# :data:`S`), the loop terms ``t`` (a :data:`Terms` record, of the array :data:`T` names); the
+# plant is its discretized matrices ``Ad``, ``Bd``, the friction tuple ``fric`` and the effect table
+# ``codes``, ``eparams`` (``codes`` None without effects: compiled away). All are real-time: no
+# allocation, bounded time.
+
+@njit(cache=True, inline="always")
+def terms_of(a):
+    """The loop terms' array (:attr:`LoopTerms.array`, :data:`T`) as the :data:`Terms` record the
+    stages take (real-time: a value, no allocation). Entry points called from Python take the
+    array, which numba passes fastest, and build the record here."""
+    return Terms(a[T.SUBSTEPS], a[T.FORCE_GAIN], a[T.LAG_ALPHA], a[T.DELAYED], a[T.DELAY_INT], a[T.DELAY_FRAC],
+                 a[T.FEEDBACK_LATE], a[T.FEEDBACK_INT], a[T.FEEDBACK_FRAC], a[T.FEEDBACK_MOTOR], a[T.FEEDBACK_MASS],
+                 a[T.FEEDBACK_RES], a[T.RES_MOTOR], a[T.RES_TABLE], a[T.TABLE], a[T.TIP], a[T.DRY])
+
 
 @njit(cache=True, inline="always")
 def encoders(t, x):
     """Read feedback (real-time): the motor and table encoders on the plant state ``x``, quantized."""
-    return quantize(x[0], t[T.RES_MOTOR]), quantize(x[int(t[T.TABLE])], t[T.RES_TABLE])
+    return quantize(x[0], t.res_motor), quantize(x[int(t.table)], t.res_table)
 
 
 @njit(cache=True, inline="always")
 def feedback_position(t, x, hbuf):
     """Read feedback (real-time): the position the position loop closes on, as it arrives: the
     feedback encoder now, or with a feedback delay its history ``hbuf`` read that many periods old."""
-    if t[T.FEEDBACK_LATE] != 0.0:
-        return history_read(hbuf, int(t[T.FEEDBACK_INT]), t[T.FEEDBACK_FRAC])
-    return quantize(x[int(t[T.FEEDBACK_MASS])], t[T.FEEDBACK_RES])
+    if hbuf is not None and t.feedback_late != 0.0:     # None: compiled away
+        return history_read(hbuf, int(t.feedback_int), t.feedback_frac)
+    return quantize(x[int(t.feedback_mass)], t.feedback_res)
+
+
+@njit(cache=True, inline="always")
+def speed_feedback(p, s, speed_filter, v_motor, x_motor):
+    """Read feedback (real-time): :func:`measured_speed`, decided when the loop is compiled:
+    ``speed_filter`` (:meth:`ControllerSettings.speed_filter`) None reads the motor's speed and
+    compiles the filter away (the compiled loops' hot path), an array the filtered positions."""
+    if speed_filter is not None:
+        return measured_speed(p, s, v_motor, x_motor)
+    return v_motor * p[P.SPEED_SCALE]
 
 
 @njit(cache=True, inline="always")
@@ -350,9 +383,9 @@ def injected_velocity_cycle(p, s, ring, v_motor, x_motor, r, into_torque, data, 
 def actuate(t, ubuf, u, u_act):
     """Write command (real-time): the output through the delay (where the terms have one) and the
     current loop's first-order lag; returns the current loop's new output ``u_act``."""
-    if t[T.DELAYED] != 0.0:
-        u = delay_line(ubuf, u, int(t[T.DELAY_INT]), t[T.DELAY_FRAC])
-    return u_act + t[T.LAG_ALPHA] * (u - u_act)
+    if ubuf is not None and t.delayed != 0.0:           # None: compiled away
+        u = delay_line(ubuf, u, int(t.delay_int), t.delay_frac)
+    return u_act + t.lag_alpha * (u - u_act)
 
 
 @njit(cache=True, inline="always")
@@ -360,9 +393,9 @@ def plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, fext
     """The plant over one velocity period (real-time): the state ``x`` advanced in place under the
     actuator's output ``u_act`` (and external forces ``fext``, None: compiled away); the position
     loop's feedback history ``hbuf`` takes the new reading where the terms have a feedback delay."""
-    plant_step(Ad, Bd, x, u_act * t[T.FORCE_GAIN], fric, t[T.DRY] != 0.0, codes, eparams, f, x_new, fext)
-    if t[T.FEEDBACK_LATE] != 0.0:
-        history_push(hbuf, quantize(x[int(t[T.FEEDBACK_MASS])], t[T.FEEDBACK_RES]))
+    plant_step(Ad, Bd, x, u_act * t.force_gain, fric, t.dry != 0.0, codes, eparams, f, x_new, fext)
+    if hbuf is not None and t.feedback_late != 0.0:     # None: compiled away
+        history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
 
 
 @njit(cache=True, inline="always")

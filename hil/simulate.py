@@ -21,18 +21,18 @@ from hil.control import (
     ControllerSettings,
     P,
     S,
-    T,
     actuate,
     controller_from_config,
     encoders,
     feedback_position,
     history_push,
     loop_terms,
-    measured_speed,
     new_velocity_state,
     plant_period,
     position_tick,
     quantize,
+    speed_feedback,
+    terms_of,
     velocity_step,
 )
 from hil.plant_config import plant_from_config
@@ -96,14 +96,15 @@ class Record(NamedTuple):
 
 
 @njit(cache=True)
-def closed_loop_kernel(Ad, Bd, fric, codes, eparams, t, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
+def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
                        exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None, u_add=None, f_ext=None,
-                       open_loop=False):
+                       open_loop=False, speed_filter=None):
     """Run len(x_cmd) - 1 position ticks of the cycle of hil.control, stage by stage, from the
     plant state ``x0`` (not changed). The plant: ``Ad``, ``Bd``, ``fric``, ``codes``, ``eparams``
-    (hil.control's stages); ``t``: the loop terms (hil.control.LoopTerms.array, :data:`T`); ``p``:
+    (hil.control's stages); ``terms``: the loop terms (hil.control.LoopTerms.array); ``p``:
     the settings (:class:`P`); ``ubuf``, ``hbuf``: the output delay's buffer and the feedback's
-    history (LoopTerms.output_buffer, feedback_history). ``rec``: a :class:`Record` written every
+    history (LoopTerms.delay_buffer, feedback_buffer; None where there is no delay: compiled
+    away). ``rec``: a :class:`Record` written every
     ``record_every`` velocity steps, or None.
 
     The frequency-response experiment (hil.frf) adds, each None where absent (numba then
@@ -119,34 +120,37 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, t, p, x0, x_cmd, ubuf, hbuf
     feed-forward stays) and limited with it; ``f_ext``, one row per velocity period of external
     forces on the masses (N; needs ``codes``, an empty table when the plant has no effects).
     ``open_loop``: no position or velocity loop, the output is ``u_add`` alone, not limited (the
-    actuator's command measured in an open-loop run).
+    actuator's command measured in an open-loop run). ``speed_filter``: the speed filter's taps
+    where the velocity loop reads filtered positions (ControllerSettings.speed_filter; the taps'
+    values are in ``p``), None: the motor's speed, the filter compiled away.
 
     Returns the number of velocity periods in which the excitation drove the output past its
     limit. Not real-time (it allocates its work arrays); its inner loop is the cycle."""
+    t = terms_of(terms)
     n = Ad.shape[0] // 2
     x = x0.copy()
     x_new = np.zeros(2 * n)
     f = np.zeros(n)
     s = new_velocity_state()
-    n_sub = int(t[T.SUBSTEPS])
+    n_sub = int(t.substeps)
     u_act = 0.0
     countdown = 1                  # velocity steps until the next recorded sample
     row = 0
     n_sat = 0
-    if t[T.FEEDBACK_LATE] != 0.0:  # the axis was at rest before the start
-        history_push(hbuf, quantize(x[int(t[T.FEEDBACK_MASS])], t[T.FEEDBACK_RES]))
+    if hbuf is not None and t.feedback_late != 0.0:  # the axis was at rest before the start
+        history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
     for k in range(x_cmd.shape[0] - 1):
         # --- read feedback, profile, position law: tick k ---
         xfb = feedback_position(t, x, hbuf)
         if noise_x is not None:
-            xfb += noise_x[k * n_sub, 0 if t[T.FEEDBACK_MOTOR] != 0.0 else 1]
+            xfb += noise_x[k * n_sub, 0 if t.feedback_motor != 0.0 else 1]
         w_ref = position_tick(p, s, x_cmd, k, xfb)
         ff = 0.0 if exc is not None else p[P.ACC_FF] * s[S.A_CMD]
         for j in range(n_sub):
             step = k * n_sub + j
             # --- read feedback, velocity law (and the experiment's inputs) ---
-            u, sat = _velocity_period(p, s, t, x, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out,
-                                      u_add, open_loop)
+            u, sat = _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w,
+                                      noise_x, out, u_add, open_loop)
             n_sat += sat
             # --- write command: the delay, the current loop ---
             u_act = actuate(t, ubuf, u, u_act)
@@ -167,7 +171,8 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, t, p, x0, x_cmd, ubuf, hbuf
 
 
 @njit(cache=True, inline="always")
-def _velocity_period(p, s, t, x, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out, u_add, open_loop):
+def _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out, u_add,
+                     open_loop):
     """Read feedback and velocity law of velocity period ``step`` of :func:`closed_loop_kernel`,
     with the experiment's excitation, noise and measured command (each None where absent) and its
     ``out`` row. Returns the output and 1 where the excitation drove it past its limit (real-time)."""
@@ -178,13 +183,13 @@ def _velocity_period(p, s, t, x, step, w_ref, ff, exc, exc_into_speed, noise_w, 
         r = exc[step]
         w_ref_v = w_ref + (r if exc_into_speed else 0.0)
     # the encoders as read this period (the measured speed of the noisy run is always hil.control's)
-    xm, xt = encoders(t, x)
+    xm = quantize(x[0], t.res_motor)
     v_motor = x[n]
     if noise_x is not None:
         xm += noise_x[step, 0]
     if noise_w is not None:
         v_motor = x[n] + noise_w[step]
-    w_meas = measured_speed(p, s, v_motor, xm)
+    w_meas = speed_feedback(p, s, speed_filter, v_motor, xm)
     u_ctrl = 0.0 if open_loop else velocity_step(p, s, w_ref_v, w_meas, ff)
     u = u_ctrl
     sat = 0
@@ -201,8 +206,8 @@ def _velocity_period(p, s, t, x, step, w_ref, ff, exc, exc_into_speed, noise_w, 
         if not open_loop and (u > limit or u < -limit):
             u = limit if u > limit else -limit
     if out is not None:
-        xt_out = xt + (noise_x[step, 1] if noise_x is not None else 0.0)
-        tip_out = x[int(t[T.TIP])] + (noise_x[step, 2] if noise_x is not None else 0.0)
+        xt_out = encoders(t, x)[1] + (noise_x[step, 1] if noise_x is not None else 0.0)
+        tip_out = x[int(t.tip)] + (noise_x[step, 2] if noise_x is not None else 0.0)
         out[step, 0], out[step, 1], out[step, 2], out[step, 3], out[step, 4] = r, u, u_ctrl, w_ref_v - w_meas, w_meas
         out[step, 5], out[step, 6], out[step, 7], out[step, 8], out[step, 9] = w_ref, w_ref_v, xm, xt_out, tip_out
     return u, sat
@@ -266,7 +271,8 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
             codes, params = np.zeros(0, np.int64), np.zeros((0, params.shape[1]))
     rec = Record(X, V, U, XM, XT, XC)
     closed_loop_kernel(disc.A, disc.B, plant.friction.as_tuple(), codes, params, terms.array, ctrl.as_array(), state0,
-                       cmd, terms.output_buffer(), terms.feedback_history(), rec, record_every, **inputs)
+                       cmd, terms.delay_buffer(), terms.feedback_buffer(), rec, record_every,
+                       speed_filter=ctrl.speed_filter(), **inputs)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command

@@ -8,7 +8,17 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from hil.control import LOOP_STATE, LOOP_TERMS, S, T, controller_from_config, delay_ring, loop_terms
+from hil.control import (
+    LOOP_STATE,
+    LOOP_TERMS,
+    S,
+    T,
+    Terms,
+    controller_from_config,
+    delay_ring,
+    loop_terms,
+    terms_of,
+)
 from hil.drivers.base import Backend
 from hil.drivers.sim import SimulatedPlant
 from hil.io.recorder import Recorder
@@ -39,6 +49,13 @@ def test_loop_terms_array_holds_the_plant_and_controller_numbers(bench):
     assert t[T.FEEDBACK_LATE] == 1.0 and t[T.FEEDBACK_INT] == int(1.3e-3 // tv)
     assert t[T.FEEDBACK_MOTOR] == 1.0 and t[T.FEEDBACK_MASS] == 0 and t[T.FEEDBACK_RES] == pl.motor_resolution
     assert t[T.TABLE] == pl.table and t[T.TIP] == pl.tip
+
+
+def test_the_terms_record_reads_the_array_by_name(bench):
+    """The compiled stages' record of the loop terms holds every field of the array, by its name."""
+    a = loop_terms(SimulatedPlant(bench).plant, SimulatedPlant(bench).ctrl).array + np.arange(T.SIZE) * 1e-3
+    rec = terms_of(a)
+    assert rec == Terms(*a) and rec._fields == LOOP_TERMS
 
 
 @pytest.mark.parametrize("d", [0, 1, 3])

@@ -27,12 +27,13 @@ from hil.control import (
     history_push,
     history_read,
     loop_terms,
-    measured_speed,
     new_velocity_state,
     plant_cycle,
     plant_period,
     position_law,
     quantize,
+    speed_feedback,
+    terms_of,
     velocity_law,
 )
 from hil.drivers.base import LOOPS, Backend, Feedback, Setpoint
@@ -42,28 +43,45 @@ __all__ = ["SimulatedPlant"]
 
 
 @njit(cache=True)
-def drive_cycle(Ad, Bd, fric, codes, eparams, t, p, s, x, f, x_new, ubuf, hbuf, w_ref, u_act):
+def drive_cycle(Ad, Bd, fric, codes, eparams, terms, p, s, speed_filter, x, f, x_new, ubuf, hbuf, w_ref,
+                u_act):
     """One position period of a drive that closes the velocity loop itself (the simulated plant
     standing in for a drive in velocity or position mode; real-time): the velocity law on the
     speed reference ``w_ref``, then the command and the plant (hil.control's stages), every
     velocity period. Returns the current loop's output ``u_act``."""
+    t = terms_of(terms)
     n = Ad.shape[0] // 2
-    for _ in range(int(t[T.SUBSTEPS])):
-        w = measured_speed(p, s, x[n], quantize(x[0], t[T.RES_MOTOR]))
+    for _ in range(int(t.substeps)):
+        w = speed_feedback(p, s, speed_filter, x[n], quantize(x[0], t.res_motor))
         u = velocity_law(p, s, w_ref, w, 0.0)
         u_act = plant_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, ubuf, hbuf, u, u_act)
     return u_act
 
 
 @njit(cache=True)
-def coast_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, steps):
+def coast_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, hbuf, u_act, steps):
     """``steps`` plant periods with no torque commanded (a disabled drive; real-time): the current
     decays through the current loop's lag, the plant coasts (the feedback history goes on).
     Returns the current loop's output."""
+    t = terms_of(terms)
     for _ in range(steps):
-        u_act = u_act + t[T.LAG_ALPHA] * (0.0 - u_act)
+        u_act = u_act + t.lag_alpha * (0.0 - u_act)
         plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act)
     return u_act
+
+
+@njit(cache=True)
+def torque_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, ubuf, hbuf, u, u_act):
+    """One velocity period under the output ``u`` (a drive in torque mode; real-time):
+    hil.control's :func:`~hil.control.plant_cycle`. Returns the current loop's output."""
+    return plant_cycle(Ad, Bd, fric, codes, eparams, terms_of(terms), x, f, x_new, ubuf, hbuf, u, u_act)
+
+
+@njit(cache=True)
+def drive_feedback(terms, x, hbuf):
+    """The position a drive's position loop closes on (real-time): hil.control's
+    :func:`~hil.control.feedback_position`."""
+    return feedback_position(terms_of(terms), x, hbuf)
 
 
 class SimulatedPlant(Backend):
@@ -81,6 +99,7 @@ class SimulatedPlant(Backend):
         self.closes = closes
         self.cycle_time = self.ctrl.velocity_period if closes == "none" else self.ctrl.position_period
         self._p = self.ctrl.as_array()
+        self._speed_filter = self.ctrl.speed_filter()
         disc = self.plant.chain.discretize(self.ctrl.velocity_period, inputs="all")
         # in torque mode the host's loop delays its output itself (hil.loop); the plant's transport delay is ours
         self.terms = loop_terms(self.plant, self.ctrl, with_output_delay=closes != "none")
@@ -181,20 +200,20 @@ class SimulatedPlant(Backend):
             return
         if self.closes == "both":
             prev = self._prev_position if self._prev_position is not None else self._set.position
-            xfb = feedback_position(self.terms.array, self.x, self._hbuf)
+            xfb = drive_feedback(self.terms.array, self.x, self._hbuf)
             # the drive's interpolation: the setpoint is where to be at the next tick
             w_ref = position_law(self._p, prev, self._set.position, xfb)
             self._prev_position = self._set.position
         else:
             w_ref = self._set.speed
-        self._u_act = drive_cycle(*self._model, self._p, self._s, self.x, self._f, self._xn, self._ubuf, self._hbuf,
-                                  w_ref, self._u_act)
+        self._u_act = drive_cycle(*self._model, self._p, self._s, self._speed_filter, self.x, self._f, self._xn,
+                                  self._ubuf, self._hbuf, w_ref, self._u_act)
         self.time += self.ctrl.position_period
 
     def advance(self, u: float) -> None:
         """One velocity period under the output ``u`` (torque or command): the plant's transport
         delay, the current loop and the plant (real-time)."""
-        self._u_act = plant_cycle(*self._model, self.x, self._f, self._xn, self._ubuf, self._hbuf, u, self._u_act)
+        self._u_act = torque_cycle(*self._model, self.x, self._f, self._xn, self._ubuf, self._hbuf, u, self._u_act)
         self.time += self.ctrl.velocity_period
 
     _step = advance          # the name the drive simulators call (hil.drivers.canopen, serial)
