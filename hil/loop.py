@@ -163,7 +163,7 @@ class RealTimeClock:
         self.k = 0
 
     def stop(self) -> None:
-        """Back to the thread's former scheduling (and the CPUs' idle states)."""
+        """Back to the thread's former scheduling (and the CPUs' idle states; not real-time)."""
         self.cpu_latency.release()
         for tid, policy, param in self._policy or ():
             try:
@@ -303,7 +303,8 @@ class ControlLoop:
 
     @supervisor.setter
     def supervisor(self, sup) -> None:
-        """The supervisor and its methods, looked up here once rather than in every cycle."""
+        """The supervisor and its methods, looked up here once rather than in every cycle (not
+        real-time)."""
         self._supervisor = sup
         self._check = None if sup is None else sup.check
         self._check_setpoint = getattr(sup, "check_setpoint", None)
@@ -486,7 +487,8 @@ RECORD_ROW = ("t", "x_cmd", "v_cmd", "x_motor", "x_table", "x_tip", "output", "e
 
 def _record_order(names, rotary: bool) -> list[int] | None:
     """Where each of the recorder's columns ``names`` is in :data:`RECORD_ROW` (None: the same
-    order); the controller's output is ``torque`` on a rotary axis, ``command`` on a linear one."""
+    order); the controller's output is ``torque`` on a rotary axis, ``command`` on a linear one
+    (not real-time)."""
     row = [("torque" if rotary else "command") if n == "output" else n for n in RECORD_ROW]
     unknown = [n for n in names if n not in row]
     if unknown:
@@ -497,7 +499,8 @@ def _record_order(names, rotary: bool) -> list[int] | None:
 
 def _warm_up(p) -> None:
     """Load the compiled control law before the first cycle (it takes a fraction of a second the
-    first time, which would otherwise land inside the first cycle and trip a drive's watchdog)."""
+    first time, which would otherwise land inside the first cycle and trip a drive's watchdog;
+    not real-time)."""
     s = new_velocity_state()
     position_law(p, 0.0, 0.0, 0.0)
     measured_speed(p, s, 0.0, 0.0)

@@ -227,7 +227,8 @@ def _record_row(rec, row, t, x, u_act, x_cmd):
 
 def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int | None = None,
              x0: float | None = None, v_cmd=None, u_add=None, f_ext=None, open_loop: bool = False) -> SimulationResult:
-    """Closed-loop response to the command ``x_cmd`` sampled on the position clock.
+    """Closed-loop response to the command ``x_cmd`` sampled on the position clock (not
+    real-time: the whole run at once, through :func:`closed_loop_kernel`).
 
     ``x_cmd[k]`` is the command at tick k; the loop runs ``len(x_cmd)`` ticks (the command is
     held after the last sample, which the feed-forward of the last tick needs). The plant starts
