@@ -1,8 +1,10 @@
 """The fixed-rate loop: one cycle per backend exchange, on a real-time or a simulated clock.
 
-Each cycle: read the feedback, run the loops the backend does not close (hil.control's law),
-write the setpoint, record (every position tick), let the supervisor check, end the cycle
-(``backend.sync()``), wait for the next deadline.
+Each cycle (:meth:`ControlLoop._tick`): read the feedback, run the loops the backend does not
+close (hil.control's stages: profile and position law, velocity law, output delay), record (every
+position tick), let the supervisor check, write the setpoint, end the cycle (``backend.sync()``),
+wait for the next deadline. In steady state the cycle allocates nothing that stays: its state,
+setpoint, output delay and the clock's lateness are preallocated.
 
 * :class:`RealTimeClock`: absolute deadlines t0 + k T (no drift). The wait gives the interpreter
   lock away: the backend's ``receive_until`` (where it has one: the loop's own thread takes the
@@ -43,13 +45,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.control import measured_speed, new_velocity_state, position_law, velocity_law
+from hil.control import (
+    injected_velocity_cycle,
+    measured_speed,
+    new_velocity_state,
+    position_law,
+    position_tick,
+    velocity_cycle,
+    velocity_law,
+)
 from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint, fault_kind
 from hil.drivers.rt import CpuLatencyRequest, fine_timer_slack
 from hil.errors import RunStatus, StopKind
 from hil.scope.ring import ScopeRing
 
 __all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]
+
+# wake-ups whose lateness a real-time clock keeps by default (2 min at 1 kHz; a run asks for its own count)
+LATENESS_SAMPLES = 1 << 17
 
 # what an Injection records every cycle, one column each
 CYCLE_CHANNELS = ("r", "u", "u_ctrl", "e", "w", "w_ref_pos", "w_ref", "x_motor", "x_table", "x_tip")
@@ -64,10 +77,11 @@ class SimulatedClock:
     def __init__(self, period: float):
         self.period = period
         self.k = 0
-        self.lateness: list[float] = []
+        self.lateness = np.zeros(0)        # no waiting, nothing late
         self.overruns = 0
 
-    def start(self) -> None:
+    def start(self, cycles: int | None = None) -> None:
+        """The first cycle (not real-time); ``cycles``: how many the run has (unused here)."""
         self.k = 0
 
     def wait(self) -> float:
@@ -107,11 +121,25 @@ class RealTimeClock:
         self.cpu_latency = CpuLatencyRequest(cpu_latency if self.priority > 0 else None)
         self.k = 0
         self.t0 = 0.0
-        self.lateness: list[float] = []
+        self._late = np.zeros(LATENESS_SAMPLES)    # every wake-up's lateness, preallocated (see wait)
+        self._cycles = 0
+        self._late_max = 0.0
         self.overruns = 0
         self._policy = None
 
-    def start(self) -> None:
+    @property
+    def lateness(self) -> np.ndarray:
+        """The lateness of every wake-up of the last run (s), up to the buffer's size (the first ones)."""
+        return self._late[:min(self._cycles, self._late.size)]
+
+    def start(self, cycles: int | None = None) -> None:
+        """Start the run's clock (not real-time): the real-time scheduling asked for, the lateness
+        buffer ready for ``cycles`` wake-ups (default: the size it has, :data:`LATENESS_SAMPLES`
+        at first)."""
+        if cycles is not None and cycles != self._late.size:
+            self._late = np.zeros(max(int(cycles), 1))
+        self._cycles = 0
+        self._late_max = 0.0
         if self.priority > 0 and hasattr(os, "sched_setscheduler"):
             # a fixed real-time priority for the loop's thread (Linux, CAP_SYS_NICE): the OS no
             # longer preempts the cycle for ordinary work; the loop sleeps most of each period
@@ -137,7 +165,7 @@ class RealTimeClock:
         self.k = 0
 
     def stop(self) -> None:
-        """Back to the thread's former scheduling (and the CPUs' idle states)."""
+        """Back to the thread's former scheduling (and the CPUs' idle states; not real-time)."""
         self.cpu_latency.release()
         for tid, policy, param in self._policy or ():
             try:
@@ -158,7 +186,11 @@ class RealTimeClock:
         while time.perf_counter() < deadline:
             pass
         late = time.perf_counter() - deadline
-        self.lateness.append(late)
+        if self._cycles < self._late.size:         # bounded: past its size only the count and maximum go on
+            self._late[self._cycles] = late
+        self._cycles += 1
+        if late > self._late_max:
+            self._late_max = late
         if late > self.period:
             self.overruns += 1
             # skip the missed deadlines rather than running a burst of cycles to catch up
@@ -170,10 +202,11 @@ class RealTimeClock:
         return time.perf_counter() - self.t0
 
     def stats(self) -> dict:
-        lat = np.array(self.lateness) if self.lateness else np.zeros(1)
-        return {"cycles": len(self.lateness), "lateness_p50_us": float(np.percentile(lat, 50) * 1e6),
-                "lateness_p99_us": float(np.percentile(lat, 99) * 1e6), "lateness_max_us": float(lat.max() * 1e6),
-                "overruns": self.overruns}
+        """Lateness figures of the last run (not real-time)."""
+        lat = self.lateness if self._cycles else np.zeros(1)
+        return {"cycles": self._cycles, "lateness_p50_us": float(np.percentile(lat, 50) * 1e6),
+                "lateness_p99_us": float(np.percentile(lat, 99) * 1e6),
+                "lateness_max_us": float(max(lat.max(), self._late_max) * 1e6), "overruns": self.overruns}
 
 
 class Injection:
@@ -223,9 +256,14 @@ class ControlLoop:
     ticks (inside the cycle: keep it short). ``scope``: a :class:`~hil.scope.ring.ScopeRing` the
     cycle writes every position tick's row into (it changes nothing of what the loop computes).
 
-    Real-time: :meth:`run`'s cycle and the methods it calls there (``_inject``, ``_record``,
-    ``_stop``, the clock's ``wait``); :meth:`__init__` does the slow preparation before the drive
-    is enabled."""
+    The cycle's stages (:meth:`_tick`), as hil.control writes them once for every loop: read
+    feedback, supervise, profile and position law, velocity law, write command, record. What the
+    cycle keeps is preallocated here: the loop's state and output delay (hil.control's arrays), one
+    :class:`~hil.drivers.base.Setpoint` written in place, the supervisor's methods looked up once.
+
+    Real-time: :meth:`run`'s cycle and the methods it calls there (``_tick``, ``_command``,
+    ``_supervise``, ``_record``, ``_stop``, ``_event``, the clock's ``wait``); :meth:`__init__` does
+    the slow preparation before the drive is enabled."""
 
     def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True,
                  priority: int = 0, injection: Injection | None = None, progress=None,
@@ -250,7 +288,12 @@ class ControlLoop:
             self.per_tick = ctrl.substeps          # cycles per position tick
         else:
             self.per_tick = 1
-        self._delay = [0.0] * int(ctrl.output_delay)     # outputs still in the computation delay
+        self._ring = np.zeros(int(ctrl.output_delay) + 1)     # outputs still in the computation delay
+        self._s = new_velocity_state()
+        self._w_ref = 0.0
+        self._trip_kind = StopKind.TRIP
+        self._setpoint = Setpoint()
+        self._motor_feedback = ctrl.position_feedback == "motor"
         self._record_order = None if recorder is None else _record_order(recorder.names, rotary)
         self._record_stale = recorder is not None and "stale" in recorder.names
         _warm_up(self.p)
@@ -258,8 +301,22 @@ class ControlLoop:
             gc.collect()
             gc.freeze()
 
+    @property
+    def supervisor(self):
+        return self._supervisor
+
+    @supervisor.setter
+    def supervisor(self, sup) -> None:
+        """The supervisor and its methods, looked up here once rather than in every cycle (not
+        real-time)."""
+        self._supervisor = sup
+        self._check = None if sup is None else sup.check
+        self._check_setpoint = getattr(sup, "check_setpoint", None)
+        self._latch = getattr(sup, "trip", None)
+        self._stop_how = getattr(sup, "stop", "quick_stop")
+
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
-        """One row of the recorder at position tick ``k``, in the recorder's column order
+        """Record: one row of the recorder at position tick ``k``, in the recorder's column order
         (real-time: one tuple, no dictionaries), and the scope's row (in place, no allocation)."""
         scope = self.scope
         if scope is not None:
@@ -278,112 +335,46 @@ class ControlLoop:
         order = self._record_order
         self.recorder.write_row(row if order is None else [row[i] for i in order])
 
-    def _inject(self, i: int, s, w_pos: float, w: float, a_cmd: float, fb: Feedback) -> float:
-        """The velocity-loop step of cycle ``i`` with the excitation added; records the cycle
-        (real-time). Returns the output before the computation delay."""
-        inj = self.injection
-        r = inj.signal[i]
-        w_ref = w_pos + (r if inj.into == "velocity" else 0.0)
-        uc = velocity_law(self.p, s, w_ref, w, a_cmd)
-        lim = self.ctrl.output_limit
-        u = min(max(uc + (r if inj.into == "torque" else 0.0), -lim), lim)
-        inj.data[i] = (r, u, uc, w_ref - w, w, w_pos, w_ref, fb.x_motor, fb.x_table, fb.x_tip)
-        return u
-
     def run(self, x_cmd, x_after: float | None = None) -> LoopResult:
-        """Run ``len(x_cmd)`` position ticks. ``x_after``: the command at the tick after the last
-        (the last tick's feed-forward moves toward it); default: the last position, held."""
+        """Run ``len(x_cmd)`` position ticks (not real-time itself: it prepares, then runs the cycle).
+        ``x_after``: the command at the tick after the last (the last tick's feed-forward moves
+        toward it); default: the last position, held."""
         x_cmd = np.asarray(x_cmd, float)
         cmd = np.append(x_cmd, x_cmd[-1] if x_after is None else x_after)
         K = x_cmd.size
         if self.injection is not None and self.injection.signal.size < K * self.per_tick:
             raise ValueError(f"injection: {self.injection.signal.size} values for {K * self.per_tick} cycles")
-        b, p = self.backend, self.p
-        s = new_velocity_state()
+        self._s = new_velocity_state()
         # no garbage-collection pauses inside the cycle on hardware (collected in __init__,
         # before the drive was enabled: a collection can take longer than a drive's watchdog)
         gc_was_on = gc.isenabled()
         if self.clock.real_time:
             gc.disable()
-        self.clock.start()
+        self.clock.start(K * self.per_tick)
         k = 0
         status, reason, kind = RunStatus.COMPLETE, "", StopKind.COMPLETE
         try:
             for k in range(K):
-                tp = self.ctrl.position_period
-                v_cmd = (cmd[k + 1] - cmd[k]) / tp
-                # the interpolator's acceleration (for the acceleration feed-forward), as in the simulator
-                a_cmd = (cmd[k + 1] - 2.0 * cmd[k] + (cmd[k - 1] if k > 0 else cmd[k])) / tp ** 2
-                for j in range(self.per_tick):
-                    fb = b.read_feedback()
-                    if fb.fault and (self.supervisor is None or j != 0):
-                        # the supervisor checks once a tick: a fault between ticks trips it here, the same way
-                        latch = getattr(self.supervisor, "trip", None)
-                        if latch is None:
-                            raise BackendFault(fb.fault, fb.fault_kind)
-                        kind = fault_kind(fb.fault, fb.fault_kind, StopKind.TRIP)
-                        latch(k * self.ctrl.position_period, fb.fault, fb, kind)
-                        self._stop(b)
-                        self._event(k, "trip", fb.fault)
-                        return self._end(k, RunStatus.TRIPPED, fb.fault, kind)
-                    # the setpoint of this cycle (from the loops the backend does not close)
-                    if b.closes == "both":
-                        sp, out = Setpoint(position=cmd[k + 1]), fb.output
-                    else:
-                        if j == 0:
-                            xfb = fb.x_motor if self.ctrl.position_feedback == "motor" else fb.x_table
-                            if not math.isnan(fb.x_feedback):      # the feedback arrives late
-                                xfb = fb.x_feedback
-                            w_ref = position_law(p, cmd[k], cmd[k + 1], xfb)
-                        if b.closes == "velocity":
-                            sp, out = Setpoint(speed=w_ref), fb.output
-                        else:
-                            w = measured_speed(p, s, fb.v_motor, fb.x_motor)
-                            if self.injection is None:
-                                u = velocity_law(p, s, w_ref, w, a_cmd)
-                            else:
-                                u = self._inject(k * self.per_tick + j, s, w_ref, w, a_cmd, fb)
-                            self._delay.insert(0, u)
-                            u = self._delay.pop()
-                            sp, out = Setpoint(output=u), u
-                    if j == 0:
-                        self._record(k, cmd[k], v_cmd, fb, out)
-                        # checked before the setpoint goes out: a trip stops the axis in this cycle
-                        if self.supervisor is not None:
-                            trip = self.supervisor.check(k * self.ctrl.position_period, fb, cmd[k])
-                            # and the setpoint about to go out (cmd[k + 1] on a position-mode drive)
-                            check_next = getattr(self.supervisor, "check_setpoint", None)
-                            if not trip and check_next is not None:
-                                trip = check_next(k * self.ctrl.position_period, cmd[k + 1])
-                            if trip:
-                                self._stop(b)
-                                self._event(k, "trip", trip)
-                                kind = getattr(self.supervisor, "trip_kind", None) or StopKind.TRIP
-                                return self._end(k, RunStatus.TRIPPED, trip, kind)
-                    b.write_setpoint(sp)
-                    b.sync()
-                    self.clock.wait()
+                trip = self._tick(k, cmd)
+                if trip:
+                    return self._end(k, RunStatus.TRIPPED, trip, self._trip_kind)
                 if self.progress is not None and k % 1000 == 0:
                     try:
                         self.progress((k + 1) / K)
                     except OSError:          # its reader went away (a closed pipe): the motion goes on
                         self.progress = None
         except BackendFault as exc:
-            self._stop(b)
             status, reason, kind = RunStatus.FAULT, exc.reason, fault_kind(exc.reason, exc.kind, StopKind.LINK)
-            self._event(k, "fault", reason)
-            latch = getattr(self.supervisor, "trip", None)
-            if latch is not None:        # latched like a trip: motion refused until 'hil reset'
-                latch(k * self.ctrl.position_period, reason, None, kind)
+            self._stop_after(k, "fault", reason)
+            if self._latch is not None:        # latched like a trip: motion refused until 'hil reset'
+                self._latch(k * self.ctrl.position_period, reason, None, kind)
         except KeyboardInterrupt:
-            self._stop(b)
             status, reason = RunStatus.ABORTED, "interrupted (Ctrl-C)"
-            self._event(k, "aborted", reason)
+            self._stop_after(k, "aborted", reason)
             raise
         except Exception as exc:
-            self._stop(b)
             status, reason = RunStatus.ABORTED, f"{type(exc).__name__}: {exc}"
-            self._event(k, "aborted", reason)
+            self._stop_after(k, "aborted", reason)
             raise
         finally:
             if hasattr(self.clock, "stop"):
@@ -398,6 +389,79 @@ class ControlLoop:
             self._event(K - 1, "complete", "")
         return self._end(K, status, reason, kind)
 
+    def _tick(self, k: int, cmd: np.ndarray) -> str:
+        """Position tick ``k``: its ``per_tick`` cycles, stage by stage (real-time). Returns the
+        reason of a trip (the controlled stop commanded, the event written, its kind in
+        ``_trip_kind``), '' while all is well."""
+        b = self.backend
+        v_cmd = (cmd[k + 1] - cmd[k]) / self.ctrl.position_period
+        for j in range(self.per_tick):
+            fb = b.read_feedback()                                  # read feedback
+            if fb.fault and (self._check is None or j != 0):
+                # supervise: the supervisor checks once a tick, a fault between ticks trips it here, the same way
+                if self._latch is None:
+                    raise BackendFault(fb.fault, fb.fault_kind)
+                self._trip_kind = fault_kind(fb.fault, fb.fault_kind, StopKind.TRIP)
+                self._latch(k * self.ctrl.position_period, fb.fault, fb, self._trip_kind)
+                self._stop_after(k, "trip", fb.fault)
+                return fb.fault
+            out = self._command(k, j, cmd, fb)                      # profile, position law, velocity law
+            if j == 0:
+                self._record(k, cmd[k], v_cmd, fb, out)             # record
+                trip = self._supervise(k, cmd, fb)                  # supervise, before the setpoint goes out
+                if trip:
+                    self._stop_after(k, "trip", trip)
+                    self._trip_kind = getattr(self.supervisor, "trip_kind", None) or StopKind.TRIP
+                    return trip
+            b.write_setpoint(self._setpoint)                        # write command
+            b.sync()
+            self.clock.wait()
+        return ""
+
+    def _command(self, k: int, j: int, cmd: np.ndarray, fb: Feedback) -> float:
+        """Profile, position law and velocity law of cycle ``j`` of tick ``k`` (hil.control's
+        stages, as far as the backend does not close the loops itself): writes this cycle's
+        setpoint in place; returns the output to record (real-time)."""
+        sp, b = self._setpoint, self.backend
+        if b.closes == "both":
+            sp.position = cmd[k + 1]
+            return fb.output
+        if j == 0:
+            xfb = fb.x_motor if self._motor_feedback else fb.x_table
+            if not math.isnan(fb.x_feedback):      # the feedback arrives late
+                xfb = fb.x_feedback
+            self._w_ref = position_tick(self.p, self._s, cmd, k, xfb)
+        if b.closes == "velocity":
+            sp.speed = self._w_ref
+            return fb.output
+        inj = self.injection
+        if inj is None:
+            u = velocity_cycle(self.p, self._s, self._ring, fb.v_motor, fb.x_motor)
+        else:
+            i = k * self.per_tick + j
+            u = injected_velocity_cycle(self.p, self._s, self._ring, fb.v_motor, fb.x_motor, inj.signal[i],
+                                        inj.into == "torque", inj.data, i)
+            inj.data[i, 7], inj.data[i, 8], inj.data[i, 9] = fb.x_motor, fb.x_table, fb.x_tip
+        sp.output = u
+        return u
+
+    def _supervise(self, k: int, cmd: np.ndarray, fb: Feedback):
+        """Supervise at position tick ``k``: the supervisor's check of the feedback, and of the
+        setpoint about to go out (``cmd[k + 1]`` on a position-mode drive); the trip's reason or
+        None (real-time)."""
+        if self._check is None:
+            return None
+        t = k * self.ctrl.position_period
+        trip = self._check(t, fb, cmd[k])
+        if not trip and self._check_setpoint is not None:
+            trip = self._check_setpoint(t, cmd[k + 1])
+        return trip
+
+    def _stop_after(self, k: int, kind: str, reason: str) -> None:
+        """The controlled stop, and the scope's event of how the run ends (real-time)."""
+        self._stop(self.backend)
+        self._event(k, kind, reason)
+
     def _event(self, k: int, kind: str, reason: str) -> None:
         """An event of the scope at position tick ``k`` (real-time; nothing without a scope)."""
         if self.scope is not None:
@@ -407,7 +471,7 @@ class ControlLoop:
         """The controlled stop the configuration asks for (supervisor.stop: quick_stop or disable);
         never raises: the link may be gone, and the drive-side guards stop the axis then
         (real-time)."""
-        how = getattr(self.supervisor, "stop", "quick_stop")
+        how = self._stop_how
         try:
             if how == "disable":
                 backend.disable()
@@ -417,6 +481,7 @@ class ControlLoop:
             log.warning("%s backend: the controlled stop (%s) failed: %s", backend.name, how, exc)
 
     def _end(self, ticks: int, status: RunStatus, reason: str, kind: StopKind) -> LoopResult:
+        """The run's result (not real-time: after the cycle)."""
         clock = self.clock.stats() if hasattr(self.clock, "stats") else {}
         return LoopResult(ticks, status, reason, clock, kind)
 
@@ -428,7 +493,8 @@ RECORD_ROW = ("t", "x_cmd", "v_cmd", "x_motor", "x_table", "x_tip", "output", "e
 
 def _record_order(names, rotary: bool) -> list[int] | None:
     """Where each of the recorder's columns ``names`` is in :data:`RECORD_ROW` (None: the same
-    order); the controller's output is ``torque`` on a rotary axis, ``command`` on a linear one."""
+    order); the controller's output is ``torque`` on a rotary axis, ``command`` on a linear one
+    (not real-time)."""
     row = [("torque" if rotary else "command") if n == "output" else n for n in RECORD_ROW]
     unknown = [n for n in names if n not in row]
     if unknown:
@@ -439,8 +505,13 @@ def _record_order(names, rotary: bool) -> list[int] | None:
 
 def _warm_up(p) -> None:
     """Load the compiled control law before the first cycle (it takes a fraction of a second the
-    first time, which would otherwise land inside the first cycle and trip a drive's watchdog)."""
+    first time, which would otherwise land inside the first cycle and trip a drive's watchdog;
+    not real-time)."""
     s = new_velocity_state()
     position_law(p, 0.0, 0.0, 0.0)
     measured_speed(p, s, 0.0, 0.0)
     velocity_law(p, new_velocity_state(), 0.0, 0.0, 0.0)
+    s = new_velocity_state()
+    position_tick(p, s, np.zeros(2), 0, 0.0)
+    velocity_cycle(p, s, np.zeros(1), 0.0, 0.0)
+    injected_velocity_cycle(p, s, np.zeros(1), 0.0, 0.0, 0.0, True, np.zeros((1, len(CYCLE_CHANNELS))), 0)

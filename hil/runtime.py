@@ -33,7 +33,6 @@ from hil.closed_loop import check_loop_stability
 from hil.control import controller_from_config
 from hil.drivers import open_backend
 from hil.drivers.base import BackendFault, fault_kind
-from hil.drivers.sim import SimulatedPlant
 from hil.errors import HilError, RunStatus, StopKind, UserError
 from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder
@@ -124,10 +123,11 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     names = record_channels(rotary, stale=getattr(backend, "misses_answers", False))
     info = {"sample_period": f"{tp:g} s", "config": cfg.source, "backend": backend.name}
     info.update(meta or {})
-    if isinstance(backend, SimulatedPlant) and backend.closes == "none":
-        backend.home_at(x_cmd[0])
+    model = backend.dry_run_model()
+    if model is not None:
+        backend.start_at(x_cmd[0])
         # a dry run: the whole command through the compiled closed loop, as fast as the computer can
-        sim = simulate(backend.plant, backend.ctrl, x_cmd)
+        sim = simulate(*model, x_cmd)
         ch = sim.channels()
         chans = {n: ch[n] for n in names}
         # the supervisor's rules on the record: the run ends where the axis would have tripped
@@ -148,9 +148,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
                          stop=kind)
     # cycle by cycle, on the backend's clock
     ctrl = controller_from_config(cfg, getattr(backend, "plant", None) or _plant_scales(cfg))
-    rec = Recorder(out_file, names, info) if out_file is not None else _MemoryRecorder(names)
-    if isinstance(backend, SimulatedPlant):
-        backend.home_at(x_cmd[0])
+    rec = Recorder(out_file, names, info) if out_file is not None else _MemoryRecorder(names, x_cmd.size)
+    backend.start_at(x_cmd[0])         # a simulated stand-in starts where the run does
     if supervisor is None:
         from hil.supervisor import Supervisor
         supervisor = Supervisor(cfg, real_time=not backend.simulated)
@@ -197,21 +196,26 @@ def _plant_scales(cfg):
 
 
 class _MemoryRecorder:
-    """The recorder's interface, kept in memory (runs that write no file)."""
+    """The recorder's interface, kept in memory (runs that write no file): one preallocated row per
+    position tick of the run (:meth:`write_row` is real-time: it writes in place)."""
 
-    def __init__(self, names):
+    def __init__(self, names, rows: int = 0):
         self.names = names
-        self.rows = []
+        self.rows = 0
+        self._data = np.zeros((max(int(rows), 1), len(names)))
 
     def append(self, **values):
-        self.rows.append([values[n] for n in self.names])
+        self.write_row([values[n] for n in self.names])
 
     def write_row(self, values):
-        self.rows.append(list(values))
+        if self.rows == self._data.shape[0]:          # a longer run than announced (not real-time then)
+            self._data = np.concatenate([self._data, np.zeros_like(self._data)])
+        self._data[self.rows] = values
+        self.rows += 1
 
     def close(self, *args, **kw):
         pass
 
     def channels(self):
-        arr = np.array(self.rows) if self.rows else np.zeros((0, len(self.names)))
+        arr = self._data[:self.rows]
         return {n: arr[:, i] for i, n in enumerate(self.names)}

@@ -1,40 +1,44 @@
 """The closed loop on the simulated plant, compiled: position loop every Tp, velocity loop every
 Tv, the plant advanced by its exact zero-order-hold discretization over each Tv.
 
-The control law is hil.control's (the same functions the real-time loop calls), and so are the
-terms between the law and the plant (delays, current-loop lag, effect table:
-:func:`hil.control.loop_terms`); the plant step and its forces (dry friction, effects) are
-hil.sim_plant.kernel's. :func:`simulate` returns a
+The cycle is hil.control's, stage by stage (the same functions the real-time loop and the
+simulated backend call), and so are the terms between the law and the plant (delays, current-loop
+lag, effect table: :func:`hil.control.loop_terms`); the plant step and its forces (dry friction,
+effects) are hil.sim_plant.kernel's. :func:`simulate` returns a
 :class:`SimulationResult`, a plain data object (plotting lives in hil.plots). The
 frequency-response experiment (hil.frf.run) runs the same compiled loop, :func:`closed_loop_kernel`,
 with its excitation, measurement noise and per-period record, which the simulation leaves out.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from hil.control import (
     ControllerSettings,
+    P,
+    S,
+    actuate,
     controller_from_config,
-    delay_line,
+    encoders,
+    feedback_position,
     history_push,
-    history_read,
     loop_terms,
-    measured_speed,
     new_velocity_state,
-    pi_law,
-    position_law,
+    plant_period,
+    position_tick,
     quantize,
+    speed_feedback,
+    terms_of,
+    velocity_step,
 )
 from hil.plant_config import plant_from_config
-from hil.sim_plant.kernel import plant_step
 from hil.sim_plant.plant import Plant
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "per_velocity_period",
+__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
            "external_forces"]
 
 
@@ -79,165 +83,152 @@ class SimulationResult:
         return out
 
 
-@njit(cache=True)
-def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
-                       codes, eparams, delay, ubuf, lag_alpha, record_every,
-                       X, V, U, XM, XT, XCMD, exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None,
-                       hbuf=None, fb_delay=0.0, u_add=None, f_ext=None, open_loop=False):
-    """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
-    output arrays (positions, velocities, output, measured motor and table, command).
+class Record(NamedTuple):
+    """The compiled loop's record, one row every ``record_every`` velocity steps: positions ``x``
+    and velocities ``v`` of every mass, the current loop's output ``u``, the encoders as read
+    (``x_motor``, ``x_table``) and the command ``x_cmd``."""
+    x: np.ndarray
+    v: np.ndarray
+    u: np.ndarray
+    x_motor: np.ndarray
+    x_table: np.ndarray
+    x_cmd: np.ndarray
 
-    ``delay``: computation delay of the output in velocity periods (float: a transport delay
-    of the plant adds a fraction, interpolated linearly between the held outputs).
+
+@njit(cache=True)
+def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
+                       exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None, u_add=None, f_ext=None,
+                       open_loop=False, speed_filter=None):
+    """Run len(x_cmd) - 1 position ticks of the cycle of hil.control, stage by stage, from the
+    plant state ``x0`` (not changed). The plant: ``Ad``, ``Bd``, ``fric``, ``codes``, ``eparams``
+    (hil.control's stages); ``terms``: the loop terms (hil.control.LoopTerms.array); ``p``:
+    the settings (:class:`P`); ``ubuf``, ``hbuf``: the output delay's buffer and the feedback's
+    history (LoopTerms.delay_buffer, feedback_buffer; None where there is no delay: compiled
+    away). ``rec``: a :class:`Record` written every
+    ``record_every`` velocity steps, or None.
 
     The frequency-response experiment (hil.frf) adds, each None where absent (numba then
     compiles it away): ``exc``, one excitation value per velocity period, added to the output
     before its limit (or to the speed reference, ``exc_into_speed``), and then no acceleration
     feed-forward; measurement noise on the motor speed (``noise_w``, one per velocity period)
     and on the motor, table and tip positions (``noise_x``, one row per velocity period); ``out``,
-    one row per velocity period with the columns of hil.loop.CYCLE_CHANNELS. ``X`` (and the other
-    records) may be None when ``out`` is given.
-
-    ``hbuf``, ``fb_delay``: the history of the position loop's feedback and its delay in velocity
-    periods (hil.control.LoopTerms.feedback_buffer; None: no feedback delay, compiled away). The
-    feedback position is pushed after every plant step and read ``fb_delay`` periods old at each
-    position tick; the recorded positions are the true ones.
+    one row per velocity period with the columns of hil.loop.CYCLE_CHANNELS. The recorded
+    positions are the true ones (the feedback delay is the position loop's alone).
 
     Measured inputs of a record (hil.ident.replay), each None where absent (compiled away):
     ``u_add``, one value per velocity period added to the controller's output after the law (the
     feed-forward stays) and limited with it; ``f_ext``, one row per velocity period of external
     forces on the masses (N; needs ``codes``, an empty table when the plant has no effects).
     ``open_loop``: no position or velocity loop, the output is ``u_add`` alone, not limited (the
-    actuator's command measured in an open-loop run).
+    actuator's command measured in an open-loop run). ``speed_filter``: the speed filter's taps
+    where the velocity loop reads filtered positions (ControllerSettings.speed_filter; the taps'
+    values are in ``p``), None: the motor's speed, the filter compiled away.
 
-    Returns the number of velocity periods in which the excitation drove the output past its limit."""
-    nn = Ad.shape[0]
-    n = nn // 2
+    Returns the number of velocity periods in which the excitation drove the output past its
+    limit. Not real-time (it allocates its work arrays); its inner loop is the cycle."""
+    t = terms_of(terms)
+    n = Ad.shape[0] // 2
     x = x0.copy()
-    x_new = np.zeros(nn)
+    x_new = np.zeros(2 * n)
     f = np.zeros(n)
     s = new_velocity_state()
-    d_int = int(math.floor(delay))
-    d_frac = delay - d_int
+    n_sub = int(t.substeps)
     u_act = 0.0
-    dry = max(fric[0], fric[1], fric[2], fric[3]) > 0.0
-    K = x_cmd.shape[0] - 1
-    tp = p[0]          # P.TP
-    # the velocity loop's settings and state as locals: they stay in registers in the hot loop
-    kp, ti, tv, limit, acc_ff, speed_scale = p[4], p[5], p[1], p[6], p[8], p[7]   # P.KP, TI, TV, ULIM, ACC_FF, SPEED_SCALE
-    speed_from_position = p[9] > 0.0                                               # P.N_TAPS
-    integral = 0.0
-    saturated = False
     countdown = 1                  # velocity steps until the next recorded sample
-    rec = 0
+    row = 0
     n_sat = 0
-    w_ref = 0.0
-    a_cmd = 0.0
-    fd_int = int(math.floor(fb_delay))
-    fd_frac = fb_delay - fd_int
-    if hbuf is not None:           # the axis was at rest before the start
-        history_push(hbuf, quantize(x[0], res_motor) if fb_motor else quantize(x[table], res_table))
-    for k in range(K):
-        # --- position loop, tick k ---
-        xm = quantize(x[0], res_motor)
-        xt = quantize(x[table], res_table)
+    if hbuf is not None and t.feedback_late != 0.0:  # the axis was at rest before the start
+        history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
+    for k in range(x_cmd.shape[0] - 1):
+        # --- read feedback, profile, position law: tick k ---
+        xfb = feedback_position(t, x, hbuf)
         if noise_x is not None:
-            xm += noise_x[k * n_sub, 0]
-            xt += noise_x[k * n_sub, 1]
-        xfb = xm if fb_motor else xt
-        if hbuf is not None:       # the feedback as it arrives, fb_delay velocity periods late
-            xfb = history_read(hbuf, fd_int, fd_frac)
-            if noise_x is not None:
-                xfb += noise_x[k * n_sub, 0 if fb_motor else 1]
-        w_ref = position_law(p, x_cmd[k], x_cmd[k + 1], xfb)
-        if k > 0:
-            a_cmd = (x_cmd[k + 1] - 2.0 * x_cmd[k] + x_cmd[k - 1]) / (tp * tp)
-        else:
-            a_cmd = (x_cmd[k + 1] - x_cmd[k]) / (tp * tp)
-        ff = acc_ff * a_cmd
-        if exc is not None:
-            ff = 0.0
+            xfb += noise_x[k * n_sub, 0 if t.feedback_motor != 0.0 else 1]
+        w_ref = position_tick(p, s, x_cmd, k, xfb)
+        ff = 0.0 if exc is not None else p[P.ACC_FF] * s[S.A_CMD]
         for j in range(n_sub):
-            # --- velocity loop ---
             step = k * n_sub + j
-            r = 0.0
-            w_ref_v = w_ref
-            if exc is not None:
-                r = exc[step]
-                w_ref_v = w_ref + (r if exc_into_speed else 0.0)
-            # the encoders as read this period (the measured speed of the noisy run is always hil.control's)
-            xm = quantize(x[0], res_motor)
-            if noise_x is not None:
-                xm += noise_x[step, 0]
-            if noise_w is not None:
-                w_meas = measured_speed(p, s, x[n] + noise_w[step], xm)
-            elif speed_from_position:
-                w_meas = measured_speed(p, s, x[n], xm)
-            else:
-                w_meas = x[n] * speed_scale
-            if open_loop:
-                u_ctrl = 0.0
-            else:
-                u_ctrl, integral, saturated = pi_law(kp, ti, tv, limit, integral, saturated, w_ref_v, w_meas, ff)
-            u = u_ctrl
-            if exc is not None:
-                # a torque excitation is added to the controller's output and limited with it
-                u = u_ctrl + (0.0 if exc_into_speed else r)
-                if u > limit:
-                    u = limit
-                    n_sat += 1
-                elif u < -limit:
-                    u = -limit
-                    n_sat += 1
-            if u_add is not None:
-                # a measured command after the controller (EMPS's pulses), limited with the output
-                u = u + u_add[step]
-                if not open_loop:
-                    if u > limit:
-                        u = limit
-                    elif u < -limit:
-                        u = -limit
-            if out is not None:
-                out[step, 0] = r
-                out[step, 1] = u
-                out[step, 2] = u_ctrl
-                out[step, 3] = w_ref_v - w_meas
-                out[step, 4] = w_meas
-                out[step, 5] = w_ref
-                out[step, 6] = w_ref_v
-                out[step, 7] = xm
-                out[step, 8] = quantize(x[table], res_table) + (noise_x[step, 1] if noise_x is not None else 0.0)
-                out[step, 9] = x[tip] + (noise_x[step, 2] if noise_x is not None else 0.0)
-            # computation delay, then the current loop (ideal, or a first-order lag)
-            if ubuf is not None:       # None (no delay): compiled away
-                u = delay_line(ubuf, u, d_int, d_frac)
-            u_act += lag_alpha * (u - u_act)
-            if X is not None:
+            # --- read feedback, velocity law (and the experiment's inputs) ---
+            u, sat = _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w,
+                                      noise_x, out, u_add, open_loop)
+            n_sat += sat
+            # --- write command: the delay, the current loop ---
+            u_act = actuate(t, ubuf, u, u_act)
+            # --- record ---
+            if rec is not None:
                 countdown -= 1
                 if countdown == 0:
                     countdown = record_every
-                    for i in range(n):
-                        X[rec, i] = x[i]
-                        V[rec, i] = x[n + i]
-                    U[rec] = u_act
-                    XM[rec] = quantize(x[0], res_motor)
-                    XT[rec] = quantize(x[table], res_table)
                     # between ticks the command is interpolated, as the NC's fine interpolation would
-                    XCMD[rec] = x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub
-                    rec += 1
-            # --- plant over one Tv ---
+                    _record_row(rec, row, t, x, u_act, x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub)
+                    row += 1
+            # --- the plant over one Tv ---
             if f_ext is not None:
-                plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new, f_ext[step])
+                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, f_ext[step])
             else:
-                plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-            if hbuf is not None:
-                history_push(hbuf, quantize(x[0], res_motor) if fb_motor else quantize(x[table], res_table))
+                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act)
     return n_sat
+
+
+@njit(cache=True, inline="always")
+def _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out, u_add,
+                     open_loop):
+    """Read feedback and velocity law of velocity period ``step`` of :func:`closed_loop_kernel`,
+    with the experiment's excitation, noise and measured command (each None where absent) and its
+    ``out`` row. Returns the output and 1 where the excitation drove it past its limit (real-time)."""
+    n = x.shape[0] // 2
+    r = 0.0
+    w_ref_v = w_ref
+    if exc is not None:
+        r = exc[step]
+        w_ref_v = w_ref + (r if exc_into_speed else 0.0)
+    # the encoders as read this period (the measured speed of the noisy run is always hil.control's)
+    xm = quantize(x[0], t.res_motor)
+    v_motor = x[n]
+    if noise_x is not None:
+        xm += noise_x[step, 0]
+    if noise_w is not None:
+        v_motor = x[n] + noise_w[step]
+    w_meas = speed_feedback(p, s, speed_filter, v_motor, xm)
+    u_ctrl = 0.0 if open_loop else velocity_step(p, s, w_ref_v, w_meas, ff)
+    u = u_ctrl
+    sat = 0
+    limit = p[P.ULIM]
+    if exc is not None:
+        # a torque excitation is added to the controller's output and limited with it
+        u = u_ctrl + (0.0 if exc_into_speed else r)
+        if u > limit or u < -limit:
+            u = limit if u > limit else -limit
+            sat = 1
+    if u_add is not None:
+        # a measured command after the controller (EMPS's pulses), limited with the output
+        u = u + u_add[step]
+        if not open_loop and (u > limit or u < -limit):
+            u = limit if u > limit else -limit
+    if out is not None:
+        xt_out = encoders(t, x)[1] + (noise_x[step, 1] if noise_x is not None else 0.0)
+        tip_out = x[int(t.tip)] + (noise_x[step, 2] if noise_x is not None else 0.0)
+        out[step, 0], out[step, 1], out[step, 2], out[step, 3], out[step, 4] = r, u, u_ctrl, w_ref_v - w_meas, w_meas
+        out[step, 5], out[step, 6], out[step, 7], out[step, 8], out[step, 9] = w_ref, w_ref_v, xm, xt_out, tip_out
+    return u, sat
+
+
+@njit(cache=True, inline="always")
+def _record_row(rec, row, t, x, u_act, x_cmd):
+    """Record (real-time): row ``row`` of ``rec``, the plant's state as it is before its step."""
+    n = x.shape[0] // 2
+    for i in range(n):
+        rec.x[row, i] = x[i]
+        rec.v[row, i] = x[n + i]
+    rec.u[row] = u_act
+    rec.x_motor[row], rec.x_table[row] = encoders(t, x)
+    rec.x_cmd[row] = x_cmd
 
 
 def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int | None = None,
              x0: float | None = None, v_cmd=None, u_add=None, f_ext=None, open_loop: bool = False) -> SimulationResult:
-    """Closed-loop response to the command ``x_cmd`` sampled on the position clock.
+    """Closed-loop response to the command ``x_cmd`` sampled on the position clock (not
+    real-time: the whole run at once, through :func:`closed_loop_kernel`).
 
     ``x_cmd[k]`` is the command at tick k; the loop runs ``len(x_cmd)`` ticks (the command is
     held after the last sample, which the feed-forward of the last tick needs). The plant starts
@@ -279,11 +270,10 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
         inputs["f_ext"] = np.ascontiguousarray(fe[np.minimum(np.arange(steps), fe.shape[0] - 1)])
         if codes is None:            # external forces take the effects' force path
             codes, params = np.zeros(0, np.int64), np.zeros((0, params.shape[1]))
-    closed_loop_kernel(disc.A, disc.B, state0, ctrl.as_array(), plant.force_gain, cmd, n_sub,
-                       plant.table, plant.tip, ctrl.position_feedback == "motor",
-                       plant.friction.as_tuple(), plant.table_resolution, plant.motor_resolution,
-                       codes, params, terms.delay, terms.delay_buffer(), terms.lag_alpha, record_every,
-                       X, V, U, XM, XT, XC, hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay, **inputs)
+    rec = Record(X, V, U, XM, XT, XC)
+    closed_loop_kernel(disc.A, disc.B, plant.friction.as_tuple(), codes, params, terms.array, ctrl.as_array(), state0,
+                       cmd, terms.delay_buffer(), terms.feedback_buffer(), rec, record_every,
+                       speed_filter=ctrl.speed_filter(), **inputs)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command

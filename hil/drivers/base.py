@@ -28,7 +28,8 @@ beyond the transport's own answer) and which do not:
 =========================================  ===================================================
 real-time (every cycle, in the loop)        ``read_feedback``, ``write_setpoint``, ``sync``;
                                             ``quick_stop`` in the cycle of a trip or fault
-not real-time (before or after the cycle)   ``__init__``, ``open``, ``read_position``, ``enable``, ``disable``,
+not real-time (before or after the cycle)   ``__init__``, ``open``, ``read_position``, ``start_at``,
+                                            ``dry_run_model``, ``enable``, ``disable``,
                                             ``close``, ``shutdown``, and a backend's own
                                             services (homing, status, fault reset)
 =========================================  ===================================================
@@ -150,6 +151,17 @@ class Backend(ABC):
         backend puts the axis where the run starts itself (a simulated stand-in); every backend of
         ``hil.drivers.BACKENDS`` that drives an axis answers. Raises BackendFault where the drive does
         not answer."""
+        return None
+
+    def start_at(self, position: float) -> None:
+        """Put the axis at rest at ``position`` before a run (not real-time): what a simulated
+        stand-in does (it starts where it is told); default: nothing, an axis is where it stands
+        (:meth:`read_position`)."""
+
+    def dry_run_model(self):
+        """``(plant, controller)`` where the whole run can be computed at once, offline, through the
+        compiled loop of the same cycle (the embedded plant in torque mode); None (default): the
+        run goes cycle by cycle (not real-time)."""
         return None
 
     @abstractmethod

@@ -21,59 +21,72 @@ import numpy as np
 from numba import njit
 
 from hil.control import (
+    T,
     controller_from_config,
-    delay_line,
+    feedback_position,
     history_push,
     history_read,
     loop_terms,
-    measured_speed,
     new_velocity_state,
+    plant_cycle,
+    plant_period,
     position_law,
     quantize,
+    speed_feedback,
+    terms_of,
     velocity_law,
 )
 from hil.drivers.base import LOOPS, Backend, Feedback, Setpoint
 from hil.plant_config import plant_from_config
-from hil.sim_plant.kernel import plant_step
 
 __all__ = ["SimulatedPlant"]
 
 
 @njit(cache=True)
-def drive_steps(Ad, Bd, x, s, p, w_ref, steps, res_motor, ubuf, d_int, d_frac, lag_alpha, u_act, fgain, fric, dry,
-                codes, eparams, f, x_new, hbuf=None, fb_mass=0, fb_res=0.0):
-    """``steps`` velocity-loop steps of a drive that closes the velocity loop itself (the simulated
-    plant standing in for a drive in velocity or position mode): returns the current loop's
-    state. The same law, delay line and plant step as the closed-loop kernel; ``hbuf``: the
-    history of the position loop's feedback (mass ``fb_mass`` read at ``fb_res``), or None."""
+def drive_cycle(Ad, Bd, fric, codes, eparams, terms, p, s, speed_filter, x, f, x_new, ubuf, hbuf, w_ref,
+                u_act):
+    """One position period of a drive that closes the velocity loop itself (the simulated plant
+    standing in for a drive in velocity or position mode; real-time): the velocity law on the
+    speed reference ``w_ref``, then the command and the plant (hil.control's stages), every
+    velocity period. Returns the current loop's output ``u_act``."""
+    t = terms_of(terms)
     n = Ad.shape[0] // 2
-    for _ in range(steps):
-        w = measured_speed(p, s, x[n], quantize(x[0], res_motor))
+    for _ in range(int(t.substeps)):
+        w = speed_feedback(p, s, speed_filter, x[n], quantize(x[0], t.res_motor))
         u = velocity_law(p, s, w_ref, w, 0.0)
-        if ubuf is not None:       # None (no delay): compiled away
-            u = delay_line(ubuf, u, d_int, d_frac)
-        u_act += lag_alpha * (u - u_act)
-        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-        if hbuf is not None:
-            history_push(hbuf, quantize(x[fb_mass], fb_res))
+        u_act = plant_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, ubuf, hbuf, u, u_act)
     return u_act
 
 
 @njit(cache=True)
-def coast_steps(Ad, Bd, x, steps, lag_alpha, u_act, fgain, fric, dry, codes, eparams, f, x_new, hbuf=None,
-                fb_mass=0, fb_res=0.0):
-    """``steps`` plant steps with no torque commanded (a disabled drive): the current decays
-    through the current loop's lag, the plant coasts (the feedback history, ``hbuf``, goes on).
-    Returns the current loop's state."""
+def coast_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, hbuf, u_act, steps):
+    """``steps`` plant periods with no torque commanded (a disabled drive; real-time): the current
+    decays through the current loop's lag, the plant coasts (the feedback history goes on).
+    Returns the current loop's output."""
+    t = terms_of(terms)
     for _ in range(steps):
-        u_act += lag_alpha * (0.0 - u_act)
-        plant_step(Ad, Bd, x, u_act * fgain, fric, dry, codes, eparams, f, x_new)
-        if hbuf is not None:
-            history_push(hbuf, quantize(x[fb_mass], fb_res))
+        u_act = u_act + t.lag_alpha * (0.0 - u_act)
+        plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act)
     return u_act
 
 
+@njit(cache=True)
+def torque_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, ubuf, hbuf, u, u_act):
+    """One velocity period under the output ``u`` (a drive in torque mode; real-time):
+    hil.control's :func:`~hil.control.plant_cycle`. Returns the current loop's output."""
+    return plant_cycle(Ad, Bd, fric, codes, eparams, terms_of(terms), x, f, x_new, ubuf, hbuf, u, u_act)
+
+
+@njit(cache=True)
+def drive_feedback(terms, x, hbuf):
+    """The position a drive's position loop closes on (real-time): hil.control's
+    :func:`~hil.control.feedback_position`."""
+    return feedback_position(terms_of(terms), x, hbuf)
+
+
 class SimulatedPlant(Backend):
+    """The embedded plant as a backend (the module docstring). Real-time: :meth:`read_feedback`,
+    :meth:`write_setpoint`, :meth:`sync`, :meth:`advance`, :meth:`quick_stop`; the rest is not."""
     name = "sim"
     simulated = True
 
@@ -86,19 +99,15 @@ class SimulatedPlant(Backend):
         self.closes = closes
         self.cycle_time = self.ctrl.velocity_period if closes == "none" else self.ctrl.position_period
         self._p = self.ctrl.as_array()
+        self._speed_filter = self.ctrl.speed_filter()
         disc = self.plant.chain.discretize(self.ctrl.velocity_period, inputs="all")
-        self._Ad, self._Bd = disc.A, disc.B
         # in torque mode the host's loop delays its output itself (hil.loop); the plant's transport delay is ours
         self.terms = loop_terms(self.plant, self.ctrl, with_output_delay=closes != "none")
-        self._ubuf = self.terms.delay_buffer()
-        # the position loop's feedback history (a feedback delay of the plant), or None
-        motor_fb = self.ctrl.position_feedback == "motor"
-        self._fb_mass = 0 if motor_fb else self.plant.table
-        self._fb_res = self.plant.motor_resolution if motor_fb else self.plant.table_resolution
-        self._hbuf = self.terms.feedback_buffer()
-        self._fparts = self.terms.feedback_parts
-        self._fric = self.plant.friction.as_tuple()
-        self._dry = self.plant.friction.active
+        # the plant as hil.control's stages take it: matrices, friction, effect table, loop terms
+        self._model = (disc.A, disc.B, self.plant.friction.as_tuple(), self.terms.codes, self.terms.params,
+                       self.terms.array)
+        self._ubuf = self.terms.output_buffer()
+        self._hbuf = self.terms.feedback_history()     # the position loop's feedback history (a feedback delay)
         n = self.plant.n
         self.x = np.zeros(2 * n)
         self._xn = np.zeros(2 * n)
@@ -116,23 +125,42 @@ class SimulatedPlant(Backend):
         self.time = 0.0
 
     def home_at(self, position: float) -> None:
-        """Put the plant at rest at ``position`` (the simulated axis starts where it is told)."""
+        """Put the plant at rest at ``position`` (the simulated axis starts where it is told; not
+        real-time)."""
         n = self.plant.n
         self.x[:] = 0.0
         self.x[:n] = position
         self._s = new_velocity_state()
         self._prev_position = position
-        self._ubuf = self.terms.delay_buffer()
-        self._hbuf = self.terms.feedback_buffer()
+        self._ubuf = self.terms.output_buffer()
+        self._hbuf = self.terms.feedback_history()
         self._push_feedback()
 
+    def start_at(self, position: float) -> None:
+        """The contract's start of a run: :meth:`home_at` (not real-time)."""
+        self.home_at(position)
+
+    def dry_run_model(self):
+        """In torque mode, the plant and the controller: the runtime computes the whole run at
+        once through the compiled loop, the same cycle (not real-time)."""
+        return (self.plant, self.ctrl) if self.closes == "none" else None
+
+    @property
+    def settings(self) -> np.ndarray:
+        """The controller's settings array (hil.control.P) of the loops this backend closes."""
+        return self._p
+
     def _push_feedback(self) -> None:
-        if self._hbuf is not None:
-            history_push(self._hbuf, quantize(self.x[self._fb_mass], self._fb_res))
+        if self.terms.array[T.FEEDBACK_LATE] != 0.0:
+            history_push(self._hbuf, quantize(self.x[int(self.terms.array[T.FEEDBACK_MASS])],
+                                              self.terms.array[T.FEEDBACK_RES]))
 
     def _late_feedback(self) -> float:
         """The position the position loop receives (the feedback delay's history), NaN without one."""
-        return float(history_read(self._hbuf, *self._fparts)) if self._hbuf is not None else float("nan")
+        t = self.terms.array
+        if t[T.FEEDBACK_LATE] == 0.0:
+            return float("nan")
+        return float(history_read(self._hbuf, int(t[T.FEEDBACK_INT]), t[T.FEEDBACK_FRAC]))
 
     @property
     def enabled(self) -> bool:
@@ -141,13 +169,14 @@ class SimulatedPlant(Backend):
     @enabled.setter
     def enabled(self, on: bool) -> None:
         if on and not self._enabled:       # switched on: nothing commanded is in transit yet
-            self._ubuf = self.terms.delay_buffer()
+            self._ubuf = self.terms.output_buffer()
         self._enabled = bool(on)
 
     def enable(self) -> None:
         self.enabled = True
 
     def read_feedback(self) -> Feedback:
+        """This cycle's encoders, speed and current (real-time)."""
         n, pl = self.plant.n, self.plant
         return Feedback(x_motor=float(quantize(self.x[0], pl.motor_resolution)),
                         x_table=float(quantize(self.x[pl.table], pl.table_resolution)),
@@ -156,48 +185,38 @@ class SimulatedPlant(Backend):
                         x_feedback=self._late_feedback())
 
     def write_setpoint(self, setpoint: Setpoint) -> None:
+        """This cycle's setpoint, used by :meth:`sync` (real-time)."""
         self._set = setpoint
 
     def sync(self) -> None:
-        """Advance one cycle."""
-        pl, terms = self.plant, self.terms
+        """Advance one cycle (real-time)."""
         if not self.enabled:          # no torque: the plant coasts (friction and effects still act)
             steps = 1 if self.closes == "none" else self.ctrl.substeps
-            self._u_act = coast_steps(self._Ad, self._Bd, self.x, steps, terms.lag_alpha, self._u_act, pl.force_gain,
-                                      self._fric, self._dry, terms.codes, terms.params, self._f, self._xn,
-                                      self._hbuf, self._fb_mass, self._fb_res)
+            self._u_act = coast_cycle(*self._model, self.x, self._f, self._xn, self._hbuf, self._u_act, steps)
             self.time += steps * self.ctrl.velocity_period
             return
         if self.closes == "none":
-            self._step(self._set.output)
+            self.advance(self._set.output)
+            return
+        if self.closes == "both":
+            prev = self._prev_position if self._prev_position is not None else self._set.position
+            xfb = drive_feedback(self.terms.array, self.x, self._hbuf)
+            # the drive's interpolation: the setpoint is where to be at the next tick
+            w_ref = position_law(self._p, prev, self._set.position, xfb)
+            self._prev_position = self._set.position
         else:
-            if self.closes == "both":
-                prev = self._prev_position if self._prev_position is not None else self._set.position
-                xfb = quantize(self.x[0], pl.motor_resolution) if self.ctrl.position_feedback == "motor" \
-                    else quantize(self.x[pl.table], pl.table_resolution)
-                if self._hbuf is not None:         # the feedback arrives late
-                    xfb = self._late_feedback()
-                # the drive's interpolation: the setpoint is where to be at the next tick
-                w_ref = position_law(self._p, prev, self._set.position, xfb)
-                self._prev_position = self._set.position
-            else:
-                w_ref = self._set.speed
-            d_int, d_frac = terms.delay_parts
-            self._u_act = drive_steps(self._Ad, self._Bd, self.x, self._s, self._p, w_ref, self.ctrl.substeps,
-                                      pl.motor_resolution, self._ubuf, d_int, d_frac, terms.lag_alpha, self._u_act,
-                                      pl.force_gain, self._fric, self._dry, terms.codes, terms.params, self._f,
-                                      self._xn, self._hbuf, self._fb_mass, self._fb_res)
-            self.time += self.ctrl.position_period
+            w_ref = self._set.speed
+        self._u_act = drive_cycle(*self._model, self._p, self._s, self._speed_filter, self.x, self._f, self._xn,
+                                  self._ubuf, self._hbuf, w_ref, self._u_act)
+        self.time += self.ctrl.position_period
 
-    def _step(self, u: float) -> None:
-        terms = self.terms
-        if self._ubuf is not None:     # the plant's transport delay
-            u = delay_line(self._ubuf, u, *terms.delay_parts)
-        self._u_act += terms.lag_alpha * (u - self._u_act)      # current loop: ideal, or a first-order lag
-        plant_step(self._Ad, self._Bd, self.x, self._u_act * self.plant.force_gain, self._fric, self._dry,
-                   terms.codes, terms.params, self._f, self._xn)
-        self._push_feedback()
+    def advance(self, u: float) -> None:
+        """One velocity period under the output ``u`` (torque or command): the plant's transport
+        delay, the current loop and the plant (real-time)."""
+        self._u_act = torque_cycle(*self._model, self.x, self._f, self._xn, self._ubuf, self._hbuf, u, self._u_act)
         self.time += self.ctrl.velocity_period
+
+    _step = advance          # the name the drive simulators call (hil.drivers.canopen, serial)
 
     def disable(self) -> None:
         self.enabled = False

@@ -139,12 +139,10 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
         progress(f"exciting: {st.signal} {st.input} disturbance, {st.band[0]:g}..{st.band[1]:g} Hz, "
                  f"{n_settle} settling + {st.periods} averaged periods of {exc.period:g} s at "
                  f"{st.speed * 1e3:g} mm/s ({steps} velocity periods)")
-    sat = closed_loop_kernel(disc.A, disc.B, x0v, ctrl.as_array(), plant.force_gain, x_cmd, ctrl.substeps, plant.table,
-                             plant.tip, ctrl.position_feedback == "motor", plant.friction.as_tuple(),
-                             plant.table_resolution, plant.motor_resolution, terms.codes, terms.params, terms.delay,
-                             terms.delay_buffer(), terms.lag_alpha, 1, None, None, None, None, None, None,
+    sat = closed_loop_kernel(disc.A, disc.B, plant.friction.as_tuple(), terms.codes, terms.params, terms.array,
+                             ctrl.as_array(), x0v, x_cmd, terms.delay_buffer(), terms.feedback_buffer(),
                              exc=r, exc_into_speed=st.input == "velocity", noise_w=nw, noise_x=nx, out=out,
-                             hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay)
+                             speed_filter=ctrl.speed_filter())
     return FrfRecord(out, tv, exc, start, st.periods, int(sat), plant.tip != plant.table, st.input, "sim")
 
 
