@@ -555,7 +555,7 @@ def _validate(raw: dict[str, Any], where: str) -> Config:
             if f.required:
                 kind = f.kind_for(values)
                 unit = SI_UNIT.get(kind, kind)
-                raise ConfigError(f"{where}: missing required key {key!r} ({f.doc}; a {kind} in {unit})")
+                raise ConfigError(f"{where}: missing required key {key!r} ({f.doc}; a {kind.replace('_', ' ')} in {unit})")
             values[key] = copy.deepcopy(f.default)
     _check_chain(values, where)
     _check_consistency(values, where)

@@ -21,10 +21,10 @@ CASES = {
     "unknown key": (BASE.replace("[plant]\n", "[plant]\nm9x = 1\n"),
                     "unknown key 'plant.m9x' (known keys in [plant]: plant.cN, plant.kN, plant.mN, plant.pitch, "
                     "plant.table_mass, plant.tip_mass)"),
-    "unknown section": (BASE + "\n[foo]\nbar = 1\n", "unknown key 'foo.bar' (known sections: actuator, backend, canopen, control, effects, friction, "
+    "unknown section": (BASE + "\n[foo]\nbar = 1\n", "unknown key 'foo.bar' (known sections: actuator, backend, canopen, control, effects, fleet, friction, "
                        "limits, measurement, meta, nc, noise, plant, runtime, sensors, serial, supervisor"),
     "missing required key": (BASE.replace('kv = "50 1/s"\n', ""),
-                             "missing required key 'control.kv' (position-loop P gain Kv (1/s); a frequency in 1/s)"),
+                             "missing required key 'control.kv' (position-loop P gain Kv (1/s); a loop gain in 1/s)"),
     "missing chain key": (BASE.replace('k2 = "3.7060e4 N/m"   # thin plates\n', ""),
                           "missing required key 'plant.k2' (a chain of 3 masses needs k1..k2; stiffness)"),
     "extra chain key": (BASE.replace("[plant]\n", '[plant]\nk3 = "1 N/m"\n'),
