@@ -321,7 +321,7 @@ class ControlLoop:
                         latch = getattr(self.supervisor, "trip", None)
                         if latch is None:
                             raise BackendFault(fb.fault, fb.fault_kind)
-                        kind = fault_kind(fb.fault, fb.fault_kind, StopKind.TRIP)
+                        kind = fault_kind(fb.fault_kind, StopKind.TRIP)
                         latch(k * self.ctrl.position_period, fb.fault, fb, kind)
                         self._stop(b)
                         self._event(k, "trip", fb.fault)
@@ -370,7 +370,7 @@ class ControlLoop:
                         self.progress = None
         except BackendFault as exc:
             self._stop(b)
-            status, reason, kind = RunStatus.FAULT, exc.reason, fault_kind(exc.reason, exc.kind, StopKind.LINK)
+            status, reason, kind = RunStatus.FAULT, exc.reason, fault_kind(exc.kind, StopKind.LINK)
             self._event(k, "fault", reason)
             latch = getattr(self.supervisor, "trip", None)
             if latch is not None:        # latched like a trip: motion refused until 'hil reset'

@@ -25,9 +25,10 @@ Configuration mistakes (no port, a port name pyserial does not know, a command t
 pattern that cannot work, a missing command) are :class:`~hil.errors.ConfigError` naming the key
 and the configuration file, raised when the backend is built, and so is a device name that does
 not exist when :meth:`open` first opens it; a port that exists but does not open (busy, no
-permission) is a BackendFault at :meth:`open`. Every fault's reason starts with ``drive fault``
-(the drive's fault code or its refusal) or ``lost communication`` (no, late or garbled answer
-beyond the retries, the port lost), the same words as the other backends' (hil.drivers.base.fault_kind).
+permission) is a BackendFault at :meth:`open`. Every fault says its kind where it is decided
+(``Feedback.fault_kind``, ``BackendFault.kind``): a drive fault (the drive's fault code or its
+refusal) or the link's (no, late or garbled answer beyond the retries, the port lost); its reason
+starts with ``drive fault`` or ``lost communication``, the same words as the other backends'.
 """
 from __future__ import annotations
 
@@ -43,7 +44,7 @@ from hil.config import Field, register_section
 from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, velocity_law
 from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
 from hil.drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError, UnsafeCommand
-from hil.errors import BackendError, ConfigError
+from hil.errors import BackendError, ConfigError, StopKind
 from hil.plant_config import plant_from_config
 
 __all__ = ["SerialBackend", "SerialStats", "SECTION", "BAUDRATES"]
@@ -314,13 +315,13 @@ class SerialBackend(Backend):
                 last = f"port lost: {exc.reason}"
             if attempt < self.retries:
                 self.stats.note(last)
-        # the first words say the kind of stop (hil.drivers.base.fault_kind), as on every backend: the
-        # drive's refusal is the drive's doing, everything else is the link's
-        kind = "drive fault" if last.startswith("refused") else "lost communication"
-        reason = (f"{kind}: serial {op}: {last} (after {attempt + 1} attempt(s), "
+        # the drive's refusal is the drive's doing, everything else is the link's
+        kind = StopKind.DRIVE_FAULT if last.startswith("refused") else StopKind.LINK
+        words = "drive fault" if kind is StopKind.DRIVE_FAULT else "lost communication"
+        reason = (f"{words}: serial {op}: {last} (after {attempt + 1} attempt(s), "
                   f"{(time.perf_counter() - t0) * 1e3:.1f} ms)")
         self._faulted = reason
-        raise BackendFault(reason)
+        raise BackendFault(reason, kind)
 
     # -- the contract --------------------------------------------------------------------------------
     def open(self) -> None:
@@ -358,14 +359,14 @@ class SerialBackend(Backend):
             if setup:
                 raise
             last = self._last_fb or Feedback(0.0, 0.0, 0.0)
-            return dataclasses.replace(last, fault=exc.reason, stale=True)
+            return dataclasses.replace(last, fault=exc.reason, stale=True, fault_kind=exc.kind)
         xm = int(g["x_motor"]) / self.k_pos
         xt = int(g["x_table"]) / self.k_pos if "x_table" in g else xm
         v = int(g["v_motor"]) / self.k_pos if "v_motor" in g else math.nan      # counts/s
         out = int(g["output"]) / self.k_out if "output" in g else 0.0
         code = int(g.get("fault", "0"))
         fb = Feedback(x_motor=xm, x_table=xt, v_motor=v, output=out,
-                      fault=f"drive fault {code}" if code else "")
+                      fault=f"drive fault {code}" if code else "", fault_kind=StopKind.DRIVE_FAULT if code else None)
         self._last_fb = fb
         return fb
 
