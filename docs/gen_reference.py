@@ -1,8 +1,8 @@
 """The reference pages of the documentation, generated from the code so that they cannot go stale.
 
 - ``reference/config.md``: every configuration key, from the schema as data (:data:`hil.config.SCHEMA`)
-  and the sections other modules register (``[supervisor]``, ``[canopen]``, ``[serial]``,
-  ``[noise]``, ``[effects.<name>]``);
+  and the sections beside it, data of :mod:`hil.config` too (``[supervisor]``, ``[canopen]``,
+  ``[serial]``, ``[noise]``, ``[effects.<name>]``), each with the module that reads it;
 - ``reference/effects.md``: every effect of :data:`hil.sim_plant.effects.CATALOGUE` with its
   parameters, their units, bounds and starting guesses;
 - ``reference/commands.md``: every command's usage and options, from the argparse parsers of
@@ -78,24 +78,9 @@ def _field_rows(fields: dict) -> list[str]:
     return rows
 
 
-def _serial_fields() -> dict:
-    import hil.drivers.serial.backend as serial_backend
-    section = getattr(serial_backend, "SECTION", None)
-    if section is not None:
-        return dict(section)
-    # older layout: the section is a lookup function only; ask it for the documented keys
-    from hil.config import field_for
-    names = ("port", "baudrate", "parity", "stopbits", "mode", "cycle_time", "timeout", "retries", "budget",
-             "setup_timeout", "watchdog", "line_ending", "checksum", "checksum_separator", "max_reply",
-             "scale_position", "scale_speed", "scale_output")
-    return {f"serial.{n}": field_for(f"serial.{n}") for n in names if field_for(f"serial.{n}") is not None}
-
-
 def config_reference() -> str:
-    import hil.drivers.canopen.backend as canopen_backend
-    import hil.plant_config as plant_config
     import hil.supervisor as supervisor
-    from hil.config import SCHEMA, field_for
+    from hil.config import CANOPEN_SECTION, NOISE_KINDS, SCHEMA, SERIAL_SECTION, field_for
     from hil.sim_plant.effects import CATALOGUE
 
     out = ["# Configuration keys", "", GENERATED_NOTE,
@@ -111,14 +96,14 @@ def config_reference() -> str:
     out += ["## `[supervisor]`: the safety supervisor", "",
             "Read by `hil/supervisor.py`; see [Safety](../guide/safety.md).", ""] + _field_rows(supervisor.SECTION)
     out += ["", "## `[canopen]`: the CiA 402 backend and the simulated drive", "",
-            "Read by `hil/drivers/canopen/backend.py`; see [CANopen](../guide/canopen.md) and the "
-            "[commissioning tutorial](../tutorials/commissioning.md).", ""] + _field_rows(canopen_backend.SECTION)
+            "Read by `hil/drivers/canopen/section.py` (the backend's settings, read once when it is built; the "
+            "simulated drive reads them too); see [CANopen](../guide/canopen.md) and the "
+            "[commissioning tutorial](../tutorials/commissioning.md).", ""] + _field_rows(CANOPEN_SECTION)
     out += ["", "## `[serial]`: drives with an ASCII command interface", "",
             "Read by `hil/drivers/serial/backend.py`; see [Serial drives](../guide/serial.md). Besides these, "
             "`serial.commands.<op>` (a Python format template of the command) and `serial.replies.<op>` "
-            "(a regular expression its reply must match) for each operation.", ""] + _field_rows(_serial_fields())
-    noise_channels = getattr(plant_config, "_NOISE_KINDS", {})
-    noise = {f"noise.{ch}": field_for(f"noise.{ch}") for ch in noise_channels}
+            "(a regular expression its reply must match) for each operation.", ""] + _field_rows(SERIAL_SECTION)
+    noise = {f"noise.{ch}": field_for(f"noise.{ch}") for ch in NOISE_KINDS}
     out += ["", "## `[noise]`: the sensors' noise", "",
             "The RMS noise of a recorded channel's sensor before quantization: the noise floor of "
             "`hil diagnose` (see [Model against measurement](../guide/model-against-measurement.md)).", ""]

@@ -124,7 +124,8 @@ def build_parser() -> argparse.ArgumentParser:
                              f"only critical messages of the CAN libraries)")
     parser.add_argument("--can-log", default=None, metavar="FILE",
                         help="record the CAN bus (received and sent frames) with python-can's logger: FILE.asc "
-                             "or .blf (also .log, .csv, .trc)")
+                             "or .blf (also .log, .csv, .trc); a sweep on a backend writes one file per run, "
+                             "FILE's name numbered in run order (bus.asc: bus-001.asc, bus-002.asc, ...)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, modname in COMMANDS.items():
         if importlib.util.find_spec(modname) is None:

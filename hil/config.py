@@ -6,9 +6,9 @@ Values are stored in SI; files may write them with units (``"10 mm"``).
 
 The schema is data (:data:`SCHEMA`), so that validation, the documentation in
 ``config/SCHEMA.md`` and the command line all read the same table. The sections beside it are
-listed here (:data:`SECTION_NAMES`): ``[supervisor]``, ``[noise]`` and ``[effects.<name>]`` (the
-effect catalogue's parameters) as data of this module, the backends' ``[canopen]`` and
-``[serial]`` registered by their modules (:func:`register_section`).
+listed here (:data:`SECTION_NAMES`), as data of this module: ``[supervisor]``, ``[noise]``,
+``[effects.<name>]`` (the effect catalogue's parameters) and the backends' ``[canopen]`` and
+``[serial]`` (the backends read them; nothing registers a section when it is imported).
 
 The example configurations of ``config/`` ship in the package (``hil/examples`` in a wheel):
 :func:`load` reads one by name (``paper_bench.toml``, or ``config/paper_bench.toml`` as the README
@@ -17,7 +17,6 @@ writes it) where no such file is in the working directory.
 from __future__ import annotations
 
 import copy
-import importlib
 import logging
 import math
 import re
@@ -32,7 +31,7 @@ from hil.units import SI_UNIT, UnitError, parse
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "register_section", "field_for",
+__all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "field_for",
            "parse_assignment", "schema_markdown", "examples_dir", "example_names"]
 
 
@@ -234,6 +233,110 @@ SUPERVISOR_SECTION = {
                                    "~/.local/state/compliant-axis-hil", default=""),
 }
 
+# The [canopen] section (hil.drivers.canopen.section reads it into the backend's settings; the
+# simulated drive reads it too)
+CANOPEN_SECTION = {
+    "canopen.interface": Field("str", "python-can interface (socketcan, pcan, kvaser, slcan, socketcand, virtual...)",
+                               default="virtual"),
+    "canopen.channel": Field("str", "python-can channel (can0, /dev/ttyACM0, a virtual channel name...)",
+                             default="hil"),
+    "canopen.bitrate": Field("int", "CAN bit rate (bit/s)", default=1000000, nonnegative=True),
+    "canopen.host": Field("str", "socketcand server address (127.0.0.1 only for the simulated drive)",
+                          default="127.0.0.1"),
+    "canopen.port": Field("int", "socketcand server port", default=29536, nonnegative=True),
+    "canopen.node_id": Field("int", "the drive's node id (1..127)", default=1, positive=True, maximum=127),
+    "canopen.host_node_id": Field("int", "the node id of the host's heartbeat (1..127)", default=127, positive=True,
+                                  maximum=127),
+    "canopen.eds": Field("str", "object dictionary of the drive (EDS); default hil/drivers/canopen/eds/cia402_generic.eds",
+                         default=""),
+    "canopen.mode": Field("str", "mode of operation: csp (the drive closes both loops), csv (velocity), cst "
+                          "(torque: the host closes both)", default="csp", choices=("csp", "csv", "cst")),
+    "canopen.counts_per_rev": Field("int", "motor encoder counts per motor revolution (0x608F)", default=1048576,
+                                    positive=True),
+    "canopen.gear_motor_revs": Field("int", "gear ratio: motor revolutions (0x6091.1)", default=1, positive=True),
+    "canopen.gear_shaft_revs": Field("int", "gear ratio: screw revolutions (0x6091.2)", default=1, positive=True),
+    "canopen.rated_torque": Field("torque", "motor rated torque (0x6076); torques go in per mille of it",
+                                  default=10.0, positive=True),
+    "canopen.tip_sensor": Field("bool", "the drive sends a tool-tip position 0x60E4.2 (a second encoder input)",
+                                default=True),
+    "canopen.tip_node_id": Field("int", "node id of a separate tool-tip sensor (CiA 406-like encoder, position "
+                                 "0x6004 in TPDO1 on every SYNC); 0: none (the tip is the drive's 0x60E4.2 "
+                                 "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True,
+                                 maximum=127),
+    "canopen.tip_eds": Field("str", "object dictionary of the tip sensor node; default "
+                             "hil/drivers/canopen/eds/tip_encoder_cia406.eds", default=""),
+    "canopen.heartbeat": Field("time", "drive's heartbeat producer time (0x1017)", default=0.1, positive=True),
+    "canopen.heartbeat_timeout": Field("time", "host: the drive's heartbeat is lost after this", default=0.35,
+                                       positive=True),
+    "canopen.host_heartbeat": Field("time", "host's heartbeat period", default=0.1, positive=True),
+    "canopen.drive_heartbeat_timeout": Field("time", "drive: the host's heartbeat is lost after this (0x1016)",
+                                             default=0.35, positive=True),
+    "canopen.abort_option": Field("int", "0x6007, the drive's action when the host's heartbeat or SYNC is lost: "
+                                  "0 none, 1 fault, 2 disable voltage, 3 quick stop", default=3, nonnegative=True,
+                                  maximum=3),
+    "canopen.sync_timeout": Field("time", "drive: the SYNC is lost after this long without one (SYNC consumer: "
+                                  "0x1006 x the loss limit 0x2003 in cycles, rounded up); then 0x6007 acts; 0: off",
+                                  default=0.1, nonnegative=True),
+    "canopen.quick_stop_deceleration": Field("acceleration", "drive: quick-stop deceleration (0x6085); default: "
+                                             "what the drive derives (the simulated drive: 80 % of what "
+                                             "the torque limit gives the axis)", default=None, positive=True),
+    "canopen.following_error_window": Field("length", "drive-side following-error window (0x6065) on the motor "
+                                            "position; default 1.5 x limits.following_error_table", default=None,
+                                            positive=True),
+    "canopen.following_error_timeout": Field("time", "drive-side following-error time out (0x6066)",
+                                             default=0.01, nonnegative=True),
+    "canopen.pdo_timeout": Field("time", "lockstep: how long the SDO barrier after a SYNC may take before the "
+                                 "drive counts as gone (a loaded machine: generous)", default=5.0, positive=True),
+    "canopen.pdo_miss_limit": Field("int", "consecutive cycles without TPDO before 'lost communication'",
+                                    default=2, positive=True),
+    "canopen.lockstep": Field("bool", "drive time advances with SYNC only (a simulated drive in this process)",
+                              default=False),
+    "canopen.switch_interval": Field("time", "real-time runs: the interpreter's thread switch interval at most this "
+                                     "(process-wide; Python's default 5 ms delays the receive threads)",
+                                     default=1e-4, positive=True),
+    "canopen.connect_timeout": Field("time", "socketcand: how long the server may take to accept and greet",
+                                     default=2.0, positive=True),
+    "canopen.sdo_timeout": Field("time", "SDO response timeout", default=0.5, positive=True),
+    "canopen.stop_timeout": Field("time", "how long the host keeps the SYNC going while the drive finishes a "
+                                  "quick stop", default=2.0, positive=True),
+}
+
+# The [serial] section (hil.drivers.serial.backend reads it): the fixed keys; serial.commands.<op>
+# and serial.replies.<op> are one per operation of the command set
+SERIAL_SECTION = {
+    "serial.port": Field("str", "serial port (/dev/ttyUSB0, COM3, /dev/pts/N of hil serial-sim, or a pyserial URL)",
+                         default=""),
+    "serial.baudrate": Field("int", "baud rate, one of the standard rates (50 ... 4000000)", default=115200,
+                             positive=True),
+    "serial.parity": Field("str", "parity", default="N", choices=("N", "E", "O")),
+    "serial.stopbits": Field("int", "stop bits", default=1, nonnegative=True),
+    "serial.mode": Field("str", "position: the drive closes both loops (set_position); velocity: the host closes "
+                         "the position loop (set_speed)", default="position", choices=("position", "velocity")),
+    "serial.cycle_time": Field("time", "exchange period; default control.position_period", default=None,
+                               positive=True),
+    "serial.timeout": Field("time", "reply timeout of one attempt in the cycle", default=None, positive=True),
+    "serial.retries": Field("int", "retries of a cyclic transaction (within serial.budget)", default=2,
+                            nonnegative=True),
+    "serial.budget": Field("time", "time budget of one cyclic transaction; default half the cycle", default=None,
+                           positive=True),
+    "serial.setup_timeout": Field("time", "reply timeout of open/enable/disable commands", default=None,
+                                  positive=True),
+    "serial.watchdog": Field("time", "drive watchdog armed at open (0: none)", default=None, nonnegative=True),
+    "serial.line_ending": Field("str", "line ending of commands and replies (\\r, \\n, \\r\\n, CR, LF, CRLF)",
+                                default="\r"),
+    "serial.checksum": Field("str", "line checksum", default="none", choices=("none", "sum8", "xor8")),
+    "serial.checksum_separator": Field("str", "character before the checksum's two hex digits", default="*"),
+    "serial.max_reply": Field("int", "longest reply line accepted (bytes)", default=128, nonnegative=True,
+                              maximum=4096),
+    "serial.scale_position": Field("dimensionless", "drive position counts per metre (load side)", default=None,
+                                   positive=True),
+    "serial.scale_speed": Field("dimensionless", "velocity mode: drive speed units per controller speed unit "
+                                "(rad/s of the motor, or m/s)", default=None, positive=True),
+    "serial.scale_output": Field("dimensionless", "drive torque units per N*m (or per V)", default=None,
+                                 positive=True),
+}
+
+
 # the [noise] section: the channels whose sensor noise a configuration may give, and their kinds
 NOISE_KINDS = {"x_motor": "length", "x_table": "length", "x_tip": "length", "torque": "torque", "force": "force",
                "command": "voltage", "e_table": "length", "e_tip": "length"}
@@ -274,47 +377,45 @@ def _noise_field(key: str) -> Field | None:
                  f"noise floor of hil diagnose", default=None, nonnegative=True)
 
 
+def _serial_field(key: str) -> Field | None:
+    """Fields of the ``[serial]`` keys: the fixed ones, and a command template and a reply pattern
+    per operation of the command set."""
+    if key in SERIAL_SECTION:
+        return SERIAL_SECTION[key]
+    parts = key.split(".")
+    if len(parts) == 3 and parts[1] == "commands":
+        return Field("str", f"template of the {parts[2]} command")
+    if len(parts) == 3 and parts[1] == "replies":
+        return Field("str", f"regular expression of the reply to {parts[2]}")
+    return None
+
+
 # The sections beside SCHEMA, explicitly: name -> field of a key (None: not one of its keys).
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {
     "supervisor": SUPERVISOR_SECTION.get,
     "effects": _effects_field,
     "noise": _noise_field,
+    "canopen": CANOPEN_SECTION.get,
+    "serial": _serial_field,
 }
-# The keys each such section knows, where its owner lists them (for "did you mean").
+# The keys each such section knows (for "did you mean").
 _SECTION_KEYS: dict[str, Callable[[], list[str]]] = {
     "supervisor": lambda: list(SUPERVISOR_SECTION),
     "effects": _effects_keys,
     "noise": lambda: [f"noise.{c}" for c in NOISE_KINDS],
+    "canopen": lambda: list(CANOPEN_SECTION),
+    "serial": lambda: list(SERIAL_SECTION),
 }
-# The backends' sections are defined with the backends (hil.drivers, a layer above this module):
-# each registers its section (register_section) when imported, the first time one of its keys is
-# read. To become data of this module when the backends' settings are parts of their own.
-SECTION_PROVIDERS = {"serial": "hil.drivers.serial.backend", "canopen": "hil.drivers.canopen.backend"}
 # every section beside SCHEMA's
-SECTION_NAMES = ("supervisor", "effects", "noise", "canopen", "serial")
-
-
-def register_section(prefix: str, lookup: Callable[[str], Field | None],
-                     known: Callable[[], list[str]] | None = None) -> None:
-    """Let a backend or an effect catalogue own the keys below ``prefix`` (e.g. ``"canopen"``);
-    ``known`` lists its keys (dotted, with the prefix) for the "did you mean" of an unknown key."""
-    _SECTIONS[prefix] = lookup
-    if known is not None:
-        _SECTION_KEYS[prefix] = known
+SECTION_NAMES = tuple(_SECTIONS)
 
 
 def did_you_mean(key: str) -> str:
     """``"; did you mean 'plant.c2'?"`` for a mistyped key, or ``""`` when nothing is close
-    (difflib, over the schema's keys and the keys the registered sections list)."""
+    (difflib, over the schema's keys and the keys the sections beside it list)."""
     import difflib
     names = [k for k in SCHEMA if "*" not in k]
     names += [f"plant.{c}{i}" for c in "mkc" for i in range(1, 10)]
-    for head, module in SECTION_PROVIDERS.items():      # only on the way to an error: load them all
-        if head not in _SECTIONS:
-            try:
-                importlib.import_module(module)
-            except ImportError:
-                pass
     for known in _SECTION_KEYS.values():
         try:
             names += list(known())
@@ -325,15 +426,13 @@ def did_you_mean(key: str) -> str:
 
 
 def field_for(key: str) -> Field | None:
-    """The schema field of a dotted key (a registered section's included), or None if unknown."""
+    """The schema field of a dotted key (a section's beside the schema included), or None if unknown."""
     if key in SCHEMA:
         return SCHEMA[key]
     m = _NUMBERED_RE.match(key)
     if m:
         return SCHEMA[f"plant.{m.group(1)}*"]
     head = key.split(".", 1)[0]
-    if head not in _SECTIONS and head in SECTION_PROVIDERS:
-        importlib.import_module(SECTION_PROVIDERS[head])     # registers the section
     if head in _SECTIONS:
         return _SECTIONS[head](key)
     return None

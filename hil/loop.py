@@ -364,7 +364,7 @@ class ControlLoop:
                     except OSError:          # its reader went away (a closed pipe): the motion goes on
                         self.progress = None
         except BackendFault as exc:
-            status, reason, kind = RunStatus.FAULT, exc.reason, fault_kind(exc.reason, exc.kind, StopKind.LINK)
+            status, reason, kind = RunStatus.FAULT, exc.reason, fault_kind(exc.kind, StopKind.LINK)
             self._stop_after(k, "fault", reason)
             if self._latch is not None:        # latched like a trip: motion refused until 'hil reset'
                 self._latch(k * self.ctrl.position_period, reason, None, kind)
@@ -401,7 +401,7 @@ class ControlLoop:
                 # supervise: the supervisor checks once a tick, a fault between ticks trips it here, the same way
                 if self._latch is None:
                     raise BackendFault(fb.fault, fb.fault_kind)
-                self._trip_kind = fault_kind(fb.fault, fb.fault_kind, StopKind.TRIP)
+                self._trip_kind = fault_kind(fb.fault_kind, StopKind.TRIP)
                 self._latch(k * self.ctrl.position_period, fb.fault, fb, self._trip_kind)
                 self._stop_after(k, "trip", fb.fault)
                 return fb.fault

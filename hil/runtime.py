@@ -167,7 +167,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
             backend.enable()
             result: LoopResult = loop.run(x_cmd)
     except BackendFault as exc:          # open, read_position or enable failed: nothing moved
-        result = LoopResult(0, RunStatus.FAULT, exc.reason, stop=fault_kind(exc.reason, exc.kind, StopKind.LINK))
+        result = LoopResult(0, RunStatus.FAULT, exc.reason, stop=fault_kind(exc.kind, StopKind.LINK))
     except HilError as exc:              # refused before motion (the start, the limits): one line, exit 2
         rec.close(RunStatus.REFUSED, str(exc), {"start": started})
         raise

@@ -301,7 +301,7 @@ class Supervisor:
         ``fb`` reported, :func:`~hil.drivers.base.fault_kind`, else a supervisor trip)."""
         if not self.tripped:
             if kind is None:
-                kind = fault_kind(reason, fb.fault_kind, StopKind.TRIP) if fb is not None else StopKind.TRIP
+                kind = fault_kind(fb.fault_kind, StopKind.TRIP) if fb is not None else StopKind.TRIP
             self.tripped, self.reason, self.trip_cycle, self.trip_time = True, reason, max(self.k - 1, 0), t
             self.trip_kind = kind
             self.tripped_at = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")

@@ -5,20 +5,23 @@ feedback goes wrong from one velocity cycle on, either as the fault rule of hil.
 backend that breaks the rule: the loop still ends the run ``fault``)."""
 from hil.drivers.base import Backend, BackendFault
 from hil.drivers.sim import SimulatedPlant
+from hil.errors import StopKind
 
 
 class FaultyPlant(Backend):
     """``at``: the first velocity cycle (1-based count of ``read_feedback`` calls) that goes wrong;
-    ``reason``: what it says; ``raises``: raise BackendFault instead of reporting it. ``stopped``:
-    the controlled stop was commanded."""
+    ``reason``: what it says; ``kind``: the kind of stop it says (None: none, the default of where
+    it stops the run); ``raises``: raise BackendFault instead of reporting it. ``stopped``: the
+    controlled stop was commanded."""
     name = "faulty"
     closes = "none"
     simulated = True
 
-    def __init__(self, cfg, at: int, reason: str = "drive fault: overcurrent", raises: bool = False):
+    def __init__(self, cfg, at: int, reason: str = "drive fault: overcurrent", raises: bool = False,
+                 kind: StopKind | None = StopKind.DRIVE_FAULT):
         self.sim = SimulatedPlant(cfg, closes="none")
         self.cycle_time = self.sim.cycle_time
-        self.at, self.reason, self.raises = at, reason, raises
+        self.at, self.reason, self.raises, self.kind = at, reason, raises, kind
         self.cycles, self.stopped = 0, False
 
     def open(self):
@@ -32,8 +35,8 @@ class FaultyPlant(Backend):
         fb = self.sim.read_feedback()
         if self.cycles >= self.at:
             if self.raises:
-                raise BackendFault(self.reason)
-            fb.fault = self.reason
+                raise BackendFault(self.reason, self.kind)
+            fb.fault, fb.fault_kind = self.reason, self.kind
         return fb
 
     def write_setpoint(self, sp):

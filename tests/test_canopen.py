@@ -260,6 +260,44 @@ def test_hil_move_and_sweep_commands_on_the_canopen_backend(tmp_path, capsys):
     assert sim.state == "READY TO SWITCH ON"
 
 
+def test_can_log_traces_every_run_of_a_sweep_on_the_canopen_backend(tmp_path, capsys):
+    """``hil --can-log FILE sweep --backend canopen``: every run of the sweep traced, one file per
+    run numbered in run order (issue 28: after the split the option no longer reached the sweep's
+    backends and nothing was recorded). Each trace holds its own run: the start-up (SDO), the cyclic
+    phase (a SYNC per position cycle of the move, its dwell, the return move and its dwell) and the
+    TPDO answers, no more than one run's cycles."""
+    import json
+
+    from hil.cli import main
+    cfg, ch, sim = _drive_on_channel()
+    sets = ["--set", "canopen.lockstep=true", "--set", "canopen.interface=virtual", "--set", f"canopen.channel={ch}"]
+    trace = tmp_path / "bus.asc"
+    try:
+        rc = main(["--can-log", str(trace), "sweep", "--config", "config/paper_bench_canopen.toml", *sets,
+                   "--backend", "canopen", "--stroke", "10mm", "--feed", "6000mm/min", "--jmax", "50,400m/s^3",
+                   "--dwell", "0.2s", "--out", str(tmp_path / "sweep"), "--no-plot", "--no-progress", "--json"])
+        assert rc == 0, capsys.readouterr()
+    finally:
+        sim.close()
+    # the runs on the axis, in the order they were made (the grid, then the sweep's refinements)
+    runs = [json.loads(line)["spec"] for line in (tmp_path / "sweep" / "runs.jsonl").read_text().splitlines()]
+    assert len(runs) >= 2
+    assert sorted(p.name for p in tmp_path.glob("bus*.asc")) == [f"bus-{k:03d}.asc" for k in range(1, len(runs) + 1)]
+    node = cfg.get("canopen.node_id", 1)
+    from hil.sweep.run import RunSpec, backend_trajectory
+    T = cfg["control.position_period"]
+    for k, spec in enumerate(runs, 1):
+        frames = list(can.ASCReader(str(tmp_path / f"bus-{k:03d}.asc")))
+        sent = {m.arbitration_id for m in frames if not m.is_rx}
+        got = {m.arbitration_id for m in frames if m.is_rx}
+        assert {0x80, 0x200 + node, 0x600 + node} <= sent and {0x180 + node, 0x580 + node} <= got
+        # a SYNC per position cycle of this run's trajectory (move, dwell, return, dwell), counted
+        # from the trajectory, not the trace: each file holds its own run, whole
+        cycles = backend_trajectory(RunSpec(**spec))[0].duration / T
+        syncs = sum(1 for m in frames if m.arbitration_id == 0x80)
+        assert cycles <= syncs <= cycles + 5, (k, syncs, cycles)
+
+
 # -- a tool-tip sensor on its own node (CiA 406-like encoder, config/tip_encoder_cia406.eds) ---------
 def _tip_rig(mode="csp", **ov):
     return _rig(mode, **{"canopen.tip_node_id": 2, **ov})

@@ -428,6 +428,29 @@ def test_the_reference_names_every_key_effect_and_option():
                     assert f"`{opt}`" in section, (name, opt)
 
 
+def test_the_reference_names_the_module_that_reads_each_backend_section():
+    """The [canopen] and [serial] sections of the generated reference name the module that reads
+    their keys: a file that exists, and for [canopen] the one that reads most of its keys by name
+    (counted in the sources here; after the CANopen split that is hil/drivers/canopen/section.py,
+    the page named hil/drivers/canopen/backend.py, which reads three)."""
+    import re
+
+    from hil.config import CANOPEN_SECTION
+    page = _gen().config_reference()
+
+    def named(section):
+        block = page.split(f"## `[{section}]`", 1)[1].split("\n## ", 1)[0]
+        return re.search(r"Read by `([^`]+)`", block).group(1)
+    for section in ("canopen", "serial"):
+        assert (ROOT / named(section)).is_file(), named(section)
+    reads = {}
+    for path in (ROOT / "hil").rglob("*.py"):
+        text = path.read_text()
+        reads[path.relative_to(ROOT).as_posix()] = sum(f'"{key}"' in text for key in CANOPEN_SECTION)
+    del reads["hil/config.py"]            # where the keys are defined, not read
+    assert named("canopen") == max(reads, key=reads.get), sorted(reads.items(), key=lambda kv: -kv[1])[:3]
+
+
 def test_the_site_builds_without_warnings(tmp_path):
     """mkdocs build --strict, as CI runs it (where mkdocs is installed: pip install ".[docs]")."""
     pytest.importorskip("mkdocs")

@@ -28,7 +28,9 @@ def test_the_schema_sections_are_listed_not_registered_on_import():
     """hil.config knows the [supervisor], [noise] and [effects.*] keys itself (an explicit table):
     reading them imports neither hil.supervisor nor hil.plant_config (before: found by importing
     those modules from their names as strings, which registered the sections as a side effect).
-    The backends' sections are still their modules' (named in SECTION_PROVIDERS)."""
+    The backends' sections are listed the same way: reading a [canopen] or [serial] key, or a
+    "did you mean" over them, imports no backend (before: hil.drivers.canopen.backend and
+    hil.drivers.serial.backend imported by name to register their sections)."""
     import subprocess
     import sys
     code = ("import sys; from hil import config\n"
@@ -37,7 +39,15 @@ def test_the_schema_sections_are_listed_not_registered_on_import():
             "assert config.field_for('effects.backlash.gap').kind == 'length'\n"
             "assert config.field_for('effects.coulomb_friction.level').kind_for({'actuator.type': 'linear'}) == 'force'\n"
             "assert config.field_for('supervisor.nonsense') is None\n"
-            "print(sorted(m for m in ('hil.supervisor', 'hil.plant_config') if m in sys.modules))\n"
+            "assert config.field_for('canopen.heartbeat_timeout').kind == 'time'\n"
+            "assert config.field_for('canopen.mode').choices == ('csp', 'csv', 'cst')\n"
+            "assert config.field_for('serial.baudrate').default == 115200\n"
+            "assert config.field_for('serial.commands.read').kind == 'str'\n"
+            "assert config.field_for('serial.nonsense') is None and config.field_for('canopen.nonsense') is None\n"
+            "assert config.did_you_mean('canopen.nodeid') == \"; did you mean 'canopen.node_id'?\"\n"
+            "assert config.did_you_mean('serial.baudrat') == \"; did you mean 'serial.baudrate'?\"\n"
+            "print(sorted(m for m in ('hil.supervisor', 'hil.plant_config') if m in sys.modules)"
+            " + sorted(m for m in sys.modules if m.startswith('hil.drivers')))\n"
             "print(sorted(config.SECTION_NAMES))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[0] == "[]", out

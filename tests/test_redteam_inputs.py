@@ -11,7 +11,6 @@ and map expressions. The default set runs in a few seconds; ``-m slow`` runs man
 """
 from __future__ import annotations
 
-import importlib
 import math
 import os
 import tempfile
@@ -226,8 +225,6 @@ SLOW = settings(FAST, max_examples=2000)
 
 def _all_keys() -> list[str]:
     keys = [k for k in config.SCHEMA if "*" not in k] + ["plant.m1", "plant.k2", "plant.c1", "plant.m9"]
-    for module in config.SECTION_PROVIDERS.values():
-        importlib.import_module(module)
     for known in config._SECTION_KEYS.values():
         try:
             keys += list(known())

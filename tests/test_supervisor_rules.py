@@ -173,12 +173,12 @@ def test_a_reported_fault_carries_its_kind_to_the_exit_code(tmp_path):
     cfg = config.load(BENCH)
     x = _move(cfg)
     for reason, kind in (("drive fault: overcurrent", StopKind.DRIVE_FAULT), ("lost communication: port", StopKind.LINK)):
-        be = FaultyPlant(cfg, at=20, reason=reason)
+        be = FaultyPlant(cfg, at=20, reason=reason, kind=kind)
         ctrl = controller_from_config(cfg, be.sim.plant)
         sup = Supervisor(cfg, latch_file=str(tmp_path / f"{kind}.json"))
         res = ControlLoop(be, ctrl, supervisor=sup).run(x)
         assert (res.status, res.stop, sup.trip_kind) == (RunStatus.TRIPPED, kind, kind)
-    # a kind the backend says outright wins over the words
+    # the kind the backend says, whatever the words
     fb = Feedback(0.0, 0.0, 0.0, fault="drive fault: bus off", fault_kind=StopKind.LINK)
     sup = Supervisor(cfg, latch_file=str(tmp_path / "said.json"))
     assert sup.check(0.0, fb, 0.0) == "drive fault: bus off" and sup.trip_kind is StopKind.LINK

@@ -342,7 +342,7 @@ def run(args) -> int:
         with scope_for(args, cfg, "sweep") as ring:
             report = run_sweep(cfg, s, compare_cfg=cmp_cfg, out_dir=out, jobs=args.jobs, scheduler=args.scheduler,
                                backend=args.backend, progress=not args.no_progress and shown(args),
-                               resume=not args.restart, scope=ring)
+                               resume=not args.restart, scope=ring, can_log=getattr(args, "can_log", None))
     except LimitError as exc:
         raise UserError(str(exc)) from None
     except OSError as exc:

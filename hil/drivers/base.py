@@ -42,9 +42,10 @@ not answer, is lost, or reports a fault. The one fault rule of the cycle:
 Every fault has a kind (:class:`hil.errors.StopKind`, the exit code): ``drive_fault`` (the drive's
 own fault, its refusal, a drive that left the enabled state) or ``link`` (answers missing, late
 or garbled beyond the retries, a lost heartbeat or port); the backend says which in
-``Feedback.fault_kind`` or ``BackendFault.kind``. A backend that does not say it starts the reason
-with ``drive fault`` or ``lost communication`` and :func:`fault_kind` names the kind once, here,
-from those words; the supervisor's own trips and ``loop overrun`` carry theirs from its rules.
+``Feedback.fault_kind`` or ``BackendFault.kind``, where it decides the fault; nothing reads the kind
+from the reason's words. A fault without a kind (a test double, a start-up that failed) takes the
+default of where it stops the run (:func:`fault_kind`); the supervisor's own trips and ``loop
+overrun`` carry theirs from its rules.
 
 * ``read_feedback()`` never raises for the drive: everything wrong that it learns (the drive's own
   fault, an answer missing, late or garbled beyond the retries, a lost heartbeat, a lost port) is
@@ -97,26 +98,15 @@ class Feedback:
     # read late over a fieldbus); NaN: x_table or x_motor, as the controller's position_feedback says
     x_feedback: float = math.nan
     stale: bool = False
-    # the kind of ``fault`` where the backend says it (None: :func:`fault_kind` of its words)
+    # the kind of ``fault``, set by the backend that reports it (None: the default of fault_kind)
     fault_kind: StopKind | None = None
 
 
-# the words a backend that does not set the kind starts its fault line with, and the kind they say
-_FAULT_WORDS = (("drive fault", StopKind.DRIVE_FAULT), ("lost communication", StopKind.LINK))
-
-
-def fault_kind(reason: str, kind: StopKind | None, default: StopKind) -> StopKind:
-    """The kind of a backend's fault: ``kind`` where the backend gave one, else the kind its
-    reason's first words say (the fault rule of the module docstring), else ``default``
+def fault_kind(kind: StopKind | None, default: StopKind) -> StopKind:
+    """The kind of a backend's fault: ``kind`` where the backend gave one, else ``default``
     (:data:`StopKind.TRIP` for a ``Feedback.fault``, :data:`StopKind.LINK` for a setpoint not
-    delivered). Called once, when the run stops; nothing after reads the reason's words."""
-    if kind is not None:
-        return kind
-    low = reason.lower()
-    for words, said in _FAULT_WORDS:
-        if low.startswith(words):
-            return said
-    return default
+    delivered or a start-up that failed). Called once, when the run stops."""
+    return default if kind is None else kind
 
 
 @dataclass

@@ -15,10 +15,11 @@ import hashlib
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
 
 from hil.sweep.run import run_on_backend, run_task
 
-__all__ = ["LocalExecutor", "DaskExecutor", "BackendExecutor"]
+__all__ = ["LocalExecutor", "DaskExecutor", "BackendExecutor", "run_trace_name"]
 
 
 def _chunk(cfg, tasks):
@@ -102,11 +103,15 @@ class DaskExecutor:
 class BackendExecutor:
     """A real axis: one run after the other. The first run starts where the axis stands; every run
     returns to that start (its return move), and the next one is refused unless the axis is found
-    back there (``limits.start_window``)."""
+    back there (``limits.start_window``). ``can_log`` (``hil --can-log FILE``): each run's CAN bus
+    traced into a file of its own, FILE's name numbered in the order the runs are made
+    (:func:`run_trace_name`: ``bus.asc`` -> ``bus-001.asc``, ``bus-002.asc``, ...): a trace file
+    is written once, from the start (python-can's ASC and TRC writers cannot append)."""
 
-    def __init__(self, backend, out_dir, scope=None):
+    def __init__(self, backend, out_dir, scope=None, can_log: str | None = None):
         self.backend, self.out_dir, self.scope = backend, out_dir, scope     # scope: the live scope's ring
         self.start: float | None = None          # the sweep's start, as measured before the first run
+        self.can_log, self.runs = can_log, 0     # runs: made on the axis so far (numbers the traces)
 
     def map(self, cfg, tasks):
         for key, spec in tasks:
@@ -115,10 +120,20 @@ class BackendExecutor:
     def one(self, cfg, key, spec):
         if spec.analysis == "transmission":      # a model analysis: the axis is not needed
             return run_task(cfg, key, spec)
-        fig = run_on_backend(cfg, spec, self.backend, self.out_dir, start=self.start, scope=self.scope)
+        self.runs += 1
+        trace = None if self.can_log is None else run_trace_name(self.can_log, self.runs)
+        fig = run_on_backend(cfg, spec, self.backend, self.out_dir, start=self.start, scope=self.scope,
+                             can_log=trace)
         if self.start is None:
             self.start = fig.get("start_m")
         return key, fig
 
     def close(self):
         pass
+
+
+def run_trace_name(path: str, run: int) -> str:
+    """The CAN trace of run ``run`` (1-based) of a sweep: ``path``'s name with the run's number
+    before its suffix, which names the format (``bus.asc``, 3 -> ``bus-003.asc``)."""
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}-{run:03d}{p.suffix}"))

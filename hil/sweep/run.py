@@ -200,16 +200,18 @@ def backend_trajectory(spec: RunSpec, start: float = 0.0) -> tuple[Trajectory, o
     return traj, move
 
 
-def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float | None = None, scope=None) -> dict:
+def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float | None = None, scope=None,
+                   can_log: str | None = None) -> dict:
     """One run on a runtime backend (``hil.runtime.run_trajectory``): the move, a dwell, the
     return move and a dwell, so the axis ends where it started. Limits are checked first.
 
     ``start``: the sweep's start, where the axis must stand (within ``limits.start_window``) before
     this run, else it is refused; ``None`` (the first run): the run starts where the axis stands.
     The figures carry ``start_m``, where the run started. ``scope``: the live scope's ring (see
-    ``hil.runtime.run_trajectory``)."""
+    ``hil.runtime.run_trajectory``); ``can_log``: the file this run's CAN bus is traced into (a
+    backend on a CAN bus, ``hil.drivers.open_backend``)."""
     traj, move = backend_trajectory(spec, 0.0 if start is None else start)
-    rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend), out_file=None, settle=0.0,
+    rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend, can_log=can_log), out_file=None, settle=0.0,
                          start="follow" if start is None else "check", scope=scope)
     if len(rec.channels["t"]) < 2:       # the backend could not be opened or enabled: nothing moved
         raise UserError(f"the run at j_max {move.j_max:.4g} m/s^3 did not start on {backend}: {rec.status}: "

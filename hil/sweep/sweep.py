@@ -338,13 +338,15 @@ def _propose(runner: _Runner, rows, s: SweepSettings, dwell: float, predicted) -
 
 def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | Path | None = None,
               jobs: int | None = None, scheduler=None, backend: str | None = None, progress: bool = True,
-              resume: bool = True, propose: bool = True, scope=None) -> dict:
+              resume: bool = True, propose: bool = True, scope=None, can_log: str | None = None) -> dict:
     """Run a sweep and its analyses; returns the report (the issue's JSON object, and more).
 
     ``scheduler``: a dask.distributed address (or Client) to run on; ``jobs``: local processes
     (default: all cores); ``backend``: run the mechatronic moves on that runtime backend instead of
     the simulated plant; ``out_dir``: where ``runs.jsonl`` (resume) lives; ``scope``: a
-    :class:`~hil.scope.ring.ScopeRing` the backend's runs write into (the live scope)."""
+    :class:`~hil.scope.ring.ScopeRing` the backend's runs write into (the live scope); ``can_log``:
+    the backend's runs traced on the CAN bus, one file per run
+    (:class:`~hil.sweep.executors.BackendExecutor`)."""
     logger.info("sweep of %s: %d values, analysis %s, backend %s", cfg.source, len(settings.values),
                 settings.analysis, backend or "model")
     s = settings
@@ -362,7 +364,7 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
         lim = AxisLimits.from_config(cfg)
         for spec in _specs(s, "mechatronic", dwell):      # refuse before any motion
             check_limits(backend_trajectory(spec)[0], lim)
-        ex = BackendExecutor(backend, out_dir, scope=scope)
+        ex = BackendExecutor(backend, out_dir, scope=scope, can_log=can_log)
     elif scheduler is not None:
         ex = DaskExecutor(scheduler)
     else:

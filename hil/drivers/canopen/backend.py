@@ -72,12 +72,13 @@ from hil.drivers.canopen.startup import configure_drive, configure_tip, sdo_retr
 from hil.drivers.canopen.statemachine import DriveStateMachine, fault_text
 from hil.drivers.canopen.tracker import AnswerTracker
 from hil.drivers.rt import SampleBuffer
-from hil.errors import BackendFault
+from hil.errors import BackendFault, StopKind
 
 __all__ = ["CanopenBackend", "SECTION", "EVENTS_KEPT"]
 
 EVENTS_KEPT = 1000           # the events (misses, faults, stops) and EMCYs a backend keeps: the latest
 _FAULTED = ("FAULT", "FAULT REACTION ACTIVE")
+_WELL = ("", None)          # no fault, no kind: what a healthy cycle reports (nothing built per cycle)
 
 
 class CanopenBackend(Backend):
@@ -221,7 +222,7 @@ class CanopenBackend(Backend):
                 x_tip = sdo[0x60E4][2].raw * 1e-9 if s.tip else math.nan
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
             raise BackendFault(f"lost communication: drive {s.node_id} does not answer SDO (position: "
-                               f"{one_line(exc)})") from None
+                               f"{one_line(exc)})", StopKind.LINK) from None
         return Feedback(x_motor=x_motor, x_table=x_table, v_motor=0.0, x_tip=x_tip)
 
     def home(self, offset: float = 0.0, method: int = 37, timeout: float = 5.0) -> dict:
@@ -267,7 +268,7 @@ class CanopenBackend(Backend):
         elif self.link.cycling:
             self.link.receive_until(0.0)              # what came in after the clock's wait
         fresh = answers.close_cycle()
-        fault = "" if fresh else self._missed()
+        fault, kind = _WELL if fresh else self._missed()
         with answers.lock:
             rx = answers.values
             position, table, v, torque, sw = (rx.get(0x6064, 0), rx.get((0x60E4, 1), 0), rx.get(0x606C, 0),
@@ -278,30 +279,34 @@ class CanopenBackend(Backend):
             x_tip = tip * self.tip_step
         else:
             x_tip = tip * 1e-9 if s.tip else math.nan
+        if not fault:
+            fault, kind = self._fault(sw)
         return Feedback(x_motor=position / cpm, x_table=table * 1e-9, v_motor=v / cpm, output=torque * 1e-3 * s.rated,
-                        x_tip=x_tip, fault=fault or self._fault(sw), stale=not fresh)
+                        x_tip=x_tip, fault=fault, stale=not fresh, fault_kind=kind)
 
-    def _missed(self) -> str:
+    def _missed(self) -> tuple[str, StopKind | None]:
         """A cycle without its answer (real-time): logged; after ``canopen.pdo_miss_limit`` in a
-        row, the fault's line."""
+        row, the fault's line and its kind (the link's)."""
         answers = self.answers
         who = "tip sensor node %d" % self.settings.tip_id if answers.only_tip_missing else "drive"
         self.events.append(f"cycle {answers.syncs}: no TPDO after SYNC from the {who}")
         if answers.miss_run >= self.settings.pdo_miss_limit:
-            return f"lost communication: no TPDO from the {who} for {answers.miss_run} cycles"
-        return ""
+            return f"lost communication: no TPDO from the {who} for {answers.miss_run} cycles", StopKind.LINK
+        return _WELL
 
-    def _fault(self, sw: int) -> str:
-        """The fault the link and the drive show (real-time): a failed bus, a drive in FAULT or out
-        of OPERATION ENABLED, a lost heartbeat; "" while all is well."""
+    def _fault(self, sw: int) -> tuple[str, StopKind | None]:
+        """The fault the link and the drive show and its kind (real-time): a failed bus or a lost
+        heartbeat (the link's), a drive in FAULT or out of OPERATION ENABLED (the drive's); ``("",
+        None)`` while all is well."""
         if self.link.rx_error:
-            return self.link.rx_error
+            return self.link.rx_error, StopKind.LINK
         st = cia402.state_from_statusword(sw)
         if st in _FAULTED:
-            return f"drive fault: {self.fault_text()}"
+            return f"drive fault: {self.fault_text()}", StopKind.DRIVE_FAULT
         if self.enabled and st != "OPERATION ENABLED":
-            return f"drive fault: the drive left OPERATION ENABLED ({st})"
-        return self.heartbeats.lost()
+            return f"drive fault: the drive left OPERATION ENABLED ({st})", StopKind.DRIVE_FAULT
+        lost = self.heartbeats.lost()
+        return (lost, StopKind.LINK) if lost else _WELL
 
     def write_setpoint(self, sp: Setpoint) -> None:
         """The target of the mode, in drive units, for the next RPDO (real-time)."""

@@ -25,7 +25,7 @@ import canopen
 from canopen.sdo.constants import REQUEST_UPLOAD, SDO_STRUCT
 
 from hil.drivers.canopen import canlog
-from hil.errors import BackendFault, ConfigError
+from hil.errors import BackendFault, ConfigError, StopKind
 
 __all__ = ["CanLink", "one_line", "probe_socketcand", "BusErrors", "quiet_periodic_send_errors"]
 
@@ -71,7 +71,7 @@ def probe_socketcand(host: str, port: int, timeout: float) -> None:
         conn = socket.create_connection((host, port), timeout=timeout)
     except OSError as exc:
         raise BackendFault(f"no socketcand server at {host}:{port} ({one_line(exc)}); start 'hil drive-sim' "
-                           "or point canopen.host/port at one") from None
+                           "or point canopen.host/port at one", StopKind.LINK) from None
     got = b""
     try:
         t_end = time.monotonic() + timeout
@@ -89,7 +89,7 @@ def probe_socketcand(host: str, port: int, timeout: float) -> None:
         said = f"it sent {got[:40]!r}" if got else "it sent nothing"
         raise BackendFault(f"the socketcand server at {host}:{port} accepted but did not greet "
                            f"('< hi >') within {timeout:g} s ({said}; canopen.connect_timeout): not a socketcand "
-                           f"server, or a hung one")
+                           f"server, or a hung one", StopKind.LINK)
 
 
 class AnswerEvent(threading.Event):
@@ -213,7 +213,7 @@ class CanLink:
                               f"({one_line(exc)})") from None
         except (can.CanError, OSError) as exc:
             self.network = None
-            raise BackendFault(f"cannot open the CAN bus {self.where} ({one_line(exc)})") from None
+            raise BackendFault(f"cannot open the CAN bus {self.where} ({one_line(exc)})", StopKind.LINK) from None
         finally:
             socket.setdefaulttimeout(old_timeout)
 
@@ -298,7 +298,8 @@ class CanLink:
         try:
             self.network.send_message(cob_id, data)
         except (can.CanError, OSError) as exc:
-            raise BackendFault(f"lost communication: the CAN bus refused a frame ({one_line(exc)})") from None
+            raise BackendFault(f"lost communication: the CAN bus refused a frame ({one_line(exc)})",
+                               StopKind.LINK) from None
 
     def barrier(self, sdo) -> None:
         """Lockstep (real-time): an SDO upload of 0x1001 after the SYNC. The drive handles the

@@ -17,7 +17,7 @@ import canopen
 
 from hil.drivers.canopen import cia402
 from hil.drivers.canopen.codec import RPDO_TARGET, SYNC_ECHO, SYNC_OVERFLOW, TIP_PROFILE, TPDO_MAPS, struct_code
-from hil.errors import BackendFault, ConfigError
+from hil.errors import BackendFault, ConfigError, StopKind
 
 __all__ = ["PdoLayout", "configure_drive", "configure_tip", "map_pdo", "sdo_retry"]
 
@@ -38,7 +38,7 @@ def sdo_retry(fn, what: str, where: str, tries: int = 5):
             return fn()
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError):
             if i == tries - 1:
-                raise BackendFault(f"{what} does not answer SDO on {where}")
+                raise BackendFault(f"{what} does not answer SDO on {where}", StopKind.LINK)
             time.sleep(0.05)
 
 
@@ -48,7 +48,8 @@ def configure_tip(sdo, cfg, tip_id: int, tip_cob: int, where: str) -> float:
     try:
         devtype = sdo_retry(lambda: sdo[0x1000].raw, f"tip sensor node {tip_id}", where)
     except BackendFault:
-        raise BackendFault(f"tip sensor node {tip_id} does not answer SDO on {where} (canopen.tip_node_id)") from None
+        raise BackendFault(f"tip sensor node {tip_id} does not answer SDO on {where} (canopen.tip_node_id)",
+                           StopKind.LINK) from None
     if devtype & 0xFFFF != TIP_PROFILE:
         raise ConfigError(f"{cfg.source}: canopen.tip_node_id: node {tip_id} is not an encoder "
                           f"(device type 0x{devtype:08X}, profile {devtype & 0xFFFF}, expected {TIP_PROFILE})")

@@ -25,9 +25,10 @@ Configuration mistakes (no port, a port name pyserial does not know, a command t
 pattern that cannot work, a missing command) are :class:`~hil.errors.ConfigError` naming the key
 and the configuration file, raised when the backend is built, and so is a device name that does
 not exist when :meth:`open` first opens it; a port that exists but does not open (busy, no
-permission) is a BackendFault at :meth:`open`. Every fault's reason starts with ``drive fault``
-(the drive's fault code or its refusal) or ``lost communication`` (no, late or garbled answer
-beyond the retries, the port lost), the same words as the other backends' (hil.drivers.base.fault_kind).
+permission) is a BackendFault at :meth:`open`. Every fault says its kind where it is decided
+(``Feedback.fault_kind``, ``BackendFault.kind``): a drive fault (the drive's fault code or its
+refusal) or the link's (no, late or garbled answer beyond the retries, the port lost); its reason
+starts with ``drive fault`` or ``lost communication``, the same words as the other backends'.
 """
 from __future__ import annotations
 
@@ -39,11 +40,11 @@ import time
 
 import serial
 
-from hil.config import Field, register_section
+from hil.config import SERIAL_SECTION
 from hil.control import controller_from_config, measured_speed, new_velocity_state, position_law, velocity_law
 from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint
 from hil.drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError, UnsafeCommand
-from hil.errors import BackendError, ConfigError
+from hil.errors import BackendError, ConfigError, StopKind
 from hil.plant_config import plant_from_config
 
 __all__ = ["SerialBackend", "SerialStats", "SECTION", "BAUDRATES"]
@@ -56,54 +57,7 @@ BAUDRATES = (50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 9600,
 
 
 # -- the configuration section ------------------------------------------------------------------------
-# the fixed keys as data (the documentation's reference is generated from it); serial.commands.<op>
-# and serial.replies.<op> are one per operation of the command set
-SECTION = {
-    "serial.port": Field("str", "serial port (/dev/ttyUSB0, COM3, /dev/pts/N of hil serial-sim, or a pyserial URL)",
-                         default=""),
-    "serial.baudrate": Field("int", "baud rate, one of the standard rates (50 ... 4000000)", default=115200,
-                             positive=True),
-    "serial.parity": Field("str", "parity", default="N", choices=("N", "E", "O")),
-    "serial.stopbits": Field("int", "stop bits", default=1, nonnegative=True),
-    "serial.mode": Field("str", "position: the drive closes both loops (set_position); velocity: the host closes "
-                         "the position loop (set_speed)", default="position", choices=("position", "velocity")),
-    "serial.cycle_time": Field("time", "exchange period; default control.position_period", default=None,
-                               positive=True),
-    "serial.timeout": Field("time", "reply timeout of one attempt in the cycle", default=None, positive=True),
-    "serial.retries": Field("int", "retries of a cyclic transaction (within serial.budget)", default=2,
-                            nonnegative=True),
-    "serial.budget": Field("time", "time budget of one cyclic transaction; default half the cycle", default=None,
-                           positive=True),
-    "serial.setup_timeout": Field("time", "reply timeout of open/enable/disable commands", default=None,
-                                  positive=True),
-    "serial.watchdog": Field("time", "drive watchdog armed at open (0: none)", default=None, nonnegative=True),
-    "serial.line_ending": Field("str", "line ending of commands and replies (\\r, \\n, \\r\\n, CR, LF, CRLF)",
-                                default="\r"),
-    "serial.checksum": Field("str", "line checksum", default="none", choices=("none", "sum8", "xor8")),
-    "serial.checksum_separator": Field("str", "character before the checksum's two hex digits", default="*"),
-    "serial.max_reply": Field("int", "longest reply line accepted (bytes)", default=128, nonnegative=True,
-                              maximum=4096),
-    "serial.scale_position": Field("dimensionless", "drive position counts per metre (load side)", default=None,
-                                   positive=True),
-    "serial.scale_speed": Field("dimensionless", "velocity mode: drive speed units per controller speed unit "
-                                "(rad/s of the motor, or m/s)", default=None, positive=True),
-    "serial.scale_output": Field("dimensionless", "drive torque units per N*m (or per V)", default=None,
-                                 positive=True),
-}
-
-
-def _section_lookup(key: str):
-    if key in SECTION:
-        return SECTION[key]
-    parts = key.split(".")
-    if len(parts) == 3 and parts[1] == "commands":
-        return Field("str", f"template of the {parts[2]} command")
-    if len(parts) == 3 and parts[1] == "replies":
-        return Field("str", f"regular expression of the reply to {parts[2]}")
-    return None
-
-
-register_section("serial", _section_lookup)
+SECTION = SERIAL_SECTION            # the [serial] keys (their schema is hil.config's)
 
 
 def _warm_up_host_loop(cfg) -> None:
@@ -314,13 +268,13 @@ class SerialBackend(Backend):
                 last = f"port lost: {exc.reason}"
             if attempt < self.retries:
                 self.stats.note(last)
-        # the first words say the kind of stop (hil.drivers.base.fault_kind), as on every backend: the
-        # drive's refusal is the drive's doing, everything else is the link's
-        kind = "drive fault" if last.startswith("refused") else "lost communication"
-        reason = (f"{kind}: serial {op}: {last} (after {attempt + 1} attempt(s), "
+        # the drive's refusal is the drive's doing, everything else is the link's
+        kind = StopKind.DRIVE_FAULT if last.startswith("refused") else StopKind.LINK
+        words = "drive fault" if kind is StopKind.DRIVE_FAULT else "lost communication"
+        reason = (f"{words}: serial {op}: {last} (after {attempt + 1} attempt(s), "
                   f"{(time.perf_counter() - t0) * 1e3:.1f} ms)")
         self._faulted = reason
-        raise BackendFault(reason)
+        raise BackendFault(reason, kind)
 
     # -- the contract --------------------------------------------------------------------------------
     def open(self) -> None:
@@ -358,14 +312,14 @@ class SerialBackend(Backend):
             if setup:
                 raise
             last = self._last_fb or Feedback(0.0, 0.0, 0.0)
-            return dataclasses.replace(last, fault=exc.reason, stale=True)
+            return dataclasses.replace(last, fault=exc.reason, stale=True, fault_kind=exc.kind)
         xm = int(g["x_motor"]) / self.k_pos
         xt = int(g["x_table"]) / self.k_pos if "x_table" in g else xm
         v = int(g["v_motor"]) / self.k_pos if "v_motor" in g else math.nan      # counts/s
         out = int(g["output"]) / self.k_out if "output" in g else 0.0
         code = int(g.get("fault", "0"))
         fb = Feedback(x_motor=xm, x_table=xt, v_motor=v, output=out,
-                      fault=f"drive fault {code}" if code else "")
+                      fault=f"drive fault {code}" if code else "", fault_kind=StopKind.DRIVE_FAULT if code else None)
         self._last_fb = fb
         return fb
 
