@@ -35,7 +35,10 @@ from hil.sim_plant.kernel import plant_step
 from hil.sim_plant.plant import Plant
 
 __all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "per_velocity_period",
-           "external_forces"]
+           "external_forces", "TORQUE_SAMPLING"]
+
+# which controller output a record holds: the current after the delay and the current loop, or the command
+TORQUE_SAMPLING = ("actual", "command")
 
 
 @dataclass
@@ -83,7 +86,7 @@ class SimulationResult:
 def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor, fric, res_table, res_motor,
                        codes, eparams, delay, ubuf, lag_alpha, record_every,
                        X, V, U, XM, XT, XCMD, exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None,
-                       hbuf=None, fb_delay=0.0, u_add=None, f_ext=None, open_loop=False):
+                       hbuf=None, fb_delay=0.0, u_add=None, f_ext=None, open_loop=False, log_command=False):
     """Run len(x_cmd) - 1 position ticks. Records every ``record_every`` velocity steps into the
     output arrays (positions, velocities, output, measured motor and table, command).
 
@@ -109,6 +112,10 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
     forces on the masses (N; needs ``codes``, an empty table when the plant has no effects).
     ``open_loop``: no position or velocity loop, the output is ``u_add`` alone, not limited (the
     actuator's command measured in an open-loop run).
+
+    ``log_command``: the recorded output ``U`` is the controller's output at the sample, before
+    the delay and the current loop (a drive that logs its torque command); False: the current
+    after them (a drive that logs its measured current).
 
     Returns the number of velocity periods in which the excitation drove the output past its limit."""
     nn = Ad.shape[0]
@@ -208,6 +215,7 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                 out[step, 7] = xm
                 out[step, 8] = quantize(x[table], res_table) + (noise_x[step, 1] if noise_x is not None else 0.0)
                 out[step, 9] = x[tip] + (noise_x[step, 2] if noise_x is not None else 0.0)
+            u_cmd = u
             # computation delay, then the current loop (ideal, or a first-order lag)
             if ubuf is not None:       # None (no delay): compiled away
                 u = delay_line(ubuf, u, d_int, d_frac)
@@ -219,7 +227,7 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
                     for i in range(n):
                         X[rec, i] = x[i]
                         V[rec, i] = x[n + i]
-                    U[rec] = u_act
+                    U[rec] = u_cmd if log_command else u_act
                     XM[rec] = quantize(x[0], res_motor)
                     XT[rec] = quantize(x[table], res_table)
                     # between ticks the command is interpolated, as the NC's fine interpolation would
@@ -236,7 +244,8 @@ def closed_loop_kernel(Ad, Bd, x0, p, fgain, x_cmd, n_sub, table, tip, fb_motor,
 
 
 def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int | None = None,
-             x0: float | None = None, v_cmd=None, u_add=None, f_ext=None, open_loop: bool = False) -> SimulationResult:
+             x0: float | None = None, v_cmd=None, u_add=None, f_ext=None, open_loop: bool = False,
+             torque: str = "actual") -> SimulationResult:
     """Closed-loop response to the command ``x_cmd`` sampled on the position clock.
 
     ``x_cmd[k]`` is the command at tick k; the loop runs ``len(x_cmd)`` ticks (the command is
@@ -248,7 +257,11 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     ``u_add``, one value per velocity period added after the controller (controller units: N m on
     a rotary axis, V on a linear one); ``f_ext``, one row per velocity period of forces on each
     mass (N); ``open_loop``: no loops, ``u_add`` is the whole output. Arrays shorter than the run
-    hold their last value."""
+    hold their last value. ``torque``: which output the record holds, ``"actual"`` (the current
+    after the delay and the current loop) or ``"command"`` (the controller's output at the
+    sample, before them)."""
+    if torque not in TORQUE_SAMPLING:
+        raise ValueError(f"torque: expected one of {', '.join(TORQUE_SAMPLING)}, got {torque!r}")
     x_cmd = np.ascontiguousarray(x_cmd, dtype=float)
     if x_cmd.ndim != 1 or x_cmd.size < 2:
         raise ValueError("x_cmd: expected a 1-D array of at least 2 samples")
@@ -283,7 +296,8 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
                        plant.table, plant.tip, ctrl.position_feedback == "motor",
                        plant.friction.as_tuple(), plant.table_resolution, plant.motor_resolution,
                        codes, params, terms.delay, terms.delay_buffer(), terms.lag_alpha, record_every,
-                       X, V, U, XM, XT, XC, hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay, **inputs)
+                       X, V, U, XM, XT, XC, hbuf=terms.feedback_buffer(), fb_delay=terms.feedback_delay,
+                       log_command=torque == "command", **inputs)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command
