@@ -86,3 +86,27 @@ def test_synth_samples_the_command_when_the_config_says():
     k = ours["torque"].size
     assert np.max(np.abs(cmd["torque"][:k] - ours["torque"])) < 1e-3 * np.max(np.abs(ours["torque"]))
     assert np.max(np.abs(act["torque"][:k] - ours["torque_actual"])) < 1e-3 * np.max(np.abs(ours["torque"]))
+
+
+def test_diagnose_says_which_torque_an_unsaid_record_holds(tmp_path):
+    # the config does not say; the drive logged its command before a 500 us delay: the chain under
+    # the current (as before) cannot bring the torque down; under the command it finds the delay
+    from hil.cli import main
+    delay = 8 * BENCH.tv
+    rec, noise = _record(delay)
+    path = write(tmp_path / "rec.csv", rec, {"sample_period": f"{BENCH.tp} s"})
+    out = io.StringIO()
+    with redirect_stdout(out):
+        rc = main(["diagnose", str(path), "--config", str(CFG_PATH), "--json", "--jobs", "1", "--max-steps", "2",
+                   "--candidates", "actuator_delay,coulomb_friction,parameter:plant.m1", "--out",
+                   str(tmp_path / "found.toml")])
+    assert rc == 0
+    d = json.loads(out.getvalue())
+    ts = d["torque_sampling"]
+    assert ts["record"] == "command" and ts["said"] is False and ts["key"] == "measurement.torque"
+    assert ts["above_floor"]["command"] < 0.2 * ts["above_floor"]["actual"]
+    named = [e for s in d["chain"] for e in s["effects"]]
+    assert named[0] == "actuator_delay"
+    assert d["chain"][-1]["params"]["actuator_delay"]["delay"] == pytest.approx(delay, rel=0.05)
+    found = load(tmp_path / "found.toml")
+    assert found["measurement.torque"] == "command"
