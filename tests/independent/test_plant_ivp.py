@@ -123,3 +123,41 @@ def test_logged_command_leads_actual_by_the_delay():
     x = _nominal_move(duration=0.2)
     ours = ivp.simulate(BENCH, x, ivp.Hidden(delay=BENCH.tp))
     assert np.allclose(ours["torque_actual"][1:], ours["torque_command"][:-1], rtol=0, atol=1e-12)
+
+
+# (config values of the catalogue effect, the same effect in the independent simulator, position tolerance m):
+# linear effects agree as the nominal move does; dry friction to the time-stepping's stop instant (the kernel
+# decides sticking once a velocity period); ripple to the kernel's holding of the effect forces over a period
+# (force error about A r 2 pi v Tv / P, 5e-8 m measured on this move)
+EFFECT_CASES = {
+    "compliant_mode": ({"effects.compliant_mode.mass": 1.0, "effects.compliant_mode.frequency": 60.0,
+                        "effects.compliant_mode.damping_ratio": 0.02}, ivp.Hidden(mode=(1.0, 60.0, 0.02)), POS_TOL),
+    # the catalogue's constant force acts on the motor's mass
+    "constant_force": ({"effects.constant_force.force": 200.0}, ivp.Hidden(force=200.0, force_mass=0), POS_TOL),
+    "coulomb_friction": ({"effects.coulomb_friction.level": 2.2}, ivp.Hidden(coulomb_pos=2.2, coulomb_neg=2.2), 2e-8),
+    "torque_ripple": ({"effects.torque_ripple.amplitude": 0.3, "effects.torque_ripple.period": 0.01 / 6,
+                       "effects.torque_ripple.phase": 0.4}, ivp.Hidden(ripple=((0.3, 0.01 / 6, 0.4),)), 2e-7),
+}
+
+
+@pytest.mark.parametrize("name", sorted(EFFECT_CASES))
+def test_effects_agree_with_kernel(name):
+    vals, hidden, tol = EFFECT_CASES[name]
+    x = _nominal_move()
+    ours = ivp.simulate(BENCH, x, hidden)
+    ker = _kernel(CFG.with_values(vals), x)
+    k = ours["t"].size
+    for c in ("x_motor", "x_table", "x_tip"):
+        assert np.max(np.abs(ker[c][:k] - ours[c])) < tol, c
+
+
+@pytest.mark.xfail(strict=True, reason="the kernel holds the backlash's dead-zone force over a velocity period: on "
+                                       "this move the table is 0.7 um and the tip 1.6 um off the integration, which "
+                                       "converges to 1e-9 m (rtol 1e-9 against 1e-11); above a 0.5 um encoder's floor")
+def test_backlash_agrees_with_kernel():
+    x = _nominal_move()
+    ours = ivp.simulate(BENCH, x, ivp.Hidden(gap=20e-6))
+    ker = _kernel(CFG.with_values({"effects.backlash.gap": 20e-6}), x)
+    k = ours["t"].size
+    for c in ("x_motor", "x_table", "x_tip"):
+        assert np.max(np.abs(ker[c][:k] - ours[c])) < 1e-7, c
