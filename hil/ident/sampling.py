@@ -59,14 +59,11 @@ def diagnose_both(run, cfg, replay_of, has_force: bool):
 
 
 def sampling_text(entry) -> list[str]:
-    """The finding in words."""
-    if not entry:
-        return []
+    """The finding in words; nothing where the two samplings are one."""
+    if not entry or entry["record"] == "either":
+        return []         # (the model has no delay or lag: the command and the current are one at the sample)
     a = entry["above_floor"]
     name = entry["key"].split(".")[1]
-    if entry["record"] == "either":
-        return [f"{name} channel: the record does not say which {name} it holds ({entry['key']}); the model has no "
-                f"delay or current-loop lag, so the command and the current are the same at the sample"]
     other = "actual" if entry["record"] == "command" else "command"
     what = ("the command at the sample, before the actuator's delay and current loop" if entry["record"] == "command"
             else "the current, after the actuator's delay and current loop")
