@@ -161,3 +161,13 @@ def test_backlash_agrees_with_kernel():
     k = ours["t"].size
     for c in ("x_motor", "x_table", "x_tip"):
         assert np.max(np.abs(ker[c][:k] - ours[c])) < 1e-7, c
+
+
+def test_the_simulator_imports_nothing_of_hil():
+    # independent by construction: no import of the project in the simulator (the tests fill its Bench
+    # from the config reader)
+    import ast
+    tree = ast.parse(Path(ivp.__file__).read_text(encoding="utf-8"))
+    names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    names += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    assert names and not [m for m in names if m == "hil" or m.startswith("hil.")]
