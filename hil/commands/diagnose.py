@@ -228,7 +228,9 @@ def _chain_both_samplings(args, cfg, metas, rp, names, prog):
     replays = {id(cfg): rp}
 
     def replay_of(c):
-        return replays.setdefault(id(c), make_records(args, c, metas))
+        if id(c) not in replays:
+            replays[id(c)] = make_records(args, c, metas)
+        return replays[id(c)]
     d, used, entry = diagnose_both(lambda r: diagnose_chain(r, names, max_steps=args.max_steps, progress=prog,
                                                             jobs=args.jobs), cfg, replay_of, has_force)
     return d, used, replay_of(used), entry
