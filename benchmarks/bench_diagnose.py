@@ -9,9 +9,19 @@ the file and loading the compiled loop included), and the chain ``diagnose_chain
 peer measured in the same run: one diagnosis of the same record (the chain's cost in diagnoses).
 Optionally the EMPS record (``--emps``), its chain beside one diagnosis.
 
+``--matrix`` (issue 24): records made by the independent simulator (tests/independent/plant_ivp.py,
+solve_ivp, no code of this project) with hidden effects drawn at random over physical ranges
+(seeded): single effects, pairs, and clean records whose masses, stiffnesses and dampings drift by
+up to +-3 %; ``hil diagnose`` (the chain, a fresh process per record) on each, and the share of
+records whose every hidden effect is named, the extra effects named, and the false alarms on
+clean records (a drifted parameter named within 1 % of its true value is a finding, not an
+alarm). ``--json`` prints every record's outcome and the summary as JSON.
+
     python benchmarks/bench_diagnose.py [--effect coulomb_friction] [--jobs N] [--emps] [--chain-only]
+    python benchmarks/bench_diagnose.py --matrix [--n 4] [--seed 0] [--duration 4] [--jobs N] [--json]
 """
 import argparse
+import math
 import os
 import resource
 import subprocess
@@ -19,6 +29,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -39,7 +51,15 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=None)
     ap.add_argument("--emps", action="store_true", help="also the EMPS record against the whole catalogue")
     ap.add_argument("--chain-only", action="store_true", help="only the chain figures (and their peers)")
+    ap.add_argument("--matrix", action="store_true", help="the diagnosis matrix on independent records (issue 24)")
+    ap.add_argument("--n", type=int, default=4, help="--matrix: number of records (default 4)")
+    ap.add_argument("--seed", type=int, default=0, help="--matrix: seed of the draws (default 0)")
+    ap.add_argument("--duration", type=float, default=4.0, help="--matrix: seconds per record (default 4)")
+    ap.add_argument("--json", action="store_true", help="--matrix: print the outcome as JSON")
     a = ap.parse_args()
+    if a.matrix:
+        run_matrix(a.n, a.seed, a.duration, a.jobs, a.json)
+        return
     cfg_path = ROOT / "config" / "paper_bench.toml"
     cfg = load(cfg_path)
     print(f"start: {load_avg()}  ({os.cpu_count()} CPUs)")
@@ -117,6 +137,216 @@ def emps_figures(jobs) -> None:
           f"({steps}; end: {d['final']['end']})  [{load_avg()}]")
     print(f"  peer, one diagnosis of the EMPS record: {t1:.1f} s wall, {c1:.1f} CPU s -> the chain costs "
           f"{cc / c1:.2f} diagnoses; target < 20 s: {'met' if tc < 20 else 'NOT met'} (wall)")
+
+
+# --- the matrix on independent records (issue 24) ------------------------------------------------
+
+# catalogue names that count as naming a hidden effect: alternatives, each a set that must all be named
+ACCEPT = {
+    "coulomb_friction": [{"coulomb_friction"}, {"stribeck_friction"}, {"asymmetric_friction"}],
+    "viscous_friction": [{"viscous_friction"}, {"asymmetric_friction"}, {"parameter:friction.viscous"}],
+    # asymmetric Coulomb levels are, while moving, Coulomb friction and a constant force: the
+    # diagnosis names that pair first by design (docs: combinations)
+    "asymmetric_friction": [{"asymmetric_friction"}, {"coulomb_friction", "constant_force"}],
+    "backlash": [{"backlash"}],
+    "compliant_mode": [{"compliant_mode"}],
+    "torque_ripple": [{"torque_ripple"}],
+    "actuator_delay": [{"actuator_delay"}, {"time_delay"}],
+    "constant_force": [{"constant_force"}],
+    "mass_change": [{"mass_change"}, {"parameter:plant.m2"}],
+    "parameter:plant.k1": [{"parameter:plant.k1"}],
+    "parameter:plant.c2": [{"parameter:plant.c2"}],
+}
+DRIFTED = ("m1", "m2", "m3", "k1", "k2", "c1", "c2")
+
+
+def _draw_effect(name, rng, bench):
+    """(Hidden fields, bench changes, truth) of one effect, its strength drawn over a physical range."""
+    u = rng.uniform
+    if name == "coulomb_friction":
+        lv = u(0.5, 4.0)
+        return {"coulomb_pos": lv, "coulomb_neg": lv}, {}, {"level": lv}
+    if name == "viscous_friction":
+        cv = u(0.005, 0.05)
+        return {"viscous_pos": cv, "viscous_neg": cv}, {}, {"coefficient": cv}
+    if name == "asymmetric_friction":
+        lo = u(0.5, 3.0)
+        hi = lo * u(1.3, 2.0)
+        p, n = (lo, hi) if rng.random() < 0.5 else (hi, lo)
+        return {"coulomb_pos": p, "coulomb_neg": n}, {}, {"level_pos": p, "level_neg": n}
+    if name == "backlash":
+        g = u(5e-6, 50e-6)
+        return {"gap": g}, {}, {"gap": g}
+    if name == "compliant_mode":
+        mode = (u(0.3, 3.0), u(20.0, 120.0), u(0.01, 0.05))
+        return {"mode": mode}, {}, dict(zip(("mass", "frequency", "damping_ratio"), mode))
+    if name == "torque_ripple":
+        order = int(rng.integers(1, 13))
+        rip = (u(0.05, 0.5), bench.pitch / order, u(-math.pi, math.pi))
+        return {"ripple": (rip,)}, {}, {"amplitude": rip[0], "period": rip[1], "phase": rip[2], "order": order}
+    if name == "actuator_delay":
+        d = u(1.0, 16.0) * bench.tv
+        return {"delay": d}, {}, {"delay": d}
+    if name == "constant_force":
+        f = u(30.0, 300.0) * (1 if rng.random() < 0.5 else -1)
+        return {"force": f}, {}, {"force": f}
+    if name == "mass_change":
+        dm = u(10.0, 80.0) * (1 if rng.random() < 0.5 else -1)
+        m = list(bench.m)
+        m[1] += dm
+        return {}, {"m": tuple(m)}, {"mass": dm}
+    if name == "parameter:plant.k1":
+        k = bench.k[0] * u(0.5, 0.85)
+        return {}, {"k": (k,) + tuple(bench.k[1:])}, {"value": k}
+    if name == "parameter:plant.c2":
+        c = bench.c[1] * u(2.0, 5.0)
+        return {}, {"c": (bench.c[0], c)}, {"value": c}
+    raise KeyError(name)
+
+
+def draw_records(n: int, seed: int, bench):
+    """``n`` record specifications: two single effects, a pair, a clean record with drifts, again."""
+    rng = np.random.default_rng(seed)
+    names = sorted(ACCEPT)
+    out = []
+    for i in range(n):
+        kind = ("single", "single", "pair", "clean")[i % 4]
+        hidden, changes, truth = {}, {}, {}
+        if kind == "clean":
+            vals = {"m": list(bench.m), "k": list(bench.k), "c": list(bench.c)}
+            for key in DRIFTED:
+                j = int(key[1]) - 1
+                vals[key[0]][j] *= 1.0 + rng.uniform(-0.03, 0.03)
+                truth[f"parameter:plant.{key}"] = {"value": vals[key[0]][j]}
+            changes = {k: tuple(v) for k, v in vals.items()}
+            effects = []
+        else:
+            effects = list(rng.choice(names, size=1 if kind == "single" else 2, replace=False))
+            b = bench
+            for e in effects:
+                h, ch, t = _draw_effect(e, rng, b)
+                hidden.update(h)
+                changes.update(ch)
+                b = b.changed(**ch)
+                truth[e] = t
+        out.append({"kind": kind, "effects": [str(e) for e in effects], "truth": truth, "hidden": hidden,
+                    "changes": changes, "seed": seed * 1000 + i})
+    return out
+
+
+def named_effects(d: dict) -> tuple[list, dict]:
+    """The effects ``hil diagnose --json`` names (its chain's steps, else its verdict) and their
+    fitted parameters."""
+    names, params = [], {}
+    for step in d.get("chain") or []:
+        for e in step.get("effects") or [step.get("effect")]:
+            for part in str(e).split("+"):
+                if part and part not in names:
+                    names.append(part)
+        params = step.get("params") or params
+    if not names and d.get("verdict") not in (None, "none", "unexplained"):
+        names = [p for p in str(d["verdict"]).split("+")]
+        lead = next((c for c in d.get("candidates", []) if c.get("effect") == d["verdict"]), {})
+        params = {d["verdict"]: lead.get("params", {})}
+    return names, params
+
+
+def score(spec: dict, d: dict) -> dict:
+    """One record's outcome: every hidden effect named, the extra effects, the false alarms."""
+    names, params = named_effects(d)
+    used, missed = set(), []
+    for e in spec["effects"]:
+        alt = next((a for a in ACCEPT[e] if a <= set(names)), None)
+        if alt is None:
+            missed.append(e)
+        else:
+            used |= alt
+    extra, alarms, findings = [], [], []
+    for nm in names:
+        if nm in used:
+            continue
+        if spec["kind"] == "clean":
+            true = spec["truth"].get(nm, {}).get("value")
+            got = (params.get(nm) or {}).get("value")
+            if true is not None and got is not None and abs(got - true) <= 0.01 * abs(true):
+                findings.append(nm)
+            else:
+                alarms.append(nm)
+        else:
+            extra.append(nm)
+    return {"named": names, "all_named": not missed, "missed": missed, "extra": extra, "false_alarms": alarms,
+            "findings": findings, "verdict": d.get("verdict"), "end": (d.get("final") or {}).get("end")}
+
+
+def _simulate_record(spec, bench, duration):
+    sys.path.insert(0, str(ROOT / "tests" / "independent"))
+    import plant_ivp as ivp
+    b = bench.changed(**spec["changes"]) if spec["changes"] else bench
+    x = ivp.command_sequence(duration, bench.tp, spec["seed"])
+    ch = ivp.simulate(b, x, ivp.Hidden(**spec["hidden"]), torque="actual")
+    return ivp.measure(ch, spec["seed"])
+
+
+def run_matrix(n: int, seed: int, duration: float, jobs, as_json: bool) -> dict:
+    """Simulate the records, diagnose each in a fresh ``hil diagnose`` process, print the figures."""
+    import json
+
+    from hil.io.jsonout import dumps
+    from hil.io.measurement import write
+    sys.path.insert(0, str(ROOT / "tests" / "independent"))
+    import plant_ivp as ivp
+    cfg_path = ROOT / "config" / "paper_bench.toml"
+    bench = ivp.bench_from_config(load(cfg_path))
+    specs = draw_records(n, seed, bench)
+    load0 = load_avg()
+    rows = []
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, spec in enumerate(specs):
+            t0 = time.perf_counter()
+            ch = _simulate_record(spec, bench, duration)
+            t_sim = time.perf_counter() - t0
+            rec = Path(tmp) / f"rec{i}.csv"
+            write(rec, ch, {"sample_period": f"{bench.tp} s", "source": "tests/independent/plant_ivp.py"})
+            cmd = [sys.executable, "-m", "hil.cli", "diagnose", str(rec), "--config", str(cfg_path), "--json"]
+            if jobs:
+                cmd += ["--jobs", str(jobs)]
+            t0 = time.perf_counter()
+            p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+            t_diag = time.perf_counter() - t0
+            if p.returncode != 0:
+                raise SystemExit(f"record {i} ({spec['effects']}): hil diagnose failed: {p.stderr.strip()[-400:]}")
+            out = score(spec, json.loads(p.stdout))
+            row = {"record": i, "kind": spec["kind"], "effects": spec["effects"], "truth": spec["truth"], **out,
+                   "simulate_s": round(t_sim, 1), "diagnose_s": round(t_diag, 1)}
+            rows.append(row)
+            if not as_json:
+                print(f"{i:3d} {spec['kind']:6s} {'+'.join(spec['effects']) or 'drifts':45s} named "
+                      f"{', '.join(out['named']) or '-':50s} {'ok' if out['all_named'] else 'MISSED'}  "
+                      f"extra {len(out['extra'])}  alarms {len(out['false_alarms'])}  ({t_diag:.0f} s)", flush=True)
+    summary = summarize(rows)
+    summary.update({"seed": seed, "duration_s": duration, "load_before": load0, "load_after": load_avg(),
+                    "command": f"python benchmarks/bench_diagnose.py --matrix --n {n} --seed {seed} "
+                               f"--duration {duration:g}" + (f" --jobs {jobs}" if jobs else "")})
+    if as_json:
+        print(dumps({"records": rows, "summary": summary}, indent=1))
+    else:
+        s = summary
+        print(f"every hidden effect named: {s['all_named']} of {s['effect_records']} records with effects; "
+              f"extra effects named: {s['extra']}; false alarms on clean records: {s['false_alarms']} "
+              f"({s['clean_records']} clean, findings {s['findings']})  [{s['load_before']} -> {s['load_after']}]")
+    return summary
+
+
+def summarize(rows: list) -> dict:
+    eff = [r for r in rows if r["kind"] != "clean"]
+    clean = [r for r in rows if r["kind"] == "clean"]
+    return {"records": len(rows), "effect_records": len(eff), "clean_records": len(clean),
+            "all_named": sum(r["all_named"] for r in eff),
+            "share_all_named": (sum(r["all_named"] for r in eff) / len(eff)) if eff else None,
+            "extra": sum(len(r["extra"]) for r in eff), "false_alarms": sum(len(r["false_alarms"]) for r in clean),
+            "clean_with_alarm": sum(bool(r["false_alarms"]) for r in clean),
+            "findings": sum(len(r["findings"]) for r in clean)}
 
 
 if __name__ == "__main__":

@@ -192,6 +192,12 @@ SCHEMA: dict[str, Field] = {
                                                "includes the record's u_add channel (the drive's command logged "
                                                "after the addition); false: the controller's own output",
                                                default=True),
+    "measurement.torque": Field("str", "which torque a rotary axis's record holds: command (the drive's torque "
+                                "command at the sample, before the actuator's delay and current loop) or actual "
+                                "(the measured current, after them); not given: actual, and hil diagnose tries "
+                                "both and says which the record is", default=None, choices=("command", "actual")),
+    "measurement.force": Field("str", "the same for a linear axis's force (or command) channel: command or actual",
+                               default=None, choices=("command", "actual")),
     # --- runtime -------------------------------------------------------------------------------
     "runtime.priority": Field("int", "real-time (SCHED_FIFO) priority of the loop's thread on hardware, 1..99 "
                               "(Linux, needs CAP_SYS_NICE); 0 = normal scheduling", default=0, nonnegative=True,

@@ -39,7 +39,10 @@ from hil.plant_config import plant_from_config
 from hil.sim_plant.plant import Plant
 
 __all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
-           "external_forces"]
+           "external_forces", "TORQUE_SAMPLING"]
+
+# which controller output a record holds: the current after the delay and the current loop, or the command
+TORQUE_SAMPLING = ("actual", "command")
 
 
 @dataclass
@@ -98,7 +101,7 @@ class Record(NamedTuple):
 @njit(cache=True)
 def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
                        exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None, u_add=None, f_ext=None,
-                       open_loop=False, speed_filter=None):
+                       open_loop=False, speed_filter=None, log_command=False):
     """Run len(x_cmd) - 1 position ticks of the cycle of hil.control, stage by stage, from the
     plant state ``x0`` (not changed). The plant: ``Ad``, ``Bd``, ``fric``, ``codes``, ``eparams``
     (hil.control's stages); ``terms``: the loop terms (hil.control.LoopTerms.array); ``p``:
@@ -122,7 +125,10 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
     ``open_loop``: no position or velocity loop, the output is ``u_add`` alone, not limited (the
     actuator's command measured in an open-loop run). ``speed_filter``: the speed filter's taps
     where the velocity loop reads filtered positions (ControllerSettings.speed_filter; the taps'
-    values are in ``p``), None: the motor's speed, the filter compiled away.
+    values are in ``p``), None: the motor's speed, the filter compiled away. ``log_command``: the
+    recorded output is the controller's output at the sample, before the delay and the current
+    loop (a drive that logs its torque command); False: the current after them (a drive that logs
+    its measured current).
 
     Returns the number of velocity periods in which the excitation drove the output past its
     limit. Not real-time (it allocates its work arrays); its inner loop is the cycle."""
@@ -160,7 +166,7 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
                 if countdown == 0:
                     countdown = record_every
                     # between ticks the command is interpolated, as the NC's fine interpolation would
-                    _record_row(rec, row, t, x, u_act, x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub)
+                    _record_row(rec, row, t, x, u if log_command else u_act, x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub)
                     row += 1
             # --- the plant over one Tv ---
             if f_ext is not None:
@@ -226,7 +232,8 @@ def _record_row(rec, row, t, x, u_act, x_cmd):
 
 
 def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int | None = None,
-             x0: float | None = None, v_cmd=None, u_add=None, f_ext=None, open_loop: bool = False) -> SimulationResult:
+             x0: float | None = None, v_cmd=None, u_add=None, f_ext=None, open_loop: bool = False,
+             torque: str = "actual") -> SimulationResult:
     """Closed-loop response to the command ``x_cmd`` sampled on the position clock (not
     real-time: the whole run at once, through :func:`closed_loop_kernel`).
 
@@ -239,7 +246,11 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     ``u_add``, one value per velocity period added after the controller (controller units: N m on
     a rotary axis, V on a linear one); ``f_ext``, one row per velocity period of forces on each
     mass (N); ``open_loop``: no loops, ``u_add`` is the whole output. Arrays shorter than the run
-    hold their last value."""
+    hold their last value. ``torque``: which output the record holds, ``"actual"`` (the current
+    after the delay and the current loop) or ``"command"`` (the controller's output at the
+    sample, before them)."""
+    if torque not in TORQUE_SAMPLING:
+        raise ValueError(f"torque: expected one of {', '.join(TORQUE_SAMPLING)}, got {torque!r}")
     x_cmd = np.ascontiguousarray(x_cmd, dtype=float)
     if x_cmd.ndim != 1 or x_cmd.size < 2:
         raise ValueError("x_cmd: expected a 1-D array of at least 2 samples")
@@ -273,7 +284,7 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     rec = Record(X, V, U, XM, XT, XC)
     closed_loop_kernel(disc.A, disc.B, plant.friction.as_tuple(), codes, params, terms.array, ctrl.as_array(), state0,
                        cmd, terms.delay_buffer(), terms.feedback_buffer(), rec, record_every,
-                       speed_filter=ctrl.speed_filter(), **inputs)
+                       speed_filter=ctrl.speed_filter(), log_command=torque == "command", **inputs)
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command

@@ -103,6 +103,17 @@ JSON_KEYS = {
     "final.steps": JsonKey("", "number of steps that added effects"),
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
     "report": JsonKey("", "path of the HTML report", when="with --report"),
+    "torque_sampling": JsonKey("", "which torque (force) the record holds, where the config does not say "
+                                   "(measurement.torque / measurement.force): keys torque_sampling.*",
+                               when="the chain, on a record with a torque or force channel whose config does not "
+                                    "say"),
+    "torque_sampling.record": JsonKey("", "`command` (before the actuator's delay and current loop), `actual` "
+                                          "(the current, after them) or `either` (the model has no delay or lag: "
+                                          "they are the same at the sample)"),
+    "torque_sampling.said": JsonKey("", "false: the config did not say, the diagnosis decided"),
+    "torque_sampling.key": JsonKey("", "the config key that says it (`measurement.torque` or `measurement.force`)"),
+    "torque_sampling.above_floor": JsonKey("1", "per sampling tried, how far its model ends from the noise floor: "
+                                                "the sum over channels of (error / noise floor)^2"),
 }
 
 
@@ -143,7 +154,6 @@ def candidates_json(d, unit=None):
 
 
 def run(args) -> int:
-    from hil.ident.chain import diagnose_chain
     from hil.ident.diagnosis import diagnose
     from hil.ident.unexplained import HALF_GAP, describe
     from hil.plant_config import candidate
@@ -154,6 +164,7 @@ def run(args) -> int:
                         f"adds nothing to the model, so there is no config to write; drop --out, or let the chain run")
     cfg, metas, vals = load_records(args)
     rp = make_records(args, cfg, metas)
+    sampling = None
     names = args.candidates.split(",") if args.candidates else None
     for n in names or []:
         try:
@@ -167,7 +178,7 @@ def run(args) -> int:
         if args.no_chain or args.max_steps <= 1:
             d = diagnose(rp, names, progress=prog, jobs=args.jobs, min_gap=HALF_GAP)
         else:
-            d = diagnose_chain(rp, names, max_steps=args.max_steps, progress=prog, jobs=args.jobs)
+            d, cfg, rp, sampling = _chain_both_samplings(args, cfg, metas, rp, names, prog)
     rr = run_to_run(d, rp)
     if rr is not None:
         d["run_to_run"] = rr
@@ -187,6 +198,8 @@ def run(args) -> int:
         write_html_report(args.report, d, rp, cfg, args, ", ".join(str(m.source) for m in metas))
     if args.json:
         out = candidates_json(d, rp.unit)
+        if sampling is not None:
+            out["torque_sampling"] = sampling
         if args.report:
             out["report"] = str(args.report)
         print(dumps(out, indent=1))
@@ -195,6 +208,9 @@ def run(args) -> int:
         print(line)
     if "chain" in d:
         for line in chain_text(d, rp):
+            print(line)
+        from hil.ident.sampling import sampling_text
+        for line in sampling_text(sampling):
             print(line)
     elif "residual" in d:
         for line in describe(d["residual"]):
@@ -211,6 +227,24 @@ def run(args) -> int:
     if args.report:
         print(f"report: {args.report}")
     return 0
+
+
+def _chain_both_samplings(args, cfg, metas, rp, names, prog):
+    """The chain, where the config does not say which torque the record holds, on both samplings
+    where the choice can matter (hil.ident.sampling): (diagnosis, config, replay, JSON entry)."""
+    from hil.ident.chain import diagnose_chain
+    from hil.ident.sampling import diagnose_both
+    parts = getattr(rp, "parts", [rp])
+    has_force = not getattr(args, "open_loop", False) and any(p.force_channel for p in parts)
+    replays = {id(cfg): rp}
+
+    def replay_of(c):
+        if id(c) not in replays:
+            replays[id(c)] = make_records(args, c, metas)
+        return replays[id(c)]
+    d, used, entry = diagnose_both(lambda r: diagnose_chain(r, names, max_steps=args.max_steps, progress=prog,
+                                                            jobs=args.jobs), cfg, replay_of, has_force)
+    return d, used, replay_of(used), entry
 
 
 def ranking_text(d) -> list[str]:

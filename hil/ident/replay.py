@@ -9,6 +9,9 @@ r = y_measured - y_simulated (SI units).
 Channels: the positions x_motor, x_table, x_tip (m) in the record, and the force channel of the
 axis: torque (N m) on a rotary axis, force (N) or command (V) on a linear one.
 ``force_to_load`` = 2 pi / pitch turns a motor torque into a load force (1 otherwise). With
+The force channel is sampled as the record holds it (config ``measurement.torque`` /
+``measurement.force``, :func:`hil.ident.synth.torque_sampling`): the drive's command at the
+sample, before the actuator's delay and current loop, or the current after them. With
 ``align``, each channel is shifted by the lag (samples, at most 200) that maximises the
 cross-correlation of its derivative with the simulated one, found once on the replay's config.
 ``objective`` holds the channels' weights (hil.ident.objective), from the residual under the
@@ -44,7 +47,7 @@ from hil.errors import UserError
 from hil.ident.noise import record_noise
 from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
-from hil.ident.synth import extend_command
+from hil.ident.synth import extend_command, torque_sampling
 from hil.plant_config import plant_from_config, record_effects
 from hil.simulate import external_forces, per_velocity_period, simulate
 
@@ -185,7 +188,8 @@ class Replay:
         ctrl = controller_from_config(cfg, plant)
         # one extrapolated command sample past the end (synth.extend_command): a record that ends
         # mid-motion is replayed without a false torque spike at its last sample
-        res = simulate(plant, ctrl, extend_command(self.x_cmd_sim), x0=self.x0, **self.inputs(plant, ctrl))
+        res = simulate(plant, ctrl, extend_command(self.x_cmd_sim), x0=self.x0, torque=torque_sampling(cfg),
+                       **self.inputs(plant, ctrl))
         return _first(res, self.x_cmd_sim.size)
 
     def simulated(self, cfg=None) -> dict[str, np.ndarray]:

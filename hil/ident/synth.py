@@ -15,7 +15,10 @@ samples as the replay holds them): ``u_add``, a command added after the controll
 units: N m on a rotary axis, V on a linear one), recorded exactly (a known signal, as EMPS's
 pulses); ``f_ext_table``, ``f_ext_tip``, external forces (N), recorded as applied too. With
 ``open_loop`` there is no loop: ``u_add`` is the actuator's whole command, written as the torque
-(command) channel, and x_cmd is zero. :func:`pulse_train` makes EMPS-like pulses.
+(command) channel, and x_cmd is zero. :func:`pulse_train` makes EMPS-like pulses. The torque
+(force) channel holds what the config's ``measurement.torque`` (``measurement.force``) says:
+the drive's command at the sample, or the current after the actuator's delay and current loop
+(the default, :func:`torque_sampling`).
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ from hil.plant_config import candidate, configure, record_effects
 from hil.sim_plant.effects import ALIASES
 from hil.simulate import simulate_config
 
-__all__ = ["move_sequence", "synthesize", "pulse_train", "HIDDEN_DEFAULTS"]
+__all__ = ["move_sequence", "synthesize", "pulse_train", "HIDDEN_DEFAULTS", "torque_sampling"]
 
 # Values of the hidden effects for the paper bench (rotary: torques in N m on the motor).
 HIDDEN_DEFAULTS = {
@@ -101,6 +104,14 @@ def pulse_train(t, amplitude: float, period: float = 1.0, width: float = 0.2, st
     return np.where((t >= start) & (phase < width), float(amplitude), 0.0)
 
 
+def torque_sampling(cfg) -> str:
+    """Which controller output a record of ``cfg``'s axis holds (``measurement.torque`` on a rotary
+    axis, ``measurement.force`` on a linear one): ``"command"``, the drive's output at the sample
+    before the actuator's delay and current loop, or ``"actual"``, the current after them (the
+    default: what a record that does not say was always taken to hold)."""
+    return cfg.get("measurement.torque" if cfg.rotary else "measurement.force") or "actual"
+
+
 def extend_command(x_cmd):
     """``x_cmd`` with one more sample: the command of the tick after a record's last (its
     feed-forward needs it), extrapolated at constant acceleration (3 x[-1] - 3 x[-2] + x[-3];
@@ -147,7 +158,8 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
     ins = {c: np.asarray(v(t_rec) if callable(v) else v, float) for c, v in (inputs or {}).items()}
     if open_loop and "u_add" not in ins:
         raise ValueError("an open-loop record needs its actuator command (inputs['u_add'])")
-    res = simulate_config(rich, extend_command(x_cmd), **_loop_inputs(rich, ins, t_rec, x_cmd.size + 1, open_loop))
+    res = simulate_config(rich, extend_command(x_cmd), torque=torque_sampling(rich),
+                          **_loop_inputs(rich, ins, t_rec, x_cmd.size + 1, open_loop))
     ch = {c: y[:x_cmd.size][::k] for c, y in res.channels().items()}
     if "u_add" in ins and not open_loop and not rich.get("measurement.output_includes_u_add", True):
         ch = dict(ch)             # the drive logged its controller's own output, without the pulses

@@ -1,0 +1,53 @@
+"""benchmarks/bench_diagnose.py --matrix: its JSON parses and its counts add up (not a verdict
+threshold: the figures are what they are, docs/benchmarks.md records them)."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_scoring_counts_named_extra_and_alarms():
+    # the scoring alone, on hand-made diagnosis answers (no simulation)
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import bench_diagnose as bd
+    spec = {"kind": "pair", "effects": ["asymmetric_friction", "backlash"], "truth": {}}
+    d = {"verdict": "coulomb_friction", "chain": [{"effects": ["coulomb_friction", "constant_force"], "params": {}},
+                                                  {"effects": ["parameter:plant.m3"], "params": {}}]}
+    out = bd.score(spec, d)
+    assert out["missed"] == ["backlash"] and not out["all_named"] and out["extra"] == ["parameter:plant.m3"]
+    clean = {"kind": "clean", "effects": [], "truth": {"parameter:plant.k1": {"value": 5.0e7},
+                                                        "parameter:plant.c2": {"value": 12.0}}}
+    d = {"verdict": "parameter:plant.k1", "chain": [
+        {"effects": ["parameter:plant.k1"], "params": {}},
+        {"effects": ["parameter:plant.c2"], "params": {"parameter:plant.k1": {"value": 5.04e7},
+                                                       "parameter:plant.c2": {"value": 12.5}}}]}
+    out = bd.score(clean, d)
+    assert out["findings"] == ["parameter:plant.k1"] and out["false_alarms"] == ["parameter:plant.c2"]
+    assert out["all_named"] and out["extra"] == []
+
+
+@pytest.mark.slow
+def test_small_matrix_json_adds_up():
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.run([sys.executable, "benchmarks/bench_diagnose.py", "--matrix", "--n", "4", "--duration", "2",
+                        "--jobs", "1", "--json"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    assert p.returncode == 0, p.stderr[-2000:]
+    d = json.loads(p.stdout)
+    rows, s = d["records"], d["summary"]
+    assert s["records"] == len(rows) == 4
+    eff = [r for r in rows if r["kind"] != "clean"]
+    clean = [r for r in rows if r["kind"] == "clean"]
+    assert s["effect_records"] == len(eff) == 3 and s["clean_records"] == len(clean) == 1
+    assert s["all_named"] == sum(r["all_named"] for r in eff) == sum(not r["missed"] for r in eff)
+    assert s["extra"] == sum(len(r["extra"]) for r in eff)
+    assert s["false_alarms"] == sum(len(r["false_alarms"]) for r in clean)
+    for r in rows:
+        # every name the diagnosis gave is counted once: for a hidden effect, as extra, as alarm or as finding
+        assert len(r["named"]) >= len(r["extra"]) + len(r["false_alarms"]) + len(r["findings"])
+        assert set(r["missed"]) <= set(r["effects"])
+        assert r["kind"] != "pair" or len(r["effects"]) == 2
