@@ -17,9 +17,11 @@ def add_common(parser, records: bool = False) -> None:
     formats = "CSV in the project's format, a text log, an Excel .xlsx sheet, or a MATLAB .mat record (v7.3 too)"
     if records:
         parser.add_argument("data", nargs="+", help=f"measurement(s) of one axis, fitted together: {formats}")
-        parser.add_argument("--validate", action="extend", nargs="+", default=[], metavar="RECORD",
+        parser.add_argument("--validate", action="extend", nargs="+", default=[], metavar="RECORD[:MAP]",
                             help="records not used for the fit: their errors are reported beside the "
-                                 "estimation records' (the same --map)")
+                                 "estimation records'; each read with --map, or with its own map after a colon "
+                                 "(a validation record with inputs of its own: "
+                                 "'DATA_EMPS_PULSES.mat:t=t,qg=x_cmd,qm=x_motor,vir*gtau=force,pulses_N=u_add[V]')")
     else:
         parser.add_argument("data", help=f"measurement: {formats}")
     parser.add_argument("--config", required=True, metavar="FILE", help="axis configuration (TOML)")
@@ -44,17 +46,21 @@ def load_inputs(args):
     return cfg, _read_record(args, cfg, args.data)
 
 
-def _read_record(args, cfg, path):
+def _read_record(args, cfg, path, mapping=None):
     import sys
 
     from hil.io.importers import data_warnings, parse_mapping, read_any
     from hil.io.measurement import check_usable
-    meas = read_any(path, parse_mapping(args.map) or None, sheet=getattr(args, "sheet", None))
+    mapping = args.map if mapping is None else [mapping]
+    meas = read_any(path, parse_mapping(mapping) or None, sheet=getattr(args, "sheet", None))
     # degenerate records are refused, never diagnosed
     check_usable(meas, (cfg["limits.travel_min"], cfg["limits.travel_max"]), cfg["control.position_period"],
                  cfg["control.velocity_period"], open_loop=getattr(args, "open_loop", False))
     # what can still be replayed but deserves a look: outliers, gaps, a slow log
     meas.warnings = data_warnings(meas, cfg["control.position_period"])
+    from hil.io.importers import unmapped_inputs
+    from hil.io.measurement import CHANNELS
+    meas.warnings += unmapped_inputs([c for c in meas.channels if c not in CHANNELS], meas.channels, meas.source)
     for w in meas.warnings:
         print(f"warning: {w}", file=sys.stderr)        # each warning names its file already
     return meas
@@ -67,8 +73,22 @@ def load_records(args):
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
     paths = [args.data] if isinstance(args.data, str) else list(args.data)
     est = [_read_record(args, cfg, p) for p in paths]
-    val = [_read_record(args, cfg, p) for p in getattr(args, "validate", None) or []]
+    val = [_read_record(args, cfg, *split_record_map(p)) for p in getattr(args, "validate", None) or []]
     return cfg, est, val
+
+
+def split_record_map(arg: str) -> tuple[str, str | None]:
+    """``RECORD[:MAP]`` -> (record, map or None): the record is the longest part before a colon that
+    names a file (a map holds colons itself: ``data[:,0]=t``); the whole argument when it names
+    one, or when no part does (then reading it says that the file is missing)."""
+    from pathlib import Path
+    if Path(arg).is_file():
+        return arg, None
+    cuts = [i for i, ch in enumerate(arg) if ch == ":"]
+    for i in cuts:
+        if Path(arg[:i]).is_file():
+            return arg[:i], arg[i + 1:] or None
+    return arg, None
 
 
 def make_records(args, cfg, measurements):
@@ -90,7 +110,24 @@ def make_replay(args, cfg, meas):
     """The record replayed through the config, on the ``--channels`` asked for, ``--align``-ed."""
     from hil.ident.replay import Replay
     chans = args.channels.split(",") if getattr(args, "channels", None) else None
-    return Replay(meas, cfg, chans, align=getattr(args, "align", False), open_loop=getattr(args, "open_loop", False))
+    rp = Replay(meas, cfg, chans, align=getattr(args, "align", False), open_loop=getattr(args, "open_loop", False))
+    if chans is None:
+        _warn_unused_channels(rp)
+    return rp
+
+
+def _warn_unused_channels(rp) -> None:
+    """A channel of the record that the replay could compare and does not is said once: a force
+    mapped on a rotary axis (which compares its torque), a torque on a linear one."""
+    import sys
+
+    comparable = ("x_motor", "x_table", "x_tip", "torque", "force", "command")
+    source = getattr(rp.meas, "open_loop_source", rp.meas)
+    unused = [c for c in comparable if c in source and c not in rp.channels and c != rp.drive_channel]
+    for c in unused:
+        print(f"warning: {rp.meas.source}: channel {c!r} is mapped but the replay does not use it (on this "
+              f"{'rotary' if rp.cfg.rotary else 'linear'} axis the model compares "
+              f"{', '.join(rp.channels)}); check the map", file=sys.stderr)
 
 
 @contextmanager

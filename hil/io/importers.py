@@ -309,8 +309,39 @@ def _apply_mapping(data: dict, factors: dict, units: dict, mapping: dict, source
                                    f"infinite value")
     meas = Measurement(channels, {"format": fmt, "mapping": ",".join(f"{v}={k}" for k, v in exprs.items())},
                        source, out_units)
-    meas.warnings = _check_time(channels["t"], source, 1) + replaced
+    meas.warnings = _check_time(channels["t"], source, 1) + replaced + _unmapped_inputs(data, exprs, channels, source)
     return meas
+
+
+# a file's variable whose name says it is an input of the run (an added command, an excitation, a force)
+_INPUT_LIKE = re.compile(r"pulse|u_?add|excit|inject|dist|f_?ext|force|load", re.IGNORECASE)
+_INPUT_CHANNELS = ("u_add", "f_ext_table", "f_ext_tip")
+
+
+def _unmapped_inputs(data: dict, exprs: dict, channels: dict, source: str) -> list[str]:
+    """The file's variables that no map entry reads, to :func:`unmapped_inputs`."""
+    used = set()
+    for expr in exprs.values():
+        try:
+            used |= {n.id for n in ast.walk(_safe_parse(expr)) if isinstance(n, ast.Name)}
+        except MeasurementError:
+            continue
+    return unmapped_inputs([v for v in data if v not in used and v not in channels], channels, source)
+
+
+def unmapped_inputs(names, channels, source: str) -> list[str]:
+    """A warning naming those of ``names`` (a file's variables or columns that give no channel) that
+    look like an input of the run, where ``channels`` hold no input channel: replayed without them,
+    the model sees another run."""
+    if any(c in channels for c in _INPUT_CHANNELS):
+        return []
+    names = [v for v in names if not v.startswith("__") and _INPUT_LIKE.search(v)]
+    if not names:
+        return []
+    one = len(names) == 1
+    return [f"{source}: {', '.join(repr(n) for n in names[:5])} look{'s' if one else ''} like an input of "
+            f"the run (an added command or a force) and {'is' if one else 'are'} not mapped: the replay "
+            f"runs without {'it' if one else 'them'} (map it to u_add[unit], f_ext_table or f_ext_tip)"]
 
 
 def _expression_tree(expr: str, text: str):
