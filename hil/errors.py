@@ -49,7 +49,7 @@ from enum import StrEnum
 
 __all__ = ["HilError", "ConfigError", "BackendError", "UnitError", "LimitError", "MeasurementError",
            "UnstableLoopError", "UserError", "SupervisorTripped", "BackendFault", "RunStopped",
-           "STOP_EXIT_CODES", "StopKind", "RunStatus"]
+           "STOP_EXIT_CODES", "StopKind", "RunStatus", "fault_kind"]
 
 # how a run that moved ended -> the command's exit code (README, Safety: the exit codes)
 STOP_EXIT_CODES = {
@@ -154,3 +154,10 @@ class RunStopped(HilError):
         super().__init__(message)
         self.status, self.reason, self.stop = status, reason, stop
         self.exit_code = stop.exit_code
+
+
+def fault_kind(kind: StopKind | None, default: StopKind) -> StopKind:
+    """The kind of a backend's fault: ``kind`` where the backend gave one, else ``default``
+    (:data:`StopKind.TRIP` for a ``Feedback.fault``, :data:`StopKind.LINK` for a setpoint not
+    delivered or a start-up that failed). Called once, when the run stops."""
+    return default if kind is None else kind

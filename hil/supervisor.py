@@ -31,8 +31,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from hil.config import SUPERVISOR_SECTION
-from hil.drivers.base import fault_kind
-from hil.errors import StopKind, SupervisorTripped, UserError
+from hil.errors import StopKind, SupervisorTripped, UserError, fault_kind
 
 logger = logging.getLogger(__name__)
 

@@ -68,7 +68,7 @@ import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
-from hil.errors import BackendFault, StopKind
+from hil.errors import BackendFault, StopKind, fault_kind
 
 __all__ = ["Backend", "Feedback", "Setpoint", "BackendFault", "LOOPS", "fault_kind"]
 
@@ -100,13 +100,6 @@ class Feedback:
     stale: bool = False
     # the kind of ``fault``, set by the backend that reports it (None: the default of fault_kind)
     fault_kind: StopKind | None = None
-
-
-def fault_kind(kind: StopKind | None, default: StopKind) -> StopKind:
-    """The kind of a backend's fault: ``kind`` where the backend gave one, else ``default``
-    (:data:`StopKind.TRIP` for a ``Feedback.fault``, :data:`StopKind.LINK` for a setpoint not
-    delivered or a start-up that failed). Called once, when the run stops."""
-    return default if kind is None else kind
 
 
 @dataclass
