@@ -54,6 +54,8 @@ JSON_KEYS = {
     "candidates[].evidence": JsonKey("", "where the effect shows in the residual, one sentence"),
     "candidates[].gain": JsonKey("1", "fraction of the weighted residual energy removed"),
     "candidates[].significant": JsonKey("", "score above 6 and the error above the noise floor"),
+    "candidates[].worse_than_without": JsonKey("", "the fit left more error than the model without the effect: it "
+                                                   "stopped in a wrong basin (said in its evidence; never significant)"),
     "also_missing": JsonKey("", "effects missing beside the verdict (a preferred combination's other members): "
                                 "effect, params (SI), score (the BIC fall when it is left out), significant, "
                                 "evidence"),

@@ -7,7 +7,10 @@ start, bounded by its range, relative difference step 1e-3; a config that cannot
 costs a vector of 1e3. The best of the starts (hil.ident.starts) wins. The candidate is then
 scored (hil.ident.scores.bic_score) and described (hil.ident.evidence); its gain is
 1 - ||w r_after||^2 / ||w r_before||^2, and the channel where it shows is the one whose RMS error
-falls the most, relatively.
+falls the most, relatively. A fitted effect that leaves more weighted error than the model without
+it has stopped in a wrong basin (the effect-free model is one of its values, or the limit of them):
+the candidate says so (``worse_than_without``, and in its evidence), and its negative score keeps
+it from any verdict.
 
 :func:`fit_effects` adds effects one after the other (greedy), then refits them all together
 from the greedy values; :func:`joint_refit` refits config keys together from their values.
@@ -38,6 +41,8 @@ from hil.sim_plant.effects import Effect
 
 logger = logging.getLogger(__name__)
 
+WORSE_TOL = 1e-9     # relative: a fit leaving more weighted error than this above the effect-free model's is wrong
+
 __all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit", "standard_errors"]
 
 
@@ -59,13 +64,15 @@ class Candidate:
     nfev: int = 0
     res: dict = field(default=None, repr=False)     # residuals after the fit (for pairwise comparisons)
     stderr: dict = field(default_factory=dict)      # standard error of each fitted parameter (SI; NaN: none)
+    worse_than_without: bool = False    # the fit left more error than the model without the effect: a wrong basin
 
     def as_json(self) -> dict:
         return {"effect": self.effect, "params": {k: float(v) for k, v in self.params.items()},
                 "stderr": {k: float(v) for k, v in self.stderr.items()},
                 "channel": self.channel, "error_before": float(self.error_before),
                 "error_after": float(self.error_after), "score": float(self.score), "evidence": self.evidence,
-                "gain": float(self.gain), "significant": bool(self.significant)}
+                "gain": float(self.gain), "significant": bool(self.significant),
+                "worse_than_without": bool(self.worse_than_without)}
 
 
 def standard_errors(sol, scale) -> np.ndarray:
@@ -166,8 +173,12 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     floor = replay.noise[chan]
     significant = score > MIN_SCORE and before > SIGNIFICANT_ABOVE_NOISE * floor
     ev = evidence(name, vals, replay, res0, chan, before, after, model_modes(cfg))
-    return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant, cfg1,
-                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se)
+    worse = e1 > e0 * (1 + WORSE_TOL)
+    if worse:
+        ev = (f"the fit is wrong: it leaves {100 * (e1 / e0 - 1):.1f} % more weighted error than the model without "
+              f"{name} (a wrong basin); " + ev)
+    return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant and not worse, cfg1,
+                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se, worse)
 
 
 def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=None):
