@@ -21,6 +21,28 @@ The polishing fits weight each channel by the residual the step's first fit left
 floor)), not by the residual before it: a channel the fit brought to its floor no longer drowns
 the one still far above it.
 
+With a held-out part (``holdout``: ``"moves"``, or the replays of records the chain does not fit,
+as ``--validate``'s), every step must earn its place on data it was not fitted on:
+
+* ``"moves"``: the record is cut in the middle of its standstills of at least
+  :data:`HOLDOUT_DWELL` (each piece a move or a few moves with direct reversals, starting and
+  ending at rest) and the pieces go alternately to the estimation half and the held-out half
+  (:func:`split_moves`); the step's effects are refitted on the estimation half from the step's
+  values (:data:`HOLDOUT_NFEV` evaluations: the held-out half's own errors never enter them);
+  with validation records the step's fit on the record is the estimation fit;
+* the held-out error before and after the step, per sample the weighted squared residual summed
+  over the channels, e_n = sum_c (r_c[n] / s_c)^2 with s_c = max(RMS before, noise floor); its fall
+  d_n = e_before,n - e_after,n is kept when its mean stands above :data:`HOLDOUT_Z` standard errors,
+  std(d) / sqrt(N_eff(d)) (hil.ident.scores.effective_samples: the residuals are correlated in
+  time): the fall beyond its uncertainty (:func:`held_out_fall`). A step that does not earn it
+  ends the chain (``end`` "no step earns its place on the held-out data", the step under
+  ``final.rejected``).
+
+Each step reports its estimation error (the record's, or the estimation half's) and held-out
+error per channel, and the standard errors of everything found so far with the pairs of fitted
+parameters confounded in the step's last fit (hil.ident.fit: |correlation| above
+:data:`~hil.ident.fit.CONFOUNDED`).
+
 It stops when every channel is at its noise floor (``end`` "noise floor reached"), when the
 diagnosis finds nothing that pays ("no effect pays for its parameters"; the remainder above the
 floor comes with the evidence of where it lives), when the first verdict is ``none`` or
@@ -30,21 +52,26 @@ floor comes with the evidence of where it lives), when the first verdict is ``no
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
 from hil.ident.diagnosis import candidate_names, diagnose
-from hil.ident.fit import evaluate, fit_effects
+from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
-from hil.ident.scores import MIN_SCORE, bic_score
+from hil.ident.scores import MIN_SCORE, bic_score, effective_samples
 from hil.ident.unexplained import HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["diagnose_chain", "chain_json", "MAX_STEPS", "effect_values"]
+__all__ = ["diagnose_chain", "chain_json", "MAX_STEPS", "effect_values", "split_moves", "held_out_fall",
+           "HOLDOUT_DWELL", "HOLDOUT_Z", "HOLDOUT_NFEV"]
 
 MAX_STEPS = 4
+HOLDOUT_DWELL = 0.1     # s: a standstill at least this long separates two pieces of the record
+HOLDOUT_Z = 2.0         # the held-out fall must stand this many standard errors above zero
+HOLDOUT_NFEV = 15       # evaluations of a step's refit on the estimation half
 
 
 def effect_values(name: str, cfg) -> dict:
@@ -68,12 +95,135 @@ def _same(name: str, cfg) -> str:
         return name
 
 
+def _pieces(t, x_cmd, dwell: float) -> list[tuple[int, int]]:
+    """(start, end) sample ranges of the record cut in the middle of every standstill of at least
+    ``dwell`` s between two motions (standstill: |v| of the command below 1 % of its maximum)."""
+    v = np.gradient(np.asarray(x_cmd, float), t)
+    still = np.abs(v) < 0.01 * max(float(np.max(np.abs(v))), 1e-12)
+    edges = np.flatnonzero(np.diff(still.astype(int))) + 1
+    bounds = np.concatenate([[0], edges, [still.size]])
+    cuts = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if still[a] and a > 0 and b < still.size and t[b - 1] - t[a] >= dwell:
+            cuts.append(int((a + b) // 2))
+    ends = [0] + cuts + [still.size]
+    return [(a, b) for a, b in zip(ends[:-1], ends[1:]) if b - a >= 16]
+
+
+def split_moves(replay, dwell: float = HOLDOUT_DWELL):
+    """The record's pieces (the module's definition) alternately in an estimation half and a
+    held-out half: (estimation, held_out), boolean masks of the record's samples (of the records
+    joined, for several); None for an open-loop record or one with fewer than two pieces."""
+    if any(getattr(p, "open_loop", False) for p in getattr(replay, "parts", [replay])):
+        return None
+    m = replay.meas
+    pieces = _pieces(m.t, m["x_cmd"], dwell)
+    if len(pieces) < 2:
+        return None
+    est = np.zeros(m.t.size, bool)
+    for a, b in pieces[::2]:
+        est[a:b] = True
+    held = np.zeros(m.t.size, bool)
+    for a, b in pieces[1::2]:
+        held[a:b] = True
+    return est, held
+
+
+class _MaskedObjective:
+    """A replay's objective on some of its samples only (the estimation half): the whole record is
+    simulated (the state at a piece's start is the record's), the fit sees the masked samples."""
+
+    def __init__(self, obj, mask):
+        self.obj, self.weights = obj, obj.weights
+        self.sel = np.tile(mask, len(obj.weights))
+        self.n = int(self.sel.sum())
+
+    def residuals(self, cfg):
+        return self.obj.residuals(cfg)
+
+    def vector(self, res):
+        return self.obj.vector(res)[self.sel]
+
+
+def held_out_fall(before: dict, after: dict, floor: dict) -> dict:
+    """The held-out error before and after a step (the module's definition), from the held-out
+    residuals ``before`` and ``after`` (per channel) and the noise floor: ``before`` and ``after``
+    (RMS per channel), ``fall`` (the relative fall of the weighted error), ``uncertainty``
+    (:data:`HOLDOUT_Z` standard errors of it) and ``earned`` (the fall beyond its uncertainty)."""
+    eb = np.zeros(next(iter(before.values())).size)
+    ea = np.zeros_like(eb)
+    for c in before:
+        sc = max(float(np.sqrt(np.mean(before[c] ** 2))), float(floor.get(c, 0.0)), 1e-300)
+        eb += (before[c] / sc) ** 2
+        ea += (after[c] / sc) ** 2
+    d = eb - ea
+    mean_b = max(float(np.mean(eb)), 1e-300)
+    se = float(np.std(d, ddof=1)) / math.sqrt(effective_samples(d)) if d.size > 1 else math.inf
+    fall = float(np.mean(d))
+    return {"before": rms(before), "after": rms(after), "fall": fall / mean_b, "uncertainty": HOLDOUT_Z * se / mean_b,
+            "earned": bool(fall > HOLDOUT_Z * se)}
+
+
+def _holdout_parts(replay, holdout):
+    """What the steps are checked on: ("moves", (estimation mask, held-out mask)) for ``"moves"``
+    (None where the record cannot be split), ("records", Records of the validation replays), or None."""
+    if holdout is None:
+        return None
+    if isinstance(holdout, str):
+        if holdout != "moves":
+            raise ValueError(f"holdout {holdout!r}: 'moves' or the validation records")
+        masks = split_moves(replay)
+        return ("moves", masks) if masks is not None else None
+    from hil.ident.records import Records
+    parts = list(holdout)
+    return ("records", Records(parts)) if parts else None
+
+
+def _earned(cur, split, add, cfg1, fit_nfev) -> dict:
+    """The step on the held-out data. With the record's pieces: the step's effects refitted on the
+    estimation pieces alone from their values in ``cfg1`` (the whole record simulated, the
+    held-out samples out of the objective), and the held-out samples' residuals before (the model
+    as it stands) and after; with validation records, ``cfg1`` on them. With ``estimation``: the
+    RMS error per channel after the step on the data it was fitted on."""
+    kind, what = split
+    if kind == "moves":
+        est, held = what
+        eff = candidate("+".join(add), cur.cfg)
+        vals = effect_values(add[0], cfg1) if len(add) == 1 else \
+            {f"{n}.{k}": v for n in add for k, v in effect_values(n, cfg1).items()}
+        try:
+            _, _, res_a, _ = _fit_one(_MaskedObjective(cur.objective, est), cur.cfg, eff, [vals],
+                                      max_nfev=min(fit_nfev, HOLDOUT_NFEV))
+        except ValueError:
+            res_a = cur.residuals(cfg1)
+        res_b = cur.base_residuals
+        out = held_out_fall({c: r[held] for c, r in res_b.items()}, {c: r[held] for c, r in res_a.items()}, cur.noise)
+        out["estimation"] = rms({c: r[est] for c, r in res_a.items()})
+        return out
+    held = what
+    out = held_out_fall(held.residuals(cur.cfg), held.residuals(cfg1), held.noise)
+    out["estimation"] = rms(cur.residuals(cfg1))
+    return out
+
+
+def _stderr_of(fit, names) -> tuple[dict, list]:
+    """A step's last fit's standard errors as {effect: {param: value}} and its confounded pairs."""
+    if fit is None:
+        return {}, []
+    out = {}
+    for k, v in fit.stderr.items():
+        n = next((n for n in names if k.startswith(n + ".")), None) if "+" in fit.effect else fit.effect
+        if n is not None:
+            out.setdefault(n, {})[k[len(n) + 1:] if "+" in fit.effect else k] = float(v)
+    return out, [list(p) for p in fit.confounded]
+
+
 def _weighted(replay, res) -> float:
     return float(np.sum(replay.objective.vector(res) ** 2))
 
 
 def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_STEPS, progress=None,
-                   jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, **kw) -> dict:
+                   jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, holdout=None, **kw) -> dict:
     """The chain on a record (see the module's definition).
 
     Parameters
@@ -90,6 +240,10 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         Passed on to :func:`~hil.ident.diagnosis.diagnose`.
     fit_nfev : int
         Evaluations of the fits that add the verdicts and of the joint refit.
+    holdout : "moves", list of Replay, or None
+        What every step must earn its place on (the module's definition): the record's pieces split
+        into estimation and held-out halves, the replays of validation records, or nothing (None:
+        the BIC score on the record alone).
 
     Returns
     -------
@@ -99,9 +253,12 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         it added), ``params`` ({effect: {param: value}} of everything found so far, after the
         step's refit), ``error_before`` and ``error_after`` (RMS per channel), ``gap_closed`` (per
         channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``; and,
-        with a leading underscore, the fits and the config, left out of the JSON), ``final`` (the
-        residual against the noise floor and why it ended), ``diagnoses`` (every step's diagnosis)
-        and ``config`` (the model with the whole chain).
+        with a leading underscore, the fits and the config, left out of the JSON), ``stderr``
+        ({effect: {param: standard error}} of the step's last fit) and ``confounded`` (its pairs of
+        parameters correlated above :data:`~hil.ident.fit.CONFOUNDED`); with a held-out part
+        ``estimation_error`` and ``held_out`` (:func:`held_out_fall`); ``final`` (the residual
+        against the noise floor and why it ended; ``rejected``: the step the held-out data refused),
+        ``diagnoses`` (every step's diagnosis) and ``config`` (the model with the whole chain).
     """
     floor = replay.noise
     cur = replay
@@ -109,6 +266,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     steps, diags = [], []
     first = None
     end = f"max steps ({max_steps})"
+    split = _holdout_parts(replay, holdout)
+    rejected = None
     for i in range(max(1, max_steps)):
         err0 = rms(cur.base_residuals)
         if at_noise_floor(err0, floor):
@@ -172,21 +331,40 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if i > 0 and paid <= MIN_SCORE:
             end = "no effect pays for its parameters"
             break
-        found += add
+        held = _earned(cur, split, add, cfg1, fit_nfev) if split else None
         lead = next((c for c in d["candidates"] if c.effect == verdict), None)
         err1 = rms(res1)
+        se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
+        if held is not None and not held["earned"]:
+            end = "no step earns its place on the held-out data"
+            rejected = {"effects": list(add), "score": float(paid), "error_after": err1, "stderr": se,
+                        "confounded": conf, "estimation_error": held.pop("estimation"), "held_out": held}
+            logger.info("chain step %d: %s refused by the held-out data (fall %.3g, uncertainty %.3g)", i + 1,
+                        " + ".join(add), held["fall"], held["uncertainty"])
+            break
+        found += add
         steps.append({"step": i + 1, "effect": verdict, "effects": list(add),
                       "params": {n: effect_values(n, cfg1) for n in found},
                       "error_before": err0, "error_after": err1,
                       "gap_closed": {c: gap_closed(err0[c], err1[c], floor[c]) for c in err0},
                       "score": float(paid), "evidence": lead.evidence if lead is not None else "",
-                      "refitted_together": joint is not None, "_fits": fits, "_joint": joint, "_config": cfg1})
+                      "refitted_together": joint is not None, "stderr": se, "confounded": conf,
+                      "_fits": fits, "_joint": joint, "_config": cfg1})
+        if held is not None:
+            steps[-1].update(estimation_error=held.pop("estimation"), held_out=held)
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         cur = cur.with_config(cfg1)
     errf = rms(cur.base_residuals)
     final = {"error": errf, "noise_floor": dict(floor),
              "above_floor": {c: errf[c] / max(floor[c], 1e-300) for c in errf},
              "at_noise_floor": at_noise_floor(errf, floor), "end": end, "steps": len(steps)}
+    if split is not None:
+        final["held_out"] = ("the record's pieces between standstills, alternately estimation and held out"
+                             if split[0] == "moves" else "the validation records")
+    elif holdout is not None:
+        final["held_out"] = "none (the record has fewer than two pieces between standstills, or is open-loop)"
+    if rejected is not None:
+        final["rejected"] = rejected
     if not final["at_noise_floor"]:
         last = diags[-1] if diags else None
         best = last["candidates"][0] if last and last["candidates"] else None
