@@ -95,12 +95,12 @@ JSON_KEYS = {
     "chain[].stderr": JsonKey("SI", "`{effect: {parameter: standard error}}` of the step's last fit (null: none)"),
     "chain[].confounded": JsonKey("", "pairs of that fit's parameters correlated above 0.9: [name, name, r]"),
     "chain[].estimation_error": JsonKey(CHANNEL_UNIT, "per channel, RMS error after the step on the data it was "
-                                                      "fitted on (the estimation pieces of the record)",
-                                        when="a held-out part (the record has pieces, or --validate)"),
+                                                      "fitted on (the record's estimation moves)",
+                                        when="a held-out part (the record has moves both ways, or --validate)"),
     "chain[].held_out": JsonKey("", "the step on the held-out data: before and after (RMS per channel), fall "
                                     "(relative fall of the weighted error), uncertainty (two standard errors of "
                                     "it), earned (the fall beyond its uncertainty)",
-                                when="a held-out part (the record has pieces, or --validate)"),
+                                when="a held-out part (the record has moves both ways, or --validate)"),
     "final": JsonKey("", "the end of the chain (keys final.*)", when="the chain (not --no-chain or --max-steps 1)"),
     "final.error": JsonKey(CHANNEL_UNIT, "per channel, RMS error of the model with the chain"),
     "final.noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the noise floor"),
@@ -110,7 +110,7 @@ JSON_KEYS = {
                              "`unexplained`, `no candidate left`, `max steps (N)`"),
     "final.steps": JsonKey("", "number of steps that added effects"),
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
-    "final.held_out": JsonKey("", "what the steps were checked on: the record's pieces, the validation records, or "
+    "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
                                   "none and why", when="the chain"),
     "final.rejected": JsonKey("", "the step the held-out data refused: effects, score, error_after, stderr, "
                                   "confounded, estimation_error, held_out (as chain[])",
@@ -182,7 +182,7 @@ def run(args) -> int:
             d = diagnose(rp, names, progress=prog, jobs=args.jobs, min_gap=HALF_GAP)
         else:
             # every step earns its place on data it was not fitted on: the --validate records, else
-            # the record's pieces between standstills, alternately estimation and held out
+            # the record's moves in pairs, alternately estimation and held out
             val_rps = [make_replay(args, cfg, m) for m in vals]
             holdout = val_rps if val_rps else "moves"
             d = diagnose_chain(rp, names, max_steps=args.max_steps, progress=prog, jobs=args.jobs, holdout=holdout)

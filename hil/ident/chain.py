@@ -24,11 +24,13 @@ the one still far above it.
 With a held-out part (``holdout``: ``"moves"``, or the replays of records the chain does not fit,
 as ``--validate``'s), every step must earn its place on data it was not fitted on:
 
-* ``"moves"``: the record is cut in the middle of its standstills of at least
-  :data:`HOLDOUT_DWELL` (each piece a move or a few moves with direct reversals, starting and
-  ending at rest) and the pieces go alternately to the estimation half and the held-out half
-  (:func:`split_moves`); the step's effects are refitted on the estimation half from the step's
-  values (:data:`HOLDOUT_NFEV` evaluations: the held-out half's own errors never enter them);
+* ``"moves"``: the record's moves (motion in one direction and the standstill after it, cut where
+  the direction changes), taken in pairs (there and back), go pair by pair alternately to the
+  estimation half and the held-out half (single moves where there are fewer than two pairs;
+  :func:`split_moves`). The whole record is still simulated (the state where a held-out move
+  starts is the record's, a backlash's side or an integrator's charge included); the step's
+  effects are refitted on the estimation samples alone from the step's values
+  (:data:`HOLDOUT_NFEV` evaluations: the held-out samples' errors never enter them);
   with validation records the step's fit on the record is the estimation fit;
 * the held-out error before and after the step, per sample the weighted squared residual summed
   over the channels, e_n = sum_c (r_c[n] / s_c)^2 with s_c = max(RMS before, noise floor); its fall
@@ -66,10 +68,10 @@ from hil.plant_config import candidate
 logger = logging.getLogger(__name__)
 
 __all__ = ["diagnose_chain", "chain_json", "MAX_STEPS", "effect_values", "split_moves", "held_out_fall",
-           "HOLDOUT_DWELL", "HOLDOUT_Z", "HOLDOUT_NFEV"]
+           "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV"]
 
 MAX_STEPS = 4
-HOLDOUT_DWELL = 0.1     # s: a standstill at least this long separates two pieces of the record
+HOLDOUT_MIN = 64        # samples each half needs at least
 HOLDOUT_Z = 2.0         # the held-out fall must stand this many standard errors above zero
 HOLDOUT_NFEV = 15       # evaluations of a step's refit on the estimation half
 
@@ -95,37 +97,38 @@ def _same(name: str, cfg) -> str:
         return name
 
 
-def _pieces(t, x_cmd, dwell: float) -> list[tuple[int, int]]:
-    """(start, end) sample ranges of the record cut in the middle of every standstill of at least
-    ``dwell`` s between two motions (standstill: |v| of the command below 1 % of its maximum)."""
+def _moves(t, x_cmd) -> list[tuple[int, int]]:
+    """(start, end) sample ranges of the record's moves: a stretch of motion in one direction with
+    the standstill after it (standstill: |v| of the command below 1 % of its maximum); the record
+    is cut where the direction of motion changes."""
     v = np.gradient(np.asarray(x_cmd, float), t)
-    still = np.abs(v) < 0.01 * max(float(np.max(np.abs(v))), 1e-12)
-    edges = np.flatnonzero(np.diff(still.astype(int))) + 1
-    bounds = np.concatenate([[0], edges, [still.size]])
-    cuts = []
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        if still[a] and a > 0 and b < still.size and t[b - 1] - t[a] >= dwell:
-            cuts.append(int((a + b) // 2))
-    ends = [0] + cuts + [still.size]
-    return [(a, b) for a, b in zip(ends[:-1], ends[1:]) if b - a >= 16]
+    sign = np.where(np.abs(v) < 0.01 * max(float(np.max(np.abs(v))), 1e-12), 0.0, np.sign(v))
+    nz = np.flatnonzero(sign)
+    if nz.size == 0:
+        return [(0, sign.size)]
+    # a standstill belongs to the move before it (the first one to the first move)
+    filled = sign[nz[np.clip(np.searchsorted(nz, np.arange(sign.size), side="right") - 1, 0, None)]]
+    cuts = list(np.flatnonzero(np.diff(filled)) + 1)
+    ends = [0] + [int(c) for c in cuts] + [sign.size]
+    return [(a, b) for a, b in zip(ends[:-1], ends[1:]) if b > a]
 
 
-def split_moves(replay, dwell: float = HOLDOUT_DWELL):
-    """The record's pieces (the module's definition) alternately in an estimation half and a
-    held-out half: (estimation, held_out), boolean masks of the record's samples (of the records
-    joined, for several); None for an open-loop record or one with fewer than two pieces."""
+def split_moves(replay, min_samples: int = HOLDOUT_MIN):
+    """The record's moves (the module's definition) in pairs, the pairs alternately in an
+    estimation half and a held-out half (single moves when there are fewer than two pairs):
+    (estimation, held_out), boolean masks of the record's samples (of the records joined, for
+    several); None for an open-loop record, or when either half has fewer than ``min_samples``."""
     if any(getattr(p, "open_loop", False) for p in getattr(replay, "parts", [replay])):
         return None
     m = replay.meas
-    pieces = _pieces(m.t, m["x_cmd"], dwell)
-    if len(pieces) < 2:
-        return None
+    moves = _moves(m.t, m["x_cmd"])
+    per = 2 if len(moves) >= 4 else 1
     est = np.zeros(m.t.size, bool)
-    for a, b in pieces[::2]:
-        est[a:b] = True
-    held = np.zeros(m.t.size, bool)
-    for a, b in pieces[1::2]:
-        held[a:b] = True
+    for i, (a, b) in enumerate(moves):
+        est[a:b] = (i // per) % 2 == 0
+    held = ~est
+    if est.sum() < min_samples or held.sum() < min_samples:
+        return None
     return est, held
 
 
@@ -180,8 +183,8 @@ def _holdout_parts(replay, holdout):
 
 
 def _earned(cur, split, add, cfg1, fit_nfev) -> dict:
-    """The step on the held-out data. With the record's pieces: the step's effects refitted on the
-    estimation pieces alone from their values in ``cfg1`` (the whole record simulated, the
+    """The step on the held-out data. With the record's moves: the step's effects refitted on the
+    estimation moves alone from their values in ``cfg1`` (the whole record simulated, the
     held-out samples out of the objective), and the held-out samples' residuals before (the model
     as it stands) and after; with validation records, ``cfg1`` on them. With ``estimation``: the
     RMS error per channel after the step on the data it was fitted on."""
@@ -241,7 +244,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     fit_nfev : int
         Evaluations of the fits that add the verdicts and of the joint refit.
     holdout : "moves", list of Replay, or None
-        What every step must earn its place on (the module's definition): the record's pieces split
+        What every step must earn its place on (the module's definition): the record's moves split
         into estimation and held-out halves, the replays of validation records, or nothing (None:
         the BIC score on the record alone).
 
@@ -359,10 +362,11 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
              "above_floor": {c: errf[c] / max(floor[c], 1e-300) for c in errf},
              "at_noise_floor": at_noise_floor(errf, floor), "end": end, "steps": len(steps)}
     if split is not None:
-        final["held_out"] = ("the record's pieces between standstills, alternately estimation and held out"
+        final["held_out"] = ("the record's moves in pairs, alternately estimation and held out"
                              if split[0] == "moves" else "the validation records")
     elif holdout is not None:
-        final["held_out"] = "none (the record has fewer than two pieces between standstills, or is open-loop)"
+        final["held_out"] = (f"none (the record has fewer than {HOLDOUT_MIN} samples in its estimation or held-out "
+                             f"moves, or is open-loop)")
     if rejected is not None:
         final["rejected"] = rejected
     if not final["at_noise_floor"]:
