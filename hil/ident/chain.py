@@ -33,12 +33,14 @@ as ``--validate``'s), every step must earn its place on data it was not fitted o
   (:data:`HOLDOUT_NFEV` evaluations: the held-out samples' errors never enter them);
   with validation records the step's fit on the record is the estimation fit;
 * the held-out error before and after the step, per sample the weighted squared residual summed
-  over the channels, e_n = sum_c (r_c[n] / s_c)^2 with s_c = max(RMS before, noise floor); its fall
-  d_n = e_before,n - e_after,n is kept when its mean stands above :data:`HOLDOUT_Z` standard errors,
-  std(d) / sqrt(N_eff(d)) (hil.ident.scores.effective_samples: the residuals are correlated in
-  time): the fall beyond its uncertainty (:func:`held_out_fall`). A step that does not earn it
-  ends the chain (``end`` "no step earns its place on the held-out data", the step under
-  ``final.rejected``).
+  over the channels, e_n = sum_c (r_c[n] / s_c)^2 with s_c = max(RMS before, noise floor); its
+  fall must stand above :data:`HOLDOUT_Z` standard errors of the held-out sample's noise
+  (:func:`held_out_fall`) and above the fall the model as it stands reaches on the held-out moves
+  when the effects already found are refitted on them (``model_refit_fall``): the uncertainty of
+  what is already in the model. A record whose residual is chaotic after an effect (a table
+  rattling in a backlash) changes with any small retuning; a step that does no better there
+  than the model's own retuning is not earned. A step that does not earn its place ends the chain
+  (``end`` "no step earns its place on the held-out data", the step under ``final.rejected``).
 
 Each step reports its estimation error (the record's, or the estimation half's) and held-out
 error per channel, and the standard errors of everything found so far with the pairs of fitted
@@ -61,7 +63,7 @@ import numpy as np
 from hil.ident.diagnosis import candidate_names, diagnose
 from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
-from hil.ident.scores import MIN_SCORE, bic_score, effective_samples
+from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate
 
@@ -152,17 +154,23 @@ def held_out_fall(before: dict, after: dict, floor: dict) -> dict:
     """The held-out error before and after a step (the module's definition), from the held-out
     residuals ``before`` and ``after`` (per channel) and the noise floor: ``before`` and ``after``
     (RMS per channel), ``fall`` (the relative fall of the weighted error), ``uncertainty``
-    (:data:`HOLDOUT_Z` standard errors of it) and ``earned`` (the fall beyond its uncertainty)."""
-    eb = np.zeros(next(iter(before.values())).size)
+    (:data:`HOLDOUT_Z` standard errors of it) and ``earned`` (the fall beyond its uncertainty).
+
+    The uncertainty is the held-out sample's: with r = m + n (the model error and white noise at the
+    floor f_c) and the step's change delta = r_before - r_after, the fall's noise part is
+    2 sum delta n / N, of standard error 2 sqrt(sum_c sum_n (delta_cn / s_c)^2 (f_c / s_c)^2) / N."""
+    n = next(iter(before.values())).size
+    eb = np.zeros(n)
     ea = np.zeros_like(eb)
+    var = 0.0
     for c in before:
         sc = max(float(np.sqrt(np.mean(before[c] ** 2))), float(floor.get(c, 0.0)), 1e-300)
         eb += (before[c] / sc) ** 2
         ea += (after[c] / sc) ** 2
-    d = eb - ea
+        var += 4.0 * float(np.sum(((before[c] - after[c]) / sc) ** 2)) * (float(floor.get(c, 0.0)) / sc) ** 2
     mean_b = max(float(np.mean(eb)), 1e-300)
-    se = float(np.std(d, ddof=1)) / math.sqrt(effective_samples(d)) if d.size > 1 else math.inf
-    fall = float(np.mean(d))
+    fall = float(np.mean(eb - ea))
+    se = math.sqrt(var) / max(n, 1)
     return {"before": rms(before), "after": rms(after), "fall": fall / mean_b, "uncertainty": HOLDOUT_Z * se / mean_b,
             "earned": bool(fall > HOLDOUT_Z * se)}
 
@@ -182,31 +190,44 @@ def _holdout_parts(replay, holdout):
     return ("records", Records(parts)) if parts else None
 
 
-def _earned(cur, split, add, cfg1, fit_nfev) -> dict:
+def _earned(cur, split, add, found, cfg1, fit_nfev) -> dict:
     """The step on the held-out data. With the record's moves: the step's effects refitted on the
-    estimation moves alone from their values in ``cfg1`` (the whole record simulated, the
-    held-out samples out of the objective), and the held-out samples' residuals before (the model
-    as it stands) and after; with validation records, ``cfg1`` on them. With ``estimation``: the
-    RMS error per channel after the step on the data it was fitted on."""
+    estimation moves alone from their values in ``cfg1`` (the whole record simulated, the held-out
+    samples out of the objective), the held-out samples' residuals before (the model as it stands)
+    and after (:func:`held_out_fall`); and what the model as it stands reaches on the held-out moves
+    when the effects already ``found`` are refitted on them (``model_refit_fall``): the step earns
+    its place when its fall stands beyond both. With validation records, ``cfg1`` on them. With
+    ``estimation``: the RMS error per channel after the step on the data it was fitted on."""
     kind, what = split
-    if kind == "moves":
-        est, held = what
-        eff = candidate("+".join(add), cur.cfg)
-        vals = effect_values(add[0], cfg1) if len(add) == 1 else \
-            {f"{n}.{k}": v for n in add for k, v in effect_values(n, cfg1).items()}
-        try:
-            _, _, res_a, _ = _fit_one(_MaskedObjective(cur.objective, est), cur.cfg, eff, [vals],
-                                      max_nfev=min(fit_nfev, HOLDOUT_NFEV))
-        except ValueError:
-            res_a = cur.residuals(cfg1)
-        res_b = cur.base_residuals
-        out = held_out_fall({c: r[held] for c, r in res_b.items()}, {c: r[held] for c, r in res_a.items()}, cur.noise)
-        out["estimation"] = rms({c: r[est] for c, r in res_a.items()})
+    if kind != "moves":
+        out = held_out_fall(what.residuals(cur.cfg), what.residuals(cfg1), what.noise)
+        out["estimation"] = rms(cur.residuals(cfg1))
         return out
-    held = what
-    out = held_out_fall(held.residuals(cur.cfg), held.residuals(cfg1), held.noise)
-    out["estimation"] = rms(cur.residuals(cfg1))
+    est, held = what
+    res_b = cur.base_residuals
+    res_a = _refit_on(cur, est, add, cfg1, fit_nfev)
+    out = held_out_fall({c: r[held] for c, r in res_b.items()}, {c: r[held] for c, r in res_a.items()}, cur.noise)
+    model = 0.0
+    if found:
+        res_o = _refit_on(cur, held, found, cur.cfg, fit_nfev)
+        model = max(held_out_fall({c: r[held] for c, r in res_b.items()}, {c: r[held] for c, r in res_o.items()},
+                                  cur.noise)["fall"], 0.0)
+    out.update(model_refit_fall=model, earned=bool(out["fall"] > out["uncertainty"] + model),
+               estimation=rms({c: r[est] for c, r in res_a.items()}))
     return out
+
+
+def _refit_on(cur, mask, names, cfg, fit_nfev) -> dict:
+    """The residuals of the whole record with the effects ``names`` refitted on the ``mask``
+    samples alone, from their values in ``cfg``, on top of ``cur``'s model."""
+    eff = candidate("+".join(names), cur.cfg)
+    vals = effect_values(names[0], cfg) if len(names) == 1 else \
+        {f"{n}.{k}": v for n in names for k, v in effect_values(n, cfg).items()}
+    try:
+        return _fit_one(_MaskedObjective(cur.objective, mask), cur.cfg, eff, [vals],
+                        max_nfev=min(fit_nfev, HOLDOUT_NFEV))[2]
+    except ValueError:
+        return cur.residuals(cfg)
 
 
 def _stderr_of(fit, names) -> tuple[dict, list]:
@@ -334,7 +355,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if i > 0 and paid <= MIN_SCORE:
             end = "no effect pays for its parameters"
             break
-        held = _earned(cur, split, add, cfg1, fit_nfev) if split else None
+        held = _earned(cur, split, add, found, cfg1, fit_nfev) if split else None
         lead = next((c for c in d["candidates"] if c.effect == verdict), None)
         err1 = rms(res1)
         se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
