@@ -82,8 +82,9 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     jobs = jobs or os.cpu_count() or 1
     # the costly candidates first, so that the processes finish together
     names = sorted(names, key=lambda n: -_cost_hint(n, cfg))
-    out = [c for c in evaluate_many(replay, [(n, screen_nfev, None, 1) for n in names], res0, jobs, progress)
-           if c is not None]
+    # an added mode starts from the residual's peaks and from a grid, two basins apart: both screened
+    out = [c for c in evaluate_many(replay, [(n, screen_nfev, None, 2 if n == "compliant_mode" else 1) for n in names],
+                                    res0, jobs, progress) if c is not None]
     ranked = sorted(out, key=lambda c: -c.score)
     top = [c.effect for c in ranked[:refine]]
     # and the simpler effects nested in those, so that the ranking compares refined fits

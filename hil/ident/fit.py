@@ -45,7 +45,7 @@ from hil.sim_plant.effects import Effect
 logger = logging.getLogger(__name__)
 
 CONFOUNDED = 0.9     # |correlation| of two fitted parameters above which they are named as confounded
-WORSE_TOL = 1e-9     # relative: a fit leaving more weighted error than this above the effect-free model's is wrong
+WORSE_TOL = 1e-6     # relative: a fit leaving more weighted error than this above the effect-free model's is wrong
 
 __all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit", "standard_errors", "confounded_pairs", "CONFOUNDED"]
 
@@ -210,7 +210,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     ev = evidence(name, vals, replay, res0, chan, before, after, model_modes(cfg))
     worse = e1 > e0 * (1 + WORSE_TOL)
     if worse:
-        ev = (f"the fit is wrong: it leaves {100 * (e1 / e0 - 1):.1f} % more weighted error than the model without "
+        ev = (f"the fit is wrong: it leaves {100 * (e1 / e0 - 1):.2g} % more weighted error than the model without "
               f"{name} (a wrong basin); " + ev)
     return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant and not worse, cfg1,
                      {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se, worse, confounded)

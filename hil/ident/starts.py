@@ -35,7 +35,8 @@ the fit (SI units).
   mode stiff at the grid's top frequency, where it acts as a mass on the tip), then at the two
   best masses the natural frequency (:data:`MODE_FREQS` log-spaced from :data:`MODE_FMIN` to the
   record's 0.45 / sample period); each line refined between its best point's neighbours as a
-  delay's grid is; every start costed by one simulation, the cheapest two kept. A coupled mode
+  delay's grid is; every start costed by one simulation; the local fit starts from the cheapest
+  start of the residual's peaks and the cheapest of the grid (then the second of each). A coupled mode
   moves the chain's own resonance too, so the residual's peak alone has several basins (a light
   fast mode and a heavy slow one shift it alike): the grid tells them apart.
 * Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews; the
@@ -93,7 +94,11 @@ def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -
     if eff.name in ("pitch_error", "torque_ripple"):
         return _periodic_starts(eff, replay, res0, g, cfg)
     if eff.name == "compliant_mode":
-        return _prefilter(eff, replay, _mode_starts(eff, replay, res0, g) + _mode_grid(eff, replay, cfg), cfg)
+        # the best start from the residual's peaks and the best of the grid, then the next of each:
+        # the cheapest start is not always in the deepest basin
+        near = _prefilter(eff, replay, _mode_starts(eff, replay, res0, g), cfg)
+        grid = _prefilter(eff, replay, _mode_grid(eff, replay, cfg), cfg)
+        return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
     if eff.name == "backlash":
         gaps = sorted(set(GAP_GRID) | {_gap_from_residual(replay, res0, eff.param("gap").upper)} - {None})
         return _grid_starts(eff, replay, [dict(g, gap=gp) for gp in gaps], cfg)
