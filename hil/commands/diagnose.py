@@ -54,6 +54,10 @@ JSON_KEYS = {
     "candidates[].evidence": JsonKey("", "where the effect shows in the residual, one sentence"),
     "candidates[].gain": JsonKey("1", "fraction of the weighted residual energy removed"),
     "candidates[].significant": JsonKey("", "score above 6 and the error above the noise floor"),
+    "candidates[].confounded": JsonKey("", "pairs of fitted parameters correlated above 0.9 (the data tell only "
+                                           "their combination): [name, name, r]"),
+    "candidates[].worse_than_without": JsonKey("", "the fit left more error than the model without the effect: it "
+                                                   "stopped in a wrong basin (said in its evidence; never significant)"),
     "also_missing": JsonKey("", "effects missing beside the verdict (a preferred combination's other members): "
                                 "effect, params (SI), score (the BIC fall when it is left out), significant, "
                                 "evidence"),
@@ -93,6 +97,15 @@ JSON_KEYS = {
                               "records' own floor, quantization: q/sqrt(12)), error_over (the final error in "
                               "multiples of each part), within (every channel with a spread within it, the others at their own floor)",
                           when="several records of one command"),
+    "chain[].stderr": JsonKey("SI", "`{effect: {parameter: standard error}}` of the step's last fit (null: none)"),
+    "chain[].confounded": JsonKey("", "pairs of that fit's parameters correlated above 0.9: [name, name, r]"),
+    "chain[].estimation_error": JsonKey(CHANNEL_UNIT, "per channel, RMS error after the step on the data it was "
+                                                      "fitted on (the record's estimation moves)",
+                                        when="a held-out part (the record has moves both ways, or --validate)"),
+    "chain[].held_out": JsonKey("", "the step on the held-out data: before and after (RMS per channel), fall "
+                                    "(relative fall of the weighted error), uncertainty (two standard errors of "
+                                    "it), earned (the fall beyond its uncertainty)",
+                                when="a held-out part (the record has moves both ways, or --validate)"),
     "final": JsonKey("", "the end of the chain (keys final.*)", when="the chain (not --no-chain or --max-steps 1)"),
     "final.error": JsonKey(CHANNEL_UNIT, "per channel, RMS error of the model with the chain"),
     "final.noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the noise floor"),
@@ -102,6 +115,11 @@ JSON_KEYS = {
                              "`unexplained`, `no candidate left`, `max steps (N)`"),
     "final.steps": JsonKey("", "number of steps that added effects"),
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
+    "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
+                                  "none and why", when="the chain"),
+    "final.rejected": JsonKey("", "the step the held-out data refused: effects, score, error_after, stderr, "
+                                  "confounded, estimation_error, held_out (as chain[])",
+                              when="a step did not earn its place"),
     "report": JsonKey("", "path of the HTML report", when="with --report"),
     "torque_sampling": JsonKey("", "which torque (force) the record holds, where the config does not say "
                                    "(measurement.torque / measurement.force): keys torque_sampling.*",
@@ -173,12 +191,14 @@ def run(args) -> int:
             raise UserError(str(exc).strip("'\"")) from None
     from hil.commands.progress import bar
     from hil.commands.record_inputs import prompt_interrupt
+    val_rps = None
     # Ctrl-C ends it at once, inside the compiled fits too
     with prompt_interrupt(), bar("diagnose", args) as prog:
         if args.no_chain or args.max_steps <= 1:
             d = diagnose(rp, names, progress=prog, jobs=args.jobs, min_gap=HALF_GAP)
         else:
-            d, cfg, rp, sampling = _chain_both_samplings(args, cfg, metas, rp, names, prog)
+            d, cfg, rp, sampling = _chain_both_samplings(args, cfg, metas, rp, names, prog, vals)
+            val_rps = [make_replay(args, cfg, m) for m in vals] or None
     rr = run_to_run(d, rp)
     if rr is not None:
         d["run_to_run"] = rr
@@ -189,7 +209,8 @@ def run(args) -> int:
         if fitted is None:        # the single diagnosis: its verdict's fit
             lead = next((c for c in d["candidates"] if c.effect == d["verdict"]), None)
             fitted = lead.cfg if lead is not None else cfg
-        table = estimation_validation(getattr(rp, "parts", [rp]), [make_replay(args, cfg, m) for m in vals], fitted)
+        val_rps = val_rps if val_rps is not None else [make_replay(args, cfg, m) for m in vals]
+        table = estimation_validation(getattr(rp, "parts", [rp]), val_rps, fitted)
         d.update(table)
     if args.out and "config" in d:
         from pathlib import Path
@@ -229,7 +250,7 @@ def run(args) -> int:
     return 0
 
 
-def _chain_both_samplings(args, cfg, metas, rp, names, prog):
+def _chain_both_samplings(args, cfg, metas, rp, names, prog, vals=()):
     """The chain, where the config does not say which torque the record holds, on both samplings
     where the choice can matter (hil.ident.sampling): (diagnosis, config, replay, JSON entry)."""
     from hil.ident.chain import diagnose_chain
@@ -242,8 +263,12 @@ def _chain_both_samplings(args, cfg, metas, rp, names, prog):
         if id(c) not in replays:
             replays[id(c)] = make_records(args, c, metas)
         return replays[id(c)]
-    d, used, entry = diagnose_both(lambda r: diagnose_chain(r, names, max_steps=args.max_steps, progress=prog,
-                                                            jobs=args.jobs), cfg, replay_of, has_force)
+    def chain(r):
+        # every step earns its place on data it was not fitted on: the --validate records (replayed
+        # through this sampling's config), else the record's moves in pairs
+        holdout = [make_replay(args, r.cfg, m) for m in vals] or "moves"
+        return diagnose_chain(r, names, max_steps=args.max_steps, progress=prog, jobs=args.jobs, holdout=holdout)
+    d, used, entry = diagnose_both(chain, cfg, replay_of, has_force)
     return d, used, replay_of(used), entry
 
 
@@ -364,7 +389,12 @@ def chain_text(d, rp) -> list[str]:
         lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
                                            f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))
+        lines += _held_out_lines(s, rp)
     f = d["final"]
+    if "rejected" in f:
+        r = f["rejected"]
+        lines.append(f"  refused: + {' + '.join(r['effects'])} (BIC score {r['score']:.1f} on the whole record)")
+        lines += _held_out_lines(r, rp)
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else
                                          "the residual stays above the noise floor:"))
     if "residual" in f:
@@ -406,6 +436,23 @@ def run_to_run_text(r, rp) -> list[str]:
             "command are to each other" if r["within"] else
             "above the run-to-run spread of the repeated records")
     return [f"run-to-run: {head}"] + lines
+
+
+def _held_out_lines(s, rp) -> list[str]:
+    """A chain step on its estimation and held-out data, and its confounded parameters."""
+    from hil.units import fmt_si
+    lines = []
+    if "held_out" in s:
+        h = s["held_out"]
+        lines.append("          estimation " + ", ".join(f"{c} {fmt_si(v, rp.unit(c), 3)}"
+                                                       for c, v in s["estimation_error"].items()) +
+                     "; held out " + ", ".join(f"{c} {fmt_si(h['before'][c], rp.unit(c), 3)} -> "
+                                               f"{fmt_si(h['after'][c], rp.unit(c), 3)}" for c in h["before"]) +
+                     f"; weighted error {100 * h['fall']:.1f} % less (+- {100 * h['uncertainty']:.1f} %): "
+                     f"{'earned' if h['earned'] else 'not earned'}")
+    if s.get("confounded"):
+        lines.append("          confounded: " + ", ".join(f"{a} and {b} (r = {r:+.3f})" for a, b, r in s["confounded"]))
+    return lines
 
 
 def _write_config(args, d, source) -> None:

@@ -21,6 +21,32 @@ The polishing fits weight each channel by the residual the step's first fit left
 floor)), not by the residual before it: a channel the fit brought to its floor no longer drowns
 the one still far above it.
 
+With a held-out part (``holdout``: ``"moves"``, or the replays of records the chain does not fit,
+as ``--validate``'s), every step must earn its place on data it was not fitted on:
+
+* ``"moves"``: the record's moves (motion in one direction and the standstill after it, cut where
+  the direction changes), taken in pairs (there and back), go pair by pair alternately to the
+  estimation half and the held-out half (single moves where there are fewer than two pairs;
+  :func:`split_moves`). The whole record is still simulated (the state where a held-out move
+  starts is the record's, a backlash's side or an integrator's charge included); the step's
+  effects are refitted on the estimation samples alone from the step's values
+  (:data:`HOLDOUT_NFEV` evaluations: the held-out samples' errors never enter them);
+  with validation records the step's fit on the record is the estimation fit;
+* the held-out error before and after the step, per sample the weighted squared residual summed
+  over the channels, e_n = sum_c (r_c[n] / s_c)^2 with s_c = max(RMS before, noise floor); its
+  fall must stand above :data:`HOLDOUT_Z` standard errors of the held-out sample's noise
+  (:func:`held_out_fall`) and above the fall the model as it stands reaches on the held-out moves
+  when the effects already found are refitted on them (``model_refit_fall``): the uncertainty of
+  what is already in the model. A record whose residual is chaotic after an effect (a table
+  rattling in a backlash) changes with any small retuning; a step that does no better there
+  than the model's own retuning is not earned. A step that does not earn its place ends the chain
+  (``end`` "no step earns its place on the held-out data", the step under ``final.rejected``).
+
+Each step reports its estimation error (the record's, or the estimation half's) and held-out
+error per channel, and the standard errors of everything found so far with the pairs of fitted
+parameters confounded in the step's last fit (hil.ident.fit: |correlation| above
+:data:`~hil.ident.fit.CONFOUNDED`).
+
 It stops when every channel is at its noise floor (``end`` "noise floor reached"), when the
 diagnosis finds nothing that pays ("no effect pays for its parameters"; the remainder above the
 floor comes with the evidence of where it lives), when the first verdict is ``none`` or
@@ -30,11 +56,12 @@ floor comes with the evidence of where it lives), when the first verdict is ``no
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
 from hil.ident.diagnosis import candidate_names, diagnose
-from hil.ident.fit import evaluate, fit_effects
+from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
@@ -42,9 +69,13 @@ from hil.plant_config import candidate
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["diagnose_chain", "chain_json", "MAX_STEPS", "effect_values"]
+__all__ = ["diagnose_chain", "chain_json", "MAX_STEPS", "effect_values", "split_moves", "held_out_fall",
+           "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV"]
 
 MAX_STEPS = 4
+HOLDOUT_MIN = 64        # samples each half needs at least
+HOLDOUT_Z = 2.0         # the held-out fall must stand this many standard errors above zero
+HOLDOUT_NFEV = 15       # evaluations of a step's refit on the estimation half
 
 
 def effect_values(name: str, cfg) -> dict:
@@ -68,12 +99,155 @@ def _same(name: str, cfg) -> str:
         return name
 
 
+def _moves(t, x_cmd) -> list[tuple[int, int]]:
+    """(start, end) sample ranges of the record's moves: a stretch of motion in one direction with
+    the standstill after it (standstill: |v| of the command below 1 % of its maximum); the record
+    is cut where the direction of motion changes."""
+    v = np.gradient(np.asarray(x_cmd, float), t)
+    sign = np.where(np.abs(v) < 0.01 * max(float(np.max(np.abs(v))), 1e-12), 0.0, np.sign(v))
+    nz = np.flatnonzero(sign)
+    if nz.size == 0:
+        return [(0, sign.size)]
+    # a standstill belongs to the move before it (the first one to the first move)
+    filled = sign[nz[np.clip(np.searchsorted(nz, np.arange(sign.size), side="right") - 1, 0, None)]]
+    cuts = list(np.flatnonzero(np.diff(filled)) + 1)
+    ends = [0] + [int(c) for c in cuts] + [sign.size]
+    return [(a, b) for a, b in zip(ends[:-1], ends[1:]) if b > a]
+
+
+def split_moves(replay, min_samples: int = HOLDOUT_MIN):
+    """The record's moves (the module's definition) in pairs, the pairs alternately in an
+    estimation half and a held-out half (single moves when there are fewer than two pairs):
+    (estimation, held_out), boolean masks of the record's samples (of the records joined, for
+    several); None for an open-loop record, or when either half has fewer than ``min_samples``."""
+    if any(getattr(p, "open_loop", False) for p in getattr(replay, "parts", [replay])):
+        return None
+    m = replay.meas
+    moves = _moves(m.t, m["x_cmd"])
+    per = 2 if len(moves) >= 4 else 1
+    est = np.zeros(m.t.size, bool)
+    for i, (a, b) in enumerate(moves):
+        est[a:b] = (i // per) % 2 == 0
+    held = ~est
+    if est.sum() < min_samples or held.sum() < min_samples:
+        return None
+    return est, held
+
+
+class _MaskedObjective:
+    """A replay's objective on some of its samples only (the estimation half): the whole record is
+    simulated (the state at a piece's start is the record's), the fit sees the masked samples."""
+
+    def __init__(self, obj, mask):
+        self.obj, self.weights = obj, obj.weights
+        self.sel = np.tile(mask, len(obj.weights))
+        self.n = int(self.sel.sum())
+
+    def residuals(self, cfg):
+        return self.obj.residuals(cfg)
+
+    def vector(self, res):
+        return self.obj.vector(res)[self.sel]
+
+
+def held_out_fall(before: dict, after: dict, floor: dict) -> dict:
+    """The held-out error before and after a step (the module's definition), from the held-out
+    residuals ``before`` and ``after`` (per channel) and the noise floor: ``before`` and ``after``
+    (RMS per channel), ``fall`` (the relative fall of the weighted error), ``uncertainty``
+    (:data:`HOLDOUT_Z` standard errors of it) and ``earned`` (the fall beyond its uncertainty).
+
+    The uncertainty is the held-out sample's: with r = m + n (the model error and white noise at the
+    floor f_c) and the step's change delta = r_before - r_after, the fall's noise part is
+    2 sum delta n / N, of standard error 2 sqrt(sum_c sum_n (delta_cn / s_c)^2 (f_c / s_c)^2) / N."""
+    n = next(iter(before.values())).size
+    eb = np.zeros(n)
+    ea = np.zeros_like(eb)
+    var = 0.0
+    for c in before:
+        sc = max(float(np.sqrt(np.mean(before[c] ** 2))), float(floor.get(c, 0.0)), 1e-300)
+        eb += (before[c] / sc) ** 2
+        ea += (after[c] / sc) ** 2
+        var += 4.0 * float(np.sum(((before[c] - after[c]) / sc) ** 2)) * (float(floor.get(c, 0.0)) / sc) ** 2
+    mean_b = max(float(np.mean(eb)), 1e-300)
+    fall = float(np.mean(eb - ea))
+    se = math.sqrt(var) / max(n, 1)
+    return {"before": rms(before), "after": rms(after), "fall": fall / mean_b, "uncertainty": HOLDOUT_Z * se / mean_b,
+            "earned": bool(fall > HOLDOUT_Z * se)}
+
+
+def _holdout_parts(replay, holdout):
+    """What the steps are checked on: ("moves", (estimation mask, held-out mask)) for ``"moves"``
+    (None where the record cannot be split), ("records", Records of the validation replays), or None."""
+    if holdout is None:
+        return None
+    if isinstance(holdout, str):
+        if holdout != "moves":
+            raise ValueError(f"holdout {holdout!r}: 'moves' or the validation records")
+        masks = split_moves(replay)
+        return ("moves", masks) if masks is not None else None
+    from hil.ident.records import Records
+    parts = list(holdout)
+    return ("records", Records(parts)) if parts else None
+
+
+def _earned(cur, split, add, found, cfg1, fit_nfev) -> dict:
+    """The step on the held-out data. With the record's moves: the step's effects refitted on the
+    estimation moves alone from their values in ``cfg1`` (the whole record simulated, the held-out
+    samples out of the objective), the held-out samples' residuals before (the model as it stands)
+    and after (:func:`held_out_fall`); and what the model as it stands reaches on the held-out moves
+    when the effects already ``found`` are refitted on them (``model_refit_fall``): the step earns
+    its place when its fall stands beyond both. With validation records, ``cfg1`` on them. With
+    ``estimation``: the RMS error per channel after the step on the data it was fitted on."""
+    kind, what = split
+    if kind != "moves":
+        out = held_out_fall(what.residuals(cur.cfg), what.residuals(cfg1), what.noise)
+        out["estimation"] = rms(cur.residuals(cfg1))
+        return out
+    est, held = what
+    res_b = cur.base_residuals
+    res_a = _refit_on(cur, est, add, cfg1, fit_nfev)
+    out = held_out_fall({c: r[held] for c, r in res_b.items()}, {c: r[held] for c, r in res_a.items()}, cur.noise)
+    model = 0.0
+    if found:
+        res_o = _refit_on(cur, held, found, cur.cfg, fit_nfev)
+        model = max(held_out_fall({c: r[held] for c, r in res_b.items()}, {c: r[held] for c, r in res_o.items()},
+                                  cur.noise)["fall"], 0.0)
+    out.update(model_refit_fall=model, earned=bool(out["fall"] > out["uncertainty"] + model),
+               estimation=rms({c: r[est] for c, r in res_a.items()}))
+    return out
+
+
+def _refit_on(cur, mask, names, cfg, fit_nfev) -> dict:
+    """The residuals of the whole record with the effects ``names`` refitted on the ``mask``
+    samples alone, from their values in ``cfg``, on top of ``cur``'s model."""
+    eff = candidate("+".join(names), cur.cfg)
+    vals = effect_values(names[0], cfg) if len(names) == 1 else \
+        {f"{n}.{k}": v for n in names for k, v in effect_values(n, cfg).items()}
+    try:
+        return _fit_one(_MaskedObjective(cur.objective, mask), cur.cfg, eff, [vals],
+                        max_nfev=min(fit_nfev, HOLDOUT_NFEV))[2]
+    except ValueError:
+        return cur.residuals(cfg)
+
+
+def _stderr_of(fit, names) -> tuple[dict, list]:
+    """A step's last fit's standard errors as {effect: {param: value}} and its confounded pairs."""
+    if fit is None:
+        return {}, []
+    out = {}
+    for k, v in fit.stderr.items():
+        n = next((n for n in names if k.startswith(n + ".")), None) if "+" in fit.effect else fit.effect
+        if n is not None:
+            out.setdefault(n, {})[k[len(n) + 1:] if "+" in fit.effect else k] = float(v)
+    return out, [list(p) for p in fit.confounded]
+
+
 def _weighted(replay, res) -> float:
     return float(np.sum(replay.objective.vector(res) ** 2))
 
 
 def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_STEPS, progress=None,
-                   jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, **kw) -> dict:
+                   jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, holdout=None, **kw) -> dict:
     """The chain on a record (see the module's definition).
 
     Parameters
@@ -90,6 +264,10 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         Passed on to :func:`~hil.ident.diagnosis.diagnose`.
     fit_nfev : int
         Evaluations of the fits that add the verdicts and of the joint refit.
+    holdout : "moves", list of Replay, or None
+        What every step must earn its place on (the module's definition): the record's moves split
+        into estimation and held-out halves, the replays of validation records, or nothing (None:
+        the BIC score on the record alone).
 
     Returns
     -------
@@ -99,9 +277,12 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         it added), ``params`` ({effect: {param: value}} of everything found so far, after the
         step's refit), ``error_before`` and ``error_after`` (RMS per channel), ``gap_closed`` (per
         channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``; and,
-        with a leading underscore, the fits and the config, left out of the JSON), ``final`` (the
-        residual against the noise floor and why it ended), ``diagnoses`` (every step's diagnosis)
-        and ``config`` (the model with the whole chain).
+        with a leading underscore, the fits and the config, left out of the JSON), ``stderr``
+        ({effect: {param: standard error}} of the step's last fit) and ``confounded`` (its pairs of
+        parameters correlated above :data:`~hil.ident.fit.CONFOUNDED`); with a held-out part
+        ``estimation_error`` and ``held_out`` (:func:`held_out_fall`); ``final`` (the residual
+        against the noise floor and why it ended; ``rejected``: the step the held-out data refused),
+        ``diagnoses`` (every step's diagnosis) and ``config`` (the model with the whole chain).
     """
     floor = replay.noise
     cur = replay
@@ -109,6 +290,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     steps, diags = [], []
     first = None
     end = f"max steps ({max_steps})"
+    split = _holdout_parts(replay, holdout)
+    rejected = None
     for i in range(max(1, max_steps)):
         err0 = rms(cur.base_residuals)
         if at_noise_floor(err0, floor):
@@ -172,21 +355,41 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if i > 0 and paid <= MIN_SCORE:
             end = "no effect pays for its parameters"
             break
-        found += add
+        held = _earned(cur, split, add, found, cfg1, fit_nfev) if split else None
         lead = next((c for c in d["candidates"] if c.effect == verdict), None)
         err1 = rms(res1)
+        se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
+        if held is not None and not held["earned"]:
+            end = "no step earns its place on the held-out data"
+            rejected = {"effects": list(add), "score": float(paid), "error_after": err1, "stderr": se,
+                        "confounded": conf, "estimation_error": held.pop("estimation"), "held_out": held}
+            logger.info("chain step %d: %s refused by the held-out data (fall %.3g, uncertainty %.3g)", i + 1,
+                        " + ".join(add), held["fall"], held["uncertainty"])
+            break
+        found += add
         steps.append({"step": i + 1, "effect": verdict, "effects": list(add),
                       "params": {n: effect_values(n, cfg1) for n in found},
                       "error_before": err0, "error_after": err1,
                       "gap_closed": {c: gap_closed(err0[c], err1[c], floor[c]) for c in err0},
                       "score": float(paid), "evidence": lead.evidence if lead is not None else "",
-                      "refitted_together": joint is not None, "_fits": fits, "_joint": joint, "_config": cfg1})
+                      "refitted_together": joint is not None, "stderr": se, "confounded": conf,
+                      "_fits": fits, "_joint": joint, "_config": cfg1})
+        if held is not None:
+            steps[-1].update(estimation_error=held.pop("estimation"), held_out=held)
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         cur = cur.with_config(cfg1)
     errf = rms(cur.base_residuals)
     final = {"error": errf, "noise_floor": dict(floor),
              "above_floor": {c: errf[c] / max(floor[c], 1e-300) for c in errf},
              "at_noise_floor": at_noise_floor(errf, floor), "end": end, "steps": len(steps)}
+    if split is not None:
+        final["held_out"] = ("the record's moves in pairs, alternately estimation and held out"
+                             if split[0] == "moves" else "the validation records")
+    elif holdout is not None:
+        final["held_out"] = (f"none (the record has fewer than {HOLDOUT_MIN} samples in its estimation or held-out "
+                             f"moves, or is open-loop)")
+    if rejected is not None:
+        final["rejected"] = rejected
     if not final["at_noise_floor"]:
         last = diags[-1] if diags else None
         best = last["candidates"][0] if last and last["candidates"] else None

@@ -8,7 +8,9 @@ fully. Its score is BIC(before) - BIC(after) on the effective samples; it is sig
 (hil.ident.noise). The verdict is ``"none"`` only when the model matches the record down to the
 noise floor in every channel; above it, when no candidate is significant or the leading one closes
 less than half of the gap between the error and the floor (hil.ident.unexplained), the verdict is
-``"unexplained"``, with the evidence of where the residual lives.
+``"unexplained"``, with the evidence of where the residual lives, unless another significant
+candidate closes the half (two effects at once: the best score can go to the one that closes
+less of the gap); that one is then the verdict.
 
 Ranking: best score first; a catalogue effect before a ``parameter:`` that is the same fit by
 another name; a simpler catalogue effect nested in a richer one (coulomb_friction inside
@@ -82,8 +84,9 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     jobs = jobs or os.cpu_count() or 1
     # the costly candidates first, so that the processes finish together
     names = sorted(names, key=lambda n: -_cost_hint(n, cfg))
-    out = [c for c in evaluate_many(replay, [(n, screen_nfev, None, 1) for n in names], res0, jobs, progress)
-           if c is not None]
+    # an added mode starts from the residual's peaks and from a grid, two basins apart: both screened
+    out = [c for c in evaluate_many(replay, [(n, screen_nfev, None, 2 if n == "compliant_mode" else 1) for n in names],
+                                    res0, jobs, progress) if c is not None]
     ranked = sorted(out, key=lambda c: -c.score)
     top = [c.effect for c in ranked[:refine]]
     # and the simpler effects nested in those, so that the ranking compares refined fits
@@ -108,6 +111,17 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     err0 = {c: float(np.sqrt(np.mean(res0[c] ** 2))) for c in replay.objective.weights}
     # an honest end: "none" only down to the noise floor; above it, a verdict must close half the gap
     closed = gap_closed(best.error_before, best.error_after, replay.noise.get(best.channel, 0.0)) if best else 0.0
+    if verdict not in ("none",) and closed < min_gap and lead is None:
+        # two effects at once: the best score may go to the one that closes less of the gap (a
+        # ripple fitted in its basin beside a larger mass change); a significant candidate that
+        # closes the half is the verdict, the chain adds the other next
+        wide = max((c for c in ranked if c.significant and not isinstance(c, Combo)),
+                   key=lambda c: gap_closed(c.error_before, c.error_after, replay.noise.get(c.channel, 0.0)),
+                   default=None)
+        if wide is not None:
+            share = gap_closed(wide.error_before, wide.error_after, replay.noise.get(wide.channel, 0.0))
+            if share >= min_gap:
+                verdict, best, closed = wide.effect, wide, share
     if at_noise_floor(err0, replay.noise):
         verdict, also = "none", []
     elif verdict == "none" or closed < min_gap:

@@ -7,7 +7,10 @@ start, bounded by its range, relative difference step 1e-3; a config that cannot
 costs a vector of 1e3. The best of the starts (hil.ident.starts) wins. The candidate is then
 scored (hil.ident.scores.bic_score) and described (hil.ident.evidence); its gain is
 1 - ||w r_after||^2 / ||w r_before||^2, and the channel where it shows is the one whose RMS error
-falls the most, relatively.
+falls the most, relatively. A fitted effect that leaves more weighted error than the model without
+it has stopped in a wrong basin (the effect-free model is one of its values, or the limit of them):
+the candidate says so (``worse_than_without``, and in its evidence), and its negative score keeps
+it from any verdict.
 
 :func:`fit_effects` adds effects one after the other (greedy), then refits them all together
 from the greedy values; :func:`joint_refit` refits config keys together from their values.
@@ -17,7 +20,10 @@ The standard error of each fitted parameter is the linearised one of the least-s
 (scipy's, in the scaled parameters), s^2 = ||r||^2 / (n - p) and Cov = s^2 (J^T J)^-1 (a
 pseudo-inverse: a parameter at its bound or without influence has no finite one and gets NaN).
 It is the uncertainty of the value under the model (white, independent residuals); a record whose
-residual is coloured makes it optimistic.
+residual is coloured makes it optimistic. The correlation matrix of the same covariance,
+Cov_ij / sqrt(Cov_ii Cov_jj), says what a parameter is confounded with: the pairs with |r| above
+:data:`CONFOUNDED` are named (``confounded``: [name, name, r]); the data cannot tell them apart, only
+their combination.
 """
 from __future__ import annotations
 
@@ -38,7 +44,10 @@ from hil.sim_plant.effects import Effect
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit", "standard_errors"]
+CONFOUNDED = 0.9     # |correlation| of two fitted parameters above which they are named as confounded
+WORSE_TOL = 1e-6     # relative: a fit leaving more weighted error than this above the effect-free model's is wrong
+
+__all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit", "standard_errors", "confounded_pairs", "CONFOUNDED"]
 
 
 @dataclass
@@ -59,37 +68,68 @@ class Candidate:
     nfev: int = 0
     res: dict = field(default=None, repr=False)     # residuals after the fit (for pairwise comparisons)
     stderr: dict = field(default_factory=dict)      # standard error of each fitted parameter (SI; NaN: none)
+    worse_than_without: bool = False    # the fit left more error than the model without the effect: a wrong basin
+    confounded: list = field(default_factory=list)   # [name, name, r]: fitted parameters correlated above CONFOUNDED
 
     def as_json(self) -> dict:
         return {"effect": self.effect, "params": {k: float(v) for k, v in self.params.items()},
                 "stderr": {k: float(v) for k, v in self.stderr.items()},
                 "channel": self.channel, "error_before": float(self.error_before),
                 "error_after": float(self.error_after), "score": float(self.score), "evidence": self.evidence,
-                "gain": float(self.gain), "significant": bool(self.significant)}
+                "gain": float(self.gain), "significant": bool(self.significant),
+                "worse_than_without": bool(self.worse_than_without),
+                "confounded": [[a, b, float(r)] for a, b, r in self.confounded]}
+
+
+def _covariance(sol):
+    """The linearised covariance s^2 (J^T J)^-1 of the scaled parameters ``sol.x`` (the module's
+    definition) and a mask of the directions without a finite one; None when it cannot be formed."""
+    J = np.asarray(sol.jac, dtype=float)
+    n, p = J.shape
+    if n <= p or not np.all(np.isfinite(J)):
+        return None
+    s2 = 2.0 * float(sol.cost) / (n - p)
+    jtj = J.T @ J
+    try:
+        cov = s2 * np.linalg.inv(jtj)
+    except np.linalg.LinAlgError:
+        return None
+    # a direction the residual does not see: no finite standard error
+    bad = (np.diag(jtj) <= 1e-12 * max(float(np.max(np.diag(jtj))), 1e-300)) | ~(np.diag(cov) >= 0)
+    at_bound = np.asarray(getattr(sol, "active_mask", np.zeros(p)), dtype=int) != 0
+    return cov, bad | at_bound
 
 
 def standard_errors(sol, scale) -> np.ndarray:
     """Standard errors of the parameters ``sol.x * scale`` of a :func:`least_squares` result:
     sqrt(diag(s^2 (J^T J)^-1)) * scale, s^2 = 2 cost / (n - p); NaN where J^T J is singular in that
     direction (a parameter at its bound, or one the residual does not see)."""
-    J = np.asarray(sol.jac, dtype=float)
-    n, p = J.shape
+    p = np.asarray(sol.jac).shape[1]
     scale = np.broadcast_to(np.asarray(scale, dtype=float), (p,))
-    if n <= p or not np.all(np.isfinite(J)):
+    got = _covariance(sol)
+    if got is None:
         return np.full(p, np.nan)
-    s2 = 2.0 * float(sol.cost) / (n - p)
-    jtj = J.T @ J
-    try:
-        cov = np.linalg.inv(jtj)
-    except np.linalg.LinAlgError:
-        return np.full(p, np.nan)
-    var = s2 * np.diag(cov)
-    # a direction the residual does not see: no finite standard error
-    bad = (np.diag(jtj) <= 1e-12 * max(float(np.max(np.diag(jtj))), 1e-300)) | ~(var >= 0)
-    out = np.sqrt(np.where(bad, np.nan, var)) * np.abs(scale)
-    at_bound = np.asarray(getattr(sol, "active_mask", np.zeros(p)), dtype=int) != 0
-    out[at_bound] = np.nan
-    return out
+    cov, bad = got
+    return np.sqrt(np.where(bad, np.nan, np.diag(cov))) * np.abs(scale)
+
+
+def confounded_pairs(sol, names) -> list:
+    """The pairs of fitted parameters whose correlation (of the linearised covariance) exceeds
+    :data:`CONFOUNDED` in magnitude: [name, name, r], strongest first."""
+    got = _covariance(sol)      # the scale cancels in a correlation
+    if got is None:
+        return []
+    cov, bad = got
+    d = np.sqrt(np.abs(np.diag(cov)))
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if bad[i] or bad[j] or d[i] == 0 or d[j] == 0:
+                continue
+            r = float(cov[i, j] / (d[i] * d[j]))
+            if abs(r) > CONFOUNDED:
+                out.append([names[i], names[j], r])
+    return sorted(out, key=lambda x: -abs(x[2]))
 
 
 def _param_scale(p, g):
@@ -135,6 +175,7 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
     logger.debug("%s fitted: %s (cost %.4g, %d evaluations)", eff.name, vals, best[0], total)
     if stderr is not None:
         stderr.update(zip(names, standard_errors(best[2], best[3]).tolist()))
+        stderr["_confounded"] = confounded_pairs(best[2], names)
     cfg = configure(eff, base_cfg, vals)
     return vals, cfg, obj.residuals(cfg), total
 
@@ -153,6 +194,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     starts = [dict(start)] if start else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)]
     se: dict = {}
     vals, cfg1, res1, nfev = _fit_one(obj, cfg, eff, starts, max_nfev=max_nfev, stderr=se)
+    confounded = se.pop("_confounded", [])
     chans = list(obj.weights)
     score = bic_score(res0, res1, chans, len(eff.fitted_params), replay.noise)
     e0 = float(np.sum(obj.vector(res0) ** 2))
@@ -166,8 +208,12 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     floor = replay.noise[chan]
     significant = score > MIN_SCORE and before > SIGNIFICANT_ABOVE_NOISE * floor
     ev = evidence(name, vals, replay, res0, chan, before, after, model_modes(cfg))
-    return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant, cfg1,
-                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se)
+    worse = e1 > e0 * (1 + WORSE_TOL)
+    if worse:
+        ev = (f"the fit is wrong: it leaves {100 * (e1 / e0 - 1):.2g} % more weighted error than the model without "
+              f"{name} (a wrong basin); " + ev)
+    return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant and not worse, cfg1,
+                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se, worse, confounded)
 
 
 def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=None):

@@ -7,8 +7,21 @@ the fit (SI units).
 * Friction and force effects: a linear regression of the force residual while moving
   (|v| > 2 % of max|v|), r = Fc sign(v) + c v + f0, or per direction
   r = Fc+ [v > 0] - Fc- [v < 0] + c+ v [v > 0] + c- v [v < 0], added to what the model has.
-* Position-periodic effects (pitch_error, torque_ripple): the periods of the residual in
-  position (x_motor - x_table for the lead error) at four phases; the cheapest two kept.
+* Position-periodic effects (pitch_error, torque_ripple): every order per revolution (periods
+  pitch / n, n = 1 .. :data:`MAX_ORDER`, as far as the record resolves them: at least
+  :data:`MIN_RESOLVED` moving samples a quarter of the period or less apart), and the two
+  strongest periods of the residual's Lomb-Scargle periodogram in position (any period, also a
+  linear motor's). Each order is screened by the residual's own spectrum against the motor
+  position (:func:`order_spectrum`: the weighted energy that sin and cos of 2 pi x_motor / period
+  explain beside the slow regressors 1, v, a, sign(v)); the :data:`PERIODS_KEPT` strongest, the
+  Lomb-Scargle periods and the effect's guess are then solved in closed form: the loop is nearly
+  linear in the ripple's (lead error's) sine and cosine, so two simulations at one amplitude give
+  the amplitude and phase that explain most of the weighted residual (least squares on the two
+  responses); the cheapest two, by a third simulation each, are the starts.
+* backlash: the gap the residual shows (x_motor - x_table moving in +x against moving in -x:
+  the dead zone of +-gap/2 shifts it by the whole gap between the directions), and a coarse grid
+  over the physical range (:data:`GAP_GRID`, log-spaced), refined along the one parameter as the
+  delays' grids are (below).
 * compliant_mode: for modal masses of 0.05 to 1.5 times the tip mass, the natural frequency that
   puts a mode of the coupled chain within 3 % of a peak of the residual spectrum; the cheapest
   two kept. The peaks are the residual's own, above the command's lines (:func:`mode_targets`):
@@ -17,6 +30,15 @@ the fit (SI units).
   residual peak within :data:`LINE_TOL` (or three bins) of a line is the command's forced
   response, not a mode, unless its ratio to the input there stands :data:`LINE_ABOVE` times above
   the median ratio over the input's lines (a mode amplifies the lines near it).
+  Beside those, a coarse grid over the physical range, damping ratio :data:`MODE_DAMPING`: the
+  modal mass first (:data:`MODE_MASSES` log-spaced over :data:`MODE_RATIOS` of the tip mass, the
+  mode stiff at the grid's top frequency, where it acts as a mass on the tip), then at the two
+  best masses the natural frequency (:data:`MODE_FREQS` log-spaced from :data:`MODE_FMIN` to the
+  record's 0.45 / sample period); each line refined between its best point's neighbours as a
+  delay's grid is; every start costed by one simulation; the local fit starts from the cheapest
+  start of the residual's peaks and the cheapest of the grid (then the second of each). A coupled mode
+  moves the chain's own resonance too, so the residual's peak alone has several basins (a light
+  fast mode and a heavy slow one shift it alike): the grid tells them apart.
 * Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews; the
   error is not convex in a delay): one simulation per grid point over the physically possible
   range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
@@ -34,12 +56,22 @@ from hil.ident.residual import periodic_in_position, spectrum_peaks
 from hil.plant_config import configure
 from hil.sim_plant.effects import Combination, Effect
 
-__all__ = ["record_scales", "starting_values", "mode_targets", "command_lines", "LINE_ABOVE", "LINE_TOL",
-           "LINE_BINS"]
+__all__ = ["record_scales", "starting_values", "mode_targets", "command_lines", "order_spectrum", "LINE_ABOVE",
+           "LINE_TOL", "LINE_BINS", "MAX_ORDER", "MIN_RESOLVED", "PERIODS_KEPT", "GAP_GRID", "MODE_FREQS",
+           "MODE_FMIN", "MODE_RATIOS", "MODE_MASSES", "MODE_DAMPING"]
 
 LINE_ABOVE = 10.0    # a line stands this many times above the spectrum's running median
 LINE_TOL = 0.05      # a residual peak this close (relative) to an input's line is that line
 LINE_BINS = 21       # bins of the running median
+MAX_ORDER = 64       # orders per revolution screened (cogging of a motor reaches a few dozen)
+MIN_RESOLVED = 64    # moving samples at most a quarter period apart that an order needs
+PERIODS_KEPT = 3     # the strongest orders of the screen solved in closed form
+GAP_GRID = tuple(float(g) for g in np.geomspace(0.5e-6, 1e-3, 12))   # backlash gaps, m (total play)
+MODE_FREQS = 12      # natural frequencies of the mode grid
+MODE_FMIN = 2.0      # Hz, the mode grid's lower end
+MODE_RATIOS = (0.02, 2.0)   # the mode grid's modal masses, relative to the tip mass: lowest, highest
+MODE_MASSES = 7      # modal masses of the mode grid
+MODE_DAMPING = 0.02  # damping ratio of the mode grid's points
 
 
 def record_scales(replay: Replay, res0: dict) -> dict:
@@ -61,17 +93,16 @@ def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -
     g = eff.guess(replay.plant, scale)
     g = {p.name: g.get(p.name, p.guess) for p in eff.params}
     if eff.name in ("pitch_error", "torque_ripple"):
-        starts = []
-        chan = "x_motor-x_table" if eff.name == "pitch_error" and "x_table" in res0 and "x_motor" in res0 else None
-        r = (res0["x_motor"] - res0["x_table"]) if chan else res0[replay.primary_channel(res0)]
-        found = periodic_in_position(replay.meas["x_cmd"], r, replay.meas.t, n=2)
-        periods = [p for p, _, _ in found] + [g["period"]]
-        for per in periods:
-            for ph in (0.0, math.pi / 2, math.pi, -math.pi / 2):
-                starts.append(dict(g, period=per, phase=ph))
-        return _prefilter(eff, replay, starts, cfg)
+        return _periodic_starts(eff, replay, res0, g, cfg)
     if eff.name == "compliant_mode":
-        return _prefilter(eff, replay, _mode_starts(eff, replay, res0, g), cfg)
+        # the best start from the residual's peaks and the best of the grid, then the next of each:
+        # the cheapest start is not always in the deepest basin
+        near = _prefilter(eff, replay, _mode_starts(eff, replay, res0, g), cfg)
+        grid = _prefilter(eff, replay, _mode_grid(eff, replay, cfg), cfg)
+        return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
+    if eff.name == "backlash":
+        gaps = sorted(set(GAP_GRID) | {_gap_from_residual(replay, res0, eff.param("gap").upper)} - {None})
+        return _grid_starts(eff, replay, [dict(g, gap=gp) for gp in gaps], cfg)
     grid = eff.grid(replay.plant, controller_from_config(cfg, replay.plant), scale)
     if grid:
         return _grid_starts(eff, replay, [dict(g, **pt) for pt in grid], cfg)
@@ -145,6 +176,134 @@ def _mode_starts(eff, replay, res0, g) -> list[dict]:
                 starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01})
         starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01})
     return starts
+
+
+def _mode_grid(eff, replay, cfg) -> list[dict]:
+    """The mode's coarse grid over the physical range (the module's definition): first the modal
+    mass with the mode stiff (at the grid's top frequency, where it acts as a mass added to the
+    tip), then the natural frequency at the best masses; each line refined between the best
+    point's neighbours; the cheapest two of each line."""
+    m_tip = replay.plant.chain.m[replay.plant.tip]
+    p = eff.param("frequency")
+    fmax = min(0.45 / replay.sample_period, p.upper)
+    freqs = np.geomspace(max(MODE_FMIN, p.lower), fmax, MODE_FREQS)
+    masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": MODE_DAMPING}
+              for r in np.geomspace(MODE_RATIOS[0], MODE_RATIOS[1], MODE_MASSES)]
+    out = _grid_starts(eff, replay, masses, cfg, keep=2, fine=3)
+    for best in list(out):
+        out += _grid_starts(eff, replay, [dict(best, frequency=float(f)) for f in freqs], cfg, keep=2, fine=3)
+    return out
+
+
+def _gap_from_residual(replay, res0, upper: float) -> float | None:
+    """The backlash the residual shows: the median of x_motor - x_table moving in +x less the
+    median moving in -x (the dead zone of +-gap/2 shifts the link by the whole gap between the
+    directions; the model's own elastic part is not in the residual). None without both channels,
+    both directions, or a gap within (0, ``upper``)."""
+    if "x_motor" not in res0 or "x_table" not in res0:
+        return None
+    m = replay.meas
+    v = np.gradient(m["x_cmd"], m.t)
+    lim = 0.02 * max(float(np.max(np.abs(v))), 1e-12)
+    d = np.asarray(res0["x_motor"]) - np.asarray(res0["x_table"])
+    up, down = d[v > lim], d[v < -lim]
+    if up.size < 8 or down.size < 8:
+        return None
+    gap = float(np.median(up) - np.median(down))
+    return gap if 0.0 < gap < upper else None
+
+
+def _motor_position(replay) -> np.ndarray:
+    """The position a periodic effect follows: the motor's (load units) where recorded, else the
+    command."""
+    m = replay.meas
+    return np.asarray(m["x_motor"] if "x_motor" in m else m["x_cmd"], float)
+
+
+def order_spectrum(replay, res0: dict, periods, chans=None) -> list[float]:
+    """The residual's spectrum against the motor position at the given ``periods`` (m): per period
+    the weighted residual energy that sin and cos of 2 pi x / period explain by least squares beside
+    the slow regressors 1, v, a and sign(v) (velocity and acceleration of the command), summed over
+    the channels (``chans``: the objective's), on the moving samples that resolve the period (at most
+    a quarter period apart); 0 where fewer than :data:`MIN_RESOLVED` samples do."""
+    m = replay.meas
+    w = replay.objective.weights
+    chans = [c for c in (chans or w) if c in res0]
+    x = _motor_position(replay)
+    v = np.gradient(np.asarray(m["x_cmd"], float), m.t)
+    a = np.gradient(v, m.t)
+    step = np.abs(np.gradient(x))
+    moving = np.abs(v) > 0.02 * max(float(np.max(np.abs(v))), 1e-12)
+    out = []
+    for per in periods:
+        sel = moving & (step <= 0.25 * per)
+        if sel.sum() < MIN_RESOLVED:
+            out.append(0.0)
+            continue
+        ph = 2 * np.pi * x[sel] / per
+        slow = np.column_stack([np.ones(sel.sum()), v[sel], a[sel], np.sign(v[sel])])
+        X = np.column_stack([slow, np.sin(ph), np.cos(ph)])
+        energy = 0.0
+        for c in chans:
+            r = np.asarray(res0[c], float)[sel] * w[c]
+            ssr_slow = _ssr(slow, r)
+            energy += max(ssr_slow - _ssr(X, r), 0.0)
+        out.append(energy)
+    return out
+
+
+def _ssr(X, y) -> float:
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    e = y - X @ coef
+    return float(e @ e)
+
+
+def _periodic_starts(eff, replay, res0, g, cfg) -> list[dict]:
+    """The starts of a position-periodic effect (the module's definition): the orders per revolution
+    screened by :func:`order_spectrum`, the strongest with the Lomb-Scargle periods and the guess
+    solved in closed form for amplitude and phase, the cheapest two kept."""
+    lo, hi = eff.param("period").lower, eff.param("period").upper
+    pitch = replay.plant.pitch
+    chan = None
+    if eff.name == "pitch_error" and "x_table" in res0 and "x_motor" in res0:
+        chan = "x_motor-x_table"
+    r = (res0["x_motor"] - res0["x_table"]) if chan else res0[replay.primary_channel(res0)]
+    found = [p for p, _, _ in periodic_in_position(replay.meas["x_cmd"], r, replay.meas.t, n=2)]
+    periods = []
+    if pitch:
+        orders = [pitch / n for n in range(1, MAX_ORDER + 1) if lo <= pitch / n <= hi]
+        energy = order_spectrum(replay, res0, orders)
+        ranked = [orders[i] for i in np.argsort(energy)[::-1] if energy[i] > 0]
+        periods += ranked[:PERIODS_KEPT]
+    periods += [p for p in found + [g["period"]] if lo <= p <= hi]
+    periods = list(dict.fromkeys(float(p) for p in periods))
+    starts = []
+    for per in periods:
+        s = _solve_amplitude_phase(eff, replay, res0, cfg, dict(g, period=per))
+        starts += [s] if s else [dict(g, period=per, phase=ph) for ph in (0.0, math.pi / 2, math.pi, -math.pi / 2)]
+    return _prefilter(eff, replay, starts, cfg)
+
+
+def _solve_amplitude_phase(eff, replay, res0, cfg, g) -> dict | None:
+    """Amplitude and phase at one period in closed form: the weighted residual vector falls by D_s
+    with the effect at amplitude A0 and phase 0 (A0 sin), by D_c at phase pi/2 (A0 cos); the loop
+    being nearly linear in them, a sin + b cos with (a, b) = A0 argmin ||e0 - a' D_s - b' D_c||
+    explains the most: amplitude hypot(a, b), phase atan2(b, a). None when a simulation fails."""
+    obj = replay.objective
+    amp0 = float(g["amplitude"])
+    try:
+        e0 = obj.vector(res0)
+        es = obj.vector(obj.residuals(configure(eff, cfg, dict(g, phase=0.0))))
+        ec = obj.vector(obj.residuals(configure(eff, cfg, dict(g, phase=math.pi / 2))))
+    except ValueError:
+        return None
+    D = np.column_stack([e0 - es, e0 - ec])
+    coef, *_ = np.linalg.lstsq(D, e0, rcond=None)
+    if not np.all(np.isfinite(coef)):
+        return None
+    a, b = (amp0 * float(c) for c in coef)
+    amp = float(np.clip(math.hypot(a, b), eff.param("amplitude").lower, eff.param("amplitude").upper))
+    return dict(g, amplitude=amp if amp > 0 else amp0, phase=math.atan2(b, a))
 
 
 def _spectrum(y, dt):
