@@ -77,7 +77,7 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
     if eff_name in ("pitch_error", "torque_ripple"):
         what = "x_motor - x_table" if eff_name == "pitch_error" and "x_table" in res0 else chan
         per = vals.get("period", 0.0)
-        return f"{what} residual periodic in position with period {per * 1e3:.3g} mm; " + fall
+        return f"{what} residual periodic in position with period {fmt_si(per, replay.unit('x_motor'), 3)}; " + fall
     if eff_name == "compliant_mode":
         f = vals.get("frequency", 0.0)
         near = [fm for fm in base_modes if abs(fm - f) < 0.1 * f]
@@ -107,7 +107,11 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
         still = ~moving
         parts = [f"{float(np.mean(rf[sel])):+.3g} {fu} {what}" for sel, what in ((still, "at rest"), (moving, "moving"))
                  if rf is not None and sel.sum() >= 8]
-        return (f"a sensor offset, not a load: the {fch or 'force'} channel reads {off:+.3g} {fu} more than the "
+        # an open-loop record compares no force channel: the offset is in the actuator's unit
+        ou = fu or ("N*m" if replay.cfg.rotary else "N")
+        sign = "+" if off >= 0 else "-"
+        return (f"a sensor offset, not a load: the {fch or ('torque' if replay.cfg.rotary else 'force')} channel "
+                f"reads {sign}{fmt_si(abs(off), ou, 3)} more than the "
                 f"actuator delivers" + (f" (residual mean {' and '.join(parts)})" if parts else "") +
                 "; a load would move the axis and show in the positions, this changes the recorded channel alone; "
                 + fall)

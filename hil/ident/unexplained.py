@@ -78,7 +78,7 @@ def residual_evidence(replay, res: dict, best=None) -> dict:
     for c in chans:
         r = np.asarray(res[c], float)
         out["channels"].append({
-            "channel": c, "unit": replay.unit(c), "rms": err[c], "noise_floor": float(floor.get(c, 0.0)),
+            "channel": c, "unit": replay.unit(c), "position_unit": replay.unit("x_motor"), "rms": err[c], "noise_floor": float(floor.get(c, 0.0)),
             "above_floor": err[c] / max(floor.get(c, 0.0), 1e-300),
             "spectral_peaks": [{"frequency": f, "amplitude": amp} for f, amp in
                                spectrum_peaks(r, replay.sample_period, merge_bins=REPORT_MERGE_BINS)],
@@ -106,7 +106,8 @@ def describe(ev: dict) -> list[str]:
         top = max(cor, key=lambda k: abs(cor[k]))
         still = "no standstill" if d["rms_standstill"] is None else f"{q(d['rms_standstill'])} at standstill"
         tr = d["along_travel"]
-        where = (f"; largest at x = {1e3 * tr['band'][0]:.1f} .. {1e3 * tr['band'][1]:.1f} mm, {tr['against_median']:.1f} x "
+        pu, k = ("mm", 1e3) if d.get("position_unit", "m") == "m" else (d["position_unit"], 1.0)  # rad: an angle axis
+        where = (f"; largest at x = {k * tr['band'][0]:.1f} .. {k * tr['band'][1]:.1f} {pu}, {tr['against_median']:.1f} x "
                  f"the median band" if tr else "")
         lines.append(f"{d['channel']}: RMS {q(d['rms'])}, {d['above_floor']:.1f} x its noise floor "
                      f"{q(d['noise_floor'])}; spectral peaks {peaks or 'none'}; correlation with position "
