@@ -234,3 +234,12 @@ def test_a_mapped_channel_the_replay_does_not_use_is_said(tmp_path, capsys):
                header="t [s],x_cmd [m],x_motor [m],force [N],torque [N*m]", comments="")
     rc, out, err = _run(capsys, "compare", str(rec), "--config", str(CONFIG / "emps.toml"), "--out", str(tmp_path / "c"))
     assert "channel 'torque' is mapped but the replay does not use it" in err
+
+
+def test_the_evidence_of_an_angle_axis_speaks_rad(hsm_record, capsys):
+    """On HSM150 the ripple's period printed '5.01 mm' and the offset '+0.000103  more' (no unit)."""
+    rc, out, _ = _run(capsys, "diagnose", hsm_record, "--config", HSM, "--open-loop", "--set", "friction.viscous=1e-4",
+                      "--candidates", "torque_ripple,force_offset", "--no-chain", "--jobs", "1", "--json")
+    ev = {c["effect"]: c["evidence"] for c in json.loads(out)["candidates"]}
+    assert re.search(r"period [\d.]+ (m|u)?rad;", ev["torque_ripple"]), ev["torque_ripple"]
+    assert re.search(r"reads [+-][\d.e-]+ N m more than the actuator", ev["force_offset"]), ev["force_offset"]
