@@ -168,7 +168,11 @@ def parse(value, kind: str, what: str = "value") -> float:
         try:
             q = ureg.Quantity(text)
         except Exception as exc:  # pint raises several kinds; all mean "cannot read this"
-            raise UnitError(f"{what}: cannot read {value!r} as a {kind} ({exc.__class__.__name__}: {exc})") from None
+            # one line of bounded length: a long text of wide characters repr'd is ten times its length
+            shown, why = repr(value), str(exc)
+            shown = shown if len(shown) <= 80 else shown[:77] + "..."
+            why = why if len(why) <= 120 else why[:117] + "..."
+            raise UnitError(f"{what}: cannot read {shown} as a {kind} ({exc.__class__.__name__}: {why})") from None
         if not hasattr(q, "dimensionality"):
             out = float(q)
         else:

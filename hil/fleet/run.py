@@ -119,10 +119,17 @@ def _read(data: bytes, name: str, cfg, mapping):
 def _tracked(rp, track, fit_nfev):
     """The tracked effects fitted together on the start model: ({effect.param: value},
     {effect.param: standard error})."""
-    from hil.ident.fit import fit_effects
+    from hil.ident.fit import evaluate, fit_effects
     if not track:
         return {}, {}
-    _, steps = fit_effects(rp, list(track), max_nfev=fit_nfev)
+    # the greedy order by what each effect explains alone, largest first: fitted first on a record
+    # whose error another effect dominates (a friction that rose), an effect's global start sees
+    # that effect's residual, not its own, and a backlash collapsed to no gap
+    order = list(track)
+    if len(order) > 1:
+        gains = {e: evaluate(rp, e, max_nfev=fit_nfev).gain for e in order}
+        order.sort(key=lambda e: -gains[e])
+    _, steps = fit_effects(rp, order, max_nfev=fit_nfev)
     last = steps[-1]
     if "+" in last.effect:          # the joint fit: its parameters are named effect.param already
         return dict(last.params), dict(last.stderr)
