@@ -460,8 +460,8 @@ class LoopTerms:
         return h
 
     def feedback_history(self) -> np.ndarray:
-        """:meth:`feedback_buffer`, or a placeholder the stages leave alone without a feedback delay
-        (not real-time)."""
+        """:meth:`feedback_buffer`, or a two-element empty history (which the stages never read)
+        without a feedback delay (not real-time)."""
         h = self.feedback_buffer()
         return h if h is not None else np.array([0.0, -1.0])
 
@@ -478,7 +478,7 @@ class LoopTerms:
         return np.zeros(self.delay_parts[0] + 2) if self.delay > 0.0 else None
 
     def output_buffer(self) -> np.ndarray:
-        """:meth:`delay_buffer`, or a placeholder the stages leave alone without a delay (not
+        """:meth:`delay_buffer`, or a buffer the stages never read without a delay (not
         real-time)."""
         return np.zeros(self.delay_parts[0] + 2)
 

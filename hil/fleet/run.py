@@ -225,19 +225,8 @@ class DaskExecutor:
                 raise UserError(f"--scheduler {scheduler}: no Dask scheduler answers there ({exc})") from None
 
     def map(self, items):
-        from distributed import as_completed as das_completed
-        if not items:
-            return
-        futs = [self.client.submit(diagnose_record, *it, key=f"fleet-{hashlib.sha1(it[0].encode()).hexdigest()}",
-                                   pure=False) for it in items]
-        try:
-            with self.client.as_current():
-                done = das_completed(futs)
-            for fut in done:
-                yield fut.result()
-        finally:
-            for f in futs:
-                f.cancel()
+        from hil.sweep.executors import dask_results
+        yield from dask_results(self.client, diagnose_record, [(it[0], it) for it in items], "fleet")
 
     def close(self):
         if self.own:

@@ -78,19 +78,7 @@ class DaskExecutor:
             self.client, self.own = Client(scheduler, set_as_default=False, timeout=10), True
 
     def map(self, cfg, tasks):
-        from distributed import as_completed as das_completed
-        if not tasks:
-            return
-        futs = [self.client.submit(run_task, cfg, key, spec, key=f"sweep-{hashlib.sha1(key.encode()).hexdigest()}",
-                                   pure=False) for key, spec in tasks]
-        try:
-            with self.client.as_current():
-                done = das_completed(futs)
-            for fut in done:
-                yield fut.result()
-        finally:
-            for f in futs:
-                f.cancel()
+        yield from dask_results(self.client, run_task, [(key, (cfg, key, spec)) for key, spec in tasks], "sweep")
 
     def one(self, cfg, key, spec):
         return self.client.submit(run_task, cfg, key, spec, pure=False).result()
@@ -137,3 +125,22 @@ def run_trace_name(path: str, run: int) -> str:
     before its suffix, which names the format (``bus.asc``, 3 -> ``bus-003.asc``)."""
     p = Path(path)
     return str(p.with_name(f"{p.stem}-{run:03d}{p.suffix}"))
+
+
+def dask_results(client, fn, calls, prefix: str):
+    """``fn(*args)`` of every ``(name, args)`` of ``calls`` on the cluster of ``client``, each
+    result as it finishes; the task keys are ``prefix`` and a hash of the name (a rerun finds its
+    own); what has not finished is cancelled when the caller stops early (Ctrl-C, an error)."""
+    from distributed import as_completed as das_completed
+    if not calls:
+        return
+    futs = [client.submit(fn, *args, key=f"{prefix}-{hashlib.sha1(name.encode()).hexdigest()}", pure=False)
+            for name, args in calls]
+    try:
+        with client.as_current():
+            done = das_completed(futs)
+        for fut in done:
+            yield fut.result()
+    finally:
+        for f in futs:
+            f.cancel()
