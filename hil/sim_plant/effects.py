@@ -439,6 +439,9 @@ class StiffnessAlongTravel(Effect):
               Param("x_start", "length", -1e3, 1e3, 0.0, "one end of the travel (a setting, not fitted)", fit=False),
               Param("x_end", "length", -1e3, 1e3, 0.1, "the other end of the travel (a setting, not fitted)",
                     fit=False))
+    # a constant k1 is the special case k_start = k_end: named first when the record cannot see the
+    # variation (a uniform drift of k1 is not a stiffness along the travel)
+    nests = ("parameter:plant.k1",)
 
     def applicable(self, plant):
         return plant.n >= 2
@@ -477,7 +480,7 @@ class StiffnessFixedFixed(StiffnessAlongTravel):
               Param("x_start", "length", -1e3, 1e3, 0.0, "one end of the travel (a setting, not fitted)", fit=False),
               Param("x_end", "length", -1e3, 1e3, 0.1, "the other end of the travel (a setting, not fitted)",
                     fit=False))
-    nests = ("stiffness_along_travel",)
+    nests = ("stiffness_along_travel", "parameter:plant.k1")
 
     def apply(self, plant, values):
         self._need_link(plant)
