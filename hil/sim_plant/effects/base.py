@@ -35,6 +35,8 @@ A new effect is one module (and its test): a subclass of :class:`Effect` decorat
 * :attr:`Effect.linear_param` and :meth:`Effect.linear_column` ``(ctx) -> (column, value now)``:
   an effect linear in that one parameter through the inverse model of a rigid axis, screened in
   pairs (hil.ident.joint);
+* :attr:`Effect.lags_the_torque`: the effect delays or lags the torque after the controller, so
+  that a record's torque command and its current differ (hil.ident.sampling);
 * :attr:`Effect.screen_starts`: starts of the brief screening fit (2 where two basins lie apart);
   :attr:`Effect.cost_factor`: how costly its fit is, for the scheduling of the candidates.
 
@@ -139,6 +141,7 @@ class Effect(ABC):
     synth_strength: dict | None = None      # the values ``hil synth`` hides by default (paper bench, SI)
     linear_param: str | None = None         # the parameter linear through the inverse model (hil.ident.joint)
     screen_starts: int = 1                  # starts of the brief screening fit
+    lags_the_torque: bool = False           # makes the torque command and the current differ at the sample
 
     @property
     def cost_factor(self) -> int:

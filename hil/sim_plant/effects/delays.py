@@ -37,6 +37,7 @@ class ActuatorDelay(Effect):
                    "delay, from one velocity-loop period upward")
     params = (Param("delay", "time", 0.0, 0.05, 5e-4, "delay of the command reaching the motor"),)
     MAX = 0.02           # the grid's upper end, s: a drive delays by a few velocity periods, a fieldbus by ms
+    lags_the_torque = True
 
     def apply(self, plant, values):
         return dataclasses.replace(plant, effects=plant.effects + ((kernel.TIME_DELAY, (values["delay"],)),))
