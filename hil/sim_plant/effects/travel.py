@@ -62,9 +62,11 @@ class ScrewElongation(Effect):
     def evidence(self, ctx, values):
         eps = values.get("strain", 0.0)
         slope = _motor_table_slope(ctx, values.get("x_ref", 0.0))
-        seen = f"x_motor - x_table residual falls {slope * 1e6:+.3g} um per m of travel; " if slope is not None else ""
-        return (seen + f"a lead {eps * 1e6:+.3g} um per m longer than nominal: a steel screw "
-                f"{eps / STEEL_EXPANSION:+.2g} K warmer than when it was measured; ")
+        seen = (f"x_motor - x_table residual changes {slope * 1e6:+.3g} um per m of travel; "
+                if slope is not None else "")
+        dt = eps / STEEL_EXPANSION
+        return (seen + f"the screw's lead {abs(eps) * 1e6:.3g} um per m {'longer' if eps >= 0 else 'shorter'} than "
+                f"nominal: a steel screw {abs(dt):.2g} K {'warmer' if dt >= 0 else 'cooler'} than when it was measured; ")
 
     def regression_start(self, ctx):
         g = self.guess(ctx.plant, ctx.scale)
