@@ -4,6 +4,7 @@ constant's factor (the open-loop motion scaled by it), the screw's thermal elong
 (x_motor - x_table = -strain x at rest), a cable carrier's force (the torque at constant speed
 changed by -(f0 + f1 x) / k); their regression starts recover what a record hides."""
 import math
+import re
 
 import numpy as np
 import pytest
@@ -99,10 +100,13 @@ def records():
     from hil.ident import Replay, synthesize
     from hil.io.measurement import Measurement
 
+    made = {}
+
     def make(name):
-        ch, truth = synthesize(CFG, name, duration=6.0, seed=3)
-        rp = Replay(Measurement(ch, source=f"synth:{name}"), CFG)
-        return rp, truth
+        if name not in made:
+            ch, truth = synthesize(CFG, name, duration=6.0, seed=3)
+            made[name] = Replay(Measurement(ch, source=f"synth:{name}"), CFG), truth
+        return made[name]
     return make
 
 
@@ -126,3 +130,21 @@ def test_torque_constant_named_before_the_masses(records):
     c = d["candidates"][0]
     assert c.params["factor"] == pytest.approx(truth["params"]["factor"], rel=0.01)
     assert "the same motion as every mass divided by" in c.evidence
+
+
+def test_evidence_reads_the_residual_before_the_fit(records):
+    from hil.ident.evidence import evidence
+    rp, truth = records("screw_elongation")
+    ev = evidence("screw_elongation", truth["params"], rp, rp.residuals(CFG), "x_motor", 1e-6, 0.5e-6, [])
+    # x_motor - x_table = -strain x: the residual's slope is -60 um per m; 60e-6 / 11.5e-6 per K = 5.2 K
+    slope = float(re.search(r"x_motor - x_table residual changes ([-+0-9.e]+) um per m of travel", ev).group(1))
+    assert slope == pytest.approx(-60.0, rel=0.05)
+    assert "60 um per m longer than nominal: a steel screw 5.2 K warmer" in ev
+    rp, truth = records("cable_carrier")
+    ev = evidence("cable_carrier", truth["params"], rp, rp.residuals(CFG), "torque", 1.0, 0.5, [])
+    # the torque residual's slope along the travel: -f1 / k = 3000 N/m / (2 pi / 10 mm) = 4.77 N m per m
+    slope = float(re.search(r"torque residual moving changes along the travel, ([-+0-9.e]+) N m per m", ev).group(1))
+    assert slope == pytest.approx(3000.0 / K_LOAD, rel=0.1)
+    ev = evidence("current_loop_lag", {"time_constant": 5e-4}, rp, rp.residuals(CFG), "torque", 1.0, 0.5, [])
+    # bandwidth 1 / (2 pi 0.5 ms) = 318.3 Hz; atan(2 pi 10 Hz 0.5 ms) = 1.8 deg
+    assert "bandwidth 318.3 Hz; 1.8 deg of phase at 10 Hz" in ev

@@ -1,10 +1,15 @@
 """Starting values for the fit of one candidate effect, from the record and its residual before
 the fit (SI units).
 
+Each effect chooses its own (its hook :meth:`hil.sim_plant.effects.base.Effect.starts`, called
+with a :class:`StartContext`); the helpers here cost and refine them by simulation. What the
+catalogue's effects ask for:
+
 * The record's scales: speed, the 90th percentile of |v| of the command; force, the RMS of the
   force residual in load units, or without a force channel 5 % of the total mass times the RMS
   commanded acceleration; period, the sample period. The effect's own guess uses them.
-* Friction and force effects: a linear regression of the force residual while moving
+* Friction and force effects (and a cable carrier's force, on 1 and x; the screw's elongation, the
+  slope of x_motor - x_table in x): a linear regression of the force residual while moving
   (|v| > 2 % of max|v|), r = Fc sign(v) + c v + f0, or per direction
   r = Fc+ [v > 0] - Fc- [v < 0] + c+ v [v > 0] + c- v [v < 0], added to what the model has.
 * Position-periodic effects (pitch_error, torque_ripple): every order per revolution (periods
@@ -39,9 +44,9 @@ the fit (SI units).
   start of the residual's peaks and the cheapest of the grid (then the second of each). A coupled mode
   moves the chain's own resonance too, so the residual's peak alone has several basins (a light
   fast mode and a heavy slow one shift it alike): the grid tells them apart.
-* Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews; the
-  error is not convex in a delay): one simulation per grid point over the physically possible
-  range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
+* Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews, the
+  current loop's lag; the error is not convex in a delay): one simulation per grid point over the
+  physically possible range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
   cheapest two are the starts of the local fit.
 """
 from __future__ import annotations
