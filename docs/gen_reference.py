@@ -131,7 +131,7 @@ def effects_reference() -> str:
     for old, new in ALIASES.items():
         aliases.setdefault(new, []).append(old)
     out = ["# Effects", "", GENERATED_NOTE,
-           "The catalogue of `hil/sim_plant/effects.py`: the physical effects that `hil diagnose` looks for, "
+           "The catalogue of `hil/sim_plant/effects/` (one module per family): the physical effects that `hil diagnose` looks for, "
            "`hil fit --add NAME` fits, `hil synth --effect NAME --param P=VALUE` hides in a synthetic record "
            "and a configuration switches on with an `[effects.NAME]` section. Parameter values are SI "
            "(`--param` takes each value with its unit, e.g. `level=2Nm`; a config section may write bare SI numbers). Bounds and the starting "

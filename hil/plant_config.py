@@ -28,7 +28,7 @@ from hil.sim_plant.chain import Chain
 from hil.sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
 from hil.sim_plant.effects import ByActuator, Combination, Effect, Param, RecordEffect, effect
 from hil.sim_plant.plant import Friction, Plant
-from hil.units import parse
+from hil.units import DIMENSIONS, fmt, parse
 
 __all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "configure",
            "default_parameters", "load_components", "components_from_dict"]
@@ -142,6 +142,16 @@ class ParameterEffect(Effect):
 
     def apply(self, plant, values):      # pragma: no cover - parameters act on the config
         raise TypeError("parameter effects act on the config: use hil.plant_config.configure()")
+
+    def evidence(self, ctx, values):
+        """The config value before and after, in its unit (hil.sim_plant.effects.base: the hook)."""
+        key, cfg = self.key, ctx.cfg
+        old = cfg.get(key)
+        f = field_for(key)
+        kind = f.kind_for(cfg.values) if f is not None else None
+        if isinstance(old, (int, float)) and kind in DIMENSIONS:
+            return f"{key} {fmt(old, kind)} -> {fmt(values.get('value', 0), kind)} explains the {ctx.chan} residual; "
+        return f"{key} {old:.4g} -> {values.get('value', 0):.4g} explains the {ctx.chan} residual; "
 
 
 def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:

@@ -38,8 +38,9 @@ def _code_version() -> str:
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha1(str(getattr(hil, "__version__", "")).encode())
     for rel in ("fleet/run.py", "ident/chain.py", "ident/diagnosis.py", "ident/fit.py", "ident/replay.py",
-                "ident/starts.py", "ident/noise.py", "sim_plant/kernel.py", "sim_plant/effects.py", "plant_config.py",
-                "simulate.py"):
+                "ident/starts.py", "ident/noise.py", "sim_plant/kernel.py", *sorted(
+                    f"sim_plant/effects/{f.name}" for f in (root / "sim_plant" / "effects").glob("*.py")),
+                "plant_config.py", "simulate.py"):
         try:
             h.update((root / rel).read_bytes())
         except OSError:

@@ -85,7 +85,7 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     # the costly candidates first, so that the processes finish together
     names = sorted(names, key=lambda n: -_cost_hint(n, cfg))
     # an added mode starts from the residual's peaks and from a grid, two basins apart: both screened
-    out = [c for c in evaluate_many(replay, [(n, screen_nfev, None, 2 if n == "compliant_mode" else 1) for n in names],
+    out = [c for c in evaluate_many(replay, [(n, screen_nfev, None, _screen_starts(n, cfg)) for n in names],
                                     res0, jobs, progress) if c is not None]
     ranked = sorted(out, key=lambda c: -c.score)
     top = [c.effect for c in ranked[:refine]]
@@ -144,7 +144,15 @@ def _cost_hint(name, cfg) -> float:
         eff = candidate(name, cfg)
     except KeyError:
         return 0.0
-    return (1 + len(eff.params)) * (3 if (eff.periodic or name == "compliant_mode") else 1)
+    return (1 + len(eff.params)) * eff.cost_factor
+
+
+def _screen_starts(name, cfg) -> int:
+    """Starts of a candidate's brief screening fit: the effect's own (``Effect.screen_starts``)."""
+    try:
+        return candidate(name, cfg).screen_starts
+    except KeyError:
+        return 1
 
 
 @dataclass

@@ -2,10 +2,10 @@
 (effects that only help together are found: Coulomb friction plus a lower viscous slope, where
 each alone barely moves the error).
 
-The effects of :data:`LINEAR` are linear in their parameters through the inverse model of a rigid
-axis (hil.ident.inverse): the force residual r (measured - simulated, in the force channel's
-units: motor torque on a rotary axis) that each asks for is its parameter times a regressor of the
-measured motion,
+The effects with a ``linear_param`` (:func:`linear_effects`) are linear in it through the inverse
+model of a rigid axis (hil.ident.inverse): the force residual r (measured - simulated, in the force
+channel's units: motor torque on a rotary axis) that each asks for is its parameter times a
+regressor of the measured motion (``Effect.linear_column``), in the catalogue:
 
 * coulomb_friction (level, motor units): sign(v);
 * viscous_friction (coefficient, motor units): s v, s = speed_scale (rad/m; 1 on a linear axis);
@@ -25,19 +25,30 @@ regression's values plus what the model has) and ranked beside the single candid
 from __future__ import annotations
 
 import math
+from functools import partial
+from types import SimpleNamespace
 
 import numpy as np
 
+from hil.ident.context import configured_value
 from hil.ident.inverse import motion
 from hil.ident.scores import effective_samples
+from hil.sim_plant.effects import CATALOGUE
 
-__all__ = ["LINEAR", "regressors", "screen_pairs", "JOINT_REFINE"]
+__all__ = ["LINEAR", "linear_effects", "regressors", "screen_pairs", "JOINT_REFINE"]
 
 JOINT_REFINE = 2        # pairs refined by simulation at most, per diagnosis
 
-# effect -> its fitted parameter; the regressor per unit of it is in :func:`regressors`
-LINEAR = {"coulomb_friction": "level", "viscous_friction": "coefficient", "constant_force": "force",
-          "mass_change": "mass"}
+
+
+def linear_effects() -> dict[str, str]:
+    """The catalogue's effects linear through the inverse model: effect -> its fitted parameter
+    (``Effect.linear_param``; the regressor per unit of it is the effect's ``linear_column``)."""
+    return {n: e.linear_param for n, e in CATALOGUE.items() if e.linear_param}
+
+
+# effect -> its fitted parameter, as the catalogue had it at import (:func:`linear_effects` for the current one)
+LINEAR = linear_effects()
 
 
 def _position(meas):
@@ -55,14 +66,10 @@ def regressors(replay) -> tuple[dict, np.ndarray]:
     va = [motion(p.meas.t, _position(p.meas), cutoff=cutoff) for p in getattr(replay, "parts", [replay])]
     v, a = np.concatenate([x[0] for x in va]), np.concatenate([x[1] for x in va])
     moving = np.abs(v) > 0.02 * max(float(np.max(np.abs(v))), 1e-12)
-    plant, cfg = replay.plant, replay.cfg
-    s, k = plant.speed_scale, replay.force_to_load
-    fric = plant.friction
-    have = {n: float(cfg.get(f"effects.{n}.{p}", 0.0) or 0.0) for n, p in LINEAR.items()}
-    have["coulomb_friction"] = 0.5 * (fric.coulomb_pos + fric.coulomb_neg) / s   # it replaces the model's
-    cols = {"coulomb_friction": np.sign(v), "viscous_friction": s * v, "constant_force": -np.ones_like(v) / k,
-            "mass_change": a / k}
-    return {n: (cols[n], have[n]) for n in LINEAR}, moving
+    # each effect's own column (Effect.linear_column) on the inverse model's motion
+    ctx = SimpleNamespace(v=v, a=a, plant=replay.plant, force_to_load=replay.force_to_load,
+                          configured=partial(configured_value, replay.cfg))
+    return {n: CATALOGUE[n].linear_column(ctx) for n in linear_effects()}, moving
 
 
 def _ssr(X, y):
@@ -77,7 +84,8 @@ def screen_pairs(replay, res0: dict, names) -> list[dict]:
     "ssr_ratio": SSR_pair / SSR_best_member}], best synergy first (empty without a force channel
     or motion)."""
     fch = replay.force_channel
-    lin = [n for n in names if n in LINEAR]
+    linear = linear_effects()
+    lin = [n for n in names if n in linear]
     if fch is None or len(lin) < 2:
         return []
     cols, moving = regressors(replay)
@@ -95,7 +103,7 @@ def screen_pairs(replay, res0: dict, names) -> list[dict]:
             best = min(single[a], single[b])
             ne = effective_samples(e)
             syn = ne * math.log(max(best, 1e-300) / max(ssr, 1e-300)) - math.log(max(ne, 2.0))
-            start = {f"{n}.{LINEAR[n]}": cols[n][1] + float(th) for n, th in zip((a, b), theta)}
+            start = {f"{n}.{linear[n]}": cols[n][1] + float(th) for n, th in zip((a, b), theta)}
             if "coulomb_friction.level" in start:
                 start["coulomb_friction.level"] = max(start["coulomb_friction.level"], 0.0)
             out.append({"effects": (a, b), "start": start, "synergy": float(syn),

@@ -1,10 +1,15 @@
 """Starting values for the fit of one candidate effect, from the record and its residual before
 the fit (SI units).
 
+Each effect chooses its own (its hook :meth:`hil.sim_plant.effects.base.Effect.starts`, called
+with a :class:`StartContext`); the helpers here cost and refine them by simulation. What the
+catalogue's effects ask for:
+
 * The record's scales: speed, the 90th percentile of |v| of the command; force, the RMS of the
   force residual in load units, or without a force channel 5 % of the total mass times the RMS
   commanded acceleration; period, the sample period. The effect's own guess uses them.
-* Friction and force effects: a linear regression of the force residual while moving
+* Friction and force effects (and a cable carrier's force, on 1 and x; the screw's elongation, the
+  slope of x_motor - x_table in x): a linear regression of the force residual while moving
   (|v| > 2 % of max|v|), r = Fc sign(v) + c v + f0, or per direction
   r = Fc+ [v > 0] - Fc- [v < 0] + c+ v [v > 0] + c- v [v < 0], added to what the model has.
 * Position-periodic effects (pitch_error, torque_ripple): every order per revolution (periods
@@ -39,9 +44,9 @@ the fit (SI units).
   start of the residual's peaks and the cheapest of the grid (then the second of each). A coupled mode
   moves the chain's own resonance too, so the residual's peak alone has several basins (a light
   fast mode and a heavy slow one shift it alike): the grid tells them apart.
-* Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews; the
-  error is not convex in a delay): one simulation per grid point over the physically possible
-  range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
+* Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews, the
+  current loop's lag; the error is not convex in a delay): one simulation per grid point over the
+  physically possible range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
   cheapest two are the starts of the local fit.
 """
 from __future__ import annotations
@@ -50,13 +55,13 @@ import math
 
 import numpy as np
 
-from hil.control import controller_from_config
+from hil.ident.context import EffectContext
 from hil.ident.replay import Replay
 from hil.ident.residual import periodic_in_position, spectrum_peaks
 from hil.plant_config import configure
-from hil.sim_plant.effects import Combination, Effect
+from hil.sim_plant.effects import Backlash, CompliantMode, Effect
 
-__all__ = ["record_scales", "starting_values", "mode_targets", "command_lines", "order_spectrum", "LINE_ABOVE",
+__all__ = ["record_scales", "starting_values", "StartContext", "mode_targets", "command_lines", "order_spectrum", "LINE_ABOVE",
            "LINE_TOL", "LINE_BINS", "MAX_ORDER", "MIN_RESOLVED", "PERIODS_KEPT", "GAP_GRID", "MODE_FREQS",
            "MODE_FMIN", "MODE_RATIOS", "MODE_MASSES", "MODE_DAMPING"]
 
@@ -66,12 +71,13 @@ LINE_BINS = 21       # bins of the running median
 MAX_ORDER = 64       # orders per revolution screened (cogging of a motor reaches a few dozen)
 MIN_RESOLVED = 64    # moving samples at most a quarter period apart that an order needs
 PERIODS_KEPT = 3     # the strongest orders of the screen solved in closed form
-GAP_GRID = tuple(float(g) for g in np.geomspace(0.5e-6, 1e-3, 12))   # backlash gaps, m (total play)
-MODE_FREQS = 12      # natural frequencies of the mode grid
-MODE_FMIN = 2.0      # Hz, the mode grid's lower end
-MODE_RATIOS = (0.02, 2.0)   # the mode grid's modal masses, relative to the tip mass: lowest, highest
-MODE_MASSES = 7      # modal masses of the mode grid
-MODE_DAMPING = 0.02  # damping ratio of the mode grid's points
+# the grids of backlash and of an added mode are the effects' own (hil.sim_plant.effects); their old names here
+GAP_GRID = Backlash.GAP_GRID
+MODE_FREQS = CompliantMode.GRID_FREQS
+MODE_FMIN = CompliantMode.GRID_FMIN
+MODE_RATIOS = CompliantMode.GRID_RATIOS
+MODE_MASSES = CompliantMode.GRID_MASSES
+MODE_DAMPING = CompliantMode.GRID_DAMPING
 
 
 def record_scales(replay: Replay, res0: dict) -> dict:
@@ -90,127 +96,34 @@ def record_scales(replay: Replay, res0: dict) -> dict:
 
 
 def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -> list[dict]:
+    """The starts of ``eff``'s fit, best first: its own hook (:meth:`Effect.starts`) from its guess,
+    with a context of the replay and the helpers here (hil.ident.context)."""
     g = eff.guess(replay.plant, scale)
     g = {p.name: g.get(p.name, p.guess) for p in eff.params}
-    if eff.name in ("pitch_error", "torque_ripple"):
-        return _periodic_starts(eff, replay, res0, g, cfg)
-    if eff.name == "compliant_mode":
-        # the best start from the residual's peaks and the best of the grid, then the next of each:
-        # the cheapest start is not always in the deepest basin
-        near = _prefilter(eff, replay, _mode_starts(eff, replay, res0, g), cfg)
-        grid = _prefilter(eff, replay, _mode_grid(eff, replay, cfg), cfg)
-        return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
-    if eff.name == "backlash":
-        gaps = sorted(set(GAP_GRID) | {_gap_from_residual(replay, res0, eff.param("gap").upper)} - {None})
-        return _grid_starts(eff, replay, [dict(g, gap=gp) for gp in gaps], cfg)
-    grid = eff.grid(replay.plant, controller_from_config(cfg, replay.plant), scale)
-    if grid:
-        return _grid_starts(eff, replay, [dict(g, **pt) for pt in grid], cfg)
-    reg = _regression_start(eff, replay, res0)
-    return [reg, g] if reg else [g]
+    return eff.starts(StartContext(replay, res0, cfg, scale), g)
 
 
-def _regression_start(eff: Effect, replay: Replay, res0: dict) -> dict | None:
-    """Starting values of the friction and force effects from a linear regression of the force
-    residual while moving: residual = Fc sign(v) + c v + f0 (or per direction for
-    asymmetric_friction), v the commanded velocity. The replayed axis follows its command closely,
-    so the missing force shows almost unchanged in the force channel; None without one."""
-    fch = replay.force_channel
-    names = [m.name for m in eff.members] if isinstance(eff, Combination) else [eff.name]
-    known = ("coulomb_friction", "constant_force", "asymmetric_friction", "viscous_friction")
-    if fch is None or not all(n in known for n in names):
-        return None
-    m = replay.meas
-    v = np.gradient(m["x_cmd"], m.t)
-    moving = np.abs(v) > 0.02 * max(float(np.max(np.abs(v))), 1e-12)
-    if moving.sum() < 16:
-        return None
-    vm, r = v[moving], res0[fch][moving]
-    pos = (vm > 0).astype(float)
-    X = np.column_stack([pos, -(1 - pos), vm * pos, vm * (1 - pos), np.ones(vm.size)])
-    coef, *_ = np.linalg.lstsq(np.column_stack([np.sign(vm), vm, np.ones(vm.size)]), r, rcond=None)
-    cp, *_ = np.linalg.lstsq(X[:, :4], r, rcond=None)
-    plant, cfg = replay.plant, replay.cfg
-    sp = plant.speed_scale                       # rad/s (rotary) or m/s per m/s of the load
-    c0 = plant.chain.c_ground[0] / (sp * sp)     # the model's viscous coefficient, motor units
-    fp = plant.friction.coulomb_pos / sp         # the model's Coulomb levels, motor units
-    fn = plant.friction.coulomb_neg / sp
-    f0 = float(cfg.get("effects.constant_force.force", 0.0) or 0.0)
-    cv = float(cfg.get("effects.viscous_friction.coefficient", 0.0) or 0.0)
-    # what the model has plus what the residual asks for; the force channel is in motor units
-    # (torque on a rotary axis): a load-side force is that times force_to_load
-    vals = {"coulomb_friction": {"level": max(0.5 * (fp + fn) + float(coef[0]), 0.0)},
-            "constant_force": {"force": f0 - float(coef[2]) * replay.force_to_load},
-            "viscous_friction": {"coefficient": cv + float(coef[1]) / sp},
-            "asymmetric_friction": {"level_pos": max(fp + float(cp[0]), 0.0), "level_neg": max(fn + float(cp[1]), 0.0),
-                                    "viscous_pos": max(c0 + float(cp[2]) / sp, 0.0),
-                                    "viscous_neg": max(c0 + float(cp[3]) / sp, 0.0)}}
-    if isinstance(eff, Combination):
-        return {f"{n}.{k}": v for n in names for k, v in vals[n].items()}
-    return vals[eff.name]
+class StartContext(EffectContext):
+    """The context of an effect's :meth:`~hil.sim_plant.effects.base.Effect.starts` hook: the
+    replay's (hil.ident.context) and the helpers here that cost starts by simulation."""
 
+    def grid_starts(self, eff, grid: list[dict], keep: int = 2, fine: int = 6) -> list[dict]:
+        """The cheapest ``keep`` points of ``grid`` (one simulation each; a one-parameter grid refined
+        between the best point's neighbours by ``fine`` points a side)."""
+        return _grid_starts(eff, self.replay, grid, self.cfg, keep=keep, fine=fine)
 
-def _mode_starts(eff, replay, res0, g) -> list[dict]:
-    """Starts of an added mode. Coupled to the chain, the new mode does not show at its own
-    frequency: the measured resonances move. So for each modal mass on a grid (relative to the
-    tip mass) solve for the natural frequency that puts one of the coupled chain's modes on a
-    peak of the residual spectrum (the strongest channel, weighted), with a low damping."""
-    fmax = 0.45 / replay.sample_period
-    targets = mode_targets(replay, res0)[:2] or [g["frequency"]]
-    plant = replay.plant
-    m_tip = plant.chain.m[plant.tip]
-    f_grid = np.geomspace(0.5, fmax, 240)
-    starts = []
-    for ratio in (0.05, 0.15, 0.5, 1.5):
-        m = ratio * m_tip
-        for ft in targets:
-            best = None
-            for fn in f_grid:
-                ch = eff.apply(plant, {"mass": m, "frequency": fn, "damping_ratio": 0.0}).chain
-                ev = np.linalg.eigvals(np.linalg.solve(ch.M, ch.K)).real
-                fm = np.sqrt(np.maximum(ev, 0.0)) / (2 * np.pi)
-                d = float(np.min(np.abs(fm - ft))) / ft
-                if best is None or d < best[0]:
-                    best = (d, fn)
-            if best[0] < 0.03:
-                starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01})
-        starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01})
-    return starts
+    def prefilter(self, eff, starts: list[dict], keep: int = 2) -> list[dict]:
+        """The ``keep`` cheapest of ``starts`` (one simulation each)."""
+        return _prefilter(eff, self.replay, starts, self.cfg, keep=keep)
 
+    def periodic_starts(self, eff, guess: dict, residual=None) -> list[dict]:
+        """The starts of a position-periodic effect (hil.ident.starts): ``residual`` the signal its
+        periods are read from (default: the record's primary channel's residual)."""
+        return _periodic_starts(eff, self.replay, self.res0, guess, self.cfg, residual)
 
-def _mode_grid(eff, replay, cfg) -> list[dict]:
-    """The mode's coarse grid over the physical range (the module's definition): first the modal
-    mass with the mode stiff (at the grid's top frequency, where it acts as a mass added to the
-    tip), then the natural frequency at the best masses; each line refined between the best
-    point's neighbours; the cheapest two of each line."""
-    m_tip = replay.plant.chain.m[replay.plant.tip]
-    p = eff.param("frequency")
-    fmax = min(0.45 / replay.sample_period, p.upper)
-    freqs = np.geomspace(max(MODE_FMIN, p.lower), fmax, MODE_FREQS)
-    masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": MODE_DAMPING}
-              for r in np.geomspace(MODE_RATIOS[0], MODE_RATIOS[1], MODE_MASSES)]
-    out = _grid_starts(eff, replay, masses, cfg, keep=2, fine=3)
-    for best in list(out):
-        out += _grid_starts(eff, replay, [dict(best, frequency=float(f)) for f in freqs], cfg, keep=2, fine=3)
-    return out
-
-
-def _gap_from_residual(replay, res0, upper: float) -> float | None:
-    """The backlash the residual shows: the median of x_motor - x_table moving in +x less the
-    median moving in -x (the dead zone of +-gap/2 shifts the link by the whole gap between the
-    directions; the model's own elastic part is not in the residual). None without both channels,
-    both directions, or a gap within (0, ``upper``)."""
-    if "x_motor" not in res0 or "x_table" not in res0:
-        return None
-    m = replay.meas
-    v = np.gradient(m["x_cmd"], m.t)
-    lim = 0.02 * max(float(np.max(np.abs(v))), 1e-12)
-    d = np.asarray(res0["x_motor"]) - np.asarray(res0["x_table"])
-    up, down = d[v > lim], d[v < -lim]
-    if up.size < 8 or down.size < 8:
-        return None
-    gap = float(np.median(up) - np.median(down))
-    return gap if 0.0 < gap < upper else None
+    def mode_targets(self) -> list[float]:
+        """The residual's spectral peaks that are not the command's lines, Hz, strongest first."""
+        return mode_targets(self.replay, self.res0)
 
 
 def _motor_position(replay) -> np.ndarray:
@@ -258,16 +171,14 @@ def _ssr(X, y) -> float:
     return float(e @ e)
 
 
-def _periodic_starts(eff, replay, res0, g, cfg) -> list[dict]:
+def _periodic_starts(eff, replay, res0, g, cfg, residual=None) -> list[dict]:
     """The starts of a position-periodic effect (the module's definition): the orders per revolution
-    screened by :func:`order_spectrum`, the strongest with the Lomb-Scargle periods and the guess
-    solved in closed form for amplitude and phase, the cheapest two kept."""
+    screened by :func:`order_spectrum`, the strongest with the Lomb-Scargle periods (of ``residual``,
+    default the primary channel's) and the guess solved in closed form for amplitude and phase, the
+    cheapest two kept."""
     lo, hi = eff.param("period").lower, eff.param("period").upper
     pitch = replay.plant.pitch
-    chan = None
-    if eff.name == "pitch_error" and "x_table" in res0 and "x_motor" in res0:
-        chan = "x_motor-x_table"
-    r = (res0["x_motor"] - res0["x_table"]) if chan else res0[replay.primary_channel(res0)]
+    r = residual if residual is not None else res0[replay.primary_channel(res0)]
     found = [p for p, _, _ in periodic_in_position(replay.meas["x_cmd"], r, replay.meas.t, n=2)]
     periods = []
     if pitch:

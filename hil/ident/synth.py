@@ -27,35 +27,15 @@ import math
 import numpy as np
 
 from hil.plant_config import candidate, configure, record_effects
-from hil.sim_plant.effects import ALIASES
+from hil.sim_plant.effects import CATALOGUE
 from hil.simulate import simulate_config
 
 __all__ = ["move_sequence", "synthesize", "pulse_train", "HIDDEN_DEFAULTS", "torque_sampling"]
 
-# Values of the hidden effects for the paper bench (rotary: torques in N m on the motor).
-HIDDEN_DEFAULTS = {
-    "coulomb_friction": {"level": 2.2},
-    "viscous_friction": {"coefficient": 0.02},
-    "stribeck_friction": {"level": 1.5, "static": 3.5, "velocity": 3e-3},
-    "asymmetric_friction": {"level_pos": 1.2, "level_neg": 3.0, "viscous_pos": 0.0076, "viscous_neg": 0.02},
-    "constant_force": {"force": 400.0},
-    "backlash": {"gap": 20e-6},
-    "actuator_delay": {"delay": 2e-3},      # also under its old name, time_delay
-    "feedback_delay": {"delay": 2e-3},
-    "channel_skew": {"skew": 8e-3},
-    "tip_skew": {"skew": 8e-3},
-    "force_offset": {"offset": 0.4},        # N m on the motor: a current sensor's offset
-    "position_offset": {"offset": 5e-6},
-    "stiffness_along_travel": {"k_start": 1.2 * 5.362e7, "k_end": 0.8 * 5.362e7, "x_start": 0.0, "x_end": 0.08},
-    # a screw held at both ends: k1 30 % lower with the nut midway than at both ends of the travel
-    "stiffness_along_travel_fixed_fixed": {"k_start": 5.362e7, "k_middle": 0.7 * 5.362e7, "k_end": 5.362e7,
-                                           "x_start": 0.0, "x_end": 0.08},
-    "pitch_error": {"amplitude": 4e-6, "period": 0.01, "phase": 0.5},
-    "torque_ripple": {"amplitude": 0.6, "period": 0.005, "phase": 0.3},
-    "compliant_mode": {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02},
-    "mass_change": {"mass": 80.0},
-    "parameter:plant.c2": {"value": 40.0},
-}
+# Values of the hidden effects for the paper bench (rotary: torques in N m on the motor): each
+# catalogue effect's own (Effect.synth_strength), and a config parameter's
+HIDDEN_DEFAULTS = {**{n: dict(e.synth_strength) for n, e in CATALOGUE.items() if e.synth_strength is not None},
+                   "parameter:plant.c2": {"value": 40.0}}
 
 
 def _ramp_move(x0, stroke, vmax, t_r, dt):
@@ -136,8 +116,8 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
     rich = cfg
     if effect:
         eff = candidate(effect, cfg)
-        defaults = HIDDEN_DEFAULTS.get(effect) or HIDDEN_DEFAULTS.get(ALIASES.get(effect, effect)) or \
-            next((v for k, v in HIDDEN_DEFAULTS.items() if ALIASES.get(k) == effect), {})
+        # (an effect registered after this module was imported has its own in the catalogue)
+        defaults = HIDDEN_DEFAULTS.get(effect) or getattr(eff, "synth_strength", None) or {}
         vals = dict(defaults) if values is None else dict(values)
         vals = {p.name: vals.get(p.name, p.guess) for p in eff.params}
         rich = configure(eff, cfg, vals)

@@ -17,7 +17,8 @@ from numba import njit
 from hil.sim_plant.plant import Plant
 
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
-           "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "empty_effects", "effect_table", "time_delay",
+           "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "LEAD_ERROR_LINEAR", "FORCE_ALONG_TRAVEL",
+           "empty_effects", "effect_table", "time_delay",
            "feedback_delay", "link_compliance", "effect_forces", "friction_force", "plant_step"]
 
 N_EFFECT_PARAMS = 8
@@ -33,6 +34,8 @@ FEEDBACK_DELAY = 7       # [delay s]: the position loop's feedback is late (hil.
 # [link, its stiffness in the chain N/m, x_start m, x_end m, compliance at x_start, midway, at x_end m/N]:
 # the link's stiffness as a function of the position of mass link+1 (the nut), link_compliance()
 STIFFNESS_ALONG_TRAVEL = 8
+LEAD_ERROR_LINEAR = 9    # [link, strain (lead error per m), x_ref m, stiffness N/m]: x1 -> nut x1 + eps (x1 - x_ref)
+FORCE_ALONG_TRAVEL = 10  # [mass, force at x = 0 N, slope N/m]: f0 + f1 x on that mass (a cable carrier)
 
 
 def empty_effects():
@@ -114,6 +117,15 @@ def effect_forces(codes, params, x, v, f):
             corr = (1.0 / link_compliance(q, x[i + 1]) - q[1]) * (x[i] - x[i + 1])
             f[i] -= corr
             f[i + 1] += corr
+        elif c == LEAD_ERROR_LINEAR:
+            # the nut sits at x1 + eps (x1 - x_ref) (a screw grown by its strain): the link sees k (x1 + e - x2)
+            i = int(q[0])
+            e = q[1] * (x[i] - q[2])
+            f[i] -= q[3] * e
+            f[i + 1] += q[3] * e
+        elif c == FORCE_ALONG_TRAVEL:
+            i = int(q[0])
+            f[i] += q[1] + q[2] * x[i]
         elif c == VISCOUS_ASYMMETRIC:
             i = int(q[0])
             if v[i] > 0.0:
