@@ -300,7 +300,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 first = diagnose(cur, names, progress=progress, jobs=jobs, max_nfev=max_nfev, **kw)
                 diags.append(first)
             break
-        pool = names or candidate_names(cur.cfg, cur.plant)
+        pool = names or candidate_names(cur.cfg, cur.plant, open_loop=cur.open_loop)
         have = {_same(n, cur.cfg) for n in found}
         cands = [n for n in pool if _same(n, cur.cfg) not in have]
         if not cands:
