@@ -145,7 +145,7 @@ def _cost_hint(name, cfg) -> float:
         eff = candidate(name, cfg)
     except KeyError:
         return 0.0
-    return (1 + len(eff.params)) * (3 if (eff.periodic or name == "compliant_mode") else 1)
+    return (1 + len(eff.params)) * (3 if (eff.periodic or name in ("compliant_mode", "flexible_transmission")) else 1)
 
 
 @dataclass

@@ -10,6 +10,8 @@ max|v|):
 * an added mode: its frequency, against the model's modes (the chain's undamped natural
   frequencies sqrt(eig(M^-1 K)) / 2 pi);
 * backlash, mass change and ``parameter:<key>``: the fitted value;
+* flexible_transmission: the residual's ringing after the record's edges, and the link fitted
+  (its own hook, :meth:`hil.sim_plant.effects.FlexibleTransmission.evidence`);
 * the delays (actuator_delay, alias time_delay; feedback_delay): the fitted delay in the loop's
   periods, and where it sits;
 * channel_skew, tip_skew: the skew in samples, said to be a logging artefact, not physics;
@@ -33,7 +35,7 @@ import numpy as np
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.plant_config import candidate, configure, plant_from_config
-from hil.sim_plant.effects import ALIASES
+from hil.sim_plant.effects import ALIASES, effect
 from hil.sim_plant.modal import transmission_mode
 from hil.units import fmt_si
 
@@ -83,6 +85,8 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
         near = [fm for fm in base_modes if abs(fm - f) < 0.1 * f]
         tail = "not a mode of the model" if not near else f"near the model's {near[0]:.1f} Hz mode"
         return f"residual peak at {f:.1f} Hz in {chan}, {tail}; " + fall
+    if eff_name == "flexible_transmission":     # its own hook: the ringing after the edges and the link
+        return effect(eff_name).evidence(_context(replay, vals, res0, chan)) + fall
     if eff_name == "backlash":
         return (f"x_motor - x_table jumps by about {vals.get('gap', 0) * 1e6:.3g} um at reversals; " + fall)
     name = ALIASES.get(eff_name, eff_name)
@@ -134,6 +138,14 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
                     + fall)
         return f"{key} {old:.4g} -> {vals.get('value', 0):.4g} explains the {chan} residual; " + fall
     return fall
+
+
+def _context(replay, vals, res0, chan):
+    """What an effect's ``evidence`` hook reads (duck-typed, SI): the fitted values, the plant, the
+    record's times and command, and the residual before the fit of the channel where it shows."""
+    from types import SimpleNamespace
+    return SimpleNamespace(values=vals, plant=replay.plant, t=replay.meas.t, x_cmd=replay.meas["x_cmd"],
+                           residual=res0[chan], channel=chan)
 
 
 def _stiffness_evidence(name, vals, replay, res0) -> str:
