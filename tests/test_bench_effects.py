@@ -97,3 +97,78 @@ def test_linear_actuator_diagnosis_names_its_feed_forward():
     assert 0.9 < best.params["value"] < 1.1
     assert best.error_after <= 0.2 * best.error_before
     assert "control.ffv 0 -> 1" in best.evidence
+
+
+# --- a flexible transmission at the drive ------------------------------------------------------------
+
+EMPS = load(str(ROOT / "config" / "emps.toml"))
+
+
+def _two_mass(share, f, zeta, total=None):
+    """The EMPS axis as a true 2-mass chain (motor, link, load; the loops on the motor): masses,
+    stiffness and damping of the 2-mass closed form f = sqrt(k (1/m1 + 1/m2)) / 2 pi."""
+    total = total or EMPS["plant.m1"]
+    m1, m2 = (1 - share) * total, share * total
+    mu = m1 * m2 / total
+    w = 2 * math.pi * f
+    return EMPS.with_values({"plant.m1": m1, "plant.m2": m2, "plant.k1": mu * w * w, "plant.c1": 2 * zeta * mu * w})
+
+
+def _modes(chain):
+    import numpy as np
+    ev = np.linalg.eigvals(np.linalg.solve(chain.M, chain.K)).real
+    return sorted(float(np.sqrt(x) / (2 * math.pi)) for x in ev if x > 1e-9)
+
+
+def test_flexible_transmission_splits_a_rigid_axis_at_its_closed_form_resonance():
+    eff = candidate("flexible_transmission")
+    rigid = plant_from_config(EMPS)
+    pl = eff.apply(rigid, {"load_share": 0.3, "frequency": 21.0, "damping_ratio": 0.05})
+    assert pl.n == 2 and (pl.table, pl.tip) == (1, 1)
+    m1, m2 = pl.chain.m
+    assert (m1 + m2, m2 / (m1 + m2)) == (pytest.approx(rigid.chain.m[0]), pytest.approx(0.3))
+    k = pl.chain.k[0]
+    assert _modes(pl.chain) == [pytest.approx(math.sqrt(k * (1 / m1 + 1 / m2)) / (2 * math.pi))]
+    assert _modes(pl.chain)[0] == pytest.approx(21.0)
+    # the same as the config's own 2-mass chain
+    two = plant_from_config(_two_mass(0.3, 21.0, 0.05))
+    assert pl.chain.k == pytest.approx(two.chain.k) and pl.chain.c == pytest.approx(two.chain.c)
+    assert pl.chain.c_ground == pytest.approx(two.chain.c_ground)
+
+
+def test_flexible_transmission_inserts_its_link_at_the_drive_of_a_chain():
+    eff = candidate("flexible_transmission")
+    cfg = CFG.with_values({"effects.backlash.gap": 1e-5})
+    chain0 = plant_from_config(CFG)
+    base = plant_from_config(cfg)
+    pl = eff.apply(base, {"load_share": 0.5, "frequency": 300.0, "damping_ratio": 0.05})
+    assert pl.n == chain0.n + 1 and (pl.table, pl.tip) == (base.table + 1, base.tip + 1)
+    assert pl.chain.m[0] + pl.chain.m[1] == pytest.approx(chain0.chain.m[0])
+    assert pl.chain.m[2:] == chain0.chain.m[1:] and pl.chain.k[1:] == chain0.chain.k
+    # the backlash stays in the screw's link (link 1 of the old chain, now link 2)
+    (code, q), = base.effects
+    assert [r for c, r in pl.effects if c == code][0][0] == q[0] + 1
+    # the link: the motor against everything beyond it
+    m_a, m_b = pl.chain.m[0], sum(pl.chain.m[1:])
+    assert pl.chain.k[0] == pytest.approx((2 * math.pi * 300.0) ** 2 * m_a * m_b / (m_a + m_b))
+
+
+@pytest.mark.parametrize("share,f,zeta", [(0.6, 21.0, 0.05), (0.3, 35.0, 0.1)])
+def test_diagnose_finds_a_flexible_transmission_on_a_rigid_model(share, f, zeta):
+    """Records of a true 2-mass EMPS axis (hil synth of a chain, not of the effect: only x_motor
+    and the force recorded, as on the bench) replayed on the rigid model: the diagnosis names the
+    flexible transmission, its resonance within 3 % of sqrt(k (1/m1 + 1/m2)) / 2 pi of the chain
+    that made the record, its load share within 10 %."""
+    two = _two_mass(share, f, zeta)
+    ch, _ = synthesize(two, duration=6.0, seed=3, sample_period=1e-3)
+    ch = {c: v for c, v in ch.items() if c not in ("x_table", "x_tip")}
+    rp = Replay(Measurement(ch, source="2-mass EMPS"), EMPS)
+    d = diagnose(rp, ["flexible_transmission", "compliant_mode", "mass_change", "parameter:plant.m1"], jobs=1,
+                 max_nfev=30)
+    assert d["verdict"] == "flexible_transmission"
+    best = d["candidates"][0]
+    k, m1, m2 = two["plant.k1"], two["plant.m1"], two["plant.m2"]
+    assert best.params["frequency"] == pytest.approx(math.sqrt(k * (1 / m1 + 1 / m2)) / (2 * math.pi), rel=0.03)
+    assert best.params["load_share"] == pytest.approx(share, rel=0.1)
+    assert best.error_after < 0.2 * best.error_before
+    assert "rings at" in best.evidence and "flexible transmission at the drive" in best.evidence

@@ -101,7 +101,7 @@ def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -
         grid = _prefilter(eff, replay, _mode_grid(eff, replay, cfg), cfg)
         return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
     if eff.name == "flexible_transmission":     # its own hook: the ringing after the edges, the spectrum's peaks
-        return _prefilter(eff, replay, eff.starts(_ringing_context(replay, res0, g)), cfg, keep=3)
+        return eff.starts(_ringing_context(replay, res0, g, lambda starts: _costs(eff, replay, starts, cfg)))[:3]
     if eff.name == "backlash":
         gaps = sorted(set(GAP_GRID) | {_gap_from_residual(replay, res0, eff.param("gap").upper)} - {None})
         return _grid_starts(eff, replay, [dict(g, gap=gp) for gp in gaps], cfg)
@@ -112,15 +112,16 @@ def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -
     return [reg, g] if reg else [g]
 
 
-def _ringing_context(replay, res0: dict, guess: dict):
+def _ringing_context(replay, res0: dict, guess: dict, cost):
     """What an effect's ``starts`` hook reads (duck-typed, SI): the record's times and command, the
     residual of the strongest weighted channel, the spectrum's peaks away from the command's lines
-    (:func:`mode_targets`) and the effect's guess."""
+    (:func:`mode_targets`), the effect's guess, and ``cost(starts)``: the weighted error of each
+    (one simulation each)."""
     from types import SimpleNamespace
     w = replay.objective.weights
     chan = max((c for c in res0 if c in w), key=lambda c: float(np.mean(res0[c] ** 2)) * w[c] ** 2)
     return SimpleNamespace(t=replay.meas.t, x_cmd=replay.meas["x_cmd"], residual=res0[chan], channel=chan,
-                           peaks=mode_targets(replay, res0, chan), guess=guess, plant=replay.plant)
+                           peaks=mode_targets(replay, res0, chan), guess=guess, plant=replay.plant, cost=cost)
 
 
 def _regression_start(eff: Effect, replay: Replay, res0: dict) -> dict | None:

@@ -678,7 +678,11 @@ class FlexibleTransmission(Effect):
                     "the 2-mass resonance sqrt(k (1/m_motor + 1/m_load)) / 2 pi (Hz)"),
               Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.05, "damping ratio of the resonance"))
     SHARES = (0.25, 0.5, 0.75)     # the load shares tried at each start frequency
-    RING_FACTORS = (1.5, 2.0, 3.0)  # link resonances tried above a ringing frequency (the loop lowers the ring)
+    RING_FACTORS = (1.5, 2.0)      # link resonances tried above a ringing frequency (the loop lowers the ring)
+    DAMPINGS = (0.03, 0.1, 0.3)    # damping ratios tried at each (the fit barely moves a damping from afar)
+    FINE = (3, 0.3)                # the finer grid: 3 steps either way, over +-30 % of the resonance, +-0.075 share
+    RING_MIN = 2.0                 # Hz: a spectrum's peak below this is the moves' own rhythm, not a link
+    PEAKS = 3                      # the strongest spectrum peaks above RING_MIN started from
 
     @staticmethod
     def link(plant: Plant, values: dict) -> tuple[float, float, float, float]:
@@ -704,25 +708,37 @@ class FlexibleTransmission(Effect):
         return dataclasses.replace(plant, chain=chain, table=plant.table + 1, tip=plant.tip + 1, effects=terms)
 
     def starts(self, ctx) -> list[dict]:
-        """Global starts: the ringing after the record's edges (:func:`ringing` of ``ctx.residual``
-        on ``ctx.t``, ``ctx.x_cmd``) and the residual spectrum's peaks away from the command's lines
-        (``ctx.peaks``, Hz), each with the load shares :data:`SHARES` and a light damping. The loop
-        moves the ring from the link's free resonance: a stiff velocity loop holds the motor, and
-        the load rings on k alone, lower by sqrt(1 - share); a soft one leaves it free; in between
-        the loop's own dynamics mix in. So each ringing frequency f_r gives the link f_r,
-        f_r / sqrt(1 - share) and :data:`RING_FACTORS` f_r; the fit's caller costs every start (one
-        simulation each) and keeps the cheapest."""
+        """Global starts, cheapest first (``ctx.cost(starts)``: one simulation each, by the caller).
+        A coarse grid: the ringing after the record's edges (:func:`ringing` of ``ctx.residual`` on
+        ``ctx.t``, ``ctx.x_cmd``) and the residual spectrum's peaks away from the command's lines
+        (``ctx.peaks``, Hz; the :data:`PEAKS` strongest above :data:`RING_MIN`), each with the load
+        shares :data:`SHARES` and the damping ratios :data:`DAMPINGS`. The loop moves the ring from
+        the link's free resonance: a stiff velocity loop holds the motor, and the load rings on k
+        alone, lower by sqrt(1 - share); a soft one leaves it free; in between the loop's own
+        dynamics mix in. So each ringing frequency f_r gives the link f_r, f_r / sqrt(1 - share) and
+        :data:`RING_FACTORS` f_r. Then, around the cheapest point, a finer grid of share and
+        frequency (:data:`FINE`): share and resonance trade along a valley that a local fit walks
+        slowly."""
         p = self.param("frequency")
         found = ringing(ctx.t, ctx.x_cmd, ctx.residual)
-        rings = ([found[0]] if found else []) + list(ctx.peaks)[:2]
+        rings = ([found[0]] if found else []) + [f for f in ctx.peaks if f >= self.RING_MIN][:self.PEAKS]
         rings = list(dict.fromkeys(round(f, 2) for f in rings)) or [ctx.guess["frequency"]]
-        out = []
+        coarse = []
         for s in self.SHARES:
             for fr in rings:
                 for f in dict.fromkeys((fr, fr / math.sqrt(1.0 - s)) + tuple(k * fr for k in self.RING_FACTORS)):
                     if p.lower <= f <= p.upper:
-                        out.append({"load_share": s, "frequency": float(f), "damping_ratio": 0.05})
-        return out
+                        coarse += [{"load_share": s, "frequency": float(f), "damping_ratio": z} for z in self.DAMPINGS]
+        costs = ctx.cost(coarse)
+        best = coarse[min(range(len(coarse)), key=costs.__getitem__)]
+        n, span = self.FINE
+        sp = self.param("load_share")
+        fine = [dict(best, load_share=min(max(best["load_share"] + 0.25 * span * i / n, sp.lower), sp.upper),
+                     frequency=min(max(best["frequency"] * (1 + span * j / n), p.lower), p.upper))
+                for i in range(-n, n + 1) for j in range(-n, n + 1) if i or j]
+        pool = sorted(zip(costs + ctx.cost(fine), range(len(coarse) + len(fine))))
+        allp = coarse + fine
+        return [allp[k] for _, k in pool]
 
     def evidence(self, ctx) -> str:
         """The ringing the residual shows after the record's edges, and the link the fit gives."""
