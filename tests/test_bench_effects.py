@@ -33,6 +33,21 @@ def test_controller_settings_are_default_candidates_of_a_closed_loop_record():
                                                                                 open_loop=True))
 
 
+def test_several_records_open_loop_or_not():
+    """Several records at once (hil.ident.records.Records, what --validate and repetitions give):
+    open loop only when every record is; the chain asked it of the joined records and failed."""
+    import numpy as np
+
+    from hil.ident.diagnosis import is_open_loop
+    from hil.ident.records import Records
+    ch, _ = synthesize(CFG, duration=1.0, seed=1, open_loop=True, inputs={"u_add": lambda t: 0.5 * np.sin(7 * t)})
+    op = Replay(Measurement(ch, source="open"), CFG, open_loop=True)
+    ch, _ = synthesize(CFG, duration=1.0, seed=1)
+    cl = Replay(Measurement(ch, source="closed"), CFG)
+    assert is_open_loop(op) and not is_open_loop(cl)
+    assert is_open_loop(Records([op, op])) and not is_open_loop(Records([cl, cl]))
+
+
 def test_a_setting_the_config_lacks_is_no_candidate_and_a_filter_is_one():
     # Ti = inf is a P loop (nothing to re-identify); the current loop's lag where the config gives it
     cfg = CFG.with_values({"control.ti": math.inf, "actuator.current_loop_time_constant": 0.5e-3})
