@@ -681,6 +681,7 @@ class FlexibleTransmission(Effect):
     RING_FACTORS = (1.5, 2.0)      # link resonances tried above a ringing frequency (the loop lowers the ring)
     DAMPINGS = (0.03, 0.1, 0.3)    # damping ratios tried at each (the fit barely moves a damping from afar)
     FINE = (3, 0.3)                # the finer grid: 3 steps either way, over +-30 % of the resonance, +-0.075 share
+    GRID_FREQS = 8                 # resonances of the log grid from RING_MIN to 0.45 / sample period
     RING_MIN = 2.0                 # Hz: a spectrum's peak below this is the moves' own rhythm, not a link
     PEAKS = 3                      # the strongest spectrum peaks above RING_MIN started from
 
@@ -716,7 +717,8 @@ class FlexibleTransmission(Effect):
         the link's free resonance: a stiff velocity loop holds the motor, and the load rings on k
         alone, lower by sqrt(1 - share); a soft one leaves it free; in between the loop's own
         dynamics mix in. So each ringing frequency f_r gives the link f_r, f_r / sqrt(1 - share) and
-        :data:`RING_FACTORS` f_r. Then, around the cheapest point, a finer grid of share and
+        :data:`RING_FACTORS` f_r; beside those, :data:`GRID_FREQS` resonances log-spaced over what
+        the record resolves (a stiff link whose ring the residual does not show). Then, around the cheapest point, a finer grid of share and
         frequency (:data:`FINE`): share and resonance trade along a valley that a local fit walks
         slowly."""
         p = self.param("frequency")
@@ -729,6 +731,11 @@ class FlexibleTransmission(Effect):
                 for f in dict.fromkeys((fr, fr / math.sqrt(1.0 - s)) + tuple(k * fr for k in self.RING_FACTORS)):
                     if p.lower <= f <= p.upper:
                         coarse += [{"load_share": s, "frequency": float(f), "damping_ratio": z} for z in self.DAMPINGS]
+        # and a log grid over the resolvable range: a stiff link the residual's peaks do not show
+        import numpy as np
+        fmax = min(0.45 / float(np.median(np.diff(ctx.t))), p.upper)
+        coarse += [{"load_share": s, "frequency": float(f), "damping_ratio": 0.1} for s in self.SHARES
+                   for f in np.geomspace(self.RING_MIN, fmax, self.GRID_FREQS)]
         costs = ctx.cost(coarse)
         best = coarse[min(range(len(coarse)), key=costs.__getitem__)]
         n, span = self.FINE
