@@ -135,6 +135,32 @@ def _modes(chain):
     return sorted(float(np.sqrt(x) / (2 * math.pi)) for x in ev if x > 1e-9)
 
 
+def test_ringing_after_the_edges_of_a_command():
+    """A residual that rings at 21 Hz (damped, ratio 0.05) after each start and stop of ramp moves,
+    with white noise between: the ring's frequency within the 1/16 Hz grid's half-bin and the
+    window's, and the share of the energy in the 100 ms windows after the edges (closed form)."""
+    import numpy as np
+
+    from hil.sim_plant.effects import edges, ringing
+    dt = 1e-3
+    t = np.arange(0, 8, dt)
+    x = np.zeros_like(t)
+    starts = [1.0, 3.0, 5.0]
+    for t0 in starts:                      # a 0.5 s ramp up, held, then down after 1 s
+        x += np.clip((t - t0) / 0.5, 0, 1) - np.clip((t - t0 - 1.0) / 0.5, 0, 1)
+    found = edges(t, x)
+    assert len(found) == 4 * len(starts)   # each ramp starts and ends: four steps of the acceleration per move
+    r = 1e-3 * np.random.default_rng(0).standard_normal(t.size)
+    w = 2 * math.pi * 21.0
+    for i in found:
+        tau = t[i:] - t[i]
+        r[i:] += np.exp(-0.05 * w * tau) * np.sin(w * math.sqrt(1 - 0.05 ** 2) * tau)
+    f, share = ringing(t, x, r)
+    assert f == pytest.approx(21.0 * math.sqrt(1 - 0.05 ** 2), abs=0.5)
+    # a ring exp(-zeta w t) sin(...) keeps 1 - exp(-2 zeta w T) of its energy in the window T
+    assert share == pytest.approx(1 - math.exp(-2 * 0.05 * w * 0.1), abs=0.03)
+
+
 def test_flexible_transmission_splits_a_rigid_axis_at_its_closed_form_resonance():
     eff = candidate("flexible_transmission")
     rigid = plant_from_config(EMPS)
