@@ -39,6 +39,10 @@ the fit (SI units).
   start of the residual's peaks and the cheapest of the grid (then the second of each). A coupled mode
   moves the chain's own resonance too, so the residual's peak alone has several basins (a light
   fast mode and a heavy slow one shift it alike): the grid tells them apart.
+* flexible_transmission: its own hook (:meth:`hil.sim_plant.effects.FlexibleTransmission.starts`):
+  the residual's ringing after the record's edges and its spectrum's peaks (:func:`mode_targets`),
+  a log grid of resonances, then a finer grid of share and resonance around the cheapest; costed
+  here (one simulation each), the cheapest three kept.
 * Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews; the
   error is not convex in a delay): one simulation per grid point over the physically possible
   range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
