@@ -31,7 +31,7 @@ from hil.sim_plant.plant import Friction, Plant
 from hil.units import DIMENSIONS, fmt, parse
 
 __all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "configure",
-           "default_parameters", "load_components", "components_from_dict"]
+           "default_parameters", "control_bounds", "CONTROL_PARAMETERS", "load_components", "components_from_dict"]
 
 
 # --- the plant -----------------------------------------------------------------------------------
@@ -135,7 +135,12 @@ class ParameterEffect(Effect):
             value = None
         g = float(value) if value else 1.0
         lo = 0.0 if (f.positive or f.nonnegative) else -1e12
-        self.params = (Param("value", kind, lo, 1e12, g, f"new value of {key}"),)
+        hi = 1e12
+        bounds = control_bounds(key, cfg)      # a controller setting: bounds from the loop's physics
+        if bounds is not None:
+            lo, hi = bounds
+            g = min(max(g, lo), hi)
+        self.params = (Param("value", kind, lo, hi, g, f"new value of {key}"),)
 
     def applicable(self, plant):
         return True
@@ -190,13 +195,67 @@ def candidate(name: str, cfg: Config | None = None) -> Effect:
     return effect(name)
 
 
-def default_parameters(cfg: Config) -> list[str]:
+def default_parameters(cfg: Config, closed_loop: bool = True) -> list[str]:
     """The config parameters ``diagnose`` tries to re-identify by default: the chain's masses,
-    stiffnesses and dampings, and the actuator gain of a linear actuator."""
+    stiffnesses and dampings, the actuator gain of a linear actuator, and on a closed-loop record
+    the controller's own settings (:data:`CONTROL_PARAMETERS`: a drive engineer suspects the
+    drive's parameters first, "someone changed them on the drive"), those the config has: the
+    gains where not 0, Ti where finite, the current loop's time constant where given. An open-loop
+    record replays the recorded actuator and never runs the loops: no controller parameter."""
     out = [k for k in cfg.keys() if re.fullmatch(r"plant\.[mkc][0-9]+", k) and cfg.get(k)]
     if not cfg.rotary and cfg.get("actuator.gain"):
         out.append("actuator.gain")
+    if closed_loop:
+        for key in CONTROL_PARAMETERS:
+            v = cfg.get(key)
+            if key == "control.ffv" or (isinstance(v, (int, float)) and 0 < v < math.inf):
+                out.append(key)
     return [f"parameter:{k}" for k in out]
+
+
+# the controller's settings among the default candidates (a feed-forward of 0 is a setting too)
+CONTROL_PARAMETERS = ("control.kv", "control.ffv", "control.kp", "control.ti", "actuator.current_loop_time_constant")
+FFV_RANGE = (0.0, 1.2)       # a velocity feed-forward beyond 1.2 of the command's speed is not a drive's setting
+TI_MAX = 3600.0              # s: an integral time beyond an hour is a P loop
+
+
+def control_bounds(key: str, cfg: Config | None) -> tuple[float, float] | None:
+    """(lower, upper) of a controller setting as a re-identified parameter, from the loop's physics
+    (SI); None for any other key. Closed forms of the sampled loops, each an upper limit of the
+    real one (the loops' lags and delays only lower it; a fit that crosses the real limit simulates
+    an unstable loop, whose error the fit rejects):
+
+    * ``control.kv``: 0 .. 2 / Tp. Around an ideal velocity loop the position loop sampled every Tp
+      is x[k+1] = x[k] + Tp kv (x_cmd - x[k]), stable for |1 - kv Tp| < 1.
+    * ``control.kp``: 0 .. 2 M / (g R Tv), with M the chain's total mass (load side), g the force
+      per unit of the loop's output and R the speed scale (rad/s per m/s; 1 on a linear
+      actuator): the velocity P loop sampled every Tv on the rigid axis is
+      v[k+1] = v[k] - (Tv g kp R / M) v[k] + ..., stable for Tv g kp R / M < 2.
+    * ``control.ti``: Tv .. :data:`TI_MAX`: an integral time shorter than the loop's period adds more
+      than the whole error each period.
+    * ``control.ffv``: :data:`FFV_RANGE`.
+    * ``actuator.current_loop_time_constant``: 0 .. 1 s (the schema's bound).
+    """
+    if key == "control.ffv":
+        return FFV_RANGE
+    if key == "actuator.current_loop_time_constant":
+        return 0.0, 1.0
+    if key not in CONTROL_PARAMETERS:
+        return None
+    if cfg is None:
+        return 0.0, 1e12
+    tp, tv = cfg.get("control.position_period"), cfg.get("control.velocity_period")
+    if key == "control.kv":
+        return 0.0, 2.0 / tp
+    if key == "control.ti":
+        return tv, TI_MAX
+    mass = sum(cfg.get(f"plant.m{i}") for i in range(1, cfg.n_masses + 1))
+    if cfg.rotary:
+        ratio = 2.0 * math.pi / cfg["plant.pitch"]
+        gain, speed = ratio, ratio
+    else:
+        gain, speed = cfg["actuator.gain"], 1.0
+    return 0.0, 2.0 * mass / (gain * speed * tv)
 
 
 # --- the components file -------------------------------------------------------------------------

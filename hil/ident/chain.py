@@ -60,7 +60,7 @@ import math
 
 import numpy as np
 
-from hil.ident.diagnosis import candidate_names, diagnose
+from hil.ident.diagnosis import candidate_names, diagnose, is_open_loop
 from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
@@ -300,7 +300,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 first = diagnose(cur, names, progress=progress, jobs=jobs, max_nfev=max_nfev, **kw)
                 diags.append(first)
             break
-        pool = names or candidate_names(cur.cfg, cur.plant)
+        pool = names or candidate_names(cur.cfg, cur.plant, open_loop=is_open_loop(cur))
         have = {_same(n, cur.cfg) for n in found}
         cands = [n for n in pool if _same(n, cur.cfg) not in have]
         if not cands:

@@ -51,18 +51,25 @@ from hil.sim_plant.effects import CATALOGUE
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["diagnose", "candidate_names", "Combo", "Joint", "pair_score", "EXPLAINED"]
+__all__ = ["diagnose", "candidate_names", "is_open_loop", "Combo", "Joint", "pair_score", "EXPLAINED"]
 
 EXPLAINED = 0.8          # a combination of simpler effects explaining this share of a richer one's gain goes first
 
 
-def candidate_names(cfg, plant, include_parameters: bool = True) -> list[str]:
+def candidate_names(cfg, plant, include_parameters: bool = True, open_loop: bool = False) -> list[str]:
     """The default candidates: the catalogue effects that apply to the plant, and the
-    ``parameter:<key>`` candidates of the config (hil.sim_plant.effects.default_parameters)."""
+    ``parameter:<key>`` candidates of the config (hil.plant_config.default_parameters: the
+    controller's settings among them unless the record is ``open_loop``)."""
     names = [n for n, e in CATALOGUE.items() if e.applicable(plant)]
     if include_parameters:
-        names += default_parameters(cfg)
+        names += default_parameters(cfg, closed_loop=not open_loop)
     return names
+
+
+def is_open_loop(replay) -> bool:
+    """Whether the record (or every record of several, hil.ident.records.Records) is replayed open
+    loop: the loops never run."""
+    return all(getattr(p, "open_loop", False) for p in getattr(replay, "parts", [replay]))
 
 
 def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_nfev: int = 30,
@@ -80,7 +87,7 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     that already holds the effects found, add what pays for its parameters."""
     cfg = replay.cfg
     res0 = replay.residuals(cfg)
-    names = names or candidate_names(cfg, replay.plant)
+    names = names or candidate_names(cfg, replay.plant, open_loop=is_open_loop(replay))
     jobs = jobs or os.cpu_count() or 1
     # the costly candidates first, so that the processes finish together
     names = sorted(names, key=lambda n: -_cost_hint(n, cfg))

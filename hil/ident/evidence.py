@@ -10,6 +10,7 @@ max|v|):
 * an added mode: its frequency, against the model's modes (the chain's undamped natural
   frequencies sqrt(eig(M^-1 K)) / 2 pi);
 * backlash, mass change and ``parameter:<key>``: the fitted value;
+* flexible_transmission: the residual's ringing after the record's edges, and the link fitted;
 * the delays (actuator_delay, alias time_delay; feedback_delay): the fitted delay in the loop's
   periods, and where it sits;
 * channel_skew, tip_skew: the skew in samples, said to be a logging artefact, not physics;

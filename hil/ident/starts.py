@@ -121,9 +121,20 @@ class StartContext(EffectContext):
         periods are read from (default: the record's primary channel's residual)."""
         return _periodic_starts(eff, self.replay, self.res0, guess, self.cfg, residual)
 
-    def mode_targets(self) -> list[float]:
-        """The residual's spectral peaks that are not the command's lines, Hz, strongest first."""
-        return mode_targets(self.replay, self.res0)
+    def mode_targets(self, chan: str | None = None) -> list[float]:
+        """The residual's spectral peaks that are not the command's lines, Hz, strongest first
+        (``chan``: the residual channel; default the strongest weighted)."""
+        return mode_targets(self.replay, self.res0, chan)
+
+    @property
+    def strongest_channel(self) -> str:
+        """The channel whose weighted residual is the largest."""
+        w = self.replay.objective.weights
+        return max((c for c in self.res0 if c in w), key=lambda c: float(np.mean(self.res0[c] ** 2)) * w[c] ** 2)
+
+    def costs(self, eff, starts: list[dict]) -> list[float]:
+        """The weighted squared error of each of ``starts`` (one simulation each; inf: not simulable)."""
+        return _costs(eff, self.replay, starts, self.cfg)
 
 
 def _motor_position(replay) -> np.ndarray:

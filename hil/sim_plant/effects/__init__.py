@@ -2,7 +2,8 @@
 its hooks, the :data:`CATALOGUE`), one module per family: friction (and force), transmission
 (backlash, stiffness along the travel, lead error), delays, recording (skews, sensor offsets),
 structure (an added mode, a mass change), motor (torque ripple), drive (the current loop's lag,
-the torque constant), travel (the screw's thermal elongation, a cable carrier's force).
+the torque constant), travel (the screw's thermal elongation, a cable carrier's force), flexible (a
+flexible transmission at the drive: a 2-mass model).
 
 A new effect is one module: a registered subclass of :class:`Effect` (imported once, by the
 package here or by its user) with its hooks; nothing in the identification names it.
@@ -23,6 +24,7 @@ from hil.sim_plant.effects.base import (
 )
 from hil.sim_plant.effects.delays import ActuatorDelay, FeedbackDelay
 from hil.sim_plant.effects.drive import CurrentLoopLag, TorqueConstant
+from hil.sim_plant.effects.flexible import RING_WINDOW, FlexibleTransmission, edges, ringing
 from hil.sim_plant.effects.friction import (
     AsymmetricFriction,
     ConstantForce,
@@ -41,7 +43,7 @@ __all__ = ["Param", "ByActuator", "Effect", "CATALOGUE", "ALIASES", "register", 
            "ConstantForce", "Backlash", "StiffnessAlongTravel", "StiffnessFixedFixed", "PitchError",
            "ActuatorDelay", "FeedbackDelay", "ChannelSkew", "TipSkew", "ForceOffset", "PositionOffset",
            "TorqueRipple", "CompliantMode", "MassChange", "CurrentLoopLag", "TorqueConstant", "ScrewElongation",
-           "CableCarrier"]
+           "CableCarrier", "FlexibleTransmission", "edges", "ringing", "RING_WINDOW"]
 
 # the order the catalogue has always listed its effects in (candidate lists, the diagnosis' ties,
 # the docs' table); an effect registered later (a new family, a user's module) follows these
@@ -50,7 +52,9 @@ _ORDER = ("coulomb_friction", "viscous_friction", "stribeck_friction", "asymmetr
           "position_offset", "stiffness_along_travel", "stiffness_along_travel_fixed_fixed", "pitch_error",
           "torque_ripple", "compliant_mode", "mass_change",
           # the drive engineer's checklist (issue 24, item 3)
-          "current_loop_lag", "torque_constant", "screw_elongation", "cable_carrier")
+          "current_loop_lag", "torque_constant", "screw_elongation", "cable_carrier",
+          # the flexible transmission at the drive (issue 25)
+          "flexible_transmission")
 
 
 def _in_order() -> None:
