@@ -92,6 +92,9 @@ JSON_KEYS = {
     "chain[].score": JsonKey("", "the step's BIC fall"),
     "chain[].evidence": JsonKey("", "the verdict's evidence, one sentence"),
     "chain[].refitted_together": JsonKey("", "everything found so far was refitted together at this step"),
+    "chain[].recording_artefacts": JsonKey("", "the step's effects that are artefacts of the recording (a channel's "
+                                               "skew, a sensor offset): written to the config's [measurement], "
+                                               "never to the plant's [effects.*]"),
     "run_to_run": JsonKey("", "where the records repeat one test: spread (per channel, the repetitions' scatter "
                               "about their mean, the channel's unit), floor_parts (per channel: spread, sensor: the "
                               "records' own floor, quantization: q/sqrt(12)), error_over (the final error in "
@@ -386,6 +389,9 @@ def chain_text(d, rp) -> list[str]:
                         if n in s["effects"])
         lines.append(f"  step {s['step']}: + {added}{' (all refitted together)' if s['refitted_together'] else ''}"
                      f" [{par}]")
+        if s.get("recording_artefacts"):
+            lines.append(f"          {', '.join(s['recording_artefacts'])}: a recording artefact, not physics "
+                         f"(the config's [measurement]; the model of the axis unchanged)")
         lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
                                            f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))

@@ -65,7 +65,7 @@ from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
-from hil.plant_config import candidate
+from hil.plant_config import candidate, measurement_key
 
 logger = logging.getLogger(__name__)
 
@@ -83,6 +83,9 @@ def effect_values(name: str, cfg) -> dict:
     eff = candidate(name, cfg)
     if name.startswith("parameter:"):
         return {"value": float(cfg[eff.key])}
+    key = measurement_key(eff)
+    if key is not None and cfg.get(key) is not None:      # a recording artefact: [measurement]
+        return {eff.params[0].name: float(cfg[key])}
     # an alias (time_delay) configures its effect's own section
     out = {}
     for p in eff.params:
@@ -276,7 +279,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         ``chain`` (one entry per added step: ``step``, ``effect`` (its verdict), ``effects`` (what
         it added), ``params`` ({effect: {param: value}} of everything found so far, after the
         step's refit), ``error_before`` and ``error_after`` (RMS per channel), ``gap_closed`` (per
-        channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``; and,
+        channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``, ``recording_artefacts`` (the step's effects
+        that are artefacts of the recording, written to the config's ``[measurement]``); and,
         with a leading underscore, the fits and the config, left out of the JSON), ``stderr``
         ({effect: {param: standard error}} of the step's last fit) and ``confounded`` (its pairs of
         parameters correlated above :data:`~hil.ident.fit.CONFOUNDED`); with a held-out part
@@ -373,6 +377,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "gap_closed": {c: gap_closed(err0[c], err1[c], floor[c]) for c in err0},
                       "score": float(paid), "evidence": lead.evidence if lead is not None else "",
                       "refitted_together": joint is not None, "stderr": se, "confounded": conf,
+                      "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
                       "_fits": fits, "_joint": joint, "_config": cfg1})
         if held is not None:
             steps[-1].update(estimation_error=held.pop("estimation"), held_out=held)

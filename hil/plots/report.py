@@ -323,8 +323,10 @@ def _diagnosis_context(d: dict, cfg=None) -> dict:
                                      for c in chans]]
         for s in d["chain"]:
             par = "; ".join(f"{n}: {_params_text(p, u(n))}" for n, p in s["params"].items() if n in s["effects"])
-            rows.append([str(s["step"]), " + ".join(s["effects"]) + (" (all refitted)" if s.get("refitted_together")
-                                                                     else ""), par]
+            added = " + ".join(s["effects"]) + (" (all refitted)" if s.get("refitted_together") else "")
+            if s.get("recording_artefacts"):
+                added += f" ({', '.join(s['recording_artefacts'])}: a recording artefact, not physics)"
+            rows.append([str(s["step"]), added, par]
                         + [_floor_cell(s["error_before"][c], s["error_after"][c], floor[c],
                                        d.get("_units", {}).get(c, "m")) for c in chans])
         chain = _table(["step", "added", "parameters"] + [f"{c} RMS error (x noise floor)" for c in chans], rows,
