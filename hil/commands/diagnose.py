@@ -117,6 +117,14 @@ JSON_KEYS = {
     "final.end": JsonKey("", "why the chain ended: `noise floor reached`, `no effect pays for its parameters`, "
                              "`unexplained`, `no candidate left`, `max steps (N)`"),
     "final.steps": JsonKey("", "number of steps that added effects"),
+    "final.floor_parts": JsonKey(CHANNEL_UNIT, "per channel, the parts of the noise floor the records have: "
+                                               "quantization (q/sqrt(12)), standstill (the standstill noise: the "
+                                               "residual's, or a force channel's measured noise at rest), "
+                                               "run_to_run (the spread of repeated records)"),
+    "final.error_over": JsonKey("1", "per channel, the final error in multiples of each part of floor_parts"),
+    "final.within_run_to_run": JsonKey("", "the final error within the run-to-run spread (every channel with a "
+                                           "spread within it, the others at their own floor); null: no test "
+                                           "was repeated"),
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
     "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
                                   "none and why", when="the chain"),
@@ -405,6 +413,11 @@ def chain_text(d, rp) -> list[str]:
                                          "the residual stays above the noise floor:"))
     if "residual" in f:
         lines += ["  " + x for x in describe(f["residual"])]
+    if not f["at_noise_floor"]:
+        # above the floor: how far above each part of it (the quantization, the standstill noise, the
+        # spread of repeated records)
+        from hil.ident.chain import floor_parts_text
+        lines += floor_parts_text(f, rp.unit)
     return lines
 
 

@@ -89,6 +89,11 @@ class Records:
             src = "; ".join(f"{p.meas.source}: {p.noise_sources[c]['source']}" for p in self.parts)
             self.noise_sources[c] = {"rms": math.sqrt(f2), "source": src,
                                      "quantization": max(p.noise_sources[c].get("quantization", 0.0) for p in self.parts)}
+            still = [(n, p.noise_sources[c]["standstill"]) for n, p in zip(sizes, self.parts)
+                     if p.noise_sources[c].get("standstill")]
+            if still:       # the records' standstill noise, pooled by their samples as the floor
+                self.noise_sources[c]["standstill"] = math.sqrt(sum(n * v * v for n, v in still) /
+                                                                sum(n for n, _ in still))
         self._add_run_to_run_spread()
         self.noise = {c: self.noise_sources[c]["rms"] for c in self.channels}
         self.base_residuals = self._join([p.base_residuals for p in self.parts])
