@@ -12,8 +12,8 @@ Per channel, in this order:
     every value is a whole multiple of, from the smallest, to 1 % of q: a file's stored digits round
     the grid) carries at least q / sqrt(12), the RMS of a uniform rounding error;
   - for a force channel (torque, force, command: a current read by the drive), the measured
-    channel's own standstill noise: the RMS of the channel in the settled standstills, less a
-    straight line per segment (the holding current and its creep are the model's business), pooled
+    channel's own standstill noise: the RMS of the channel in the settled standstills of at least
+    ``MEASURED_MIN`` samples, less a straight line per segment (the holding current and its creep are the model's business), pooled
     over the quiet segments as below (:func:`channel_standstill_noise`). A drive's current hunts
     around its holding value at rest (the loop answering its encoder's steps); no deterministic
     model follows that, and the record's quantization (1 mA) says nothing about it;
@@ -43,7 +43,7 @@ from hil.ident.scores import noise_floor as third_difference_floor
 from hil.plant_config import _NOISE_KINDS
 
 __all__ = ["quantization_step", "standstill_noise", "channel_standstill_noise", "FORCE_CHANNELS", "record_noise", "given_noise", "run_to_run_spread",
-           "same_test", "SETTLE", "AR_ORDER", "QUIET", "NOISE_KINDS", "SAME_TEST"]
+           "same_test", "MEASURED_MIN", "SETTLE", "AR_ORDER", "QUIET", "NOISE_KINDS", "SAME_TEST"]
 
 SETTLE = 0.1        # s skipped at the start of each standstill (at most half of it)
 AR_ORDER = 4        # two resonances predicted away
@@ -95,6 +95,7 @@ def _segments(t, x_cmd, settle: float = SETTLE):
 
 
 FORCE_CHANNELS = ("torque", "force", "command")     # the channels whose measured standstill noise is a floor
+MEASURED_MIN = 50   # samples of a settled rest for the measured channel's noise (shorter: the loop still settles)
 
 
 def _pooled(est):
@@ -111,12 +112,13 @@ def channel_standstill_noise(t, x_cmd, y):
     """The measured channel ``y``'s noise in the settled standstills of the command: per segment the
     variance about a straight line (SSR / (n - 2)), the quiet segments pooled (within ``QUIET``
     times the quietest's variance): (RMS, degrees of freedom), or (None, 0) without a standstill
-    of at least 8 samples."""
+    of at least :data:`MEASURED_MIN` samples (a short rest holds the loop's settling, which a
+    straight line does not take out: it would read as noise)."""
     y = np.asarray(y, float)
     est = []
     for s, e in _segments(t, x_cmd):
         n = e - s
-        if n < 8:
+        if n < MEASURED_MIN:
             continue
         k = np.arange(n, dtype=float)
         seg = y[s:e] - np.polyval(np.polyfit(k, y[s:e], 1), k)
