@@ -198,6 +198,15 @@ SCHEMA: dict[str, Field] = {
                                 "both and says which the record is", default=None, choices=("command", "actual")),
     "measurement.force": Field("str", "the same for a linear axis's force (or command) channel: command or actual",
                                default=None, choices=("command", "actual")),
+    # the recording's artefacts (hil.sim_plant.effects.RecordEffect): how the record was logged, not the plant
+    "measurement.channel_skew": Field("time", "the force (torque, command) channel is logged this late against the "
+                                      "positions (a logging artefact; + late)", default=None),
+    "measurement.tip_skew": Field("time", "the tool-tip channel (another instrument) is logged this late against "
+                                  "the drive's channels (a logging artefact; + late)", default=None),
+    "measurement.force_offset": Field(_torque_or_force, "the force (torque, current) channel reads this much more "
+                                      "than the actuator delivers (a sensor offset, not a load)", default=None),
+    "measurement.position_offset": Field("length", "the tool-tip channel reads this much more than the tip's "
+                                         "position (a sensor offset, not a motion)", default=None),
     # --- runtime -------------------------------------------------------------------------------
     "runtime.priority": Field("int", "real-time (SCHED_FIFO) priority of the loop's thread on hardware, 1..99 "
                               "(Linux, needs CAP_SYS_NICE); 0 = normal scheduling", default=0, nonnegative=True,

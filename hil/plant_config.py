@@ -30,8 +30,9 @@ from hil.sim_plant.effects import ByActuator, Combination, Effect, Param, Record
 from hil.sim_plant.plant import Friction, Plant
 from hil.units import DIMENSIONS, fmt, parse
 
-__all__ = ["plant_from_config", "apply_effects", "record_effects", "ParameterEffect", "candidate", "configure",
-           "default_parameters", "control_bounds", "CONTROL_PARAMETERS", "load_components", "components_from_dict"]
+__all__ = ["plant_from_config", "apply_effects", "record_effects", "measurement_key", "ParameterEffect", "candidate",
+           "configure", "default_parameters", "control_bounds", "CONTROL_PARAMETERS", "load_components",
+           "components_from_dict"]
 
 
 # --- the plant -----------------------------------------------------------------------------------
@@ -96,6 +97,34 @@ def _configured_effects(cfg: Config):
                 raise ConfigError(f"{cfg.source}: effects.{name}.{p.name}: expected {p.lower:g} .. {p.upper:g}, "
                                   f"got {v:g}")
         out.append((name, eff, values))
+    out += _measurement_artefacts(cfg, names)
+    return out
+
+
+def measurement_key(eff: Effect) -> str | None:
+    """The ``[measurement]`` key of a recording artefact (``measurement.channel_skew``: the value of
+    its one parameter), None for plant physics (``[effects.<name>]``)."""
+    if isinstance(eff, RecordEffect) and getattr(eff, "section", "") == "measurement" and len(eff.params) == 1:
+        return f"measurement.{eff.name}"
+    return None
+
+
+def _measurement_artefacts(cfg: Config, names: list[str]):
+    """(key, effect, values) of the recording's artefacts the ``[measurement]`` section gives (an old
+    config's ``[effects.channel_skew]`` still reads; both at once is refused by name)."""
+    from hil.sim_plant.effects import CATALOGUE
+    out = []
+    for eff in CATALOGUE.values():
+        key = measurement_key(eff)
+        if key is None or cfg.get(key) is None:
+            continue
+        if eff.name in names:
+            raise ConfigError(f"{cfg.source}: {key}: the artefact is also given as [effects.{eff.name}]; "
+                              f"expected it once, in [measurement]")
+        p, v = eff.params[0], float(cfg[key])
+        if not (p.lower <= v <= p.upper) or math.isnan(v):
+            raise ConfigError(f"{cfg.source}: {key}: expected {p.lower:g} .. {p.upper:g}, got {v:g}")
+        out.append((key, eff, {p.name: v}))
     return out
 
 
@@ -170,6 +199,10 @@ def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:
         return cfg
     if isinstance(eff, ParameterEffect):
         return cfg.with_values({eff.key: float(values["value"])})
+    key = measurement_key(eff)
+    if key is not None:       # a recording artefact: [measurement], never the plant's [effects.*]
+        return cfg.with_values({key: float(values[eff.params[0].name]),
+                                **{f"effects.{eff.name}.{p.name}": None for p in eff.params}})
     return cfg.with_values({f"effects.{eff.name}.{k}": float(v) for k, v in values.items()})
 
 

@@ -92,6 +92,9 @@ JSON_KEYS = {
     "chain[].score": JsonKey("", "the step's BIC fall"),
     "chain[].evidence": JsonKey("", "the verdict's evidence, one sentence"),
     "chain[].refitted_together": JsonKey("", "everything found so far was refitted together at this step"),
+    "chain[].recording_artefacts": JsonKey("", "the step's effects that are artefacts of the recording (a channel's "
+                                               "skew, a sensor offset): written to the config's [measurement], "
+                                               "never to the plant's [effects.*]"),
     "run_to_run": JsonKey("", "where the records repeat one test: spread (per channel, the repetitions' scatter "
                               "about their mean, the channel's unit), floor_parts (per channel: spread, sensor: the "
                               "records' own floor, quantization: q/sqrt(12)), error_over (the final error in "
@@ -114,6 +117,14 @@ JSON_KEYS = {
     "final.end": JsonKey("", "why the chain ended: `noise floor reached`, `no effect pays for its parameters`, "
                              "`unexplained`, `no candidate left`, `max steps (N)`"),
     "final.steps": JsonKey("", "number of steps that added effects"),
+    "final.floor_parts": JsonKey(CHANNEL_UNIT, "per channel, the parts of the noise floor the records have: "
+                                               "quantization (q/sqrt(12)), standstill (the standstill noise: the "
+                                               "residual's, or a force channel's measured noise at rest), "
+                                               "run_to_run (the spread of repeated records)"),
+    "final.error_over": JsonKey("1", "per channel, the final error in multiples of each part of floor_parts"),
+    "final.within_run_to_run": JsonKey("", "the final error within the run-to-run spread (every channel with a "
+                                           "spread within it, the others at their own floor); null: no test "
+                                           "was repeated"),
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
     "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
                                   "none and why", when="the chain"),
@@ -181,7 +192,7 @@ def run(args) -> int:
         raise UserError(f"--out {args.out}: the single diagnosis ({'--no-chain' if args.no_chain else '--max-steps 1'}) "
                         f"adds nothing to the model, so there is no config to write; drop --out, or let the chain run")
     cfg, metas, vals = load_records(args)
-    rp = make_records(args, cfg, metas)
+    rp = make_records(args, cfg, metas, vals)
     sampling = None
     names = args.candidates.split(",") if args.candidates else None
     for n in names or []:
@@ -261,7 +272,7 @@ def _chain_both_samplings(args, cfg, metas, rp, names, prog, vals=()):
 
     def replay_of(c):
         if id(c) not in replays:
-            replays[id(c)] = make_records(args, c, metas)
+            replays[id(c)] = make_records(args, c, metas, vals)
         return replays[id(c)]
     def chain(r):
         # every step earns its place on data it was not fitted on: the --validate records (replayed
@@ -386,6 +397,9 @@ def chain_text(d, rp) -> list[str]:
                         if n in s["effects"])
         lines.append(f"  step {s['step']}: + {added}{' (all refitted together)' if s['refitted_together'] else ''}"
                      f" [{par}]")
+        if s.get("recording_artefacts"):
+            lines.append(f"          {', '.join(s['recording_artefacts'])}: a recording artefact, not physics "
+                         f"(the config's [measurement]; the model of the axis unchanged)")
         lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
                                            f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))
@@ -399,6 +413,11 @@ def chain_text(d, rp) -> list[str]:
                                          "the residual stays above the noise floor:"))
     if "residual" in f:
         lines += ["  " + x for x in describe(f["residual"])]
+    if not f["at_noise_floor"]:
+        # above the floor: how far above each part of it (the quantization, the standstill noise, the
+        # spread of repeated records)
+        from hil.ident.chain import floor_parts_text
+        lines += floor_parts_text(f, rp.unit)
     return lines
 
 

@@ -22,8 +22,10 @@ filtered position) and of the force gtau*vir.
   hil emps --data ../shared/data/emps/DATA_EMPS.mat --out out/emps
 
 --validate DATA_EMPS_PULSES.mat (the benchmark's validation record, when you have it) replays it
-through the models fitted on --data, its pulses entering as the u_add input, and sets its errors
-beside the published validation figures (position 0.0080 %, force 8.94 %).
+through the models fitted on --data (the chain's model among them), its pulses entering as the
+u_add input, and sets its errors beside the published validation figures (position 0.0080 %,
+force 8.94 %). Every step of the chain earns its place on the validation record (without it, on
+the record's own held-out moves); the table gives each step's estimation and held-out errors.
 
   hil emps --data DATA_EMPS.mat --validate DATA_EMPS_PULSES.mat --out out/emps
 """
@@ -56,7 +58,16 @@ JSON_KEYS = {
     "validation": JsonKey("%", "per fitted model on each --validate record: model, record, position, velocity, "
                                "force; empty without --validate"),
     "published_validation": JsonKey("%", "the published validation errors: position, force"),
+    "chain": JsonKey("", "the diagnosis chain's steps as `hil diagnose --json`'s chain[] (effects, params, errors "
+                         "in SI), each with estimation_error and held_out (before, after, fall, uncertainty, "
+                         "earned): on the --validate records, else on the record's held-out moves",
+                     when="the diagnosis runs (not --no-diagnose)"),
+    "chain_final": JsonKey("", "the end of the chain as `hil diagnose --json`'s final (error, noise_floor, end, "
+                               "held_out, rejected)", when="the diagnosis runs (not --no-diagnose)"),
 }
+
+# the validation rows' label of the chain's model (hil.ident.chain), beside the output-error refits
+CHAIN_MODEL = "the diagnosis chain's model"
 
 
 # the record in the project's shared folder, beside a clone (not shipped with the package)
@@ -96,6 +107,7 @@ def run(args) -> int:
     from hil.ident.emps import (
         PUBLISHED,
         PUBLISHED_VALIDATION,
+        chain_markdown,
         diagnosis_markdown,
         run_emps,
         table_markdown,
@@ -112,7 +124,8 @@ def run(args) -> int:
             raise UserError(f"--validate {v}: no such file (the EMPS validation record DATA_EMPS_PULSES.mat)")
     from hil.commands.progress import bar
     with bar("emps", args) as prog:
-        res = run_emps(args.data, args.config, args.quick, progress=prog, diagnose_steps=not args.no_diagnose)
+        res = run_emps(args.data, args.config, args.quick, progress=prog, diagnose_steps=not args.no_diagnose,
+                       validate=args.validate)
     rows, cfgs, diags = res.rows, res.configs, res.diagnoses
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -131,30 +144,41 @@ def run(args) -> int:
     diag_md = diagnosis_markdown(diags)
     from hil.ident.emps import with_rigid
     val = []
+    models = {"published reference (our loop)": with_rigid(cfgs["start"], PUBLISHED),
+              "output-error refit of M, Fv, Fc, offset": cfgs["fitted"],
+              "+ asymmetric_friction": cfgs["asymmetric"]}
+    if res.chain is not None:           # the chain's model is validated beside the refits
+        models[CHAIN_MODEL] = res.chain["config"]
     for v in args.validate:
-        val += validate_emps(v, {"published reference (our loop)": with_rigid(cfgs["start"], PUBLISHED),
-                                 "output-error refit of M, Fv, Fc, offset": cfgs["fitted"],
-                                 "+ asymmetric_friction": cfgs["asymmetric"]})
+        val += validate_emps(v, models)
     val_md = validation_markdown(val) if val else ""
-    write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n" + (f"\n{val_md}\n" if val_md else ""))
+    chain_md = chain_markdown(res.chain) if res.chain is not None else ""
+    write_atomic(out / "table.md", md + "\n\n" + diag_md + "\n" + (f"\n{chain_md}\n" if chain_md else "")
+                 + (f"\n{val_md}\n" if val_md else ""))
     from hil.plots.interactive import write_interactive
     title = "EMPS: start model against measurement, and the fitted model"
     write_interactive(a, out / "interactive.html", title, after=b, names=("start model", "fitted model"))
     write_report(out / "report.html", title, a, figs, after=b, interactive="interactive.html",
                  record=args.data, configs=[("start model", args.config), ("fitted model", out / "emps_fitted.toml")],
                  emps={"rows": rows, "published": PUBLISHED, "check": chk, "diagnoses": diags},
-                 names=("start model", "fitted model"), validation=_validation_tables(val))
+                 names=("start model", "fitted model"), validation=_chain_tables(res.chain) + _validation_tables(val))
     if args.docs:
         d = Path(args.docs)
         d.mkdir(parents=True, exist_ok=True)
         for f in figs:
             shutil.copy(f, d / f"emps_{Path(f).name}")
     if args.json:
-        print(dumps({"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out),
-                     "validation": val, "published_validation": PUBLISHED_VALIDATION}, indent=1))
+        doc = {"rows": rows, "published": PUBLISHED, "check": chk, "diagnosis": diags, "out": str(out),
+               "validation": val, "published_validation": PUBLISHED_VALIDATION}
+        if res.chain is not None:
+            from hil.ident.chain import chain_json
+            doc.update(chain=chain_json(res.chain["chain"]), chain_final=res.chain["final"])
+        print(dumps(doc, indent=1))
     else:
         print(md)
         print(diag_md)
+        if chain_md:
+            print(chain_md)
         if val_md:
             print(val_md)
         dev = chk["deviation"]
@@ -163,6 +187,27 @@ def run(args) -> int:
               f"errors match or beat the published: {chk['errors_match_or_beat_published']}")
         print(f"report: {out / 'report.html'}")
     return 0
+
+
+def _chain_tables(chain) -> list:
+    """The chain's steps with their estimation and held-out (validation) errors, as the report's table."""
+    if chain is None:
+        return []
+    steps = list(chain["chain"]) + ([dict(chain["final"]["rejected"], step="refused")]
+                                    if "rejected" in chain["final"] else [])
+    rows = [[str(s["step"]), " + ".join(s["effects"]), c, f"{s['estimation_error'][c]:.4g}",
+             f"{s['held_out']['before'][c]:.4g}", f"{s['held_out']['after'][c]:.4g}",
+             f"{100 * s['held_out']['fall']:.1f} +- {100 * s['held_out']['uncertainty']:.1f}",
+             "yes" if s["held_out"]["earned"] else "no"]
+            for s in steps if "held_out" in s for c in s["estimation_error"]]
+    if not rows:
+        return []
+    return [{"title": "The chain's steps: estimation and held-out errors",
+             "note": f"RMS error per channel (SI: m, N); held out: {chain['final'].get('held_out', '')}; "
+                     f"end: {chain['final']['end']}",
+             "header": ["step", "added", "channel", "estimation", "held out before", "held out after",
+                        "weighted fall %", "earned"],
+             "rows": rows, "numeric": [3, 4, 5]}]
 
 
 def _validation_tables(rows) -> list:

@@ -64,12 +64,12 @@ from hil.ident.diagnosis import candidate_names, diagnose, is_open_loop
 from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
-from hil.ident.unexplained import HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
-from hil.plant_config import candidate
+from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
+from hil.plant_config import candidate, measurement_key
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["diagnose_chain", "chain_json", "MAX_STEPS", "effect_values", "split_moves", "held_out_fall",
+__all__ = ["diagnose_chain", "chain_json", "floor_parts", "floor_parts_text", "MAX_STEPS", "effect_values", "split_moves", "held_out_fall",
            "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV"]
 
 MAX_STEPS = 4
@@ -83,6 +83,9 @@ def effect_values(name: str, cfg) -> dict:
     eff = candidate(name, cfg)
     if name.startswith("parameter:"):
         return {"value": float(cfg[eff.key])}
+    key = measurement_key(eff)
+    if key is not None and cfg.get(key) is not None:      # a recording artefact: [measurement]
+        return {eff.params[0].name: float(cfg[key])}
     # an alias (time_delay) configures its effect's own section
     out = {}
     for p in eff.params:
@@ -187,7 +190,9 @@ def _holdout_parts(replay, holdout):
         return ("moves", masks) if masks is not None else None
     from hil.ident.records import Records
     parts = list(holdout)
-    return ("records", Records(parts)) if parts else None
+    # the fitted records join the validation records' run-to-run spread (repetitions across the two)
+    fitted = [p._source_meas for p in getattr(replay, "parts", [replay])]
+    return ("records", Records(parts, fitted)) if parts else None
 
 
 def _earned(cur, split, add, found, cfg1, fit_nfev) -> dict:
@@ -276,7 +281,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         ``chain`` (one entry per added step: ``step``, ``effect`` (its verdict), ``effects`` (what
         it added), ``params`` ({effect: {param: value}} of everything found so far, after the
         step's refit), ``error_before`` and ``error_after`` (RMS per channel), ``gap_closed`` (per
-        channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``; and,
+        channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``, ``recording_artefacts`` (the step's effects
+        that are artefacts of the recording, written to the config's ``[measurement]``); and,
         with a leading underscore, the fits and the config, left out of the JSON), ``stderr``
         ({effect: {param: standard error}} of the step's last fit) and ``confounded`` (its pairs of
         parameters correlated above :data:`~hil.ident.fit.CONFOUNDED`); with a held-out part
@@ -373,6 +379,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "gap_closed": {c: gap_closed(err0[c], err1[c], floor[c]) for c in err0},
                       "score": float(paid), "evidence": lead.evidence if lead is not None else "",
                       "refitted_together": joint is not None, "stderr": se, "confounded": conf,
+                      "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
                       "_fits": fits, "_joint": joint, "_config": cfg1})
         if held is not None:
             steps[-1].update(estimation_error=held.pop("estimation"), held_out=held)
@@ -390,6 +397,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                              f"moves, or is open-loop)")
     if rejected is not None:
         final["rejected"] = rejected
+    final.update(floor_parts(replay, errf))
     if not final["at_noise_floor"]:
         last = diags[-1] if diags else None
         best = last["candidates"][0] if last and last["candidates"] else None
@@ -397,6 +405,48 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     out = dict(first)
     out.update(chain=steps, final=final, diagnoses=diags, config=cur.cfg)
     return out
+
+
+def floor_parts(replay, err: dict) -> dict:
+    """The parts of each channel's noise floor (hil.ident.noise, hil.ident.records) and the error
+    ``err`` in multiples of each: ``floor_parts`` {channel: {"quantization": q / sqrt(12),
+    "standstill": the standstill noise, "run_to_run": the spread of repeated records}} (the parts
+    the record has), ``error_over`` {channel: {part: error / part}}, and ``within_run_to_run``
+    (where some channel has a spread: every such channel's error within :data:`AT_FLOOR` times
+    it, the others at their own floor; None where no test was repeated)."""
+    src = getattr(replay, "noise_sources", {})
+    spread = {c: v for c, v in (getattr(replay, "spread", None) or {}).items() if v > 0}
+    parts = {}
+    for c in err:
+        ns = src.get(c, {})
+        p = {"quantization": ns.get("quantization", 0.0) / math.sqrt(12.0), "standstill": ns.get("standstill"),
+             "run_to_run": spread.get(c)}
+        parts[c] = {k: float(v) for k, v in p.items() if v}
+    over = {c: {k: err[c] / v for k, v in p.items()} for c, p in parts.items()}
+    within = None
+    if spread:
+        within = bool(all(err[c] <= AT_FLOOR * spread[c] for c in spread if c in err)
+                      and all(err[c] <= AT_FLOOR * replay.noise[c] for c in err if c not in spread))
+    return {"floor_parts": parts, "error_over": over, "within_run_to_run": within}
+
+
+def floor_parts_text(final: dict, unit) -> list[str]:
+    """The error in multiples of each part of the floor, and whether it lies within the run-to-run
+    spread, in words (``unit``: the SI unit of a channel)."""
+    from hil.units import fmt_si
+    names = {"quantization": "the quantization", "standstill": "the standstill noise",
+             "run_to_run": "the run-to-run spread"}
+    lines = []
+    for c, over in final.get("error_over", {}).items():
+        if over:
+            lines.append(f"  {c}: the error is " + ", ".join(
+                f"{v:.3g} x {names[k]} ({fmt_si(final['floor_parts'][c][k], unit(c), 3)})" for k, v in over.items()))
+    w = final.get("within_run_to_run")
+    if w is not None:
+        lines.insert(0, "floor: " + ("within the run-to-run spread" if w else "above the run-to-run spread"))
+    elif lines:
+        lines.insert(0, "floor (no repeated records: no run-to-run spread):")
+    return lines
 
 
 def chain_json(steps: list) -> list:

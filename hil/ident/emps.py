@@ -38,7 +38,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["PUBLISHED", "MAPPING", "VALIDATION_MAPPING", "PUBLISHED_VALIDATION", "validate_emps",
            "validation_markdown", "DIAGNOSE_CANDIDATES", "EmpsResult", "run_emps", "velocity", "errors",
-           "params_of", "with_rigid", "check_published", "table_markdown", "diagnosis_markdown"]
+           "params_of", "with_rigid", "check_published", "table_markdown", "diagnosis_markdown", "chain_markdown"]
 
 PUBLISHED = {"M": 95.1089, "Fv": 203.5034, "Fc": 20.3935, "offset": -3.1648,
              "errors": {"position": 0.0138, "velocity": 0.229, "force": 5.85}}
@@ -118,7 +118,8 @@ def _summary(d):
                                                 "rich_against_combination")} for c in d["combinations"]]}
 
 
-def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: bool = True) -> EmpsResult:
+def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: bool = True,
+             validate=()) -> EmpsResult:
     """The EMPS chain on a record.
 
     Parameters
@@ -134,6 +135,10 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     diagnose_steps : bool
         Diagnose before and after the first additions (else add coulomb_friction and
         constant_force directly).
+    validate : list of paths
+        Validation records (DATA_EMPS_PULSES.mat, read with :data:`VALIDATION_MAPPING`): every
+        step of the chain earns its place on them (hil.ident.chain ``holdout``); without them, on
+        the record's own held-out moves.
 
     Returns
     -------
@@ -153,7 +158,10 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     if diagnose_steps:
         # the diagnosis chain (hil.ident.chain): each verdict, with the effects also missing beside it,
         # added and fitted, everything found refitted together, diagnosed again
-        ch = diagnose_chain(rp, cands, max_steps=3, progress=progress, jobs=jobs, max_nfev=nfev, fit_nfev=nfev)
+        # every step validated: on the validation records where given, else on the record's held-out moves
+        holdout = [Replay(_validation_record(v), cfg0) for v in validate] or "moves"
+        ch = diagnose_chain(rp, cands, max_steps=3, progress=progress, jobs=jobs, max_nfev=nfev, fit_nfev=nfev,
+                            holdout=holdout)
         cfg_chain = cfg0
         for i, step in enumerate(ch["chain"]):
             rows += _step_rows(rp, cfg_chain, step, later=i > 0)
@@ -269,16 +277,49 @@ def validate_emps(path, configs: dict, mapping: dict | None = None) -> list[dict
     DATA_EMPS.mat) on the validation record ``path``, read with ``mapping`` (default
     :data:`VALIDATION_MAPPING`). Refused with one line when this version has no ``u_add`` input
     (the pulses would be left out of the replay, the residual would be the pulse train)."""
+    meas = _validation_record(path, mapping)
+    cfg0 = next(iter(configs.values()))
+    rp = Replay(meas, cfg0)
+    return [{"model": label, "record": str(path), **errors(rp, cfg)} for label, cfg in configs.items()]
+
+
+def _validation_record(path, mapping: dict | None = None):
+    """The validation record read with ``mapping`` (default :data:`VALIDATION_MAPPING`), refused with
+    one line where this version has no ``u_add`` input for its pulses."""
     from hil.errors import UserError
     from hil.io.measurement import CHANNELS
     mapping = dict(mapping or VALIDATION_MAPPING)
     if "u_add" in mapping.values() and "u_add" not in CHANNELS:
         raise UserError(f"{path}: the validation record's pulses need the u_add input channel, which this version "
                         f"does not have: not validated")
-    meas = read_mat(path, mapping)
-    cfg0 = next(iter(configs.values()))
-    rp = Replay(meas, cfg0)
-    return [{"model": label, "record": str(path), **errors(rp, cfg)} for label, cfg in configs.items()]
+    return read_mat(path, mapping)
+
+
+def chain_markdown(chain: dict) -> str:
+    """The chain's steps, estimation and held-out (or validation) errors side by side: per step the
+    RMS error of each channel on the data it was fitted on, and on the held-out data before and
+    after the step, with the fall of the weighted error and whether the step earned its place
+    (hil.ident.chain); a step the held-out data refused last."""
+    steps = list(chain["chain"])
+    final = chain["final"]
+    if "rejected" in final:
+        steps.append(dict(final["rejected"], step="refused"))
+    held = [s for s in steps if "held_out" in s]
+    if not held:
+        return f"chain: {len(chain['chain'])} steps; no held-out data ({final.get('held_out', 'none')})"
+    chans = list(held[0]["estimation_error"])
+    unit = {"x_motor": "m", "force": "N"}
+    lines = [f"| chain step | added | {' | '.join(f'{c} estimation {unit.get(c, c)}' for c in chans)} | "
+             f"{' | '.join(f'{c} held out {unit.get(c, c)}' for c in chans)} | weighted fall % | earned |",
+             "|---|---|" + "---:|" * (2 * len(chans) + 1) + "---|"]
+    for s in held:
+        h = s["held_out"]
+        lines.append(f"| {s['step']} | {' + '.join(s['effects'])} | "
+                     + " | ".join(f"{s['estimation_error'][c]:.4g}" for c in chans) + " | "
+                     + " | ".join(f"{h['before'][c]:.4g} -> {h['after'][c]:.4g}" for c in chans)
+                     + f" | {100 * h['fall']:.1f} +- {100 * h['uncertainty']:.1f} | {'yes' if h['earned'] else 'no'} |")
+    lines.append(f"\nheld out: {final.get('held_out', '')}; end: {final['end']}")
+    return "\n".join(lines)
 
 
 def validation_markdown(rows) -> str:

@@ -11,6 +11,12 @@ Per channel, in this order:
     the values: the largest whole fraction of the smallest difference between distinct values that
     every value is a whole multiple of, from the smallest, to 1 % of q: a file's stored digits round
     the grid) carries at least q / sqrt(12), the RMS of a uniform rounding error;
+  - for a force channel (torque, force, command: a current read by the drive), the measured
+    channel's own standstill noise: the RMS of the channel in the settled standstills of at least
+    ``MEASURED_MIN`` samples, less a straight line per segment (the holding current and its creep are the model's business), pooled
+    over the quiet segments as below (:func:`channel_standstill_noise`). A drive's current hunts
+    around its holding value at rest (the loop answering its encoder's steps); no deterministic
+    model follows that, and the record's quantization (1 mA) says nothing about it;
   - the standstill noise: the residual in the settled part of each standstill of the command
     (hil.ident.residual.motion_phases; each standstill less its first ``SETTLE`` s, at most half of
     it), less a straight line per segment (a static offset or a creep is a model error, not noise),
@@ -36,8 +42,8 @@ from hil.ident.residual import motion_phases
 from hil.ident.scores import noise_floor as third_difference_floor
 from hil.plant_config import _NOISE_KINDS
 
-__all__ = ["quantization_step", "standstill_noise", "record_noise", "given_noise", "run_to_run_spread",
-           "same_test", "SETTLE", "AR_ORDER", "QUIET", "NOISE_KINDS", "SAME_TEST"]
+__all__ = ["quantization_step", "standstill_noise", "channel_standstill_noise", "FORCE_CHANNELS", "record_noise", "given_noise", "run_to_run_spread",
+           "same_test", "MEASURED_MIN", "SETTLE", "AR_ORDER", "QUIET", "NOISE_KINDS", "SAME_TEST"]
 
 SETTLE = 0.1        # s skipped at the start of each standstill (at most half of it)
 AR_ORDER = 4        # two resonances predicted away
@@ -88,6 +94,38 @@ def _segments(t, x_cmd, settle: float = SETTLE):
     return out
 
 
+FORCE_CHANNELS = ("torque", "force", "command")     # the channels whose measured standstill noise is a floor
+MEASURED_MIN = 50   # samples of a settled rest for the measured channel's noise (shorter: the loop still settles)
+
+
+def _pooled(est):
+    """The variances (variance, dof) of the quiet segments pooled: (RMS, dof); (None, 0) for none."""
+    if not est:
+        return None, 0
+    vmin = min(v for v, _ in est)
+    quiet = [(v, d) for v, d in est if v <= QUIET * vmin]
+    dof = sum(d for _, d in quiet)
+    return math.sqrt(sum(v * d for v, d in quiet) / dof), int(dof)
+
+
+def channel_standstill_noise(t, x_cmd, y):
+    """The measured channel ``y``'s noise in the settled standstills of the command: per segment the
+    variance about a straight line (SSR / (n - 2)), the quiet segments pooled (within ``QUIET``
+    times the quietest's variance): (RMS, degrees of freedom), or (None, 0) without a standstill
+    of at least :data:`MEASURED_MIN` samples (a short rest holds the loop's settling, which a
+    straight line does not take out: it would read as noise)."""
+    y = np.asarray(y, float)
+    est = []
+    for s, e in _segments(t, x_cmd):
+        n = e - s
+        if n < MEASURED_MIN:
+            continue
+        k = np.arange(n, dtype=float)
+        seg = y[s:e] - np.polyval(np.polyfit(k, y[s:e], 1), k)
+        est.append((float(np.sum(seg * seg)) / (n - 2), n - 2))
+    return _pooled(est)
+
+
 def standstill_noise(t, x_cmd, r, p: int = AR_ORDER):
     """The noise of residual ``r`` in the settled standstills: (RMS, samples used), or (None, 0)
     when no standstill is long enough (see the module's definition)."""
@@ -106,12 +144,7 @@ def standstill_noise(t, x_cmd, r, p: int = AR_ORDER):
         ssr = float(np.sum((y - X @ coef) ** 2))
         dof = y.size - p
         est.append((ssr / dof, dof))
-    if not est:
-        return None, 0
-    vmin = min(v for v, _ in est)
-    quiet = [(v, d) for v, d in est if v <= QUIET * vmin]
-    dof = sum(d for _, d in quiet)
-    return math.sqrt(sum(v * d for v, d in quiet) / dof), int(dof)
+    return _pooled(est)
 
 
 def given_noise(cfg, meas, chan: str):
@@ -129,7 +162,9 @@ def given_noise(cfg, meas, chan: str):
 
 
 def record_noise(meas, cfg, residuals: dict) -> dict:
-    """Per channel of ``residuals``: {"rms": floor, "source": text, "quantization": q} (SI)."""
+    """Per channel of ``residuals``: {"rms": floor, "source": text, "quantization": q, and where it
+    was measured "standstill": the standstill noise (the larger of the residual's and, on a force
+    channel, the measured channel's)} (SI)."""
     t, xc = meas.t, meas["x_cmd"]
     out = {}
     for c, r in residuals.items():
@@ -141,9 +176,16 @@ def record_noise(meas, cfg, residuals: dict) -> dict:
                       "quantization": q}
             continue
         s, n = standstill_noise(t, xc, r)
+        src = f"standstill ({n} samples)"
+        if c in FORCE_CHANNELS and c in meas:
+            sm, nm = channel_standstill_noise(t, xc, meas[c])
+            if sm is not None and sm > (s or 0.0):
+                s, src = sm, f"standstill noise of the measured channel ({nm} samples)"
         if (s is not None and s > 0) or q > 0:
-            src = "quantization" if (s is None or fq >= s) else f"standstill ({n} samples)"
+            src = "quantization" if (s is None or fq >= s) else src
             out[c] = {"rms": max(fq, s or 0.0), "source": src, "quantization": q}
+            if s:
+                out[c]["standstill"] = s
             continue
         out[c] = {"rms": third_difference_floor(r), "source": "residual third difference (may hold structure)",
                   "quantization": 0.0}

@@ -64,10 +64,13 @@ class Records:
     """Records of one axis replayed through one config, fitted as one (see the module's
     definitions). ``parts``: the Replay of each record, all on the same config and channels."""
 
-    def __init__(self, parts: list[Replay]):
+    def __init__(self, parts: list[Replay], repetitions=()):
         if not parts:
             raise ValueError("Records: no record")
         self.parts = list(parts)
+        # records of the same tests that are not fitted (the validation records): they join the
+        # run-to-run spread, nothing else
+        self.repetitions = list(repetitions)
         first = self.parts[0]
         self.cfg, self.plant, self.align = first.cfg, first.plant, first.align
         self.units = first.units
@@ -89,6 +92,11 @@ class Records:
             src = "; ".join(f"{p.meas.source}: {p.noise_sources[c]['source']}" for p in self.parts)
             self.noise_sources[c] = {"rms": math.sqrt(f2), "source": src,
                                      "quantization": max(p.noise_sources[c].get("quantization", 0.0) for p in self.parts)}
+            still = [(n, p.noise_sources[c]["standstill"]) for n, p in zip(sizes, self.parts)
+                     if p.noise_sources[c].get("standstill")]
+            if still:       # the records' standstill noise, pooled by their samples as the floor
+                self.noise_sources[c]["standstill"] = math.sqrt(sum(n * v * v for n, v in still) /
+                                                                sum(n for n, _ in still))
         self._add_run_to_run_spread()
         self.noise = {c: self.noise_sources[c]["rms"] for c in self.channels}
         self.base_residuals = self._join([p.base_residuals for p in self.parts])
@@ -104,7 +112,7 @@ class Records:
         same command are to each other."""
         first = self.parts[0]
         command = first.drive_channel if first.open_loop else "x_cmd"
-        spread = run_to_run_spread([p._source_meas for p in self.parts], self.channels, command)
+        spread = run_to_run_spread([p._source_meas for p in self.parts] + self.repetitions, self.channels, command)
         self.spread = {c: s["rms"] for c, s in spread.items()}
         for c, s in spread.items():
             ns = self.noise_sources[c]
@@ -116,7 +124,7 @@ class Records:
         return {c: np.concatenate([d[c] for d in dicts]) for c in self.channels}
 
     def with_config(self, cfg) -> "Records":
-        return Records([p.with_config(cfg) for p in self.parts])
+        return Records([p.with_config(cfg) for p in self.parts], self.repetitions)
 
     def residuals(self, cfg=None) -> dict:
         return self._join([p.residuals(cfg) for p in self.parts])

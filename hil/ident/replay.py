@@ -288,7 +288,8 @@ def _loop_key(cfg):
     items = []
     for k, v in cfg.values.items():
         parts = k.split(".")
-        if len(parts) == 3 and parts[0] == "effects" and isinstance(CATALOGUE.get(parts[1]), RecordEffect):
+        if len(parts) >= 2 and parts[0] in ("effects", "measurement") and \
+                isinstance(CATALOGUE.get(parts[1]), RecordEffect):
             continue
         items.append((k, repr(v)))
     return tuple(sorted(items))

@@ -323,12 +323,25 @@ def _diagnosis_context(d: dict, cfg=None) -> dict:
                                      for c in chans]]
         for s in d["chain"]:
             par = "; ".join(f"{n}: {_params_text(p, u(n))}" for n, p in s["params"].items() if n in s["effects"])
-            rows.append([str(s["step"]), " + ".join(s["effects"]) + (" (all refitted)" if s.get("refitted_together")
-                                                                     else ""), par]
+            added = " + ".join(s["effects"]) + (" (all refitted)" if s.get("refitted_together") else "")
+            if s.get("recording_artefacts"):
+                added += f" ({', '.join(s['recording_artefacts'])}: a recording artefact, not physics)"
+            rows.append([str(s["step"]), added, par]
                         + [_floor_cell(s["error_before"][c], s["error_after"][c], floor[c],
                                        d.get("_units", {}).get(c, "m")) for c in chans])
-        chain = _table(["step", "added", "parameters"] + [f"{c} RMS error (x noise floor)" for c in chans], rows,
-                       numeric=range(3, 3 + len(chans)))
+        held = [s for s in d["chain"] + [d["final"].get("rejected")] if s and "held_out" in s]
+        if held:
+            # estimation and held-out (validation) errors side by side, every step (the refused one last)
+            for r, s in zip(rows[1:], d["chain"]):
+                r += _held_out_cells(s, chans, d)
+            rows[0] += ["", "", ""]
+            if d["final"].get("rejected") is not None and "held_out" in d["final"]["rejected"]:
+                rj = d["final"]["rejected"]
+                rows.append(["refused", " + ".join(rj["effects"]), ""] + [""] * len(chans)
+                            + _held_out_cells(rj, chans, d))
+        chain = _table(["step", "added", "parameters"] + [f"{c} RMS error (x noise floor)" for c in chans]
+                       + (["estimation error", "held-out error (before -> after)", "held-out fall"] if held else []),
+                       rows, numeric=range(3, 3 + len(chans)))
         f = d["final"]
         end = f"End: {f['end']}; " + ("every channel at its noise floor." if f["at_noise_floor"]
                                       else "the residual stays above the noise floor.")
@@ -352,6 +365,20 @@ def _diagnosis_verdict(d: dict, units) -> str:
         return VERDICT_WORDS.get(v, v)
     par = _params_text(top.get("params", {}), units(v))
     return f"{v} (score {top['score']:.1f}{'; ' + par if par else ''})"
+
+
+def _held_out_cells(s, chans, d) -> list[str]:
+    """A chain step's estimation error, held-out error before and after it, and the held-out fall."""
+    if "held_out" not in s:
+        return ["", "", ""]
+    h, unit = s["held_out"], d.get("_units", {})
+    est = ", ".join(f"{c} {_in(s['estimation_error'][c], display_unit(unit.get(c, 'm'), s['estimation_error'][c]))}"
+                    for c in chans if c in s["estimation_error"])
+    out = ", ".join(f"{c} {_in(h['before'][c], display_unit(unit.get(c, 'm'), h['before'][c], h['after'][c]))} -> "
+                    f"{_in(h['after'][c], display_unit(unit.get(c, 'm'), h['before'][c], h['after'][c]))}"
+                    for c in chans if c in h["before"])
+    return [est, out, f"{100 * h['fall']:.1f} % (+- {100 * h['uncertainty']:.1f} %): "
+                      f"{'earned' if h['earned'] else 'not earned'}"]
 
 
 def _floor_cell(before, after, floor, unit) -> str:

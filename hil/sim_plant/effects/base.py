@@ -215,8 +215,10 @@ def level_guess(plant: Plant, fallback: float) -> float:
 class RecordEffect(Effect):
     """An artefact of the recording, not of the plant: it acts on the channels as recorded
     (hil.ident.replay applies it to the simulated channels read back, hil.ident.synth to the
-    record it writes), never on the loop."""
+    record it writes), never on the loop. A configuration gives it in ``[measurement]`` (the key
+    ``measurement.<name>``, the value of its one parameter), not among the plant's effects."""
     channels: tuple = ()
+    section = "measurement"
 
     def apply(self, plant, values):
         return plant
