@@ -11,11 +11,12 @@ with its excitation, measurement noise and per-period record, which the simulati
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from hil.control import (
     ControllerSettings,
@@ -38,7 +39,7 @@ from hil.control import (
 from hil.plant_config import plant_from_config
 from hil.sim_plant.plant import Plant
 
-__all__ = ["SimulationResult", "simulate", "simulate_many", "closed_loop_batch", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
+__all__ = ["SimulationResult", "simulate", "simulate_many", "closed_loop_batch", "batch_threads", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
            "external_forces", "TORQUE_SAMPLING"]
 
 # which controller output a record holds: the current after the delay and the current loop, or the command
@@ -338,21 +339,21 @@ def simulate_many(plants: list, ctrls: list, x_cmd, *, x0: float | None = None, 
                   open_loop: bool = False, torque: str = "actual") -> list[SimulationResult]:
     """:func:`simulate` of one command on several plants and controllers (the parameter sets of a
     finite-difference Jacobian, a grid of starts), every run the same as :func:`simulate`'s, bit
-    for bit. Where the runs share their structure (:func:`_same_structure`) they run in one
-    compiled call, :func:`closed_loop_batch`, its runs spread over the cores; else one after the
+    for bit. Where the runs share their structure (:func:`_same_structure`) they run in compiled
+    calls of :func:`closed_loop_batch`, one per thread (:func:`batch_threads`); else one after the
     other."""
     runs = [_prepared(pl, c, x_cmd, None, x0, u_add, f_ext, open_loop, torque) for pl, c in zip(plants, ctrls)]
     if len(runs) > 1 and _same_structure(runs):
         r0 = runs[0]
         X, V, U, XM, XT, XC = (np.stack([getattr(r.rec, f) for r in runs]) for f in Record._fields)
-        closed_loop_batch(np.stack([r.Ad for r in runs]), np.stack([r.Bd for r in runs]),
-                          np.array([r.fric for r in runs], float), r0.codes, np.stack([r.params for r in runs]),
-                          np.stack([r.terms for r in runs]), np.stack([r.p for r in runs]),
-                          np.stack([r.state0 for r in runs]), r0.cmd,
-                          None if r0.ubuf is None else np.stack([r.ubuf for r in runs]),
-                          None if r0.hbuf is None else np.stack([r.hbuf for r in runs]),
-                          X, V, U, XM, XT, XC, r0.speed_filter, r0.log_command, r0.inputs.get("u_add"),
-                          r0.inputs.get("f_ext"), r0.inputs.get("open_loop", False))
+        args = (np.stack([r.Ad for r in runs]), np.stack([r.Bd for r in runs]), np.array([r.fric for r in runs], float),
+                r0.codes, np.stack([r.params for r in runs]), np.stack([r.terms for r in runs]),
+                np.stack([r.p for r in runs]), np.stack([r.state0 for r in runs]), r0.cmd,
+                None if r0.ubuf is None else np.stack([r.ubuf for r in runs]),
+                None if r0.hbuf is None else np.stack([r.hbuf for r in runs]),
+                X, V, U, XM, XT, XC, r0.speed_filter, r0.log_command, r0.inputs.get("u_add"), r0.inputs.get("f_ext"),
+                r0.inputs.get("open_loop", False))
+        _run_batch(args, len(runs))
         runs = [r._replace(rec=Record(X[b], V[b], U[b], XM[b], XT[b], XC[b])) for b, r in enumerate(runs)]
     else:
         for r in runs:
@@ -382,17 +383,19 @@ def _same_structure(runs: list[_Run]) -> bool:
     return len(r0.fric) == 5
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def closed_loop_batch(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, X, V, U, XM, XT, XC,
-                      speed_filter, log_command, u_add, f_ext, open_loop):
+                      speed_filter, log_command, u_add, f_ext, open_loop, first=0, stop=-1):
     """:func:`closed_loop_kernel` for a batch of runs b of one command, each recorded once per
     position tick into row b of ``X``, ``V``, ``U``, ``XM``, ``XT``, ``XC`` (:class:`Record`):
     per run its matrices ``Ad[b]``, ``Bd[b]``, friction ``fric[b]`` (the five levels), effect
     numbers ``eparams[b]`` (the codes are shared), terms, settings, initial state and buffers (None:
-    no delay, compiled away); the measured inputs are shared. The runs are independent (prange:
-    numba spreads them over its threads); each is the kernel's, unchanged."""
+    no delay, compiled away); the measured inputs are shared. Runs ``first`` to ``stop`` (-1: the
+    last) only; each is the kernel's, unchanged. Without the GIL, so that threads run disjoint
+    ranges of one batch at once (numba's own parallel loops are not safe in a process that forks
+    its workers afterwards, as hil diagnose --jobs and hil fleet do)."""
     n_sub = int(terms[0, 0])        # T.SUBSTEPS (the record: one row per position tick)
-    for b in prange(Ad.shape[0]):
+    for b in range(first, Ad.shape[0] if stop < 0 else stop):
         fr = (fric[b, 0], fric[b, 1], fric[b, 2], fric[b, 3], fric[b, 4])
         rec = Record(X[b], V[b], U[b], XM[b], XT[b], XC[b])
         if ubuf is None:
@@ -412,6 +415,35 @@ def closed_loop_batch(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, h
             closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, ubuf[b],
                                hbuf[b], rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
                                speed_filter, log_command)
+
+
+def batch_threads() -> int:
+    """Threads that share a batch (:func:`simulate_many`): ``HIL_THREADS`` when set, else the CPUs
+    this process may use (1 in a worker of a pool that already fills them: set HIL_THREADS=1)."""
+    env = os.environ.get("HIL_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ValueError(f"HIL_THREADS: expected a whole number of threads, got {env!r}") from None
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:          # pragma: no cover - platforms without affinity
+        return max(1, os.cpu_count() or 1)
+
+
+def _run_batch(args: tuple, count: int) -> None:
+    """:func:`closed_loop_batch` over ``count`` runs, split into contiguous ranges, one per thread
+    (a pool made per call: a forked worker inherits no idle threads)."""
+    threads = min(batch_threads(), count)
+    if threads <= 1:
+        closed_loop_batch(*args)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+    edges = [round(i * count / threads) for i in range(threads + 1)]
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for f in [pool.submit(closed_loop_batch, *args, edges[i], edges[i + 1]) for i in range(threads)]:
+            f.result()
 
 
 def _held(y, steps: int) -> np.ndarray:

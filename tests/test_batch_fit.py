@@ -111,3 +111,20 @@ def test_a_failing_start_costs_infinity_the_others_theirs(replay, monkeypatch):
     monkeypatch.setenv("HIL_BATCH", "0")
     assert got == _costs(eff, replay, starts, CFG)
     assert got[1] == np.inf and np.isfinite(got[0]) and np.isfinite(got[2])
+
+
+def _batch_in_child(_):
+    cfgs = _configs("backlash", [{"gap": 2e-6}, {"gap": 9e-6}, {"gap": 4e-5}])
+    plants = [plant_from_config(c) for c in cfgs]
+    res = simulate_many(plants, [controller_from_config(c, p) for c, p in zip(cfgs, plants)], _command(), x0=0.0)
+    return [float(r.x_table[-1]) for r in res]
+
+
+def test_a_worker_forked_after_a_batch_runs_batches(monkeypatch):
+    """hil diagnose --jobs and hil fleet fork their workers after the main process has fitted: the
+    batch must not use a threading runtime that kills a forked child (GNU OpenMP does)."""
+    import multiprocessing as mp
+    monkeypatch.setenv("HIL_THREADS", "2")
+    here = _batch_in_child(None)
+    with mp.get_context("fork").Pool(1) as pool:
+        assert pool.map_async(_batch_in_child, [0]).get(timeout=120) == [here]
