@@ -35,7 +35,9 @@ def _configs(effect, values):
     ("coulomb_friction", [{"level": 0.5}, {"level": 2.0}]),
     ("parameter:plant.k2", [{"value": 0.9 * CFG["plant.k2"]}, {"value": 1.1 * CFG["plant.k2"]}]),
 ])
-def test_simulate_many_is_simulate_bit_for_bit(effect, values):
+@pytest.mark.parametrize("threads", ["1", "2"])
+def test_simulate_many_is_simulate_bit_for_bit(effect, values, threads, monkeypatch):
+    monkeypatch.setenv("HIL_THREADS", threads)
     cfgs = _configs(effect, values)
     plants = [plant_from_config(c) for c in cfgs]
     ctrls = [controller_from_config(c, p) for c, p in zip(cfgs, plants)]
@@ -126,5 +128,20 @@ def test_a_worker_forked_after_a_batch_runs_batches(monkeypatch):
     import multiprocessing as mp
     monkeypatch.setenv("HIL_THREADS", "2")
     here = _batch_in_child(None)
-    with mp.get_context("fork").Pool(1) as pool:
+    with mp.get_context("fork").Pool(1) as pool:          # the child inherits HIL_THREADS=2
         assert pool.map_async(_batch_in_child, [0]).get(timeout=120) == [here]
+
+
+def test_batch_threads_from_the_environment_or_the_idle_cores(monkeypatch):
+    from hil.simulate import batch_threads
+    monkeypatch.setenv("HIL_THREADS", "3")
+    assert batch_threads() == 3
+    monkeypatch.setenv("HIL_THREADS", "two")
+    with pytest.raises(ValueError, match="HIL_THREADS"):
+        batch_threads()
+    monkeypatch.delenv("HIL_THREADS")
+    monkeypatch.setattr("os.getloadavg", lambda: (40.0, 0.0, 0.0))
+    assert batch_threads() == 1               # a busy machine: no threads that wait for each other
+    monkeypatch.setattr("os.getloadavg", lambda: (0.9, 0.0, 0.0))
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})
+    assert batch_threads() == 2               # this process alone on two cores
