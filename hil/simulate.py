@@ -11,6 +11,7 @@ with its excitation, measurement noise and per-period record, which the simulati
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -38,7 +39,7 @@ from hil.control import (
 from hil.plant_config import plant_from_config
 from hil.sim_plant.plant import Plant
 
-__all__ = ["SimulationResult", "simulate", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
+__all__ = ["SimulationResult", "simulate", "simulate_many", "closed_loop_batch", "batch_threads", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
            "external_forces", "TORQUE_SAMPLING"]
 
 # which controller output a record holds: the current after the delay and the current loop, or the command
@@ -249,6 +250,37 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     hold their last value. ``torque``: which output the record holds, ``"actual"`` (the current
     after the delay and the current loop) or ``"command"`` (the controller's output at the
     sample, before them)."""
+    run = _prepared(plant, ctrl, x_cmd, record_every, x0, u_add, f_ext, open_loop, torque)
+    closed_loop_kernel(run.Ad, run.Bd, run.fric, run.codes, run.params, run.terms, run.p, run.state0, run.cmd,
+                       run.ubuf, run.hbuf, run.rec, run.record_every, speed_filter=run.speed_filter,
+                       log_command=run.log_command, **run.inputs)
+    return _result(run, ctrl, plant, v_cmd)
+
+
+class _Run(NamedTuple):
+    """The arguments of one :func:`closed_loop_kernel` run of :func:`simulate` (not real-time)."""
+    Ad: np.ndarray
+    Bd: np.ndarray
+    fric: tuple
+    codes: np.ndarray | None
+    params: np.ndarray
+    terms: np.ndarray
+    p: np.ndarray
+    state0: np.ndarray
+    cmd: np.ndarray
+    ubuf: np.ndarray | None
+    hbuf: np.ndarray | None
+    rec: Record
+    record_every: int
+    speed_filter: np.ndarray | None
+    log_command: bool
+    inputs: dict
+    K: int
+    n_rec: int
+
+
+def _prepared(plant, ctrl, x_cmd, record_every, x0, u_add, f_ext, open_loop, torque) -> _Run:
+    """The kernel's arguments of :func:`simulate`, checked (the module's conventions)."""
     if torque not in TORQUE_SAMPLING:
         raise ValueError(f"torque: expected one of {', '.join(TORQUE_SAMPLING)}, got {torque!r}")
     x_cmd = np.ascontiguousarray(x_cmd, dtype=float)
@@ -281,14 +313,19 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
         inputs["f_ext"] = np.ascontiguousarray(fe[np.minimum(np.arange(steps), fe.shape[0] - 1)])
         if codes is None:            # external forces take the effects' force path
             codes, params = np.zeros(0, np.int64), np.zeros((0, params.shape[1]))
-    rec = Record(X, V, U, XM, XT, XC)
-    closed_loop_kernel(disc.A, disc.B, plant.friction.as_tuple(), codes, params, terms.array, ctrl.as_array(), state0,
-                       cmd, terms.delay_buffer(), terms.feedback_buffer(), rec, record_every,
-                       speed_filter=ctrl.speed_filter(), log_command=torque == "command", **inputs)
+    return _Run(disc.A, disc.B, plant.friction.as_tuple(), codes, params, terms.array, ctrl.as_array(), state0, cmd,
+                terms.delay_buffer(), terms.feedback_buffer(), Record(X, V, U, XM, XT, XC), record_every,
+                ctrl.speed_filter(), torque == "command", inputs, K, n_rec)
+
+
+def _result(run: _Run, ctrl: ControllerSettings, plant: Plant, v_cmd=None) -> SimulationResult:
+    """The :class:`SimulationResult` of a kernel run of :func:`simulate`."""
+    record_every, n_rec, K, n_sub = run.record_every, run.n_rec, run.K, ctrl.substeps
+    X, V, U, XM, XT, XC = run.rec
     t = np.arange(n_rec) * record_every * ctrl.velocity_period
     if v_cmd is None:
         # the interpolator's velocity for the coming period, held like the command
-        vk = np.diff(cmd) / ctrl.position_period
+        vk = np.diff(run.cmd) / ctrl.position_period
         v_rec = vk[np.minimum((np.arange(n_rec) * record_every) // n_sub, K - 1)]
     else:
         v_rec = np.asarray(v_cmd, float)[np.minimum((np.arange(n_rec) * record_every) // n_sub, K - 1)]
@@ -296,6 +333,125 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
                             x_tip=X[:, plant.tip].copy() if plant.tip != plant.table else XT.copy(),
                             rotary=plant.pitch is not None,
                             meta={"force_gain": plant.force_gain, "record_period": record_every * ctrl.velocity_period})
+
+
+def simulate_many(plants: list, ctrls: list, x_cmd, *, x0: float | None = None, u_add=None, f_ext=None,
+                  open_loop: bool = False, torque: str = "actual") -> list[SimulationResult]:
+    """:func:`simulate` of one command on several plants and controllers (the parameter sets of a
+    finite-difference Jacobian, a grid of starts), every run the same as :func:`simulate`'s, bit
+    for bit. Where the runs share their structure (:func:`_same_structure`) they run in compiled
+    calls of :func:`closed_loop_batch`, one per thread (:func:`batch_threads`); else one after the
+    other."""
+    runs = [_prepared(pl, c, x_cmd, None, x0, u_add, f_ext, open_loop, torque) for pl, c in zip(plants, ctrls)]
+    if len(runs) > 1 and _same_structure(runs):
+        r0 = runs[0]
+        X, V, U, XM, XT, XC = (np.stack([getattr(r.rec, f) for r in runs]) for f in Record._fields)
+        args = (np.stack([r.Ad for r in runs]), np.stack([r.Bd for r in runs]), np.array([r.fric for r in runs], float),
+                r0.codes, np.stack([r.params for r in runs]), np.stack([r.terms for r in runs]),
+                np.stack([r.p for r in runs]), np.stack([r.state0 for r in runs]), r0.cmd,
+                None if r0.ubuf is None else np.stack([r.ubuf for r in runs]),
+                None if r0.hbuf is None else np.stack([r.hbuf for r in runs]),
+                X, V, U, XM, XT, XC, r0.speed_filter, r0.log_command, r0.inputs.get("u_add"), r0.inputs.get("f_ext"),
+                r0.inputs.get("open_loop", False))
+        _run_batch(args, len(runs))
+        runs = [r._replace(rec=Record(X[b], V[b], U[b], XM[b], XT[b], XC[b])) for b, r in enumerate(runs)]
+    else:
+        for r in runs:
+            closed_loop_kernel(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, r.state0, r.cmd, r.ubuf, r.hbuf,
+                               r.rec, r.record_every, speed_filter=r.speed_filter, log_command=r.log_command,
+                               **r.inputs)
+    return [_result(r, c, pl) for r, c, pl in zip(runs, ctrls, plants)]
+
+
+def _same_structure(runs: list[_Run]) -> bool:
+    """Whether the runs differ only in numbers that :func:`closed_loop_batch` takes per run: the
+    same state size, effect codes, buffers' sizes, speed filter and record."""
+    r0 = runs[0]
+
+    def shape(a):
+        return None if a is None else a.shape
+    for r in runs[1:]:
+        if (r.Ad.shape != r0.Ad.shape or r.Bd.shape != r0.Bd.shape or r.params.shape != r0.params.shape
+                or shape(r.ubuf) != shape(r0.ubuf) or shape(r.hbuf) != shape(r0.hbuf) or r.n_rec != r0.n_rec
+                or r.record_every != r0.record_every or len(r.fric) != 5):
+            return False
+        if (r.codes is None) != (r0.codes is None) or (r.codes is not None and not np.array_equal(r.codes, r0.codes)):
+            return False
+        if (r.speed_filter is None) != (r0.speed_filter is None) or (
+                r.speed_filter is not None and not np.array_equal(r.speed_filter, r0.speed_filter)):
+            return False
+    return len(r0.fric) == 5
+
+
+@njit(cache=True, nogil=True)
+def closed_loop_batch(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, X, V, U, XM, XT, XC,
+                      speed_filter, log_command, u_add, f_ext, open_loop, first=0, stop=-1):
+    """:func:`closed_loop_kernel` for a batch of runs b of one command, each recorded once per
+    position tick into row b of ``X``, ``V``, ``U``, ``XM``, ``XT``, ``XC`` (:class:`Record`):
+    per run its matrices ``Ad[b]``, ``Bd[b]``, friction ``fric[b]`` (the five levels), effect
+    numbers ``eparams[b]`` (the codes are shared), terms, settings, initial state and buffers (None:
+    no delay, compiled away); the measured inputs are shared. Runs ``first`` to ``stop`` (-1: the
+    last) only; each is the kernel's, unchanged. Without the GIL, so that threads run disjoint
+    ranges of one batch at once (numba's own parallel loops are not safe in a process that forks
+    its workers afterwards, as hil diagnose --jobs and hil fleet do)."""
+    n_sub = int(terms[0, 0])        # T.SUBSTEPS (the record: one row per position tick)
+    for b in range(first, Ad.shape[0] if stop < 0 else stop):
+        fr = (fric[b, 0], fric[b, 1], fric[b, 2], fric[b, 3], fric[b, 4])
+        rec = Record(X[b], V[b], U[b], XM[b], XT[b], XC[b])
+        if ubuf is None:
+            if hbuf is None:
+                closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, None, None,
+                                   rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
+                                   speed_filter, log_command)
+            else:
+                closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, None,
+                                   hbuf[b], rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
+                                   speed_filter, log_command)
+        elif hbuf is None:
+            closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, ubuf[b], None,
+                               rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
+                               speed_filter, log_command)
+        else:
+            closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, ubuf[b],
+                               hbuf[b], rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
+                               speed_filter, log_command)
+
+
+def batch_threads() -> int:
+    """Threads that share a batch (:func:`simulate_many`): ``HIL_THREADS`` when set, else the cores
+    that are idle: the CPUs this process may use less the others' load (the 1-minute load average
+    less this process), at least 1. On a busy machine, or in a worker of a pool that fills the cores
+    (hil fleet, hil diagnose --jobs), threads would only wait for each other: a batch is as slow as
+    its last range (bench_fleet at load 8: 34 s for the 6 s chain with 2 threads, 27 s with 1)."""
+    env = os.environ.get("HIL_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ValueError(f"HIL_THREADS: expected a whole number of threads, got {env!r}") from None
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:          # pragma: no cover - platforms without affinity
+        cpus = os.cpu_count() or 1
+    try:
+        busy = int(os.getloadavg()[0] + 0.5) - 1
+    except OSError:                 # pragma: no cover - platforms without a load average
+        busy = 0
+    return max(1, min(cpus, cpus - busy))
+
+
+def _run_batch(args: tuple, count: int) -> None:
+    """:func:`closed_loop_batch` over ``count`` runs, split into contiguous ranges, one per thread
+    (a pool made per call: a forked worker inherits no idle threads)."""
+    threads = min(batch_threads(), count)
+    if threads <= 1:
+        closed_loop_batch(*args)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+    edges = [round(i * count / threads) for i in range(threads + 1)]
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for f in [pool.submit(closed_loop_batch, *args, edges[i], edges[i + 1]) for i in range(threads)]:
+            f.result()
 
 
 def _held(y, steps: int) -> np.ndarray:

@@ -149,6 +149,9 @@ class _MaskedObjective:
     def residuals(self, cfg):
         return self.obj.residuals(cfg)
 
+    def residuals_many(self, cfgs):
+        return self.obj.residuals_many(cfgs)
+
     def vector(self, res):
         return self.obj.vector(res)[self.sel]
 

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from hil.ident.evidence import evidence, model_modes
-from hil.ident.objective import Objective
+from hil.ident.objective import Objective, batched
 from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, SIGNIFICANT_ABOVE_NOISE, bic_score
 from hil.ident.starts import record_scales, starting_values
@@ -47,7 +47,7 @@ logger = logging.getLogger(__name__)
 CONFOUNDED = 0.9     # |correlation| of two fitted parameters above which they are named as confounded
 WORSE_TOL = 1e-6     # relative: a fit leaving more weighted error than this above the effect-free model's is wrong
 
-__all__ = ["Candidate", "evaluate", "fit_effects", "joint_refit", "standard_errors", "confounded_pairs", "CONFOUNDED"]
+__all__ = ["Candidate", "evaluate", "fd_steps", "fit_effects", "joint_refit", "standard_errors", "confounded_pairs", "CONFOUNDED"]
 
 
 @dataclass
@@ -132,6 +132,83 @@ def confounded_pairs(sol, names) -> list:
     return sorted(out, key=lambda x: -abs(x[2]))
 
 
+_FAILED = (ValueError, ZeroDivisionError, FloatingPointError)   # a config that cannot be simulated
+
+
+def _with_jacobian(obj: Objective, fun, config, lower, upper, rel_step: float, failed=_FAILED):
+    """``fun`` and a Jacobian for :func:`least_squares` that evaluates its columns in one batched
+    call (:meth:`Objective.residuals_many`), with exactly the steps and arithmetic of scipy's
+    '2-point' scheme (:func:`fd_steps`), so that the fit takes the same path as with
+    ``jac='2-point'``; ``config(z)`` is the config of the scaled parameters ``z``, ``failed`` the
+    errors that cost a vector of 1e3 (as ``fun``'s). With ``HIL_BATCH=0`` (hil.ident.objective.batched)
+    ``fun`` and scipy's own scheme: the peer."""
+    if not batched():
+        return fun, "2-point"
+    last: dict = {}
+
+    def fun_kept(z):
+        f = fun(z)
+        last["z"], last["f"] = np.array(z, float), f
+        return f
+
+    def vectors(zs):
+        cfgs, out = [], []
+        for z in zs:
+            try:
+                cfgs.append(config(z))
+            except failed:
+                cfgs.append(None)
+        got = iter(obj.residuals_many([c for c in cfgs if c is not None]))
+        for c in cfgs:
+            r = next(got) if c is not None else None
+            if isinstance(r, Exception) and not isinstance(r, failed):
+                raise r
+            out.append(np.full(obj.n, 1e3) if r is None or isinstance(r, Exception) else obj.vector(r))
+        return out
+
+    def jac(z):
+        x0 = np.asarray(z, float)
+        h = fd_steps(x0, lower, upper, rel_step)
+        probes = []
+        for i in range(x0.size):
+            x1 = x0.copy()
+            x1[i] = x0[i] + h[i]
+            probes.append(x1)
+        have_f0 = "z" in last and np.array_equal(last["z"], x0)
+        fs = vectors(probes if have_f0 else probes + [x0])
+        f0 = last["f"] if have_f0 else fs[-1]
+        jt = np.empty((x0.size, f0.size))          # laid out as scipy's (its transpose's rows)
+        for i in range(x0.size):
+            jt[i] = (fs[i] - f0) / ((x0[i] + h[i]) - x0[i])
+        return jt.T
+    return fun_kept, jac
+
+
+def fd_steps(x0, lower, upper, rel_step: float) -> np.ndarray:
+    """The forward steps of scipy's '2-point' finite differences with a relative step (as
+    scipy.optimize's approx_derivative takes them): h = rel_step sign(x) |x| (sign(0) = 1), or
+    sqrt(eps) sign(x) max(1, |x|) where that step vanishes in x + h; a step that leaves the bounds
+    is reversed where the reversed one fits, else it goes to the farther bound."""
+    x0 = np.asarray(x0, float)
+    lb, ub = (np.broadcast_to(np.asarray(b, float), x0.shape) for b in (lower, upper))
+    sign = (x0 >= 0).astype(float) * 2 - 1
+    h = rel_step * sign * np.abs(x0)
+    h = np.where(((x0 + h) - x0) == 0, np.finfo(float).eps ** 0.5 * sign * np.maximum(1.0, np.abs(x0)), h)
+    if np.all((lb == -np.inf) & (ub == np.inf)):
+        return h
+    lower_dist, upper_dist = x0 - lb, ub - x0
+    x = x0 + h
+    violated = (x < lb) | (x > ub)
+    fitting = np.abs(h) <= np.maximum(lower_dist, upper_dist)
+    h = h.copy()
+    h[violated & fitting] *= -1
+    forward = (upper_dist >= lower_dist) & ~fitting
+    h[forward] = upper_dist[forward]
+    backward = (upper_dist < lower_dist) & ~fitting
+    h[backward] = -lower_dist[backward]
+    return h
+
+
 def _param_scale(p, g):
     if g != 0.0 and math.isfinite(g):
         return abs(g)
@@ -153,15 +230,17 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
         hi = np.array([p.upper for p in fitted]) / scale
         z0 = np.clip(np.array([start[n] for n in names]) / scale, lo + 1e-12 * abs(lo), hi - 1e-12 * abs(hi))
 
-        def fun(z, held=held):
-            vals = dict(held, **dict(zip(names, z * scale)))
+        def config(z, held=held):
+            return configure(eff, base_cfg, dict(held, **dict(zip(names, z * scale))))
+
+        def fun(z):
             try:
-                cfg = configure(eff, base_cfg, vals)
-                return obj.vector(obj.residuals(cfg))
-            except (ValueError, ZeroDivisionError, FloatingPointError):
+                return obj.vector(obj.residuals(config(z)))
+            except _FAILED:
                 return np.full(obj.n, 1e3)
+        fun, jac = _with_jacobian(obj, fun, config, lo, hi, 1e-3)
         try:
-            sol = least_squares(fun, z0, bounds=(lo, hi), diff_step=1e-3, max_nfev=max_nfev, x_scale=1.0,
+            sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), diff_step=1e-3, max_nfev=max_nfev, x_scale=1.0,
                                 xtol=1e-5, ftol=1e-5)
         except ValueError:
             continue
@@ -253,12 +332,16 @@ def joint_refit(replay: Replay, cfg, keys: list[str], max_nfev: int = 60, stderr
     # steps large enough to see through the stick-slip's non-smoothness
     scale = np.maximum(np.abs(x0), 0.05 * np.max(np.abs(x0)) + 1e-12)
 
+    def config(z):
+        return cfg.with_values(dict(zip(keys, (z * scale).tolist())))
+
     def fun(z):
         try:
-            return obj.vector(obj.residuals(cfg.with_values(dict(zip(keys, (z * scale).tolist())))))
+            return obj.vector(obj.residuals(config(z)))
         except ValueError:
             return np.full(obj.n, 1e3)
-    sol = least_squares(fun, x0 / scale, diff_step=1e-2, max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
+    fun, jac = _with_jacobian(obj, fun, config, -np.inf, np.inf, 1e-2, failed=(ValueError,))
+    sol = least_squares(fun, x0 / scale, jac=jac, diff_step=1e-2, max_nfev=max_nfev, xtol=1e-8, ftol=1e-8)
     if stderr is not None:
         stderr.update(zip(keys, standard_errors(sol, scale).tolist()))
     return cfg.with_values(dict(zip(keys, (sol.x * scale).tolist())))

@@ -5,12 +5,23 @@ Each channel c is weighted by w_c = 1 / max(RMS of its residual under the replay
 its noise floor, 1e-15) (set once, when the replay is made), so that no unit dominates; the
 vector is the concatenation of r_c w_c over the channels, and least squares minimises
 sum_c w_c^2 ||r_c||^2. ``n`` is its length.
+
+:meth:`Objective.residuals_many` evaluates several configs at once (hil.ident.replay: their loops in
+one compiled call), the same numbers as one by one; the environment variable ``HIL_BATCH=0``
+selects the one-by-one path (:func:`batched`), the peer that benchmarks/bench_fleet.py times.
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
-__all__ = ["Objective"]
+__all__ = ["Objective", "batched"]
+
+
+def batched() -> bool:
+    """Whether the fits evaluate their Jacobians and grids in one batched call (``HIL_BATCH``: not 0)."""
+    return os.environ.get("HIL_BATCH", "1").strip() != "0"
 
 
 class Objective:
@@ -23,6 +34,10 @@ class Objective:
 
     def residuals(self, cfg) -> dict[str, np.ndarray]:
         return self.replay.residuals(cfg)
+
+    def residuals_many(self, cfgs: list) -> list:
+        """Per config its residuals, or the model's error (hil.ident.replay.Replay.residuals_many)."""
+        return self.replay.residuals_many(cfgs)
 
     def vector(self, res: dict) -> np.ndarray:
         return np.concatenate([res[c] * self.weights[c] for c in self.weights])

@@ -129,6 +129,15 @@ class Records:
     def residuals(self, cfg=None) -> dict:
         return self._join([p.residuals(cfg) for p in self.parts])
 
+    def residuals_many(self, cfgs: list) -> list:
+        """Per config the joined residuals, or the first part's error (Replay.residuals_many)."""
+        per_part = [p.residuals_many(cfgs) for p in self.parts]
+        out = []
+        for got in zip(*per_part):
+            err = next((r for r in got if isinstance(r, Exception)), None)
+            out.append(err if err is not None else self._join(got))
+        return out
+
     def simulated(self, cfg=None) -> dict:
         sims = [p.simulated(cfg) for p in self.parts]
         keys = [k for k in sims[0] if all(k in s for s in sims)]

@@ -49,7 +49,7 @@ from hil.ident.objective import Objective
 from hil.ident.residual import xcorr
 from hil.ident.synth import extend_command, torque_sampling
 from hil.plant_config import plant_from_config, record_effects
-from hil.simulate import external_forces, per_velocity_period, simulate
+from hil.simulate import external_forces, per_velocity_period, simulate, simulate_many
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +57,8 @@ __all__ = ["Replay", "POSITION_CHANNELS", "UNITS", "angle_axis", "channel_units"
 
 POSITION_CHANNELS = ("x_motor", "x_table", "x_tip")
 _FORCE = ("torque", "force", "command")
+#: what a config's model may raise in a replay (the fits cost it as a failed evaluation)
+_MODEL_ERRORS = (ValueError, ZeroDivisionError, FloatingPointError)
 UNITS = {"x_motor": "m", "x_table": "m", "x_tip": "m", "x_motor-x_table": "m", "torque": "N*m", "force": "N",
          "command": "V", "e_table": "m", "e_tip": "m"}
 
@@ -201,6 +203,11 @@ class Replay:
         else:
             ch = self.simulate(cfg).channels()
             self._last = (key, ch)
+        return self._on_samples(cfg, ch)
+
+    def _on_samples(self, cfg, ch: dict) -> dict[str, np.ndarray]:
+        """The loop's simulated channels ``ch`` of ``cfg`` on the measurement's sample times, with the
+        recording's artefacts."""
         out = {}
         for c in self.channels + ["x_motor", "x_table", "x_tip"]:
             if c in ch:
@@ -217,8 +224,57 @@ class Replay:
             out = eff.apply_record(self.meas.t, out, vals)
         return out
 
+    def residuals_many(self, cfgs: list) -> list:
+        """:meth:`residuals` of several configs (a Jacobian's parameter sets, a grid of starts), the
+        same numbers, their loops simulated in one compiled call where they share their structure
+        (hil.simulate.simulate_many). Per config its residuals, or the ValueError,
+        ZeroDivisionError or FloatingPointError that its model raised (the callers decide)."""
+        keys = [_loop_key(c) for c in cfgs]
+        sims = {self._last[0]: self._last[1]} if self._last[0] is not None else {}
+        errors: dict = {}
+        todo = {}                       # loop key -> (cfg, plant, ctrl), the loops still to simulate
+        for key, cfg in zip(keys, cfgs):
+            if key in sims or key in todo or key in errors:
+                continue
+            try:
+                plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
+                todo[key] = (cfg, plant, controller_from_config(cfg, plant))
+            except _MODEL_ERRORS as e:
+                errors[key] = e
+        groups: dict = {}               # the loops that share their inputs and sampling run together
+        for key, (cfg, plant, ctrl) in todo.items():
+            inputs = self.inputs(plant, ctrl)
+            groups.setdefault((id(inputs), torque_sampling(cfg)), []).append(key)
+        for (_, torque), group in groups.items():
+            plants = [todo[k][1] for k in group]
+            ctrls = [todo[k][2] for k in group]
+            try:
+                res = simulate_many(plants, ctrls, extend_command(self.x_cmd_sim), x0=self.x0, torque=torque,
+                                    **self.inputs(plants[0], ctrls[0]))
+            except _MODEL_ERRORS:
+                res = [None] * len(group)        # one by one, so that each config gets its own error
+            for key, r in zip(group, res):
+                try:
+                    sim = self.simulate(todo[key][0]) if r is None else _first(r, self.x_cmd_sim.size)
+                    sims[key] = sim.channels()
+                except _MODEL_ERRORS as e:
+                    errors[key] = e
+        out = []
+        for key, cfg in zip(keys, cfgs):
+            if key in errors:
+                out.append(errors[key])
+                continue
+            self._last = (key, sims[key])
+            try:
+                out.append(self._residuals_of(cfg, self._on_samples(cfg, sims[key])))
+            except _MODEL_ERRORS as e:
+                out.append(e)
+        return out
+
     def residuals(self, cfg=None, first: bool = False) -> dict[str, np.ndarray]:
-        sim = self.simulated(cfg)
+        return self._residuals_of(cfg, self.simulated(cfg), first)
+
+    def _residuals_of(self, cfg, sim: dict, first: bool = False) -> dict[str, np.ndarray]:
         out = {}
         for c in self.channels:
             if c not in sim:        # e.g. a linear actuator's model against a rotary record's torque

@@ -56,6 +56,7 @@ import math
 import numpy as np
 
 from hil.ident.context import EffectContext
+from hil.ident.objective import batched
 from hil.ident.replay import Replay
 from hil.ident.residual import periodic_in_position, spectrum_peaks
 from hil.plant_config import configure
@@ -288,12 +289,33 @@ def mode_targets(replay, res0: dict, chan: str | None = None, n: int = 6) -> lis
 
 def _costs(eff, replay, starts, cfg) -> list[float]:
     obj = replay.objective
+    if batched():       # the starts' loops in one compiled call (hil.ident.objective), the same numbers
+        return _costs_batched(eff, obj, starts, cfg)
     costs = []
     for s in starts:
         try:
             costs.append(float(np.sum(obj.vector(obj.residuals(configure(eff, cfg, s))) ** 2)))
         except ValueError:
             costs.append(math.inf)
+    return costs
+
+
+def _costs_batched(eff, obj, starts, cfg) -> list[float]:
+    """:func:`_costs` with the simulations in one batched call: a start whose model raises a
+    ValueError costs infinity (any other error is raised, as one by one)."""
+    cfgs = []
+    for s in starts:
+        try:
+            cfgs.append(configure(eff, cfg, s))
+        except ValueError:
+            cfgs.append(None)
+    got = iter(obj.residuals_many([c for c in cfgs if c is not None]))
+    costs = []
+    for c in cfgs:
+        r = next(got) if c is not None else None
+        if isinstance(r, Exception) and not isinstance(r, ValueError):
+            raise r
+        costs.append(math.inf if r is None or isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2)))
     return costs
 
 
