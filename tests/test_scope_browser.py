@@ -246,3 +246,29 @@ def test_the_timing_benchmark_compares_a_run_with_the_page_streaming():
     assert "page_frames_per_s" not in without
     assert with_page["page_frames_per_s"] > 0 and 0 < with_page["server_cpu_pct_of_one_core"] < 100
     assert 0 < with_page["page_latency_p50_ms"] <= with_page["page_latency_p99_ms"] <= with_page["page_latency_max_ms"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian: apt-get install chromium; "
+                                             ".ci/run installs it)")
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="pinning needs Linux and two CPUs")
+def test_the_timing_benchmark_repeats_with_the_loop_pinned():
+    """--repeat 2 --loop-cpu N: two interleaved pairs (without, with the page), the loop on CPU N,
+    and the noise of the two repetitions computed from the runs it printed."""
+    pin = max(os.sched_getaffinity(0))
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks/bench_canopen_timing.py"), "--transport", "virtual",
+                          "--rate", "250", "--duration", "2", "--scope", "--repeat", "2", "--loop-cpu", str(pin),
+                          "--json"], cwd=ROOT, capture_output=True, text=True, timeout=400,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    doc = json.loads(out.stdout)
+    res = doc["results"]
+    assert [(r["scope"], r["repetition"], r["loop_cpu"]) for r in res] == [
+        (False, 0, pin), (True, 0, pin), (False, 1, pin), (True, 1, pin)]
+    (summary,) = doc["scope_noise"]
+    p99 = summary["noise"]["lateness_p99_us"]
+    a, b = [res[0]["lateness_p99_us"], res[2]["lateness_p99_us"]], [res[1]["lateness_p99_us"], res[3]["lateness_p99_us"]]
+    assert p99["without"] == a and p99["with"] == b
+    assert p99["spread"] == pytest.approx(max(abs(a[0] - a[1]), abs(b[0] - b[1])))
+    assert p99["difference"] == pytest.approx((b[0] + b[1]) / 2 - (a[0] + a[1]) / 2)

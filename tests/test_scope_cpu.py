@@ -145,3 +145,34 @@ def test_a_ring_left_by_a_killed_run_is_removed_at_the_next_start():
     time.sleep(0.1)
     ScopeProcess().stop()                        # the other one's ring too, once its process is gone
     assert not living.exists()
+
+
+def _benchmark():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("bench_canopen_timing", ROOT / "benchmarks/bench_canopen_timing.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_the_benchmark_states_the_noise_of_its_repetitions():
+    """bench_canopen_timing.py --scope --repeat: per figure, the spread is the larger of the two
+    sides' (largest - smallest) and the difference of the means is judged against it (or, where
+    the spread is smaller, against 1 us of lateness)."""
+    bench = _benchmark()
+    runs = []
+    for scope, p50, p99, mx, miss in ((False, 0.1, 26, 185, 1), (True, 0.1000001, 39, 590, 0),
+                                      (False, 0.1, 76, 367, 0), (True, 0.1, 23, 2092, 8)):
+        runs.append({"scope": scope, "lateness_p50_us": p50, "lateness_p99_us": p99, "lateness_max_us": mx,
+                     "cycles_without_answer": miss})
+    out = bench.noise(runs)
+    assert out["lateness_p99_us"] == {"without": [26, 76], "with": [39, 23], "spread": 50, "difference": -20.0,
+                                      "within_noise": True}
+    assert out["lateness_max_us"]["spread"] == 1502 and out["lateness_max_us"]["difference"] == 1065.0
+    assert out["lateness_p50_us"]["within_noise"] is True                   # 1e-7 us apart: under the floor
+    assert out["cycles_without_answer"]["spread"] == 8 and out["cycles_without_answer"]["within_noise"] is True
+    # one side's spread is not the other's difference: 10/12 against 30/31 is beyond
+    far = bench.noise([{**runs[0], "lateness_p99_us": 10}, {**runs[1], "lateness_p99_us": 30},
+                       {**runs[2], "lateness_p99_us": 12}, {**runs[3], "lateness_p99_us": 31}])
+    assert far["lateness_p99_us"]["spread"] == 2 and far["lateness_p99_us"]["within_noise"] is False
+    assert bench.noise(runs[:2])["lateness_p99_us"]["within_noise"] is None     # one repetition: no noise known
