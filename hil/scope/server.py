@@ -20,8 +20,8 @@ N), the motor's speed (mm/s) and the supervisor's state; channels chosen with ch
 rolling, normal and single shot on a trigger (a channel's level or edge, a trip, a move's start;
 pre- and post-trigger time); freeze and resume; two cursors (a tap or a typed time) with their
 differences; every trip or fault drawn as a vertical line with its reason, and the rolling view
-held around a trip; the view's CSV made here and handed to the browser as a download, its PNG by
-each plot's save tool. The rules (trigger, capture, cursors, CSV) are plain Python in
+held around a trip; the view's CSV made here and handed to the browser as a download; the view's
+PNG, every pane in one image, composed by BokehJS in the page (each plot's save tool: one pane). The rules (trigger, capture, cursors, CSV) are plain Python in
 :mod:`hil.scope.view`. BokehJS is served from the bokeh package itself: nothing is fetched from
 the network.
 """
@@ -60,6 +60,15 @@ _DOWNLOAD_JS = """
 const a = document.createElement('a');
 a.href = URL.createObjectURL(new Blob([src.text], {type: 'text/csv'}));
 a.download = 'scope.csv'; document.body.appendChild(a); a.click(); a.remove();
+"""
+# and the whole view as one PNG: BokehJS composes the column of plots (every pane, its legend, the
+# trip markers and cursors) into one canvas (LayoutDOMView.export), as each plot's save tool does for one
+_PNG_JS = """
+Bokeh.index.get_one(plots).export('png').to_blob().then((blob) => {
+  const a = document.createElement('a');
+  a.href = URL.createObjectURL(blob);
+  a.download = 'scope.png'; document.body.appendChild(a); a.click(); a.remove();
+});
 """
 
 
@@ -315,6 +324,9 @@ class _Page:
         arm.on_click(self._arm_clicked)
         export = Button(label="export CSV", width=100, name="export")
         export.on_click(self.export_csv)
+        self.plots = column(*figs.values(), sizing_mode="stretch_width", name="plots")
+        export_png = Button(label="export PNG", width=100, name="export_png")
+        export_png.js_on_click(CustomJS(args={"plots": self.plots}, code=_PNG_JS))
         # the CSV is made here (view_csv); the page only hands the text to the browser as a download
         self.csv = Div(text="", visible=False, name="csv")
         self.csv.js_on_change("text", CustomJS(args={"src": self.csv}, code=_DOWNLOAD_JS))
@@ -338,11 +350,12 @@ class _Page:
         self.trips = Div(text="no trip", name="trips")
         doc.title = server.title
         doc.add_root(column(Div(text=f"<b>{server.title}</b>"),
-                            row(self.mode_select, self.window_select, self.freeze, arm, export, self.status),
+                            row(self.mode_select, self.window_select, self.freeze, arm, export, export_png,
+                                self.status),
                             row(self.source_select, self.channel_select, self.slope_select, self.level_input,
                                 self.pre_input, self.post_input),
                             row(self.cursor_pick, *self.cursor_inputs, self.readout),
-                            self.trips, self.channels, *figs.values(), self.csv, sizing_mode="stretch_width"))
+                            self.trips, self.channels, self.plots, self.csv, sizing_mode="stretch_width"))
         doc.add_periodic_callback(self.update, int(server.period * 1000))
 
     # --- controls ------------------------------------------------------------------------------------
