@@ -35,8 +35,9 @@ figure the values of each side, their spread (largest minus smallest: the run-to
 this machine) and whether the difference of the means is within it.
 
 ``--loop-cpu N`` (``runtime.loop_cpu``): the loop's thread pinned to CPU N, as on a real-time PC;
-the scope's server, the browser and the drive's process on the other CPUs, the server and the
-browser niced (hil.scope.server.SERVER_NICE), as the commands place the server.
+the scope's server, the browser and the drive's process on the other CPUs, as the commands place
+the server. The server and the browser run ``--nice`` steps nicer (default
+hil.scope.server.SERVER_NICE, as the commands start the server; ``--nice 0``: as before it was).
 """
 from __future__ import annotations
 
@@ -248,10 +249,11 @@ def _cpu_s(pid) -> float:
 class ScopePage:
     """The live scope of a run as the commands start it (hil.scope.server.ScopeProcess: the ring a
     shared mapping, the Bokeh server in its own process) with its page open in headless Chromium,
-    streaming. ``loop_cpu``: the loop's CPU; the server and the browser go on the others, niced."""
+    streaming. ``loop_cpu``: the loop's CPU; the server and the browser go on the others; both
+    ``nice`` steps nicer (the commands': hil.scope.server.SERVER_NICE)."""
 
-    def __init__(self, loop_cpu=None):
-        self.loop_cpu = loop_cpu
+    def __init__(self, loop_cpu=None, nice=SERVER_NICE):
+        self.loop_cpu, self.nice = loop_cpu, nice
 
     def __enter__(self):
         import shutil
@@ -262,7 +264,7 @@ class ScopePage:
         chromium = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
         if chromium is None:
             raise SystemExit("--scope: no Chromium installed (Debian: apt-get install chromium)")
-        self.server = ScopeProcess(loop_cpu=self.loop_cpu)
+        self.server = ScopeProcess(loop_cpu=self.loop_cpu, nice=self.nice)
         self.ring = self.server.ring
         url = self.server.start()
         self.profile = tempfile.mkdtemp(prefix="bench-scope-")
@@ -274,7 +276,7 @@ class ScopePage:
                                          "--disable-backgrounding-occluded-windows",
                                          f"--user-data-dir={self.profile}", f"--remote-debugging-port={port}", url],
                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                        preexec_fn=_placed(server_cpus(self.loop_cpu), SERVER_NICE))
+                                        preexec_fn=_placed(server_cpus(self.loop_cpu), self.nice))
         end, ws = time.monotonic() + 60, None
         while ws is None and time.monotonic() < end:
             time.sleep(0.2)
@@ -313,12 +315,13 @@ class ScopePage:
         shutil.rmtree(self.profile, ignore_errors=True)
 
 
-def _looped(cfg, seconds, spin, scope: bool) -> dict:
-    """The loop, without or with the live scope's page open and streaming."""
+def _looped(cfg, seconds, spin, scope: bool, nice=SERVER_NICE) -> dict:
+    """The loop, without or with the live scope's page open and streaming (server and browser
+    ``nice`` steps nicer)."""
     if not scope:
         res = loop(cfg, seconds, spin)
     else:
-        with ScopePage(cfg.get("runtime.loop_cpu")) as page:
+        with ScopePage(cfg.get("runtime.loop_cpu"), nice) as page:
             res = loop(cfg, seconds, spin, ring=page.ring)
             res["period_s"] = 1.0 / res["rate_hz"]
             res.update(page.figures(res))
@@ -326,7 +329,8 @@ def _looped(cfg, seconds, spin, scope: bool) -> dict:
     return res
 
 
-def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False, loop_cpu=None):
+def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False, loop_cpu=None,
+            nice=SERVER_NICE):
     period = f"{1000.0 / rate:g} ms"
     # start-up over SDO is not what is measured: a generous answer time, so that a loaded machine (the
     # burner, a test run beside it) does not abort the configuration before the cycle starts
@@ -347,7 +351,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
             over.update({"canopen.interface": "virtual", "canopen.channel": f"bench{os.getpid()}"})
             cfg = config.load(CONFIG, over)
             sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=over["canopen.channel"]), lockstep=False)
-            res = _looped(cfg, seconds, spin, scope)
+            res = _looped(cfg, seconds, spin, scope, nice)
             from hil.commands.drive_sim import answer_stats
             drive_stats = answer_stats(sim.answer_times)
         else:
@@ -362,7 +366,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
             if not drive.stdout.readline():               # the server is up
                 raise RuntimeError("hil drive-sim did not start")
             over.update({"canopen.interface": "socketcand", "canopen.channel": "can0", "canopen.port": port})
-            res = _looped(config.load(CONFIG, over), seconds, spin, scope)
+            res = _looped(config.load(CONFIG, over), seconds, spin, scope, nice)
             _stop(drive)
             line = drive.stdout.readline()
             drive_stats = json.loads(line) if line.strip() else {}
@@ -376,7 +380,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
     res.update({"steal_s": steal, "steal_pct": None if steal is None else 100.0 * steal / (wall * (os.cpu_count() or 1)),
                 "transport": ("virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)")
                 + (" +scope" if scope else ""), "scope": scope,
-                "load": "one core busy" if burner else "idle",
+                "load": "one core busy" if burner else "idle", "scope_nice": nice if scope else None,
                 "drive_answer_p50_us": drive_stats.get("answer_p50_us"),
                 "drive_answer_p99_us": drive_stats.get("answer_p99_us"),
                 "drive_answer_max_us": drive_stats.get("answer_max_us"),
@@ -482,6 +486,9 @@ def main(argv=None):
     ap.add_argument("--loop-cpu", type=int, default=None, metavar="N",
                     help="runtime.loop_cpu: the loop's thread pinned to CPU N; the scope's server, the browser and "
                          "the drive's process on the other CPUs (server and browser niced)")
+    ap.add_argument("--nice", type=int, default=SERVER_NICE, metavar="N",
+                    help=f"with --scope: how much nicer the scope's server and the browser run (default {SERVER_NICE}, "
+                         f"as the commands start the server; 0: at the loop process's own niceness)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
     if args.all:
@@ -501,7 +508,7 @@ def main(argv=None):
                 for repetition in range(args.repeat if args.scope else 1):
                     for scope in ((False, True) if args.scope else (False,)):
                         results.append(run_one(transport, rate, seconds, burner, spin, args.priority,
-                                               args.cpu_latency, scope, args.loop_cpu))
+                                               args.cpu_latency, scope, args.loop_cpu, args.nice))
                         results[-1]["repetition"] = repetition
                         if not args.json:
                             print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
@@ -516,7 +523,7 @@ def main(argv=None):
                               f"thing", flush=True)
                         print("\n".join(_noise_lines(summaries[-1]["noise"])), flush=True)
     info = {"cpus": os.cpu_count(), "switch_interval_s": sys.getswitchinterval(), "priority": args.priority,
-            "kernel": os.uname().release, "loop_cpu": args.loop_cpu}
+            "kernel": os.uname().release, "loop_cpu": args.loop_cpu, "scope_nice": args.nice}
     if args.json:
         print(json.dumps({"machine": info, "results": results, "scope_noise": summaries}, indent=2))
     else:
