@@ -264,8 +264,8 @@ def test_the_timing_benchmark_repeats_with_the_loop_pinned():
     assert out.returncode == 0, out.stderr[-2000:]
     doc = json.loads(out.stdout)
     res = doc["results"]
-    assert [(r["scope"], r["repetition"], r["loop_cpu"]) for r in res] == [
-        (False, 0, pin), (True, 0, pin), (False, 1, pin), (True, 1, pin)]
+    assert [(r["scope"], r["repetition"], r["loop_cpu"], r["scope_nice"]) for r in res] == [
+        (False, 0, pin, None), (True, 0, pin, 10), (False, 1, pin, None), (True, 1, pin, 10)]
     (summary,) = doc["scope_noise"]
     p99 = summary["noise"]["lateness_p99_us"]
     a, b = [res[0]["lateness_p99_us"], res[2]["lateness_p99_us"]], [res[1]["lateness_p99_us"], res[3]["lateness_p99_us"]]
