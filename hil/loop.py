@@ -121,8 +121,14 @@ class LoopCpu:
         if self.cpu is None or self._before is not None:
             return
         tid = threading.get_native_id()
-        self._before = (tid, os.sched_getaffinity(tid))
-        os.sched_setaffinity(tid, {self.cpu})
+        try:
+            before = os.sched_getaffinity(tid)
+            os.sched_setaffinity(tid, {self.cpu})
+        except OSError as exc:       # taken offline since the check: the run goes on, unpinned
+            warnings.warn(f"runtime.loop_cpu {self.cpu}: the loop's thread could not be pinned ({exc.strerror}); "
+                          f"it runs on any CPU", RuntimeWarning, stacklevel=2)
+            return
+        self._before = (tid, before)
 
     def release(self) -> None:
         before, self._before = self._before, None

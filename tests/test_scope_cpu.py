@@ -176,3 +176,20 @@ def test_the_benchmark_states_the_noise_of_its_repetitions():
                        {**runs[2], "lateness_p99_us": 12}, {**runs[3], "lateness_p99_us": 31}])
     assert far["lateness_p99_us"]["spread"] == 2 and far["lateness_p99_us"]["within_noise"] is False
     assert bench.noise(runs[:2])["lateness_p99_us"]["within_noise"] is None     # one repetition: no noise known
+
+
+@affinity
+def test_a_cpu_gone_between_the_check_and_the_run_is_a_warning(monkeypatch):
+    """The CPU checked before the drive was enabled but refused at the run's start (taken offline
+    meanwhile): a warning, the run unpinned, nothing to give back."""
+    from hil.loop import LoopCpu
+
+    def refuse(tid, cpus):
+        raise OSError(22, "Invalid argument")
+    pin = LoopCpu(0)
+    monkeypatch.setattr(os, "sched_setaffinity", refuse)
+    with pytest.warns(RuntimeWarning, match=r"runtime.loop_cpu 0: the loop's thread could not be pinned "
+                                            r"\(Invalid argument\); it runs on any CPU"):
+        pin.hold()
+    pin.release()
+    assert pin._before is None
