@@ -20,6 +20,8 @@ under 200 us; 1 kHz: fewer than 1 in 1 000, p99 under 200 us, never two in a row
     python benchmarks/bench_canopen_timing.py --all          # the full protocol (about 45 minutes)
     python benchmarks/bench_canopen_timing.py --duration 10 --json
     python benchmarks/bench_canopen_timing.py --transport socketcand --rate 1000 --duration 30 --scope
+    python benchmarks/bench_canopen_timing.py --transport socketcand --rate 1000 --duration 30 --scope \
+        --repeat 2 --priority 50 --loop-cpu 1
 
 ``--scope`` (issue 27): each run twice in one invocation, without and then with the live scope
 (the cycle writes every row into the scope's ring; its Bokeh server streams it to a page open in
@@ -28,7 +30,14 @@ answer of both, and their ratio; the page's latency (from the cycle that wrote a
 to the frame that brought the row into the page, ms: the page records when its newest row
 changes, on the same wall clock), its
 frames per second and the server's CPU time (its process, as the commands start it) as a share
-of one core (/proc).
+of one core (/proc). ``--repeat N``: each pair (without, with) N times, interleaved; then per
+figure the values of each side, their spread (largest minus smallest: the run-to-run noise of
+this machine) and whether the difference of the means is within it.
+
+``--loop-cpu N`` (``runtime.loop_cpu``): the loop's thread pinned to CPU N, as on a real-time PC;
+the scope's server, the browser and the drive's process on the other CPUs, as the commands place
+the server. The server and the browser run ``--nice`` steps nicer (default
+hil.scope.server.SERVER_NICE, as the commands start the server; ``--nice 0``: as before it was).
 """
 from __future__ import annotations
 
@@ -51,7 +60,8 @@ sys.path.insert(0, str(ROOT))
 from hil import config  # noqa: E402
 from hil.drivers.base import Setpoint  # noqa: E402
 from hil.drivers.canopen.backend import CanopenBackend  # noqa: E402
-from hil.loop import RealTimeClock  # noqa: E402
+from hil.loop import LoopCpu, RealTimeClock, check_loop_cpu  # noqa: E402
+from hil.scope.server import SERVER_NICE, server_cpus  # noqa: E402
 
 CONFIG = ROOT / "config/paper_bench_canopen.toml"
 DEFAULT_SECONDS = {250: 600.0, 1000: 60.0}
@@ -66,8 +76,9 @@ def _pct(a, q):
 
 def loop(cfg, seconds, spin, ring=None):
     """A standstill loop of ``seconds`` on the real-time clock (read, setpoint, SYNC, wait), as
-    hil.loop.ControlLoop runs it: the clock's wait is the backend's receive. ``ring``: the live
-    scope's ring, written every cycle as hil.loop.ControlLoop writes it."""
+    hil.loop.ControlLoop runs it: the clock's wait is the backend's receive; on
+    ``runtime.loop_cpu`` where it is set. ``ring``: the live scope's ring, written every cycle as
+    hil.loop.ControlLoop writes it."""
     be = CanopenBackend(cfg, lockstep=False)
     be.open()
     try:
@@ -81,6 +92,8 @@ def loop(cfg, seconds, spin, ring=None):
         gc.collect()              # as hil.loop.ControlLoop: no collection inside the cycle
         gc.freeze()
         gc.disable()
+        pin = LoopCpu(check_loop_cpu(cfg.get("runtime.loop_cpu")))
+        pin.hold()
         clock.start()
         dt = be.cycle_time
         # when each cycle ran, on the wall clock the scope's page stamps its frames with (both sides)
@@ -104,6 +117,7 @@ def loop(cfg, seconds, spin, ring=None):
             be.read_feedback()                   # the last SYNC's answer counts too
         finally:
             clock.stop()
+            pin.release()
             gc.enable()
             gc.unfreeze()
         be.disable()
@@ -126,7 +140,8 @@ def loop(cfg, seconds, spin, ring=None):
            "supervisor_would_trip": be.miss_run_max >= limit, "pdo_miss_limit": limit, "first_fault": tripped,
            "sync_to_answer_p50_us": _pct(ans, 50), "sync_to_answer_p99_us": _pct(ans, 99),
            "sync_to_answer_max_us": _pct(ans, 100), "spin_us": spin * 1e6,
-           "cpu_latency_held": clock.cpu_latency.was_held, "_walls": walls}
+           "cpu_latency_held": clock.cpu_latency.was_held, "loop_cpu": cfg.get("runtime.loop_cpu"),
+           "_walls": walls}
     if rate in GOALS:
         ratio, p99 = GOALS[rate]
         out["goals_met"] = bool(be.missed_total <= ratio * n and be.miss_run_max < 2 and out["lateness_p99_us"] < p99)
@@ -161,6 +176,20 @@ def _stop(proc, sig=signal.SIGTERM, wait=10.0):
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait(5)
+
+
+def _placed(cpus, nice=0):
+    """A ``preexec_fn`` that puts a child (the browser, the drive) on ``cpus`` and ``nice`` steps
+    lower before it execs, so that every process and thread it starts inherits it (None: as is)."""
+    if not cpus and not nice:
+        return None
+
+    def place():
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+        if nice:
+            os.nice(nice)
+    return place
 
 
 def start_burner(seconds):
@@ -220,7 +249,11 @@ def _cpu_s(pid) -> float:
 class ScopePage:
     """The live scope of a run as the commands start it (hil.scope.server.ScopeProcess: the ring a
     shared mapping, the Bokeh server in its own process) with its page open in headless Chromium,
-    streaming."""
+    streaming. ``loop_cpu``: the loop's CPU; the server and the browser go on the others; both
+    ``nice`` steps nicer (the commands': hil.scope.server.SERVER_NICE)."""
+
+    def __init__(self, loop_cpu=None, nice=SERVER_NICE):
+        self.loop_cpu, self.nice = loop_cpu, nice
 
     def __enter__(self):
         import shutil
@@ -231,7 +264,7 @@ class ScopePage:
         chromium = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
         if chromium is None:
             raise SystemExit("--scope: no Chromium installed (Debian: apt-get install chromium)")
-        self.server = ScopeProcess()
+        self.server = ScopeProcess(loop_cpu=self.loop_cpu, nice=self.nice)
         self.ring = self.server.ring
         url = self.server.start()
         self.profile = tempfile.mkdtemp(prefix="bench-scope-")
@@ -242,7 +275,8 @@ class ScopePage:
                                          "--disable-background-timer-throttling", "--disable-renderer-backgrounding",
                                          "--disable-backgrounding-occluded-windows",
                                          f"--user-data-dir={self.profile}", f"--remote-debugging-port={port}", url],
-                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                        preexec_fn=_placed(server_cpus(self.loop_cpu), self.nice))
         end, ws = time.monotonic() + 60, None
         while ws is None and time.monotonic() < end:
             time.sleep(0.2)
@@ -281,12 +315,13 @@ class ScopePage:
         shutil.rmtree(self.profile, ignore_errors=True)
 
 
-def _looped(cfg, seconds, spin, scope: bool) -> dict:
-    """The loop, without or with the live scope's page open and streaming."""
+def _looped(cfg, seconds, spin, scope: bool, nice=SERVER_NICE) -> dict:
+    """The loop, without or with the live scope's page open and streaming (server and browser
+    ``nice`` steps nicer)."""
     if not scope:
         res = loop(cfg, seconds, spin)
     else:
-        with ScopePage() as page:
+        with ScopePage(cfg.get("runtime.loop_cpu"), nice) as page:
             res = loop(cfg, seconds, spin, ring=page.ring)
             res["period_s"] = 1.0 / res["rate_hz"]
             res.update(page.figures(res))
@@ -294,12 +329,15 @@ def _looped(cfg, seconds, spin, scope: bool) -> dict:
     return res
 
 
-def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False):
+def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False, loop_cpu=None,
+            nice=SERVER_NICE):
     period = f"{1000.0 / rate:g} ms"
     # start-up over SDO is not what is measured: a generous answer time, so that a loaded machine (the
     # burner, a test run beside it) does not abort the configuration before the cycle starts
     over = {"control.position_period": period, "runtime.priority": priority, "runtime.cpu_latency": cpu_latency,
             "canopen.sdo_timeout": "5 s"}
+    if loop_cpu is not None:
+        over["runtime.loop_cpu"] = loop_cpu
     load_before, steal_before, t_before = os.getloadavg(), steal_seconds(), time.monotonic()
     burn, drive, sim, drive_stats = None, None, None, {}
     try:
@@ -313,7 +351,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
             over.update({"canopen.interface": "virtual", "canopen.channel": f"bench{os.getpid()}"})
             cfg = config.load(CONFIG, over)
             sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=over["canopen.channel"]), lockstep=False)
-            res = _looped(cfg, seconds, spin, scope)
+            res = _looped(cfg, seconds, spin, scope, nice)
             from hil.commands.drive_sim import answer_stats
             drive_stats = answer_stats(sim.answer_times)
         else:
@@ -322,11 +360,13 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
                                       f"control.position_period={period}", "--port", str(port), "--json",
                                       "--priority", str(priority), "--cpu-latency", str(cpu_latency)],
                                      cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                                     env=dict(os.environ, PYTHONPATH=str(ROOT)))
+                                     env=dict(os.environ, PYTHONPATH=str(ROOT)),
+                                     # the drive is another machine on a real axis: off the loop's CPU
+                                     preexec_fn=_placed(server_cpus(loop_cpu)))
             if not drive.stdout.readline():               # the server is up
                 raise RuntimeError("hil drive-sim did not start")
             over.update({"canopen.interface": "socketcand", "canopen.channel": "can0", "canopen.port": port})
-            res = _looped(config.load(CONFIG, over), seconds, spin, scope)
+            res = _looped(config.load(CONFIG, over), seconds, spin, scope, nice)
             _stop(drive)
             line = drive.stdout.readline()
             drive_stats = json.loads(line) if line.strip() else {}
@@ -340,7 +380,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
     res.update({"steal_s": steal, "steal_pct": None if steal is None else 100.0 * steal / (wall * (os.cpu_count() or 1)),
                 "transport": ("virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)")
                 + (" +scope" if scope else ""), "scope": scope,
-                "load": "one core busy" if burner else "idle",
+                "load": "one core busy" if burner else "idle", "scope_nice": nice if scope else None,
                 "drive_answer_p50_us": drive_stats.get("answer_p50_us"),
                 "drive_answer_p99_us": drive_stats.get("answer_p99_us"),
                 "drive_answer_max_us": drive_stats.get("answer_max_us"),
@@ -383,6 +423,40 @@ def _scope_line(without: dict, with_scope: dict) -> str:
             f"server CPU {w['server_cpu_pct_of_one_core']:.1f} % of one core")
 
 
+NOISE_KEYS = ("lateness_p50_us", "lateness_p99_us", "lateness_max_us", "cycles_without_answer")
+# a difference this small is none (a lateness under 1 us: the clock's own reading costs a tenth of it)
+NOISE_FLOOR = {"lateness_p50_us": 1.0, "lateness_p99_us": 1.0, "lateness_max_us": 1.0, "cycles_without_answer": 0}
+
+
+def noise(runs) -> dict:
+    """One setting's repetitions (``--repeat``), per figure of :data:`NOISE_KEYS`: the values
+    without and with the page, the spread (the largest of either side's largest minus smallest
+    value: how much two runs of the same thing differ on this machine), the difference of the
+    means (with minus without) and whether it is within the spread, or under :data:`NOISE_FLOOR`
+    (None with one repetition)."""
+    out = {}
+    for key in NOISE_KEYS:
+        a = [r[key] for r in runs if not r["scope"]]
+        b = [r[key] for r in runs if r["scope"]]
+        spread = max(max(a) - min(a), max(b) - min(b)) if min(len(a), len(b)) > 1 else None
+        diff = float(np.mean(b) - np.mean(a))
+        out[key] = {"without": a, "with": b, "spread": spread, "difference": diff,
+                    "within_noise": None if spread is None else bool(abs(diff) <= max(spread, NOISE_FLOOR[key]))}
+    return out
+
+
+def _noise_lines(summary) -> list[str]:
+    def f(x):
+        return f"{x:.0f}" if abs(x) >= 10 or x == int(x) else f"{x:.1f}"
+    lines = []
+    for key, s in summary.items():
+        verdict = {True: "within the noise", False: "BEYOND the noise", None: "-"}[s["within_noise"]]
+        lines.append(f"  {key:22s} without {', '.join(map(f, s['without']))} | with {', '.join(map(f, s['with']))}"
+                     f" | spread {'-' if s['spread'] is None else f(s['spread'])} | with - without "
+                     f"{s['difference']:+.1f}: {verdict}")
+    return lines
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--transport", default="both", choices=("virtual", "socketcand", "both"),
@@ -406,6 +480,15 @@ def main(argv=None):
     ap.add_argument("--scope", action="store_true",
                     help="each run without and then with the live scope's page open and streaming (headless "
                          "Chromium): both, their ratio, the page's latency, frames per second, the server's CPU")
+    ap.add_argument("--repeat", type=int, default=1, metavar="N",
+                    help="with --scope: each pair (without, with the page) N times, interleaved, and the spread "
+                         "between repetitions as the noise (default 1)")
+    ap.add_argument("--loop-cpu", type=int, default=None, metavar="N",
+                    help="runtime.loop_cpu: the loop's thread pinned to CPU N; the scope's server, the browser and "
+                         "the drive's process on the other CPUs (server and browser niced)")
+    ap.add_argument("--nice", type=int, default=SERVER_NICE, metavar="N",
+                    help=f"with --scope: how much nicer the scope's server and the browser run (default {SERVER_NICE}, "
+                         f"as the commands start the server; 0: at the loop process's own niceness)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
     if args.all:
@@ -413,23 +496,36 @@ def main(argv=None):
     transports = ("virtual", "socketcand") if args.transport == "both" else (args.transport,)
     loads = (True,) if args.burner_only else (False, True) if args.burner else (False,)
     spin = args.spin                 # None: the clock's default for the period
-    results = []
+    if args.repeat < 1:
+        ap.error(f"--repeat {args.repeat}: expected 1 or more")
+    check_loop_cpu(args.loop_cpu, "--loop-cpu")
+    results, summaries = [], []
     for rate in (int(float(r)) for r in args.rate.split(",")):
         seconds = args.duration if args.duration is not None else DEFAULT_SECONDS.get(rate, 60.0)
         for transport in transports:
             for burner in loads:
-                for scope in ((False, True) if args.scope else (False,)):
-                    results.append(run_one(transport, rate, seconds, burner, spin, args.priority, args.cpu_latency,
-                                           scope))
+                first = len(results)
+                for repetition in range(args.repeat if args.scope else 1):
+                    for scope in ((False, True) if args.scope else (False,)):
+                        results.append(run_one(transport, rate, seconds, burner, spin, args.priority,
+                                               args.cpu_latency, scope, args.loop_cpu, args.nice))
+                        results[-1]["repetition"] = repetition
+                        if not args.json:
+                            print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
+                                  flush=True)
+                    if args.scope and not args.json:
+                        print(_scope_line(results[-2], results[-1]), flush=True)
+                if args.scope and args.repeat > 1:
+                    summaries.append({"transport": transport, "rate_hz": rate, "burner": burner,
+                                      "noise": noise(results[first:])})
                     if not args.json:
-                        print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
-                              flush=True)
-                if args.scope and not args.json:
-                    print(_scope_line(results[-2], results[-1]), flush=True)
+                        print(f"  {args.repeat} repetitions; the noise: the spread of two runs of the same "
+                              f"thing", flush=True)
+                        print("\n".join(_noise_lines(summaries[-1]["noise"])), flush=True)
     info = {"cpus": os.cpu_count(), "switch_interval_s": sys.getswitchinterval(), "priority": args.priority,
-            "kernel": os.uname().release}
+            "kernel": os.uname().release, "loop_cpu": args.loop_cpu, "scope_nice": args.nice}
     if args.json:
-        print(json.dumps({"machine": info, "results": results}, indent=2))
+        print(json.dumps({"machine": info, "results": results, "scope_noise": summaries}, indent=2))
     else:
         print(f"{info['cpus']} CPUs, kernel {info['kernel']}; run: longest run of consecutive cycles without "
               f"their answer; trip: the supervisor would have tripped (canopen.pdo_miss_limit); drive p99: the "

@@ -216,6 +216,10 @@ SCHEMA: dict[str, Field] = {
                                  "write access to it): 0 keeps idle CPUs polling, so that no wake-up waits for a "
                                  "halted (virtual) CPU; \"inf\" = no request", default=0.0, nonnegative=True,
                                  allow_inf=True),
+    "runtime.loop_cpu": Field("int", "the CPU the loop's thread is pinned to while it runs (Linux "
+                              "sched_setaffinity; a CPU this process may use), as on a real-time PC: the live "
+                              "scope's server then runs on the other CPUs, at a lower priority; not set = any CPU",
+                              default=None, nonnegative=True, maximum=4095),
     # --- backend -------------------------------------------------------------------------------
     "backend.type": Field("str", "sim (embedded plant model), canopen, serial", default="sim"),
     "meta.name": Field("str", "a name for the axis", default="", max_length=200),

@@ -12,6 +12,8 @@ setpoint, output delay and the clock's lateness are preallocated.
   slack at 1 ns (Linux: the default 50 us would add itself to every wake-up), until ``spin``
   before the deadline (5 % of the period, at most 200 us), then spins; it records every cycle's lateness and counts overruns
   (a cycle that starts a whole period late).
+* :class:`LoopCpu`: the loop's thread pinned to one CPU while a run lasts (``runtime.loop_cpu``),
+  as a drive engineer places it on a real-time PC; the scope's server goes on the other CPUs.
 * :class:`SimulatedClock`: no waiting; time is the cycle count times the period.
 
 The loop's hooks: a ``recorder`` (one row per position tick), a ``scope`` (a
@@ -39,6 +41,7 @@ import gc
 import logging
 import math
 import os
+import threading
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -56,10 +59,11 @@ from hil.control import (
 )
 from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint, fault_kind
 from hil.drivers.rt import CpuLatencyRequest, fine_timer_slack
-from hil.errors import RunStatus, StopKind
+from hil.errors import ConfigError, RunStatus, StopKind
 from hil.scope.ring import ScopeRing
 
-__all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS"]
+__all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS", "LoopCpu",
+           "check_loop_cpu", "cpu_list"]
 
 # wake-ups whose lateness a real-time clock keeps by default (2 min at 1 kHz; a run asks for its own count)
 LATENESS_SAMPLES = 1 << 17
@@ -68,6 +72,71 @@ LATENESS_SAMPLES = 1 << 17
 CYCLE_CHANNELS = ("r", "u", "u_ctrl", "e", "w", "w_ref_pos", "w_ref", "x_motor", "x_table", "x_tip")
 
 log = logging.getLogger(__name__)
+
+
+def cpu_list(cpus) -> str:
+    """CPU numbers as Linux writes them (``0-3,6``)."""
+    out, run = [], []
+    for c in sorted(cpus):
+        if run and c == run[-1] + 1:
+            run.append(c)
+            continue
+        if run:
+            out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+        run = [c]
+    if run:
+        out.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]))
+    return ",".join(out)
+
+
+def check_loop_cpu(cpu: int | None, key: str = "runtime.loop_cpu") -> int | None:
+    """``cpu`` if the loop's thread can be pinned to it (not real-time: before anything moves).
+
+    None: no pinning asked. A CPU this process may not use (not in its affinity mask, e.g. no such
+    CPU): :class:`~hil.errors.ConfigError` naming ``key``. A system without thread affinity
+    (``os.sched_setaffinity``: Linux only): a warning, and None (the loop runs on any CPU)."""
+    if cpu is None:
+        return None
+    if not hasattr(os, "sched_setaffinity"):
+        warnings.warn(f"{key} {cpu}: this system cannot pin a thread to a CPU; the loop runs on any CPU",
+                      RuntimeWarning, stacklevel=2)
+        return None
+    allowed = os.sched_getaffinity(0)
+    if cpu not in allowed:
+        raise ConfigError(f"{key} {cpu}: no such CPU for this process (it may run on CPU {cpu_list(allowed)})")
+    return int(cpu)
+
+
+class LoopCpu:
+    """The calling thread (the loop's) pinned to one CPU between :meth:`hold` and :meth:`release`
+    (Linux ``sched_setaffinity`` on the thread's native id; not real-time: before and after the
+    cycle). ``cpu``: checked by :func:`check_loop_cpu`; None: nothing is done. ``release`` gives
+    the thread back the CPUs it had."""
+
+    def __init__(self, cpu: int | None):
+        self.cpu = cpu
+        self._before = None          # (thread id, its CPUs before the run)
+
+    def hold(self) -> None:
+        if self.cpu is None or self._before is not None:
+            return
+        tid = threading.get_native_id()
+        try:
+            before = os.sched_getaffinity(tid)
+            os.sched_setaffinity(tid, {self.cpu})
+        except OSError as exc:       # taken offline since the check: the run goes on, unpinned
+            warnings.warn(f"runtime.loop_cpu {self.cpu}: the loop's thread could not be pinned ({exc.strerror}); "
+                          f"it runs on any CPU", RuntimeWarning, stacklevel=2)
+            return
+        self._before = (tid, before)
+
+    def release(self) -> None:
+        before, self._before = self._before, None
+        if before is not None:
+            try:
+                os.sched_setaffinity(*before)
+            except OSError:          # CPUs taken offline meanwhile: keep the one it has
+                pass
 
 
 class SimulatedClock:
@@ -255,6 +324,8 @@ class ControlLoop:
     ``injection``: an :class:`Injection` (the host must close the velocity loop). ``progress``: called with the fraction of the run done every 1000 position
     ticks (inside the cycle: keep it short). ``scope``: a :class:`~hil.scope.ring.ScopeRing` the
     cycle writes every position tick's row into (it changes nothing of what the loop computes).
+    ``loop_cpu``: the CPU the thread that runs the cycle is pinned to while :meth:`run` lasts
+    (``runtime.loop_cpu``; checked here, before the drive is enabled: :func:`check_loop_cpu`).
 
     The cycle's stages (:meth:`_tick`), as hil.control writes them once for every loop: read
     feedback, supervise, profile and position law, velocity law, write command, record. What the
@@ -267,9 +338,10 @@ class ControlLoop:
 
     def __init__(self, backend: Backend, ctrl, clock=None, recorder=None, supervisor=None, rotary: bool = True,
                  priority: int = 0, injection: Injection | None = None, progress=None,
-                 cpu_latency: float | None = 0.0, scope: ScopeRing | None = None):
+                 cpu_latency: float | None = 0.0, scope: ScopeRing | None = None, loop_cpu: int | None = None):
         self.backend = backend
         self.scope = scope
+        self.loop_cpu = LoopCpu(check_loop_cpu(loop_cpu))
         self.ctrl = ctrl
         self.p = ctrl.as_array()
         period = backend.cycle_time
@@ -350,6 +422,7 @@ class ControlLoop:
         gc_was_on = gc.isenabled()
         if self.clock.real_time:
             gc.disable()
+        self.loop_cpu.hold()
         self.clock.start(K * self.per_tick)
         k = 0
         status, reason, kind = RunStatus.COMPLETE, "", StopKind.COMPLETE
@@ -379,6 +452,7 @@ class ControlLoop:
         finally:
             if hasattr(self.clock, "stop"):
                 self.clock.stop()
+            self.loop_cpu.release()
             if self.clock.real_time:
                 gc.unfreeze()
                 if gc_was_on:

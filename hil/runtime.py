@@ -36,7 +36,7 @@ from hil.drivers.base import BackendFault, fault_kind
 from hil.errors import HilError, RunStatus, StopKind, UserError
 from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder
-from hil.loop import ControlLoop, LoopResult
+from hil.loop import ControlLoop, LoopResult, check_loop_cpu
 from hil.profiles import AxisLimits, Trajectory, check_limits, check_sampled
 from hil.scope.ring import ScopeRing
 from hil.scope.ring import feed as feed_scope
@@ -125,6 +125,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     info.update(meta or {})
     model = backend.dry_run_model()
     if model is not None:
+        check_loop_cpu(cfg.get("runtime.loop_cpu"))      # the same line as on a backend, though nothing is pinned
         backend.start_at(x_cmd[0])
         # a dry run: the whole command through the compiled closed loop, as fast as the computer can
         sim = simulate(*model, x_cmd)
@@ -156,7 +157,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
         supervisor.arm()           # refuses motion while an earlier trip is not reset
     loop = ControlLoop(backend, ctrl, recorder=rec, supervisor=supervisor, rotary=rotary,
                        priority=cfg.get("runtime.priority", 0), cpu_latency=cfg.get("runtime.cpu_latency", 0.0),
-                       scope=scope)
+                       scope=scope, loop_cpu=cfg.get("runtime.loop_cpu"))
     started = {"planned_m": float(traj.start), "mode": start}
     try:
         with backend:                    # opened here; shut down (disabled, closed) however the run ends

@@ -246,3 +246,111 @@ def test_the_timing_benchmark_compares_a_run_with_the_page_streaming():
     assert "page_frames_per_s" not in without
     assert with_page["page_frames_per_s"] > 0 and 0 < with_page["server_cpu_pct_of_one_core"] < 100
     assert 0 < with_page["page_latency_p50_ms"] <= with_page["page_latency_p99_ms"] <= with_page["page_latency_max_ms"]
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian: apt-get install chromium; "
+                                             ".ci/run installs it)")
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="pinning needs Linux and two CPUs")
+def test_the_timing_benchmark_repeats_with_the_loop_pinned():
+    """--repeat 2 --loop-cpu N: two interleaved pairs (without, with the page), the loop on CPU N,
+    and the noise of the two repetitions computed from the runs it printed."""
+    pin = max(os.sched_getaffinity(0))
+    out = subprocess.run([sys.executable, str(ROOT / "benchmarks/bench_canopen_timing.py"), "--transport", "virtual",
+                          "--rate", "250", "--duration", "2", "--scope", "--repeat", "2", "--loop-cpu", str(pin),
+                          "--json"], cwd=ROOT, capture_output=True, text=True, timeout=400,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    assert out.returncode == 0, out.stderr[-2000:]
+    doc = json.loads(out.stdout)
+    res = doc["results"]
+    assert [(r["scope"], r["repetition"], r["loop_cpu"], r["scope_nice"]) for r in res] == [
+        (False, 0, pin, None), (True, 0, pin, 10), (False, 1, pin, None), (True, 1, pin, 10)]
+    (summary,) = doc["scope_noise"]
+    p99 = summary["noise"]["lateness_p99_us"]
+    a, b = [res[0]["lateness_p99_us"], res[2]["lateness_p99_us"]], [res[1]["lateness_p99_us"], res[3]["lateness_p99_us"]]
+    assert p99["without"] == a and p99["with"] == b
+    assert p99["spread"] == pytest.approx(max(abs(a[0] - a[1]), abs(b[0] - b[1])))
+    assert p99["difference"] == pytest.approx((b[0] + b[1]) / 2 - (a[0] + a[1]) / 2)
+
+
+# the page's downloads (an anchor with ``download`` clicked) kept instead of saved: [name, data URL]
+CATCH_DOWNLOADS = r"""(() => {
+  window.__downloads = [];
+  HTMLAnchorElement.prototype.click = function () {
+    const name = this.download;
+    fetch(this.href).then((r) => r.blob()).then((b) => {
+      const fr = new FileReader();
+      fr.onload = () => window.__downloads.push([name, fr.result]);
+      fr.readAsDataURL(b);
+    });
+  };
+  return true;
+})()"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian: apt-get install chromium; "
+                                             ".ci/run installs it)")
+def test_export_png_is_the_whole_view(tmp_path):
+    """The page's "export PNG": one image of every pane (positions, error, output, speed, state),
+    not one plot's: as tall as the five plots together (4 x 200 + 90 px), as wide as the page,
+    with the traces drawn in the top pane (x_cmd) and in the bottom one (state)."""
+    import io
+
+    import matplotlib.image
+    import numpy as np
+
+    from hil.scope.ring import ScopeRing, feed
+    from hil.scope.server import ScopeServer
+    ring = ScopeRing()
+    t = np.arange(2000) * 1e-3
+    ch = {n: np.zeros_like(t) for n in ["x_motor", "x_table", "x_tip", "e_table", "e_tip", "torque"]}
+    ch.update(t=t, x_cmd=0.01 * np.sin(2 * np.pi * t))
+    feed(ring, ch, pace=None, status="tripped", reason="following error")
+    server = ScopeServer(ring)
+    url = server.start()
+    debug_port = _free_port()
+    browser = devtools = None
+    try:
+        browser = subprocess.Popen([CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                                    "--no-first-run", "--disable-background-networking", "--hide-scrollbars",
+                                    "--window-size=1200,1500", f"--user-data-dir={tmp_path / 'profile'}",
+                                    f"--remote-debugging-port={debug_port}", url],
+                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+        def page_ws():
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{debug_port}/json/list", timeout=2) as r:
+                    pages = [p for p in json.loads(r.read()) if p.get("type") == "page" and "/scope" in p["url"]]
+            except OSError:
+                return None
+            return pages[0]["webSocketDebuggerUrl"] if pages else None
+        devtools = DevTools(_wait("Chromium's DevTools", page_ws, 30, browser))
+
+        def js(expr):
+            return devtools.call("Runtime.evaluate", expression=expr, returnByValue=True,
+                                 awaitPromise=True)["result"].get("value")
+        _wait("the traces on the page", lambda: (p := devtools.probe())["ready"] and len(p["t"]) > 100, 30, browser)
+        time.sleep(0.5)                                   # the frame drawn
+        assert js(CATCH_DOWNLOADS)
+        js("Bokeh.index.get_one(Bokeh.documents[0].get_model_by_name('export_png')).button_el.click()")
+        got = _wait("the PNG download", lambda: js("JSON.stringify(window.__downloads)") != "[]", 20, browser)
+        assert got
+        ((name, data),) = json.loads(js("JSON.stringify(window.__downloads)"))
+        width = js("window.innerWidth")
+    finally:
+        if devtools is not None:
+            devtools.close()
+        _stop(browser, signal.SIGTERM)
+        server.stop()
+    assert name == "scope.png" and data.startswith("data:image/png;base64,")
+    png = base64.b64decode(data.split(",", 1)[1])
+    SCREENSHOTS.mkdir(parents=True, exist_ok=True)
+    (SCREENSHOTS / "scope_export.png").write_bytes(png)          # what a person gets (a CI artefact)
+    img = matplotlib.image.imread(io.BytesIO(png), format="png")
+    h, w = img.shape[:2]
+    assert 4 * 200 + 90 <= h < 4 * 200 + 90 + 100 and width * 0.8 <= w <= width
+    # a trace's pixels (not white, not grey): the sine of x_cmd (black) in the top pane, state in the last
+    ink = np.abs(img[:, :, :3] - 1.0).sum(axis=2) > 0.5
+    assert ink[:200].sum() > 500 and ink[-90:].sum() > 100

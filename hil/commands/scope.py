@@ -46,10 +46,13 @@ def scope_for(args, cfg, command: str):
     if not getattr(args, "scope", False):
         yield None
         return
+    from hil.loop import check_loop_cpu
     held = check_scope_options(args)
-    # the server in its own process: it never holds this process's interpreter lock, which the cycle needs
+    loop_cpu = check_loop_cpu(cfg.get("runtime.loop_cpu"))     # one line before anything starts
+    # the server in its own process: it never holds this process's interpreter lock, which the cycle needs;
+    # niced, and on the CPUs other than the loop's where runtime.loop_cpu pins it
     server = start_scope(None, args.scope_port, f"hil {command}: {cfg.get('meta.name') or cfg.source}",
-                         "N m" if cfg.rotary else "N", command)
+                         "N m" if cfg.rotary else "N", command, loop_cpu=loop_cpu)
     try:
         yield server.ring
     finally:
@@ -70,10 +73,12 @@ def parse_hold(text, option: str) -> float | None:
     return None if text is None else parse_bounded(text, "time", option, nonnegative=True, maximum=86400.0)
 
 
-def start_scope(ring, port: int, title: str, output_unit: str, command: str, option: str = "--scope-port"):
+def start_scope(ring, port: int, title: str, output_unit: str, command: str, option: str = "--scope-port",
+                loop_cpu: int | None = None):
     """Start the scope's server and say where it is on stderr; returns the server. ``ring``: a
     ring to serve in a thread of this process (a replay: no cycle to disturb); None: a server in
-    its own process with a ring of its own (``server.ring``), for a run (hil.scope.server.ScopeProcess)."""
+    its own process with a ring of its own (``server.ring``), for a run (hil.scope.server.ScopeProcess),
+    off ``loop_cpu`` (the loop's CPU, checked)."""
     import sys
 
     from hil.errors import UserError
@@ -81,7 +86,7 @@ def start_scope(ring, port: int, title: str, output_unit: str, command: str, opt
     if not 0 <= port <= 65535:
         raise UserError(f"{option} {port}: expected a port, 0 (any free one) to 65535")
     if ring is None:
-        server = ScopeProcess(port=port, title=title, output_unit=output_unit)
+        server = ScopeProcess(port=port, title=title, output_unit=output_unit, loop_cpu=loop_cpu)
     else:
         server = ScopeServer(ring, port=port, title=title, output_unit=output_unit)
     url = server.start()

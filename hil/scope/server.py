@@ -20,8 +20,8 @@ N), the motor's speed (mm/s) and the supervisor's state; channels chosen with ch
 rolling, normal and single shot on a trigger (a channel's level or edge, a trip, a move's start;
 pre- and post-trigger time); freeze and resume; two cursors (a tap or a typed time) with their
 differences; every trip or fault drawn as a vertical line with its reason, and the rolling view
-held around a trip; the view's CSV made here and handed to the browser as a download, its PNG by
-each plot's save tool. The rules (trigger, capture, cursors, CSV) are plain Python in
+held around a trip; the view's CSV made here and handed to the browser as a download; the view's
+PNG, every pane in one image, composed by BokehJS in the page (each plot's save tool: one pane). The rules (trigger, capture, cursors, CSV) are plain Python in
 :mod:`hil.scope.view`. BokehJS is served from the bokeh package itself: nothing is fetched from
 the network.
 """
@@ -60,6 +60,15 @@ _DOWNLOAD_JS = """
 const a = document.createElement('a');
 a.href = URL.createObjectURL(new Blob([src.text], {type: 'text/csv'}));
 a.download = 'scope.csv'; document.body.appendChild(a); a.click(); a.remove();
+"""
+# and the whole view as one PNG: BokehJS composes the column of plots (every pane, its legend, the
+# trip markers and cursors) into one canvas (LayoutDOMView.export), as each plot's save tool does for one
+_PNG_JS = """
+Bokeh.index.get_one(plots).export('png').to_blob().then((blob) => {
+  const a = document.createElement('a');
+  a.href = URL.createObjectURL(blob);
+  a.download = 'scope.png'; document.body.appendChild(a); a.click(); a.remove();
+});
 """
 
 
@@ -315,6 +324,9 @@ class _Page:
         arm.on_click(self._arm_clicked)
         export = Button(label="export CSV", width=100, name="export")
         export.on_click(self.export_csv)
+        self.plots = column(*figs.values(), sizing_mode="stretch_width", name="plots")
+        export_png = Button(label="export PNG", width=100, name="export_png")
+        export_png.js_on_click(CustomJS(args={"plots": self.plots}, code=_PNG_JS))
         # the CSV is made here (view_csv); the page only hands the text to the browser as a download
         self.csv = Div(text="", visible=False, name="csv")
         self.csv.js_on_change("text", CustomJS(args={"src": self.csv}, code=_DOWNLOAD_JS))
@@ -338,11 +350,12 @@ class _Page:
         self.trips = Div(text="no trip", name="trips")
         doc.title = server.title
         doc.add_root(column(Div(text=f"<b>{server.title}</b>"),
-                            row(self.mode_select, self.window_select, self.freeze, arm, export, self.status),
+                            row(self.mode_select, self.window_select, self.freeze, arm, export, export_png,
+                                self.status),
                             row(self.source_select, self.channel_select, self.slope_select, self.level_input,
                                 self.pre_input, self.post_input),
                             row(self.cursor_pick, *self.cursor_inputs, self.readout),
-                            self.trips, self.channels, *figs.values(), self.csv, sizing_mode="stretch_width"))
+                            self.trips, self.channels, self.plots, self.csv, sizing_mode="stretch_width"))
         doc.add_periodic_callback(self.update, int(server.period * 1000))
 
     # --- controls ------------------------------------------------------------------------------------
@@ -561,6 +574,81 @@ class _Page:
             self.x_range.start, self.x_range.end = max(end - self.window, float(t[0])), max(end, float(t[0]) + 1e-3)
 
 
+RING_PREFIX = "hil-scope-"       # the rings' files (in /dev/shm where there is one)
+SERVER_NICE = 10                 # the server's niceness (added to its parent's): below the loop and the drive
+
+
+def ring_folder():
+    """Where the rings' files go: ``/dev/shm`` (memory) where there is one, else the temporary folder."""
+    import tempfile
+    from pathlib import Path
+    return Path("/dev/shm") if Path("/dev/shm").is_dir() else Path(tempfile.gettempdir())
+
+
+def remove_stale_rings(folder=None) -> list[str]:
+    """Remove the ring files a run that ended without cleaning up left behind (killed with SIGKILL,
+    a power cut of a tmpfs that survived): the files with :data:`RING_PREFIX` whose writer no
+    longer holds their lock (:class:`ScopeProcess` holds an exclusive ``flock`` on its file while
+    it lives; the kernel drops it however the process ends). A file still being created (empty,
+    younger than a minute) is left alone. Returns the paths removed."""
+    import fcntl
+    import time
+    removed = []
+    for path in (folder or ring_folder()).glob(RING_PREFIX + "*"):
+        try:
+            st = path.stat()
+            if st.st_uid != os.getuid() or (st.st_size == 0 and time.time() - st.st_mtime < 60):
+                continue
+            fd = os.open(path, os.O_RDONLY)
+        except OSError:              # gone meanwhile, or not ours to read
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:              # its writer lives
+            os.close(fd)
+            continue
+        try:
+            path.unlink()
+            removed.append(str(path))
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    if removed:
+        log.info("removed %d ring file(s) a run left behind: %s", len(removed), ", ".join(removed))
+    return removed
+
+
+def server_cpus(loop_cpu: int | None) -> set[int] | None:
+    """The CPUs the scope's server (and anything else beside the loop) may run on: those of this
+    process but the loop's (``runtime.loop_cpu``); None where nothing is pinned, or where the
+    loop's CPU is the only one (then they share it, with a warning)."""
+    if loop_cpu is None or not hasattr(os, "sched_getaffinity"):
+        return None
+    others = os.sched_getaffinity(0) - {loop_cpu}
+    if not others:
+        import warnings
+        warnings.warn(f"runtime.loop_cpu {loop_cpu}: the only CPU this process may use; the scope's server "
+                      f"shares it with the loop", RuntimeWarning, stacklevel=2)
+        return None
+    return others
+
+
+def place_server(cpus: set[int] | None, nice: int) -> None:
+    """Put the calling process (the scope's server, before it starts threads) on ``cpus`` and
+    ``nice`` steps below its parent's priority: it never takes the loop's CPU, and where it shares
+    one with other work it yields (Linux; elsewhere the niceness only). Linux keeps both per
+    thread: every thread already started (numpy's, at import) is placed too, and the threads
+    started later inherit it."""
+    tids = [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
+    if cpus and hasattr(os, "sched_setaffinity"):
+        for tid in tids:
+            os.sched_setaffinity(tid, cpus)
+    if nice and hasattr(os, "setpriority"):
+        for tid in tids:
+            os.setpriority(os.PRIO_PROCESS, tid, min(os.getpriority(os.PRIO_PROCESS, tid) + nice, 19))
+
+
 class ScopeProcess:
     """The scope's server in a process of its own (what the commands use): the ring is a shared
     file mapping (``/dev/shm`` where there is one) the cycle writes here and the server reads there,
@@ -570,18 +658,28 @@ class ScopeProcess:
     command line, which other users of the machine can read); closing that pipe (or this process
     ending) stops it.
 
-    Parameters: as :class:`ScopeServer`, less the ring (made here: ``capacity`` rows, ``events``).
+    The server runs ``nice`` steps below this process's priority and, with ``loop_cpu`` (the CPU
+    the loop is pinned to, ``runtime.loop_cpu``), on the other CPUs (:func:`server_cpus`). The
+    ring's file is locked while this object lives; rings of runs killed before they could remove
+    theirs are removed when the next one is made (:func:`remove_stale_rings`).
+
+    Parameters: as :class:`ScopeServer`, less the ring (made here: ``capacity`` rows, ``events``);
+    ``loop_cpu``, ``nice``.
     """
 
     def __init__(self, capacity: int = 1 << 16, events: int = 64, port: int = 0, token: str | None = None,
-                 title: str = "hil scope", output_unit: str = "N m", max_points: int = 2000, period: float = 0.04):
+                 title: str = "hil scope", output_unit: str = "N m", max_points: int = 2000, period: float = 0.04,
+                 loop_cpu: int | None = None, nice: int = SERVER_NICE):
+        import fcntl
         import tempfile
-        from pathlib import Path
         self.port, self.token = int(port), token or secrets.token_urlsafe(16)
         self.title, self.output_unit, self.max_points, self.period = title, output_unit, int(max_points), float(period)
-        folder = Path("/dev/shm") if Path("/dev/shm").is_dir() else Path(tempfile.gettempdir())
-        fd, path = tempfile.mkstemp(prefix="hil-scope-", dir=folder)
-        os.close(fd)
+        self.cpus, self.nice = server_cpus(loop_cpu), int(nice)
+        folder = ring_folder()
+        remove_stale_rings(folder)
+        fd, path = tempfile.mkstemp(prefix=RING_PREFIX, dir=folder)
+        fcntl.flock(fd, fcntl.LOCK_EX)       # held while this run lives (remove_stale_rings)
+        self._lock = fd
         self.path = path
         self.ring = ScopeRing(capacity, events, path=path)
         self.proc = None
@@ -604,9 +702,11 @@ class ScopeProcess:
         from hil.errors import UserError
         root = str(Path(hil.__file__).resolve().parents[1])
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([root] + [p for p in [os.environ.get("PYTHONPATH")] if p]))
+        cpus = ",".join(map(str, sorted(self.cpus))) if self.cpus else "-"
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "hil.scope.server", self.path, str(self.ring.capacity), str(self.ring.n_events),
-             str(self.port), self.title, self.output_unit, str(self.max_points), str(self.period)],
+             str(self.port), self.title, self.output_unit, str(self.max_points), str(self.period), cpus,
+             str(self.nice)],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
         self.proc.stdin.write(self.token + "\n")
         self.proc.stdin.flush()
@@ -635,12 +735,17 @@ class ScopeProcess:
             os.unlink(self.path)
         except FileNotFoundError:
             pass
+        if self._lock is not None:          # after the file is gone: no other run removes it meanwhile
+            os.close(self._lock)
+            self._lock = None
 
 
 def _serve_shared(argv: list[str]) -> int:
     """The child of :class:`ScopeProcess`: serve the ring mapped from ``argv[0]`` until stdin closes."""
     import sys
-    path, capacity, events, port, title, unit, max_points, period = argv
+    path, capacity, events, port, title, unit, max_points, period, cpus, nice = argv
+    # placed before the server starts its threads: they inherit it
+    place_server(None if cpus == "-" else {int(c) for c in cpus.split(",")}, int(nice))
     token = sys.stdin.readline().strip()
     ring = ScopeRing.attach(path, int(capacity), int(events))
     server = ScopeServer(ring, port=int(port), token=token, title=title, output_unit=unit,
