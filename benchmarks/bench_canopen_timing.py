@@ -38,6 +38,10 @@ this machine) and whether the difference of the means is within it.
 the scope's server, the browser and the drive's process on the other CPUs, as the commands place
 the server. The server and the browser run ``--nice`` steps nicer (default
 hil.scope.server.SERVER_NICE, as the commands start the server; ``--nice 0``: as before it was).
+``--drive-cpu N`` puts the simulated drive's process on CPU N instead: on a real axis the drive is
+another machine, and on a 2-CPU machine ``--loop-cpu 1 --drive-cpu 1`` leaves CPU 0 to the page and
+its server alone, as a real-time PC with the loop on an isolated CPU would (the drive then shares the
+loop's CPU: it answers within about 100 us of a SYNC and sleeps, the loop waits for that answer anyway).
 """
 from __future__ import annotations
 
@@ -60,6 +64,7 @@ sys.path.insert(0, str(ROOT))
 from hil import config  # noqa: E402
 from hil.drivers.base import Setpoint  # noqa: E402
 from hil.drivers.canopen.backend import CanopenBackend  # noqa: E402
+from hil.errors import ConfigError  # noqa: E402
 from hil.loop import LoopCpu, RealTimeClock, check_loop_cpu  # noqa: E402
 from hil.scope.server import SERVER_NICE, server_cpus  # noqa: E402
 
@@ -330,7 +335,7 @@ def _looped(cfg, seconds, spin, scope: bool, nice=SERVER_NICE) -> dict:
 
 
 def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False, loop_cpu=None,
-            nice=SERVER_NICE):
+            nice=SERVER_NICE, drive_cpu=None):
     period = f"{1000.0 / rate:g} ms"
     # start-up over SDO is not what is measured: a generous answer time, so that a loaded machine (the
     # burner, a test run beside it) does not abort the configuration before the cycle starts
@@ -361,8 +366,10 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
                                       "--priority", str(priority), "--cpu-latency", str(cpu_latency)],
                                      cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
                                      env=dict(os.environ, PYTHONPATH=str(ROOT)),
-                                     # the drive is another machine on a real axis: off the loop's CPU
-                                     preexec_fn=_placed(server_cpus(loop_cpu)))
+                                     # the drive is another machine on a real axis: off the loop's CPU,
+                                     # or (--drive-cpu) where it leaves the page's CPUs to the page
+                                     preexec_fn=_placed({drive_cpu} if drive_cpu is not None
+                                                        else server_cpus(loop_cpu)))
             if not drive.stdout.readline():               # the server is up
                 raise RuntimeError("hil drive-sim did not start")
             over.update({"canopen.interface": "socketcand", "canopen.channel": "can0", "canopen.port": port})
@@ -486,6 +493,10 @@ def main(argv=None):
     ap.add_argument("--loop-cpu", type=int, default=None, metavar="N",
                     help="runtime.loop_cpu: the loop's thread pinned to CPU N; the scope's server, the browser and "
                          "the drive's process on the other CPUs (server and browser niced)")
+    ap.add_argument("--drive-cpu", type=int, default=None, metavar="N",
+                    help="socketcand: the drive's process on CPU N (default: the CPUs other than --loop-cpu). "
+                         "With --loop-cpu N on a 2-CPU machine, --drive-cpu N leaves the other CPU to the page, "
+                         "as on a real axis, where the drive is another machine")
     ap.add_argument("--nice", type=int, default=SERVER_NICE, metavar="N",
                     help=f"with --scope: how much nicer the scope's server and the browser run (default {SERVER_NICE}, "
                          f"as the commands start the server; 0: at the loop process's own niceness)")
@@ -498,7 +509,13 @@ def main(argv=None):
     spin = args.spin                 # None: the clock's default for the period
     if args.repeat < 1:
         ap.error(f"--repeat {args.repeat}: expected 1 or more")
-    check_loop_cpu(args.loop_cpu, "--loop-cpu")
+    try:
+        check_loop_cpu(args.loop_cpu, "--loop-cpu")
+        check_loop_cpu(args.drive_cpu, "--drive-cpu")
+    except ConfigError as exc:         # one line, no traceback
+        ap.error(str(exc))
+    if args.drive_cpu is not None and args.transport != "socketcand":
+        ap.error("--drive-cpu: the drive has a process of its own only with --transport socketcand")
     results, summaries = [], []
     for rate in (int(float(r)) for r in args.rate.split(",")):
         seconds = args.duration if args.duration is not None else DEFAULT_SECONDS.get(rate, 60.0)
@@ -508,7 +525,8 @@ def main(argv=None):
                 for repetition in range(args.repeat if args.scope else 1):
                     for scope in ((False, True) if args.scope else (False,)):
                         results.append(run_one(transport, rate, seconds, burner, spin, args.priority,
-                                               args.cpu_latency, scope, args.loop_cpu, args.nice))
+                                               args.cpu_latency, scope, args.loop_cpu, args.nice,
+                                               args.drive_cpu))
                         results[-1]["repetition"] = repetition
                         if not args.json:
                             print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
@@ -523,7 +541,8 @@ def main(argv=None):
                               f"thing", flush=True)
                         print("\n".join(_noise_lines(summaries[-1]["noise"])), flush=True)
     info = {"cpus": os.cpu_count(), "switch_interval_s": sys.getswitchinterval(), "priority": args.priority,
-            "kernel": os.uname().release, "loop_cpu": args.loop_cpu, "scope_nice": args.nice}
+            "kernel": os.uname().release, "loop_cpu": args.loop_cpu, "drive_cpu": args.drive_cpu,
+            "scope_nice": args.nice}
     if args.json:
         print(json.dumps({"machine": info, "results": results, "scope_noise": summaries}, indent=2))
     else:
