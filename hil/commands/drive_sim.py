@@ -41,6 +41,9 @@ finds that backlog when it carries on), kill (the drive is gone: no answer, no h
 --set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
 CiA 406-like linear encoder (hil/drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
 its TPDO1 on every SYNC.
+
+Ctrl-C (or SIGTERM) stops it; ``kill -USR1 PID`` prints every thread's stack on stderr and lets it
+run on (a drive that seems hung).
 """
 
 
@@ -268,6 +271,9 @@ def run(args) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)
+    if hasattr(signal, "SIGUSR1"):      # kill -USR1 PID: every thread's stack on stderr, for a drive that seems hung
+        import faulthandler
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     t0 = time.monotonic()
     try:
         sim.serve(args.seconds, on_duty=on_duty)    # the drive's one thread: this one
