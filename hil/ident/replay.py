@@ -20,8 +20,10 @@ the file header, the quantization, the settled standstills), the record's, kept 
 :meth:`Replay.with_config`; ``noise_sources`` says where each came from.
 
 Artefacts of the recording (``channel_skew``, ``tip_skew``, ``force_offset``, ``position_offset``:
-hil.sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop; the last
-simulation is kept, so that fitting such an artefact costs no simulation.
+hil.sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop. The
+last :data:`SIM_CACHE_SIZE` simulations are kept by the loop's key (every value of the config that
+the loop reads; :class:`SimulationCache`, shared by the replays of one record), so that fitting such
+an artefact, or simulating a config again, costs no simulation.
 
 Measured inputs besides the command enter the one compiled loop (hil.simulate), each held from
 its sample over the velocity periods that follow it (:func:`hil.simulate.per_velocity_period`):
