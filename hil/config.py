@@ -607,7 +607,10 @@ class Config:
                 raw.pop(k, None)
             else:
                 raw[k] = v
-        return _validate(raw, source or self.source)
+        # the values it keeps are validated already: only the changed ones are converted again (the
+        # same values: a validated value converts to itself; a kind depends on actuator.type alone)
+        known = None if "actuator.type" in changes else self.values
+        return _validate(raw, source or self.source, known)
 
     def without(self, prefix: str) -> "Config":
         raw = {k: v for k, v in self.values.items() if not k.startswith(prefix) and v is not None}
@@ -649,12 +652,20 @@ def _toml_value(value, f: Field | None, values: dict) -> str:
     return repr(value)
 
 
-def _validate(raw: dict[str, Any], where: str) -> Config:
+def _validate(raw: dict[str, Any], where: str, known: dict[str, Any] | None = None) -> Config:
+    """The config of the raw values ``raw`` (units as written), converted to SI and checked; ``known``:
+    the values of a validated config with the same ``actuator.type``, whose entries that ``raw``
+    holds unchanged (the same object) are taken as they are (:meth:`Config.with_values`: a fit
+    changes a few keys of a config thousands of times)."""
     values: dict[str, Any] = {}
     # actuator.type first: other kinds depend on it
     if "actuator.type" in raw:
         values["actuator.type"] = _convert("actuator.type", raw["actuator.type"], SCHEMA["actuator.type"], {}, where)
     for key, value in raw.items():
+        if known is not None and key in known and known[key] is value and key != "actuator.type":
+            # validated as it is (a list copied, as its conversion would)
+            values[key] = list(value) if isinstance(value, list) else value
+            continue
         f = field_for(key)
         if f is None:
             section = key.split(".", 1)[0] if "." in key else ""

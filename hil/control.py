@@ -389,11 +389,12 @@ def actuate(t, ubuf, u, u_act):
 
 
 @njit(cache=True, inline="always")
-def plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, fext=None):
+def plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, fext=None, masses=None):
     """The plant over one velocity period (real-time): the state ``x`` advanced in place under the
     actuator's output ``u_act`` (and external forces ``fext``, None: compiled away); the position
-    loop's feedback history ``hbuf`` takes the new reading where the terms have a feedback delay."""
-    plant_step(Ad, Bd, x, u_act * t.force_gain, fric, t.dry != 0.0, codes, eparams, f, x_new, fext)
+    loop's feedback history ``hbuf`` takes the new reading where the terms have a feedback delay.
+    ``masses``: the chain's size for the compiler (hil.sim_plant.kernel.mass_token), or None."""
+    plant_step(Ad, Bd, x, u_act * t.force_gain, fric, t.dry != 0.0, codes, eparams, f, x_new, fext, masses)
     if hbuf is not None and t.feedback_late != 0.0:     # None: compiled away
         history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
 

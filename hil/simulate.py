@@ -37,6 +37,7 @@ from hil.control import (
     velocity_step,
 )
 from hil.plant_config import plant_from_config
+from hil.sim_plant.kernel import mass_token, state_size
 from hil.sim_plant.plant import Plant
 
 __all__ = ["SimulationResult", "simulate", "simulate_many", "closed_loop_batch", "batch_threads", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
@@ -102,7 +103,7 @@ class Record(NamedTuple):
 @njit(cache=True)
 def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
                        exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None, u_add=None, f_ext=None,
-                       open_loop=False, speed_filter=None, log_command=False):
+                       open_loop=False, speed_filter=None, log_command=False, masses=None):
     """Run len(x_cmd) - 1 position ticks of the cycle of hil.control, stage by stage, from the
     plant state ``x0`` (not changed). The plant: ``Ad``, ``Bd``, ``fric``, ``codes``, ``eparams``
     (hil.control's stages); ``terms``: the loop terms (hil.control.LoopTerms.array); ``p``:
@@ -129,12 +130,13 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
     values are in ``p``), None: the motor's speed, the filter compiled away. ``log_command``: the
     recorded output is the controller's output at the sample, before the delay and the current
     loop (a drive that logs its torque command); False: the current after them (a drive that logs
-    its measured current).
+    its measured current). ``masses``: None, or a tuple of one entry per mass
+    (hil.sim_plant.kernel.mass_token): the loop compiled for the chain's size, the same numbers.
 
     Returns the number of velocity periods in which the excitation drove the output past its
     limit. Not real-time (it allocates its work arrays); its inner loop is the cycle."""
     t = terms_of(terms)
-    n = Ad.shape[0] // 2
+    n = state_size(Ad, masses) // 2
     x = x0.copy()
     x_new = np.zeros(2 * n)
     f = np.zeros(n)
@@ -156,7 +158,7 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
         for j in range(n_sub):
             step = k * n_sub + j
             # --- read feedback, velocity law (and the experiment's inputs) ---
-            u, sat = _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w,
+            u, sat = _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into_speed, noise_w,
                                       noise_x, out, u_add, open_loop)
             n_sat += sat
             # --- write command: the delay, the current loop ---
@@ -167,23 +169,24 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
                 if countdown == 0:
                     countdown = record_every
                     # between ticks the command is interpolated, as the NC's fine interpolation would
-                    _record_row(rec, row, t, x, u if log_command else u_act, x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub)
+                    _record_row(rec, row, t, x, n, u if log_command else u_act,
+                                x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub)
                     row += 1
             # --- the plant over one Tv ---
             if f_ext is not None:
-                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, f_ext[step])
+                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, f_ext[step], masses)
             else:
-                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act)
+                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, None, masses)
     return n_sat
 
 
 @njit(cache=True, inline="always")
-def _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out, u_add,
-                     open_loop):
-    """Read feedback and velocity law of velocity period ``step`` of :func:`closed_loop_kernel`,
-    with the experiment's excitation, noise and measured command (each None where absent) and its
-    ``out`` row. Returns the output and 1 where the excitation drove it past its limit (real-time)."""
-    n = x.shape[0] // 2
+def _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out,
+                     u_add, open_loop):
+    """Read feedback and velocity law of velocity period ``step`` of :func:`closed_loop_kernel` (``n``
+    masses), with the experiment's excitation, noise and measured command (each None where absent)
+    and its ``out`` row. Returns the output and 1 where the excitation drove it past its limit
+    (real-time)."""
     r = 0.0
     w_ref_v = w_ref
     if exc is not None:
@@ -221,9 +224,9 @@ def _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_sp
 
 
 @njit(cache=True, inline="always")
-def _record_row(rec, row, t, x, u_act, x_cmd):
-    """Record (real-time): row ``row`` of ``rec``, the plant's state as it is before its step."""
-    n = x.shape[0] // 2
+def _record_row(rec, row, t, x, n, u_act, x_cmd):
+    """Record (real-time): row ``row`` of ``rec``, the plant's state (``n`` masses) as it is before
+    its step."""
     for i in range(n):
         rec.x[row, i] = x[i]
         rec.v[row, i] = x[n + i]
@@ -253,7 +256,7 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     run = _prepared(plant, ctrl, x_cmd, record_every, x0, u_add, f_ext, open_loop, torque)
     closed_loop_kernel(run.Ad, run.Bd, run.fric, run.codes, run.params, run.terms, run.p, run.state0, run.cmd,
                        run.ubuf, run.hbuf, run.rec, run.record_every, speed_filter=run.speed_filter,
-                       log_command=run.log_command, **run.inputs)
+                       log_command=run.log_command, masses=mass_token(run.state0.size // 2), **run.inputs)
     return _result(run, ctrl, plant, v_cmd)
 
 
@@ -352,14 +355,14 @@ def simulate_many(plants: list, ctrls: list, x_cmd, *, x0: float | None = None, 
                 None if r0.ubuf is None else np.stack([r.ubuf for r in runs]),
                 None if r0.hbuf is None else np.stack([r.hbuf for r in runs]),
                 X, V, U, XM, XT, XC, r0.speed_filter, r0.log_command, r0.inputs.get("u_add"), r0.inputs.get("f_ext"),
-                r0.inputs.get("open_loop", False))
+                r0.inputs.get("open_loop", False), mass_token(r0.state0.size // 2))
         _run_batch(args, len(runs))
         runs = [r._replace(rec=Record(X[b], V[b], U[b], XM[b], XT[b], XC[b])) for b, r in enumerate(runs)]
     else:
         for r in runs:
             closed_loop_kernel(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, r.state0, r.cmd, r.ubuf, r.hbuf,
                                r.rec, r.record_every, speed_filter=r.speed_filter, log_command=r.log_command,
-                               **r.inputs)
+                               masses=mass_token(r.state0.size // 2), **r.inputs)
     return [_result(r, c, pl) for r, c, pl in zip(runs, ctrls, plants)]
 
 
@@ -385,13 +388,13 @@ def _same_structure(runs: list[_Run]) -> bool:
 
 @njit(cache=True, nogil=True)
 def closed_loop_batch(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, X, V, U, XM, XT, XC,
-                      speed_filter, log_command, u_add, f_ext, open_loop, first=0, stop=-1):
+                      speed_filter, log_command, u_add, f_ext, open_loop, masses=None, first=0, stop=-1):
     """:func:`closed_loop_kernel` for a batch of runs b of one command, each recorded once per
     position tick into row b of ``X``, ``V``, ``U``, ``XM``, ``XT``, ``XC`` (:class:`Record`):
     per run its matrices ``Ad[b]``, ``Bd[b]``, friction ``fric[b]`` (the five levels), effect
     numbers ``eparams[b]`` (the codes are shared), terms, settings, initial state and buffers (None:
-    no delay, compiled away); the measured inputs are shared. Runs ``first`` to ``stop`` (-1: the
-    last) only; each is the kernel's, unchanged. Without the GIL, so that threads run disjoint
+    no delay, compiled away); the measured inputs and the chain's size ``masses`` are shared. Runs
+    ``first`` to ``stop`` (-1: the last) only; each is the kernel's, unchanged. Without the GIL, so that threads run disjoint
     ranges of one batch at once (numba's own parallel loops are not safe in a process that forks
     its workers afterwards, as hil diagnose --jobs and hil fleet do)."""
     n_sub = int(terms[0, 0])        # T.SUBSTEPS (the record: one row per position tick)
@@ -402,19 +405,19 @@ def closed_loop_batch(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, h
             if hbuf is None:
                 closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, None, None,
                                    rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
-                                   speed_filter, log_command)
+                                   speed_filter, log_command, masses)
             else:
                 closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, None,
                                    hbuf[b], rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
-                                   speed_filter, log_command)
+                                   speed_filter, log_command, masses)
         elif hbuf is None:
             closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, ubuf[b], None,
                                rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
-                               speed_filter, log_command)
+                               speed_filter, log_command, masses)
         else:
             closed_loop_kernel(Ad[b], Bd[b], fr, codes, eparams[b], terms[b], p[b], x0[b], x_cmd, ubuf[b],
                                hbuf[b], rec, n_sub, None, False, None, None, None, u_add, f_ext, open_loop,
-                               speed_filter, log_command)
+                               speed_filter, log_command, masses)
 
 
 def batch_threads() -> int:

@@ -20,8 +20,10 @@ the file header, the quantization, the settled standstills), the record's, kept 
 :meth:`Replay.with_config`; ``noise_sources`` says where each came from.
 
 Artefacts of the recording (``channel_skew``, ``tip_skew``, ``force_offset``, ``position_offset``:
-hil.sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop; the last
-simulation is kept, so that fitting such an artefact costs no simulation.
+hil.sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop. The
+last :data:`SIM_CACHE_SIZE` simulations are kept by the loop's key (every value of the config that
+the loop reads; :class:`SimulationCache`, shared by the replays of one record), so that fitting such
+an artefact, or simulating a config again, costs no simulation.
 
 Measured inputs besides the command enter the one compiled loop (hil.simulate), each held from
 its sample over the velocity periods that follow it (:func:`hil.simulate.per_velocity_period`):
@@ -39,6 +41,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import OrderedDict
 
 import numpy as np
 
@@ -53,12 +56,15 @@ from hil.simulate import external_forces, per_velocity_period, simulate, simulat
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Replay", "POSITION_CHANNELS", "UNITS", "angle_axis", "channel_units"]
+__all__ = ["Replay", "SimulationCache", "SIM_CACHE_SIZE", "POSITION_CHANNELS", "UNITS", "angle_axis",
+           "channel_units"]
 
 POSITION_CHANNELS = ("x_motor", "x_table", "x_tip")
 _FORCE = ("torque", "force", "command")
 #: what a config's model may raise in a replay (the fits cost it as a failed evaluation)
 _MODEL_ERRORS = (ValueError, ZeroDivisionError, FloatingPointError)
+#: loop configs whose simulated channels a record's replays keep (SimulationCache)
+SIM_CACHE_SIZE = 16
 UNITS = {"x_motor": "m", "x_table": "m", "x_tip": "m", "x_motor-x_table": "m", "torque": "N*m", "force": "N",
          "command": "V", "e_table": "m", "e_tip": "m"}
 
@@ -82,7 +88,7 @@ class Replay:
     sample times, and their residuals."""
 
     def __init__(self, meas, cfg, channels=None, align: bool = False, noise: dict | None = None,
-                 open_loop: bool = False):
+                 open_loop: bool = False, sims: "SimulationCache | None" = None):
         logger.debug("replaying %s through %s", getattr(meas, "source", "a record"), cfg.source)
         self.cfg = cfg
         self.units = channel_units(cfg)
@@ -126,7 +132,9 @@ class Replay:
         fb = "x_motor" if cfg.get("control.position_feedback") == "motor" else "x_table"
         first_pos = [c for c in (fb,) + POSITION_CHANNELS if c in meas]
         self.x0 = float(meas[first_pos[0]][0]) if first_pos else float(meas["x_cmd"][0])
-        self._last = (None, None)        # (key of the loop's config, its simulated channels)
+        # the simulated channels of the last few loop configs, shared by the replays of this record
+        # (with_config): a config simulated again, exactly, is served from it
+        self._sims = sims if sims is not None else SimulationCache()
         res0 = self.residuals(cfg, first=True)
         rms = {c: float(np.sqrt(np.mean(res0[c] ** 2))) for c in self.channels}
         # the record's noise floor (hil.ident.noise): a property of the record, kept by with_config
@@ -138,7 +146,8 @@ class Replay:
 
     def with_config(self, cfg) -> "Replay":
         # (an open-loop replay's meas is its view of the record: the new one starts from the record)
-        return Replay(self._source_meas, cfg, self.channels, self.align, self.noise_sources, open_loop=self.open_loop)
+        return Replay(self._source_meas, cfg, self.channels, self.align, self.noise_sources, open_loop=self.open_loop,
+                      sims=self._sims)
 
     @property
     def _source_meas(self):
@@ -198,11 +207,10 @@ class Replay:
         """Simulated channels on the measurement's sample times, with the recording's artefacts."""
         cfg = cfg or self.cfg
         key = _loop_key(cfg)
-        if self._last[0] == key:
-            ch = self._last[1]
-        else:
+        ch = self._sims.get(key)
+        if ch is None:
             ch = self.simulate(cfg).channels()
-            self._last = (key, ch)
+            self._sims.put(key, ch)
         return self._on_samples(cfg, ch)
 
     def _on_samples(self, cfg, ch: dict) -> dict[str, np.ndarray]:
@@ -230,7 +238,11 @@ class Replay:
         (hil.simulate.simulate_many). Per config its residuals, or the ValueError,
         ZeroDivisionError or FloatingPointError that its model raised (the callers decide)."""
         keys = [_loop_key(c) for c in cfgs]
-        sims = {self._last[0]: self._last[1]} if self._last[0] is not None else {}
+        sims = {}
+        for key in keys:
+            ch = sims.get(key) or self._sims.get(key)
+            if ch is not None:
+                sims[key] = ch
         errors: dict = {}
         todo = {}                       # loop key -> (cfg, plant, ctrl), the loops still to simulate
         for key, cfg in zip(keys, cfgs):
@@ -264,7 +276,7 @@ class Replay:
             if key in errors:
                 out.append(errors[key])
                 continue
-            self._last = (key, sims[key])
+            self._sims.put(key, sims[key])
             try:
                 out.append(self._residuals_of(cfg, self._on_samples(cfg, sims[key])))
             except _MODEL_ERRORS as e:
@@ -294,6 +306,40 @@ class Replay:
 
     def primary_channel(self, res) -> str:
         return self.force_channel or max(self.channels, key=lambda c: float(np.mean(res[c] ** 2) * self.objective.weights[c] ** 2))
+
+
+class SimulationCache:
+    """The simulated channels (:meth:`hil.simulate.SimulationResult.channels`) of the last
+    :data:`SIM_CACHE_SIZE` loop configs of one record, by the loop's key (:func:`_loop_key`: every
+    value of the config that the simulation reads), least recently used out first. The kernel is
+    deterministic, so a hit is the simulation's own arrays; the replays of one record share it
+    (:meth:`Replay.with_config`: the record, its command and its inputs are the same, and the
+    start and the loop's clock are the config's). Treat the arrays as read-only."""
+
+    def __init__(self, size: int | None = None):
+        self.size = SIM_CACHE_SIZE if size is None else int(size)
+        self._items: OrderedDict = OrderedDict()
+        self.hits = 0
+        self.misses = 0
+
+    def get(self, key):
+        """The channels of ``key``, or None."""
+        ch = self._items.get(key)
+        if ch is None:
+            self.misses += 1
+            return None
+        self.hits += 1
+        self._items.move_to_end(key)
+        return ch
+
+    def put(self, key, channels: dict) -> None:
+        self._items[key] = channels
+        self._items.move_to_end(key)
+        while len(self._items) > self.size:
+            self._items.popitem(last=False)
+
+    def __len__(self) -> int:
+        return len(self._items)
 
 
 def _drive_channel(meas, cfg) -> str:

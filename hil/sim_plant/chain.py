@@ -11,6 +11,8 @@ from functools import lru_cache
 import numpy as np
 import scipy.linalg
 
+from hil.sim_plant.blas_threads import one_blas_thread
+
 __all__ = ["Chain", "StateSpace", "zoh"]
 
 
@@ -41,7 +43,8 @@ def zoh(ss: StateSpace, dt: float) -> StateSpace:
     block = np.zeros((n + m, n + m))
     block[:n, :n] = ss.A
     block[:n, n:] = ss.B
-    e = scipy.linalg.expm(block * dt)
+    with one_blas_thread():         # a 10 x 10 exponential: threads cost 1000 x its work (blas_threads)
+        e = scipy.linalg.expm(block * dt)
     return StateSpace(np.ascontiguousarray(e[:n, :n]), np.ascontiguousarray(e[:n, n:]), ss.C.copy(), ss.D.copy(), dt)
 
 

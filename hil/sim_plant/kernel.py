@@ -19,7 +19,7 @@ from hil.sim_plant.plant import Plant
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
            "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "LEAD_ERROR_LINEAR", "FORCE_ALONG_TRAVEL",
            "empty_effects", "effect_table", "time_delay", "feedback_delay", "link_compliance", "effect_forces",
-           "effect_forces_at", "friction_force", "plant_step"]
+           "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token"]
 
 N_EFFECT_PARAMS = 8
 
@@ -174,16 +174,34 @@ def friction_force(fric, v_start, v_free, b):
 
 
 @njit(cache=True, inline="always")
-def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new, fext=None):
+def state_size(Ad, masses):
+    """The plant state's length 2 n: ``Ad``'s, or twice the length of the tuple ``masses`` (one
+    entry per mass, :func:`mass_token`), which numba knows when it compiles (None: ``Ad``'s)."""
+    if masses is None:
+        return Ad.shape[0]
+    return 2 * len(masses)
+
+
+def mass_token(n: int) -> tuple:
+    """A tuple of ``n`` zeros: passed as ``masses`` to the compiled loops, its length (a constant
+    of its numba type) specialises them on the chain's size, so that the loops over the state
+    unroll. The arithmetic and its order are the same as with the size read from the matrix (the
+    same bits); only the loop's bookkeeping goes (issue 26)."""
+    return (0,) * int(n)
+
+
+@njit(cache=True, inline="always")
+def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new, fext=None, masses=None):
     """Advance the plant state ``x`` in place over one step: x+ = Ad x + Bd f, where f holds the
     drive force on mass 1, the effects' forces, external forces ``fext`` (one per mass, N, held
     over the step: a measured cutting force; None: compiled away; they need ``codes``, an empty
     table when there are no effects) and the dry friction on the motor (which needs the free
-    motion of the step to decide between sticking and sliding).
+    motion of the step to decide between sticking and sliding). ``masses``: None, or
+    :func:`mass_token` of the chain's size, which the loop is then compiled for.
 
     Written for speed (this is the simulator's inner loop): one pass over Ad, the friction decided
     from mass 1's free velocity alone, the other force columns only when effects exist."""
-    nn = Ad.shape[0]
+    nn = state_size(Ad, masses)
     n = nn // 2
     f0 = f_drive
     effects = codes is not None        # None (no effects): numba compiles the branch away

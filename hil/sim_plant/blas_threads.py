@@ -1,0 +1,75 @@
+"""One BLAS thread for the small matrices of the plant (the discretization's matrix exponential).
+
+scipy's ``expm`` of the chain's 10 x 10 Van Loan block costs about 12 us on one OpenBLAS thread
+and 8 ms of CPU (18 ms wall) with OpenBLAS's default of one thread per core on a loaded two-core
+machine (issue 26: 389 discretizations, 3 s of CPU in one ``hil diagnose``): the threads are woken
+and waited for, and a matrix that small gives them nothing to share. :func:`one_blas_thread` runs a
+block with OpenBLAS's thread-local count set to 1 and puts it back after; the arithmetic of a
+10 x 10 product or solve is the one thread's either way (the same bits: tests/test_speed_identity.py).
+
+The OpenBLAS libraries are the ones loaded in this process (numpy's and scipy's wheels bundle
+their own; their symbols carry a prefix, ``scipy_openblas_...``), found once from
+``/proc/self/maps`` (Linux) or scipy's bundled library folder, and used through ``ctypes`` where
+they export ``openblas_set_num_threads_local`` (OpenBLAS 0.3.27 and later). Anywhere else (MKL,
+Accelerate, an older OpenBLAS) the block runs as it is.
+"""
+from __future__ import annotations
+
+import ctypes
+import glob
+import os
+from contextlib import contextmanager
+
+__all__ = ["one_blas_thread", "blas_thread_setters"]
+
+_SETTERS: list | None = None
+
+
+def _loaded_openblas() -> list[str]:
+    """Paths of the OpenBLAS libraries loaded in this process."""
+    paths: list[str] = []
+    try:
+        with open("/proc/self/maps") as maps:
+            for line in maps:
+                path = line.rsplit(" ", 1)[-1].strip()
+                if "openblas" in os.path.basename(path).lower() and path not in paths:
+                    paths.append(path)
+    except OSError:
+        pass
+    if not paths:
+        try:
+            import scipy
+            base = os.path.dirname(os.path.dirname(scipy.__file__))
+            for pattern in ("scipy.libs/*openblas*", "scipy/.dylibs/*openblas*"):
+                paths += glob.glob(os.path.join(base, pattern))
+        except ImportError:         # pragma: no cover - scipy is a dependency
+            pass
+    return paths
+
+
+def blas_thread_setters() -> list:
+    """The ``openblas_set_num_threads_local`` function of each loaded OpenBLAS (found once)."""
+    global _SETTERS
+    if _SETTERS is None:
+        found = []
+        for path in _loaded_openblas():
+            try:
+                fn = ctypes.CDLL(path).openblas_set_num_threads_local
+            except (OSError, AttributeError):
+                continue
+            fn.restype, fn.argtypes = ctypes.c_int, [ctypes.c_int]
+            found.append(fn)
+        _SETTERS = found
+    return _SETTERS
+
+
+@contextmanager
+def one_blas_thread():
+    """Run the block on one OpenBLAS thread (this thread's setting), then restore it."""
+    setters = blas_thread_setters()
+    old = [fn(1) for fn in setters]
+    try:
+        yield
+    finally:
+        for fn, n in zip(setters, old):
+            fn(n)

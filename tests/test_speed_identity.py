@@ -1,0 +1,238 @@
+"""The chain made faster with the same numbers (issue 26): each shortcut against the path it
+replaces, bit for bit.
+
+* the compiled loop specialised on the chain's size (hil.sim_plant.kernel.mass_token) against the
+  loop that reads the size from the matrix, for every structure the kernel compiles away or in
+  (effects, dry friction, delays, the speed filter, measured inputs, one to four masses);
+* a config changed by a few keys (hil.config.Config.with_values, the validated values kept)
+  against the same raw values validated from scratch: the same values, types and key order;
+* the replays' cache of simulations (hil.ident.replay.SimulationCache): a hit is the fresh
+  simulation's arrays, a changed parameter misses, the replays of one record share it.
+"""
+import numpy as np
+import pytest
+from conftest import CONFIG
+
+from hil.config import _validate, load
+from hil.control import controller_from_config
+from hil.ident import Replay, synthesize
+from hil.ident.replay import SimulationCache, _loop_key
+from hil.io.measurement import Measurement
+from hil.plant_config import candidate, configure, plant_from_config
+from hil.sim_plant.kernel import mass_token
+from hil.simulate import Record, _prepared, closed_loop_kernel, simulate
+
+CFG = load(CONFIG / "paper_bench.toml")
+
+
+def _command(ticks=400):
+    s = np.linspace(0.0, 1.0, ticks)
+    return 0.02 * np.sin(2 * np.pi * 1.5 * s) ** 3
+
+
+def _with(cfg, **sets):
+    return cfg.with_values(sets)
+
+
+def _kernel(cfg, masses, x_cmd, **kw):
+    plant = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant)
+    r = _prepared(plant, ctrl, x_cmd, None, None, kw.get("u_add"), kw.get("f_ext"), False,
+                  kw.get("torque", "actual"))
+    closed_loop_kernel(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, r.state0, r.cmd, r.ubuf, r.hbuf,
+                       r.rec, r.record_every, speed_filter=r.speed_filter, log_command=r.log_command,
+                       masses=None if masses is None else mass_token(plant.n), **r.inputs)
+    return r.rec
+
+
+def _one_mass():
+    raw = {k: v for k, v in CFG.values.items() if v is not None and not k.startswith(("plant.k", "plant.c"))
+           and k not in ("plant.m2", "plant.m3")}
+    return _validate(raw, "one mass")
+
+
+def _four_masses():
+    return CFG.with_values({"plant.m4": 2.0, "plant.k3": 2e4, "plant.c3": 5.0})
+
+
+CASES = {
+    "no effects": CFG,
+    "backlash": configure(candidate("backlash", CFG), CFG, {"gap": 20e-6}),
+    "dry friction": _with(CFG, **{"friction.coulomb": 2.0, "friction.static": 2.5}),
+    "delays": configure(candidate("feedback_delay", CFG), configure(candidate("actuator_delay", CFG), CFG,
+                                                                    {"delay": 150e-6}), {"delay": 300e-6}),
+    "ripple and a mode": configure(candidate("torque_ripple+compliant_mode", CFG), CFG,
+                                   {"torque_ripple.amplitude": 0.2, "torque_ripple.period": 2.5e-3,
+                                    "torque_ripple.phase": 0.3, "compliant_mode.mass": 1.0,
+                                    "compliant_mode.frequency": 60.0, "compliant_mode.damping_ratio": 0.05}),
+    "speed filter": _with(CFG, **{"control.velocity_feedback": "position_difference",
+                                  "control.velocity_filter": [0.5, 0.5]}),
+    "2 dof": load(CONFIG / "paper_bench_2dof.toml"),
+    "1 mass": _one_mass(),
+    "4 masses": _four_masses(),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_the_loop_compiled_for_the_chains_size_is_the_same_bits(case):
+    """Unrolled over a size numba knows, the same arithmetic in the same order: every recorded
+    channel equal to the loop that reads the size from the matrix."""
+    cfg = CASES[case]
+    x = _command()
+    ref, got = _kernel(cfg, None, x), _kernel(cfg, True, x)
+    for name, a, b in zip(Record._fields, ref, got):
+        assert np.array_equal(a, b), (case, name)
+
+
+def test_the_size_specialised_loop_with_measured_inputs():
+    """The measured inputs (a command after the controller, external forces) and the recorded
+    command take the same path: the same bits."""
+    cfg = CASES["backlash"]
+    x = _command()
+    plant = plant_from_config(cfg)
+    steps = (x.size + 1) * controller_from_config(cfg, plant).substeps
+    u_add = np.where(np.arange(steps) % 3000 < 300, 0.4, 0.0)
+    f_ext = np.zeros((steps, plant.n))
+    f_ext[:, plant.table] = 40.0 * np.sin(np.arange(steps) * 1e-3)
+    kw = {"u_add": u_add, "f_ext": f_ext, "torque": "command"}
+    for a, b in zip(_kernel(cfg, None, x, **kw), _kernel(cfg, True, x, **kw)):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("changes", [
+    {"effects.backlash.gap": 1.2e-5},
+    {"plant.k2": 3.1e4, "plant.c2": 14.0},
+    {"effects.coulomb_friction.level": "2 N*m", "effects.backlash.gap": "7 um"},
+    {"measurement.channel_skew": 3e-4, "effects.channel_skew.delay": None},
+    {"control.kv": 40.0, "friction.static": None},
+    {"plant.m4": 2.0, "plant.k3": 2e4, "plant.c3": 5.0},
+])
+def test_a_changed_config_is_the_config_validated_from_scratch(changes):
+    """with_values converts only the changed keys: the same values (types included) in the same
+    order as the raw values validated anew."""
+    base = CFG.with_values({"effects.backlash.gap": 5e-6})
+    got = base.with_values(changes)
+    raw = {k: v for k, v in base.values.items() if v is not None}
+    for k, v in changes.items():
+        if v is None:
+            raw.pop(k, None)
+        else:
+            raw[k] = v
+    ref = _validate(raw, base.source)
+    assert list(got.values) == list(ref.values)
+    for k, v in ref.values.items():
+        assert type(got.values[k]) is type(v) and got.values[k] == v, k
+
+
+def test_a_changed_config_is_checked_as_before():
+    """Bad values and the chain's consistency are refused by name, as from scratch."""
+    from hil.errors import ConfigError
+    with pytest.raises(ConfigError, match="plant.k2"):
+        CFG.with_values({"plant.k2": -1.0})
+    with pytest.raises(ConfigError, match="plant.c3"):
+        CFG.with_values({"plant.m4": 2.0, "plant.k3": 2e4})
+    linear = CFG.with_values({"actuator.type": "linear", "actuator.gain": 100.0, "plant.pitch": None})
+    assert linear.values["friction.viscous"] == CFG.values["friction.viscous"] and not linear.rotary
+
+
+@pytest.fixture(scope="module")
+def meas():
+    ch, _ = synthesize(CFG, "backlash", {"gap": 12e-6}, duration=2.0, seed=5)
+    return Measurement(ch, source="synth:backlash")
+
+
+def _fresh_channels(meas, cfg):
+    """The channels of a simulation of ``cfg`` by a replay with nothing cached."""
+    return Replay(meas, CFG, sims=SimulationCache()).simulate(cfg).channels()
+
+
+def test_a_cache_hit_is_the_fresh_simulation_bit_for_bit(meas):
+    rp = Replay(meas, CFG)
+    cfg = configure(candidate("backlash", CFG), CFG, {"gap": 9e-6})
+    first = rp.residuals(cfg)
+    hits, misses = rp._sims.hits, rp._sims.misses
+    again = rp.residuals(cfg)
+    assert rp._sims.hits == hits + 1 and rp._sims.misses == misses
+    cached = rp._sims.get(_loop_key(cfg))
+    fresh = _fresh_channels(meas, cfg)
+    assert set(cached) == set(fresh)
+    for c in fresh:
+        assert np.array_equal(cached[c], fresh[c]), c
+    for c in first:
+        assert np.array_equal(first[c], again[c])
+    # the batched path reads and fills the same cache
+    many = rp.residuals_many([cfg])[0]
+    for c in first:
+        assert np.array_equal(first[c], many[c])
+
+
+def test_a_changed_parameter_misses(meas):
+    rp = Replay(meas, CFG)
+    cfg = configure(candidate("backlash", CFG), CFG, {"gap": 9e-6})
+    near = configure(candidate("backlash", CFG), CFG, {"gap": 9e-6 * (1 + 1e-12)})
+    a = rp.residuals(cfg)
+    misses = rp._sims.misses
+    b = rp.residuals(near)
+    assert rp._sims.misses == misses + 1
+    assert _loop_key(near) != _loop_key(cfg)
+    fresh = _fresh_channels(meas, near)
+    cached = rp._sims.get(_loop_key(near))
+    for c in fresh:
+        assert np.array_equal(cached[c], fresh[c]), c
+    assert any(not np.array_equal(a[c], b[c]) for c in a)
+
+
+def test_the_replays_of_a_record_share_the_cache(meas):
+    """with_config serves the new replay's base simulation from the cache: its residuals, weights
+    and noise floor are those of a replay built from scratch."""
+    rp = Replay(meas, CFG)
+    cfg = configure(candidate("backlash", CFG), CFG, {"gap": 11e-6})
+    rp.residuals(cfg)
+    hits = rp._sims.hits
+    shared = rp.with_config(cfg)
+    assert shared._sims is rp._sims and rp._sims.hits > hits
+    alone = Replay(meas, CFG, sims=SimulationCache()).with_config(cfg)
+    assert shared.objective.weights == alone.objective.weights and shared.noise == alone.noise
+    for c in alone.base_residuals:
+        assert np.array_equal(shared.base_residuals[c], alone.base_residuals[c])
+
+
+def test_the_cache_keeps_the_last_few():
+    cache = SimulationCache(size=2)
+    for i in range(3):
+        cache.put(i, {"x": np.full(3, float(i))})
+    assert cache.get(0) is None and cache.get(1) is not None and len(cache) == 2
+    cache.put(3, {})          # 1 was used last: 2 goes
+    assert cache.get(2) is None and cache.get(1) is not None
+
+
+def test_simulate_is_the_unspecialised_loop():
+    """simulate (the size specialised loop) against the loop reading the size from the matrix."""
+    cfg = CASES["backlash"]
+    plant = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant)
+    x = _command()
+    res = simulate(plant, ctrl, x)
+    rec = _kernel(cfg, None, x)
+    assert np.array_equal(res.x, rec.x) and np.array_equal(res.u, rec.u)
+
+
+def test_the_discretization_on_one_blas_thread_is_the_same_bits():
+    """The chain's matrix exponential on one OpenBLAS thread (hil.sim_plant.blas_threads) is the
+    one on the library's default threads, bit for bit, for chains of one to five masses."""
+    import scipy.linalg
+
+    from hil.sim_plant.blas_threads import one_blas_thread
+    from hil.sim_plant.chain import Chain
+    rng = np.random.default_rng(7)
+    for _ in range(25):
+        n = int(rng.integers(1, 6))
+        ss = Chain(tuple(rng.uniform(0.5, 500.0, n)), tuple(rng.uniform(1e3, 1e8, n - 1)),
+                   tuple(rng.uniform(0.0, 2e4, n - 1))).state_space("all")
+        block = np.zeros((2 * n + n, 2 * n + n))
+        block[:2 * n, :2 * n], block[:2 * n, 2 * n:] = ss.A, ss.B
+        dt = float(rng.choice([62.5e-6, 1e-4, 4e-3]))
+        threaded = scipy.linalg.expm(block * dt)
+        with one_blas_thread():
+            single = scipy.linalg.expm(block * dt)
+        assert np.array_equal(threaded, single)
