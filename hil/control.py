@@ -16,7 +16,9 @@ delay plus the plant's transport delay, in velocity periods, interpolated linear
 outputs when it is not a whole number), the delay of the position loop's feedback (in velocity
 periods: the feedback position is sampled every velocity period into a history, and the position
 loop reads it that many periods old, interpolated linearly in the same way), the current loop's
-first-order lag, and the effect table of the plant step.
+first-order lag, and the effect table of the plant step (which also says how the encoders read: an
+encoder's interpolation error, hil.sim_plant.kernel.reading, in the feedback stages :func:`encoders`,
+:func:`feedback_reading`, :func:`motor_feedback`).
 
 The controller's settings and state are small float arrays (index constants below) so that the
 same functions run inside compiled loops without Python objects.
@@ -40,13 +42,24 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from hil.sim_plant.kernel import effect_table, feedback_delay, plant_step, time_delay
+from hil.sim_plant.kernel import (
+    ENCODER_ERROR,
+    MOTOR_ENCODER,
+    TABLE_ENCODER,
+    effect_table,
+    feedback_delay,
+    plant_step,
+    reading,
+    reading_speed,
+    time_delay,
+)
 from hil.sim_plant.plant import Plant
 
 __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
            "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "history_push", "history_read", "LoopTerms",
            "loop_terms",
            "lag_alpha", "P", "S", "T", "LOOP_STATE", "LOOP_TERMS", "velocity_step", "encoders", "feedback_position",
+           "feedback_reading", "motor_feedback",
            "position_tick", "delay_ring", "Terms", "terms_of", "speed_feedback", "velocity_cycle", "injected_velocity_cycle", "actuate", "plant_period",
            "plant_cycle"]
 
@@ -299,18 +312,41 @@ def terms_of(a):
 
 
 @njit(cache=True, inline="always")
-def encoders(t, x):
-    """Read feedback (real-time): the motor and table encoders on the plant state ``x``, quantized."""
-    return quantize(x[0], t.res_motor), quantize(x[int(t.table)], t.res_table)
+def encoders(t, x, codes=None, eparams=None):
+    """Read feedback (real-time): the motor and table encoders on the plant state ``x``, as they
+    read (an encoder's interpolation error of the effect table ``codes``, ``eparams``:
+    hil.sim_plant.kernel.reading; None: none, compiled away), quantized."""
+    return (quantize(reading(codes, eparams, MOTOR_ENCODER, x[0]), t.res_motor),
+            quantize(reading(codes, eparams, TABLE_ENCODER, x[int(t.table)]), t.res_table))
 
 
 @njit(cache=True, inline="always")
-def feedback_position(t, x, hbuf):
+def feedback_reading(t, x, codes=None, eparams=None):
+    """Read feedback (real-time): the position loop's encoder as it reads now (its interpolation
+    error where the effect table has one), quantized."""
+    enc = MOTOR_ENCODER if t.feedback_motor != 0.0 else TABLE_ENCODER
+    return quantize(reading(codes, eparams, enc, x[int(t.feedback_mass)]), t.feedback_res)
+
+
+@njit(cache=True, inline="always")
+def feedback_position(t, x, hbuf, codes=None, eparams=None):
     """Read feedback (real-time): the position the position loop closes on, as it arrives: the
-    feedback encoder now, or with a feedback delay its history ``hbuf`` read that many periods old."""
+    feedback encoder now (:func:`feedback_reading`), or with a feedback delay its history ``hbuf``
+    read that many periods old."""
     if hbuf is not None and t.feedback_late != 0.0:     # None: compiled away
         return history_read(hbuf, int(t.feedback_int), t.feedback_frac)
-    return quantize(x[int(t.feedback_mass)], t.feedback_res)
+    return feedback_reading(t, x, codes, eparams)
+
+
+@njit(cache=True, inline="always")
+def motor_feedback(p, t, x, codes=None, eparams=None):
+    """Read feedback (real-time): the motor encoder's reading (quantized) and the motor's speed
+    (m/s) as the drive derives it from that encoder (hil.sim_plant.kernel.reading_speed: the
+    error's change over one velocity period where the effect table has a motor-encoder error;
+    the plant's speed otherwise)."""
+    n = x.shape[0] // 2
+    return (quantize(reading(codes, eparams, MOTOR_ENCODER, x[0]), t.res_motor),
+            reading_speed(codes, eparams, x[0], x[n], p[P.TV]))
 
 
 @njit(cache=True, inline="always")
@@ -395,7 +431,7 @@ def plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, fext
     loop's feedback history ``hbuf`` takes the new reading where the terms have a feedback delay."""
     plant_step(Ad, Bd, x, u_act * t.force_gain, fric, t.dry != 0.0, codes, eparams, f, x_new, fext)
     if hbuf is not None and t.feedback_late != 0.0:     # None: compiled away
-        history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
+        history_push(hbuf, feedback_reading(t, x, codes, eparams))
 
 
 @njit(cache=True, inline="always")
@@ -443,6 +479,12 @@ class LoopTerms:
         t[T.RES_MOTOR], t[T.RES_TABLE] = plant.motor_resolution, plant.table_resolution
         t[T.TABLE], t[T.TIP], t[T.DRY] = plant.table, plant.tip, 1.0 if plant.friction.active else 0.0
         return replace(self, array=t)
+
+    @property
+    def encoder_errors(self) -> bool:
+        """Whether an encoder reads with an interpolation error (an ``ENCODER_ERROR`` row of the effect
+        table): a host that reads the plant outside the compiled stages reads it through them."""
+        return self.codes is not None and bool(np.any(self.codes == ENCODER_ERROR))
 
     @property
     def feedback_parts(self) -> tuple[int, float]:

@@ -26,12 +26,13 @@ from hil.control import (
     controller_from_config,
     encoders,
     feedback_position,
+    feedback_reading,
     history_push,
     loop_terms,
+    motor_feedback,
     new_velocity_state,
     plant_period,
     position_tick,
-    quantize,
     speed_feedback,
     terms_of,
     velocity_step,
@@ -51,7 +52,8 @@ class SimulationResult:
     """Channels on the record clock (every position tick unless asked otherwise), SI units.
 
     ``x``, ``v``: positions and velocities of every mass (true); ``x_motor``, ``x_table``: what the
-    encoders read (quantized where the config says so); ``x_tip``: the tool tip (true, or the
+    encoders read (quantized where the config says so; with an encoder's interpolation error where the
+    plant has one, hil.sim_plant.effects.encoder); ``x_tip``: the tool tip (true, or the
     table for a chain without a tip); ``u``: controller output (torque N m, or command V);
     ``x_cmd``, ``v_cmd``: the command at each recorded instant."""
     t: np.ndarray
@@ -145,10 +147,10 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
     row = 0
     n_sat = 0
     if hbuf is not None and t.feedback_late != 0.0:  # the axis was at rest before the start
-        history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
+        history_push(hbuf, feedback_reading(t, x, codes, eparams))
     for k in range(x_cmd.shape[0] - 1):
         # --- read feedback, profile, position law: tick k ---
-        xfb = feedback_position(t, x, hbuf)
+        xfb = feedback_position(t, x, hbuf, codes, eparams)
         if noise_x is not None:
             xfb += noise_x[k * n_sub, 0 if t.feedback_motor != 0.0 else 1]
         w_ref = position_tick(p, s, x_cmd, k, xfb)
@@ -157,7 +159,7 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
             step = k * n_sub + j
             # --- read feedback, velocity law (and the experiment's inputs) ---
             u, sat = _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w,
-                                      noise_x, out, u_add, open_loop)
+                                      noise_x, out, u_add, open_loop, codes, eparams)
             n_sat += sat
             # --- write command: the delay, the current loop ---
             u_act = actuate(t, ubuf, u, u_act)
@@ -167,7 +169,8 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
                 if countdown == 0:
                     countdown = record_every
                     # between ticks the command is interpolated, as the NC's fine interpolation would
-                    _record_row(rec, row, t, x, u if log_command else u_act, x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub)
+                    _record_row(rec, row, t, x, u if log_command else u_act,
+                                x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub, codes, eparams)
                     row += 1
             # --- the plant over one Tv ---
             if f_ext is not None:
@@ -179,23 +182,23 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
 
 @njit(cache=True, inline="always")
 def _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out, u_add,
-                     open_loop):
+                     open_loop, codes, eparams):
     """Read feedback and velocity law of velocity period ``step`` of :func:`closed_loop_kernel`,
     with the experiment's excitation, noise and measured command (each None where absent) and its
-    ``out`` row. Returns the output and 1 where the excitation drove it past its limit (real-time)."""
-    n = x.shape[0] // 2
+    ``out`` row; the encoders read through the effect table ``codes``, ``eparams`` (an encoder's
+    interpolation error; ``codes`` None: compiled away). Returns the output and 1 where the
+    excitation drove it past its limit (real-time)."""
     r = 0.0
     w_ref_v = w_ref
     if exc is not None:
         r = exc[step]
         w_ref_v = w_ref + (r if exc_into_speed else 0.0)
     # the encoders as read this period (the measured speed of the noisy run is always hil.control's)
-    xm = quantize(x[0], t.res_motor)
-    v_motor = x[n]
+    xm, v_motor = motor_feedback(p, t, x, codes, eparams)
     if noise_x is not None:
         xm += noise_x[step, 0]
     if noise_w is not None:
-        v_motor = x[n] + noise_w[step]
+        v_motor = v_motor + noise_w[step]
     w_meas = speed_feedback(p, s, speed_filter, v_motor, xm)
     u_ctrl = 0.0 if open_loop else velocity_step(p, s, w_ref_v, w_meas, ff)
     u = u_ctrl
@@ -213,7 +216,7 @@ def _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_sp
         if not open_loop and (u > limit or u < -limit):
             u = limit if u > limit else -limit
     if out is not None:
-        xt_out = encoders(t, x)[1] + (noise_x[step, 1] if noise_x is not None else 0.0)
+        xt_out = encoders(t, x, codes, eparams)[1] + (noise_x[step, 1] if noise_x is not None else 0.0)
         tip_out = x[int(t.tip)] + (noise_x[step, 2] if noise_x is not None else 0.0)
         out[step, 0], out[step, 1], out[step, 2], out[step, 3], out[step, 4] = r, u, u_ctrl, w_ref_v - w_meas, w_meas
         out[step, 5], out[step, 6], out[step, 7], out[step, 8], out[step, 9] = w_ref, w_ref_v, xm, xt_out, tip_out
@@ -221,14 +224,15 @@ def _velocity_period(p, s, t, speed_filter, x, step, w_ref, ff, exc, exc_into_sp
 
 
 @njit(cache=True, inline="always")
-def _record_row(rec, row, t, x, u_act, x_cmd):
-    """Record (real-time): row ``row`` of ``rec``, the plant's state as it is before its step."""
+def _record_row(rec, row, t, x, u_act, x_cmd, codes, eparams):
+    """Record (real-time): row ``row`` of ``rec``, the plant's state as it is before its step (the
+    encoders as they read, :func:`hil.control.encoders`)."""
     n = x.shape[0] // 2
     for i in range(n):
         rec.x[row, i] = x[i]
         rec.v[row, i] = x[n + i]
     rec.u[row] = u_act
-    rec.x_motor[row], rec.x_table[row] = encoders(t, x)
+    rec.x_motor[row], rec.x_table[row] = encoders(t, x, codes, eparams)
     rec.x_cmd[row] = x_cmd
 
 

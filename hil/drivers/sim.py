@@ -23,10 +23,13 @@ from numba import njit
 from hil.control import (
     T,
     controller_from_config,
+    encoders,
     feedback_position,
+    feedback_reading,
     history_push,
     history_read,
     loop_terms,
+    motor_feedback,
     new_velocity_state,
     plant_cycle,
     plant_period,
@@ -50,9 +53,9 @@ def drive_cycle(Ad, Bd, fric, codes, eparams, terms, p, s, speed_filter, x, f, x
     speed reference ``w_ref``, then the command and the plant (hil.control's stages), every
     velocity period. Returns the current loop's output ``u_act``."""
     t = terms_of(terms)
-    n = Ad.shape[0] // 2
     for _ in range(int(t.substeps)):
-        w = speed_feedback(p, s, speed_filter, x[n], quantize(x[0], t.res_motor))
+        xm, v_motor = motor_feedback(p, t, x, codes, eparams)
+        w = speed_feedback(p, s, speed_filter, v_motor, xm)
         u = velocity_law(p, s, w_ref, w, 0.0)
         u_act = plant_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, ubuf, hbuf, u, u_act)
     return u_act
@@ -78,10 +81,27 @@ def torque_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, ubuf, hbuf, u
 
 
 @njit(cache=True)
-def drive_feedback(terms, x, hbuf):
+def drive_feedback(terms, codes, eparams, x, hbuf):
     """The position a drive's position loop closes on (real-time): hil.control's
     :func:`~hil.control.feedback_position`."""
-    return feedback_position(terms_of(terms), x, hbuf)
+    return feedback_position(terms_of(terms), x, hbuf, codes, eparams)
+
+
+@njit(cache=True)
+def encoder_feedback(terms, codes, eparams, p, x):
+    """The encoders as they read and the motor's speed as the drive derives it (real-time; a plant
+    with an encoder's interpolation error): hil.control's :func:`~hil.control.encoders` and
+    :func:`~hil.control.motor_feedback`."""
+    t = terms_of(terms)
+    xm, xt = encoders(t, x, codes, eparams)
+    return xm, xt, motor_feedback(p, t, x, codes, eparams)[1]
+
+
+@njit(cache=True)
+def pushed_feedback(terms, codes, eparams, x):
+    """The feedback encoder's reading that goes into the feedback delay's history (real-time):
+    hil.control's :func:`~hil.control.feedback_reading`."""
+    return feedback_reading(terms_of(terms), x, codes, eparams)
 
 
 class SimulatedPlant(Backend):
@@ -108,6 +128,8 @@ class SimulatedPlant(Backend):
                        self.terms.array)
         self._ubuf = self.terms.output_buffer()
         self._hbuf = self.terms.feedback_history()     # the position loop's feedback history (a feedback delay)
+        # an encoder's interpolation error (hil.sim_plant.effects.encoder): the readings go through the stages
+        self._reads_wrong = self.terms.encoder_errors
         n = self.plant.n
         self.x = np.zeros(2 * n)
         self._xn = np.zeros(2 * n)
@@ -152,8 +174,11 @@ class SimulatedPlant(Backend):
 
     def _push_feedback(self) -> None:
         if self.terms.array[T.FEEDBACK_LATE] != 0.0:
-            history_push(self._hbuf, quantize(self.x[int(self.terms.array[T.FEEDBACK_MASS])],
-                                              self.terms.array[T.FEEDBACK_RES]))
+            if self._reads_wrong:
+                history_push(self._hbuf, pushed_feedback(self.terms.array, self.terms.codes, self.terms.params, self.x))
+            else:
+                history_push(self._hbuf, quantize(self.x[int(self.terms.array[T.FEEDBACK_MASS])],
+                                                  self.terms.array[T.FEEDBACK_RES]))
 
     def _late_feedback(self) -> float:
         """The position the position loop receives (the feedback delay's history), NaN without one."""
@@ -178,6 +203,11 @@ class SimulatedPlant(Backend):
     def read_feedback(self) -> Feedback:
         """This cycle's encoders, speed and current (real-time)."""
         n, pl = self.plant.n, self.plant
+        if self._reads_wrong:          # an encoder's interpolation error: the stages' readings
+            xm, xt, vm = encoder_feedback(self.terms.array, self.terms.codes, self.terms.params, self._p, self.x)
+            return Feedback(x_motor=float(xm), x_table=float(xt), v_motor=float(vm), output=float(self._u_act),
+                            x_tip=float(self.x[pl.tip]) if pl.tip != pl.table else float("nan"),
+                            x_feedback=self._late_feedback())
         return Feedback(x_motor=float(quantize(self.x[0], pl.motor_resolution)),
                         x_table=float(quantize(self.x[pl.table], pl.table_resolution)),
                         v_motor=float(self.x[n]), output=float(self._u_act),
@@ -200,7 +230,7 @@ class SimulatedPlant(Backend):
             return
         if self.closes == "both":
             prev = self._prev_position if self._prev_position is not None else self._set.position
-            xfb = drive_feedback(self.terms.array, self.x, self._hbuf)
+            xfb = drive_feedback(self.terms.array, self.terms.codes, self.terms.params, self.x, self._hbuf)
             # the drive's interpolation: the setpoint is where to be at the next tick
             w_ref = position_law(self._p, prev, self._set.position, xfb)
             self._prev_position = self._set.position
