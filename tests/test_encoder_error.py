@@ -176,26 +176,32 @@ def test_the_host_loop_reads_the_encoders_as_the_compiled_loop(vals):
     assert np.max(np.abs(np.array(rows) - slow.x_table)) < 1e-12
 
 
-@pytest.mark.parametrize("strength", ["default", "half"])
-def test_synth_then_diagnose_names_it(tmp_path, capsys, strength):
-    """The paper bench's 40 um scale read with 0.8 um (2 % of the period) and 0.3 um errors, and
-    with half of them; the record's encoders are quantized to 0.5 um with 0.1 um of noise. The
-    diagnosis names encoder_error before the lead error and the ripple that mimic it, with the
-    table's encoder and the 40 um period chosen from the grid, the amplitudes within 5 % (the
-    first) and 10 % of the period's 1 % (the second)."""
+MOTOR_512 = {"encoder": 0.0, "period": PITCH / 512, "amplitude1": 0.4e-6, "phase1": 0.2, "amplitude2": 0.15e-6,
+             "phase2": 1.0}
+
+
+@pytest.mark.parametrize("case", ["default", "half", "motor"])
+def test_synth_then_diagnose_names_it(tmp_path, capsys, case):
+    """The paper bench's 40 um scale (the position loop's feedback) read with 0.8 um (2 % of the
+    period) and 0.3 um errors, and with half of them; a 512-line motor encoder (19.5 um of travel)
+    read 2 % off, whose error the velocity loop turns into a torque ripple. The record's encoders
+    are quantized to 0.5 um with 0.1 um of noise. The diagnosis names encoder_error before the lead
+    error and the ripple that mimic it, with the encoder and the period chosen from the grid, the
+    first amplitude within 5 %, the second within 10 % of the period's 1 %."""
     from hil.cli import main
-    truth = dict(candidate("encoder_error").synth_strength)
-    if strength == "half":
+    truth = dict(candidate("encoder_error").synth_strength) if case != "motor" else dict(MOTOR_512)
+    if case == "half":
         truth["amplitude1"] *= 0.5
         truth["amplitude2"] *= 0.5
     rec = tmp_path / "enc.csv"
     args = ["synth", "--config", BENCH, "--effect", "encoder_error", "--duration", "6s", "--seed", "3",
             "--out", str(rec), "--json"]
-    if strength == "half":
+    if case != "default":
         # every parameter given (those not given take the fit's guess, not the default strength)
-        args += ["--param", "encoder=table", "--param", "period=40um", "--param", "phase1=0.4", "--param",
-                 "phase2=-1.0", "--param", f"amplitude1={truth['amplitude1'] * 1e6}um", "--param",
-                 f"amplitude2={truth['amplitude2'] * 1e6}um"]
+        args += ["--param", f"encoder={'motor' if truth['encoder'] == 0 else 'table'}",
+                 "--param", f"period={truth['period'] * 1e6!r}um"]
+        args += [a for k in ("amplitude1", "amplitude2") for a in ("--param", f"{k}={truth[k] * 1e6!r}um")]
+        args += [a for k in ("phase1", "phase2") for a in ("--param", f"{k}={truth[k]!r}")]
     assert main(args) == 0
     capsys.readouterr()
     assert main(["diagnose", str(rec), "--config", BENCH, "--candidates", "encoder_error,pitch_error,torque_ripple",
@@ -205,12 +211,16 @@ def test_synth_then_diagnose_names_it(tmp_path, capsys, strength):
     c = d["candidates"][0]
     assert c["effect"] == "encoder_error" and c["significant"]
     p = c["params"]
-    assert p["encoder"] == 1.0 and p["period"] == pytest.approx(40e-6, rel=1e-12)
+    assert p["encoder"] == truth["encoder"] and p["period"] == pytest.approx(truth["period"], rel=1e-9)
     assert p["amplitude1"] == pytest.approx(truth["amplitude1"], rel=0.05)
-    assert p["amplitude2"] == pytest.approx(truth["amplitude2"], abs=0.1 * 0.01 * 40e-6)
-    assert "x_table residual periodic in the measured position with 40 um" in c["evidence"]
-    assert "the table encoder's interpolation error" in c["evidence"]
+    assert p["amplitude2"] == pytest.approx(truth["amplitude2"], abs=0.1 * 0.01 * truth["period"])
+    chan, which = ("x_table", "table") if truth["encoder"] == 1 else ("x_motor", "motor")
+    assert f"{chan} residual periodic in the measured position with" in c["evidence"]
+    assert f"the {which} encoder's interpolation error" in c["evidence"]
     assert "an error of the reading, not of the motion" in c["evidence"]
+    if case == "motor":
+        # 512 signal periods per revolution: what a torque ripple of that order would mimic
+        assert "a torque_ripple of order 512 per revolution" in c["evidence"]
 
 
 @pytest.mark.parametrize("key,value,said", [

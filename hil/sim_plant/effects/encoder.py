@@ -38,8 +38,8 @@ outside every feedback path differs from the true position by exactly e(x); a mo
 velocity loop makes the torque ripple of the sampled loop's transfer from a speed disturbance,
 -C(z) (1 - 1/z) / (Tv (1 + C(z) G(z))) times the speed scale, at z = exp(j 2 pi v Tv / P).
 
-Identification: the starts screen every (encoder, period) of the grid by the residual of that
-encoder's channel regressed on the sine and cosine of 1 and 2 cycles per period of its measured
+Identification: the starts screen every (encoder, period) of the grid (periods of at least
+:data:`RESOLVED_QUANTA` quanta of the recorded position) by the residual of that encoder's channel regressed on the sine and cosine of 1 and 2 cycles per period of its measured
 position (beside 1, v, a and sign(v) of the command), in closed form: the amplitudes and phases
 of the strongest few, costed by simulation (``ctx.prefilter``). The evidence names the period and
 the channel, says what the effect mimics (a torque ripple of the same order per revolution, a
@@ -56,7 +56,8 @@ import numpy as np
 from hil.sim_plant import kernel
 from hil.sim_plant.effects.base import Effect, Param, register
 
-__all__ = ["EncoderError", "LINES_PER_REVOLUTION", "SCALE_PERIODS", "MAX_FRACTION", "CHANNELS", "harmonics"]
+__all__ = ["EncoderError", "LINES_PER_REVOLUTION", "SCALE_PERIODS", "MAX_FRACTION", "CHANNELS", "harmonics",
+           "record_quantum", "RESOLVED_QUANTA"]
 
 MAX_FRACTION = 0.05        # the largest error per harmonic, as a fraction of the signal period
 # signal periods per revolution of the motor's encoders: resolvers (1 to 8 speeds), magnetic and optical
@@ -68,6 +69,15 @@ SCALE_PERIODS = (0.512e-6, 2e-6, 4e-6, 8e-6, 10e-6, 16e-6, 20e-6, 40e-6, 100e-6,
                  1e-3, 2e-3, 5e-3)
 CHANNELS = ("x_motor", "x_table")     # the recorded channel of each encoder (kernel.MOTOR_ENCODER, TABLE_ENCODER)
 KEPT = 3                   # (encoder, period) pairs of the screen solved in closed form and costed
+RESOLVED_QUANTA = 8        # the shortest period screened, in quanta of the record's position
+
+
+def record_quantum(x) -> float:
+    """The recorded position's quantum: the smallest step between the values it takes (0 where it
+    takes one value)."""
+    d = np.diff(np.unique(np.asarray(x, float)))
+    d = d[d > 0]
+    return float(np.min(d)) if d.size else 0.0
 
 
 def harmonics(x, r, period: float, slow=None):
@@ -163,7 +173,10 @@ class EncoderError(Effect):
         screened = []          # (encoder, period, energy, a1, phi1, a2, phi2)
         for enc in encs:
             _, r, x = self._channel(ctx, enc)
-            for per in ([given_per] if given_per else self._periods(ctx.plant, enc)):
+            # a record quantized to q cannot show a period of a few quanta: its own grid's sawtooth would
+            # (its harmonics alias onto 1 and 2 cycles per period)
+            shortest = RESOLVED_QUANTA * record_quantum(x)
+            for per in ([given_per] if given_per else [p for p in self._periods(ctx.plant, enc) if p >= shortest]):
                 screened.append((enc, per) + harmonics(x, r, per, slow))
         screened.sort(key=lambda s: -s[2])
         kept = []
