@@ -9,9 +9,9 @@ the only place that knows what the codes mean.
 
 A term may act on a reading instead of a force: ``ENCODER_ERROR`` (an encoder's interpolation
 error, hil.sim_plant.effects.encoder) changes what an encoder reads, :func:`reading` (and the
-motor's speed derived from it, :func:`reading_speed`), which hil.control's feedback stages call;
-a plant without it reads the true positions, bit for bit (no row: nothing is added, and without
-any effect the compiled loops leave the reading's branch out).
+motor's speed derived from it, :func:`reading_speed`), which hil.control's feedback stages call
+with the table's encoder rows alone (:func:`encoder_rows`); a plant without them passes None,
+which the compiled loops leave out: it reads the true positions, bit for bit and at no cost.
 """
 from __future__ import annotations
 
@@ -24,7 +24,8 @@ from hil.sim_plant.plant import Plant
 
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
            "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "LEAD_ERROR_LINEAR", "FORCE_ALONG_TRAVEL",
-           "ENCODER_ERROR", "MOTOR_ENCODER", "TABLE_ENCODER", "encoder_error", "reading", "reading_speed",
+           "ENCODER_ERROR", "MOTOR_ENCODER", "TABLE_ENCODER", "encoder_error", "encoder_rows", "reading",
+           "reading_speed",
            "empty_effects", "effect_table", "time_delay", "feedback_delay", "link_compliance", "effect_forces",
            "effect_forces_at", "friction_force", "plant_step"]
 
@@ -65,6 +66,14 @@ def effect_table(plant: Plant):
     for i, (_, q) in enumerate(plant.effects):
         params[i, :len(q)] = q
     return codes, params
+
+
+def encoder_rows(codes, params):
+    """The ``ENCODER_ERROR`` rows of an effect table (:func:`effect_table`), or None where it has
+    none (the compiled readings then leave the encoders' errors out)."""
+    if codes is None or not np.any(codes == ENCODER_ERROR):
+        return None
+    return np.ascontiguousarray(params[codes == ENCODER_ERROR])
 
 
 def time_delay(plant: Plant) -> float:
@@ -165,30 +174,31 @@ def encoder_error(q, x):
 
 
 @njit(cache=True, inline="always")
-def reading(codes, params, encoder, x):
+def reading(enc, encoder, x):
     """What ``encoder`` (:data:`MOTOR_ENCODER`, :data:`TABLE_ENCODER`) reads at the true position
-    ``x``, before its quantization: x plus the error of each of its ``ENCODER_ERROR`` rows. ``x``
-    itself, unchanged, where it has none (``codes`` None: compiled away)."""
+    ``x``, before its quantization: x plus the error of each of its rows among the ``ENCODER_ERROR``
+    rows ``enc`` (:func:`encoder_rows`). ``x`` itself, unchanged, where it has none (``enc`` None:
+    compiled away)."""
     r = x
-    if codes is not None:
-        for i in range(codes.shape[0]):
-            if codes[i] == ENCODER_ERROR and int(params[i, 0]) == encoder:
-                r += encoder_error(params[i], x)
+    if enc is not None:
+        for i in range(enc.shape[0]):
+            if int(enc[i, 0]) == encoder:
+                r += encoder_error(enc[i], x)
     return r
 
 
 @njit(cache=True, inline="always")
-def reading_speed(codes, params, x, v, tv):
+def reading_speed(enc, x, v, tv):
     """The motor's speed (m/s) as the drive derives it from the motor encoder, at the true position
     ``x`` and speed ``v``: v plus the change of the encoder's error over one velocity period ``tv``
     at that speed, (e(x) - e(x - v tv)) / tv (v e'(x) where a period of the error takes many
     velocity periods; the backward difference of the readings at constant speed, exactly). ``v``
-    itself, unchanged, without a motor-encoder row."""
+    itself, unchanged, without a motor-encoder row among ``enc`` (None: compiled away)."""
     r = v
-    if codes is not None:
-        for i in range(codes.shape[0]):
-            if codes[i] == ENCODER_ERROR and int(params[i, 0]) == MOTOR_ENCODER:
-                r += (encoder_error(params[i], x) - encoder_error(params[i], x - v * tv)) / tv
+    if enc is not None:
+        for i in range(enc.shape[0]):
+            if int(enc[i, 0]) == MOTOR_ENCODER:
+                r += (encoder_error(enc[i], x) - encoder_error(enc[i], x - v * tv)) / tv
     return r
 
 
