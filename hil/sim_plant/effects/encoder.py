@@ -39,8 +39,8 @@ velocity loop makes the torque ripple of the sampled loop's transfer from a spee
 -C(z) (1 - 1/z) / (Tv (1 + C(z) G(z))) times the speed scale, at z = exp(j 2 pi v Tv / P).
 
 Identification: the starts screen every (encoder, period) of the grid (periods of at least
-:data:`RESOLVED_QUANTA` quanta of the recorded position) by the residual of that encoder's channel regressed on the sine and cosine of 1 and 2 cycles per period of its measured
-position (beside 1, v, a and sign(v) of the command), in closed form: the amplitudes and phases
+:data:`RESOLVED_QUANTA` quanta of the recorded position) by the residual of that encoder's channel while moving regressed on the sine and cosine of 1 and 2 cycles per period of
+its measured position (beside 1, v, a and sign(v) of the command), in closed form: the amplitudes and phases
 of the strongest few, costed by simulation (``ctx.prefilter``). The evidence names the period and
 the channel, says what the effect mimics (a torque ripple of the same order per revolution, a
 lead error of that period) and which reading the channels support: an error in one encoder's
@@ -69,7 +69,8 @@ SCALE_PERIODS = (0.512e-6, 2e-6, 4e-6, 8e-6, 10e-6, 16e-6, 20e-6, 40e-6, 100e-6,
                  1e-3, 2e-3, 5e-3)
 CHANNELS = ("x_motor", "x_table")     # the recorded channel of each encoder (kernel.MOTOR_ENCODER, TABLE_ENCODER)
 KEPT = 3                   # (encoder, period) pairs of the screen solved in closed form and costed
-RESOLVED_QUANTA = 8        # the shortest period screened, in quanta of the record's position
+RESOLVED_QUANTA = 16       # the shortest period screened, in quanta of the recorded position (8 per cycle of its 2nd harmonic)
+MIN_MOVING = 64            # moving samples the screen reads (else all of them)
 
 
 def record_quantum(x) -> float:
@@ -160,19 +161,26 @@ class EncoderError(Effect):
 
     @staticmethod
     def _slow(ctx):
-        """The slow regressors beside the harmonics: 1, v, a and sign(v) of the command."""
+        """The slow regressors beside the harmonics: 1, v, a and sign(v) of the command; and the
+        samples they are read on: moving ones (at rest the samples crowd at a few positions, where a
+        short period's sine and cosine fit any residual), all of them where fewer than
+        :data:`MIN_MOVING` move."""
         v = np.asarray(ctx.v_cmd, float)
         a = np.gradient(v, ctx.meas.t)
-        return np.column_stack([np.ones_like(v), v, a, np.sign(v)])
+        sel = np.asarray(ctx.moving, bool)
+        if sel.sum() < MIN_MOVING:
+            sel = np.ones_like(sel)
+        return np.column_stack([np.ones_like(v), v, a, np.sign(v)])[sel], sel
 
     def starts(self, ctx, guess):
         given_enc = ctx.given(self.name, "encoder")
         given_per = ctx.given(self.name, "period")
         encs = [int(round(given_enc))] if given_enc is not None else [kernel.MOTOR_ENCODER, kernel.TABLE_ENCODER]
-        slow = self._slow(ctx)
+        slow, sel = self._slow(ctx)
         screened = []          # (encoder, period, energy, a1, phi1, a2, phi2)
         for enc in encs:
             _, r, x = self._channel(ctx, enc)
+            r, x = r[sel], x[sel]
             # a record quantized to q cannot show a period of a few quanta: its own grid's sawtooth would
             # (its harmonics alias onto 1 and 2 cycles per period)
             shortest = RESOLVED_QUANTA * record_quantum(x)
@@ -202,7 +210,8 @@ class EncoderError(Effect):
             return ""
         a1, a2 = values.get("amplitude1", 0.0), values.get("amplitude2", 0.0)
         chan, r, x = self._channel(ctx, enc)
-        slow = self._slow(ctx)
+        slow, sel = self._slow(ctx)
+        r, x = r[sel], x[sel]
         fmt = ctx.fmt_si
         seen = harmonics(x, r, per, slow)
         which = "motor" if enc == kernel.MOTOR_ENCODER else "table"
@@ -216,7 +225,7 @@ class EncoderError(Effect):
         others = []
         for c in ("x_motor", "x_table", "x_tip"):
             if c != chan and c in ctx.res0 and c in ctx.meas:
-                h = harmonics(x, np.asarray(ctx.res0[c], float), per, slow)
+                h = harmonics(x, np.asarray(ctx.res0[c], float)[sel], per, slow)
                 others.append((c, math.hypot(h[1], h[3])))
         own = math.hypot(seen[1], seen[3])
         if others:
