@@ -371,6 +371,8 @@ def _effects_field(key: str) -> Field | None:
     eff = effect(parts[1])
     for p in eff.params:
         if p.name == parts[2]:
+            if p.choices:        # a setting named by a word (an encoder: motor or table)
+                return Field("str", f"{eff.name}: {p.doc}", default=None, required=False, choices=p.choices)
             return Field(_param_kind(p), f"{eff.name}: {p.doc}", default=None, required=False)
     return None
 

@@ -16,7 +16,9 @@ delay plus the plant's transport delay, in velocity periods, interpolated linear
 outputs when it is not a whole number), the delay of the position loop's feedback (in velocity
 periods: the feedback position is sampled every velocity period into a history, and the position
 loop reads it that many periods old, interpolated linearly in the same way), the current loop's
-first-order lag, and the effect table of the plant step.
+first-order lag, the effect table of the plant step, and the encoders' interpolation errors (its
+``ENCODER_ERROR`` rows, hil.sim_plant.kernel.reading, which the feedback stages :func:`encoders`,
+:func:`feedback_reading`, :func:`motor_feedback` read; None without: compiled away).
 
 The controller's settings and state are small float arrays (index constants below) so that the
 same functions run inside compiled loops without Python objects.
@@ -40,13 +42,24 @@ from enum import IntEnum
 import numpy as np
 from numba import njit
 
-from hil.sim_plant.kernel import effect_table, feedback_delay, plant_step, time_delay
+from hil.sim_plant.kernel import (
+    MOTOR_ENCODER,
+    TABLE_ENCODER,
+    effect_table,
+    encoder_rows,
+    feedback_delay,
+    plant_step,
+    reading,
+    reading_speed,
+    time_delay,
+)
 from hil.sim_plant.plant import Plant
 
 __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
            "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "history_push", "history_read", "LoopTerms",
            "loop_terms",
            "lag_alpha", "P", "S", "T", "LOOP_STATE", "LOOP_TERMS", "velocity_step", "encoders", "feedback_position",
+           "feedback_reading", "motor_feedback",
            "position_tick", "delay_ring", "Terms", "terms_of", "speed_feedback", "velocity_cycle", "injected_velocity_cycle", "actuate", "plant_period",
            "plant_cycle"]
 
@@ -299,18 +312,41 @@ def terms_of(a):
 
 
 @njit(cache=True, inline="always")
-def encoders(t, x):
-    """Read feedback (real-time): the motor and table encoders on the plant state ``x``, quantized."""
-    return quantize(x[0], t.res_motor), quantize(x[int(t.table)], t.res_table)
+def encoders(t, x, enc=None):
+    """Read feedback (real-time): the motor and table encoders on the plant state ``x``, as they
+    read (an encoder's interpolation error of the rows ``enc``, :attr:`LoopTerms.enc`:
+    hil.sim_plant.kernel.reading; None: none, compiled away), quantized."""
+    return (quantize(reading(enc, MOTOR_ENCODER, x[0]), t.res_motor),
+            quantize(reading(enc, TABLE_ENCODER, x[int(t.table)]), t.res_table))
 
 
 @njit(cache=True, inline="always")
-def feedback_position(t, x, hbuf):
+def feedback_reading(t, x, enc=None):
+    """Read feedback (real-time): the position loop's encoder as it reads now (its interpolation
+    error where ``enc`` has one), quantized."""
+    which = MOTOR_ENCODER if t.feedback_motor != 0.0 else TABLE_ENCODER
+    return quantize(reading(enc, which, x[int(t.feedback_mass)]), t.feedback_res)
+
+
+@njit(cache=True, inline="always")
+def feedback_position(t, x, hbuf, enc=None):
     """Read feedback (real-time): the position the position loop closes on, as it arrives: the
-    feedback encoder now, or with a feedback delay its history ``hbuf`` read that many periods old."""
+    feedback encoder now (:func:`feedback_reading`), or with a feedback delay its history ``hbuf``
+    read that many periods old."""
     if hbuf is not None and t.feedback_late != 0.0:     # None: compiled away
         return history_read(hbuf, int(t.feedback_int), t.feedback_frac)
-    return quantize(x[int(t.feedback_mass)], t.feedback_res)
+    return feedback_reading(t, x, enc)
+
+
+@njit(cache=True, inline="always")
+def motor_feedback(p, t, x, enc=None):
+    """Read feedback (real-time): the motor encoder's reading (quantized) and the motor's speed
+    (m/s) as the drive derives it from that encoder (hil.sim_plant.kernel.reading_speed: the
+    error's change over one velocity period where ``enc`` has a motor-encoder error; the plant's
+    speed otherwise)."""
+    n = x.shape[0] // 2
+    return (quantize(reading(enc, MOTOR_ENCODER, x[0]), t.res_motor),
+            reading_speed(enc, x[0], x[n], p[P.TV]))
 
 
 @njit(cache=True, inline="always")
@@ -389,22 +425,23 @@ def actuate(t, ubuf, u, u_act):
 
 
 @njit(cache=True, inline="always")
-def plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, fext=None, masses=None):
+def plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, fext=None, masses=None, enc=None):
     """The plant over one velocity period (real-time): the state ``x`` advanced in place under the
     actuator's output ``u_act`` (and external forces ``fext``, None: compiled away); the position
-    loop's feedback history ``hbuf`` takes the new reading where the terms have a feedback delay.
-    ``masses``: the chain's size for the compiler (hil.sim_plant.kernel.mass_token), or None."""
+    loop's feedback history ``hbuf`` takes the new reading (through the encoders' errors ``enc``)
+    where the terms have a feedback delay. ``masses``: the chain's size for the compiler
+    (hil.sim_plant.kernel.mass_token), or None."""
     plant_step(Ad, Bd, x, u_act * t.force_gain, fric, t.dry != 0.0, codes, eparams, f, x_new, fext, masses)
     if hbuf is not None and t.feedback_late != 0.0:     # None: compiled away
-        history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
+        history_push(hbuf, feedback_reading(t, x, enc))
 
 
 @njit(cache=True, inline="always")
-def plant_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, ubuf, hbuf, u, u_act):
+def plant_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, ubuf, hbuf, u, u_act, enc=None):
     """Write command and plant (real-time): :func:`actuate`, then :func:`plant_period`; returns
     the current loop's output ``u_act``."""
     u_act = actuate(t, ubuf, u, u_act)
-    plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act)
+    plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, None, enc=enc)
     return u_act
 
 
@@ -421,13 +458,16 @@ class LoopTerms:
     ``codes``, ``params``: the effect table (:func:`hil.sim_plant.kernel.effect_table`; ``codes`` is
     None without effects, which the compiled loops leave out). ``delay``: velocity periods from
     the law's output to the current loop. ``lag_alpha``: the current loop's step factor.
-    ``feedback_delay``: velocity periods by which the position loop's feedback is late."""
+    ``feedback_delay``: velocity periods by which the position loop's feedback is late. ``enc``:
+    the table's ``ENCODER_ERROR`` rows (hil.sim_plant.kernel.encoder_rows), which the feedback
+    stages read; None without (compiled away)."""
     codes: np.ndarray | None
     params: np.ndarray
     delay: float
     lag_alpha: float
     feedback_delay: float = 0.0
     array: np.ndarray | None = None
+    enc: np.ndarray | None = None
 
     def with_array(self, plant: Plant, ctrl: ControllerSettings) -> LoopTerms:
         """These terms with :attr:`array`: their numbers and the plant's and controller's that the
@@ -507,5 +547,6 @@ def loop_terms(plant: Plant, ctrl: ControllerSettings, with_output_delay: bool =
     delay = time_delay(plant) / ctrl.velocity_period
     if with_output_delay:
         delay = float(ctrl.output_delay) + delay
-    terms = LoopTerms(codes, params, delay, lag_alpha(plant, ctrl), feedback_delay(plant) / ctrl.velocity_period)
+    terms = LoopTerms(codes, params, delay, lag_alpha(plant, ctrl), feedback_delay(plant) / ctrl.velocity_period,
+                      enc=encoder_rows(codes, params))
     return terms.with_array(plant, ctrl)

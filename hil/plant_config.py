@@ -90,7 +90,7 @@ def _configured_effects(cfg: Config):
     for name in names:
         eff = effect(name)
         sect = cfg.section(f"effects.{name}")
-        values = {p.name: sect.get(p.name, p.guess) for p in eff.params}
+        values = {p.name: p.number(sect.get(p.name, p.guess)) for p in eff.params}
         for p in eff.params:
             v = values[p.name]
             if not (p.lower <= v <= p.upper) or (isinstance(v, float) and math.isnan(v)):
@@ -203,7 +203,9 @@ def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:
     if key is not None:       # a recording artefact: [measurement], never the plant's [effects.*]
         return cfg.with_values({key: float(values[eff.params[0].name]),
                                 **{f"effects.{eff.name}.{p.name}": None for p in eff.params}})
-    return cfg.with_values({f"effects.{eff.name}.{k}": float(v) for k, v in values.items()})
+    params = {p.name: p for p in eff.params}
+    return cfg.with_values({f"effects.{eff.name}.{k}": params[k].written(v) if k in params else float(v)
+                            for k, v in values.items()})
 
 
 def candidate(name: str, cfg: Config | None = None) -> Effect:

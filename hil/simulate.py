@@ -26,12 +26,13 @@ from hil.control import (
     controller_from_config,
     encoders,
     feedback_position,
+    feedback_reading,
     history_push,
     loop_terms,
+    motor_feedback,
     new_velocity_state,
     plant_period,
     position_tick,
-    quantize,
     speed_feedback,
     terms_of,
     velocity_step,
@@ -52,7 +53,8 @@ class SimulationResult:
     """Channels on the record clock (every position tick unless asked otherwise), SI units.
 
     ``x``, ``v``: positions and velocities of every mass (true); ``x_motor``, ``x_table``: what the
-    encoders read (quantized where the config says so); ``x_tip``: the tool tip (true, or the
+    encoders read (quantized where the config says so; with an encoder's interpolation error where the
+    plant has one, hil.sim_plant.effects.encoder); ``x_tip``: the tool tip (true, or the
     table for a chain without a tip); ``u``: controller output (torque N m, or command V);
     ``x_cmd``, ``v_cmd``: the command at each recorded instant."""
     t: np.ndarray
@@ -103,7 +105,7 @@ class Record(NamedTuple):
 @njit(cache=True)
 def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
                        exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None, u_add=None, f_ext=None,
-                       open_loop=False, speed_filter=None, log_command=False, masses=None):
+                       open_loop=False, speed_filter=None, log_command=False, masses=None, enc=None):
     """Run len(x_cmd) - 1 position ticks of the cycle of hil.control, stage by stage, from the
     plant state ``x0`` (not changed). The plant: ``Ad``, ``Bd``, ``fric``, ``codes``, ``eparams``
     (hil.control's stages); ``terms``: the loop terms (hil.control.LoopTerms.array); ``p``:
@@ -132,6 +134,8 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
     loop (a drive that logs its torque command); False: the current after them (a drive that logs
     its measured current). ``masses``: None, or a tuple of one entry per mass
     (hil.sim_plant.kernel.mass_token): the loop compiled for the chain's size, the same numbers.
+    ``enc``: the encoders' interpolation errors (LoopTerms.enc), None where they read true
+    (compiled away).
 
     Returns the number of velocity periods in which the excitation drove the output past its
     limit. Not real-time (it allocates its work arrays); its inner loop is the cycle."""
@@ -147,10 +151,10 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
     row = 0
     n_sat = 0
     if hbuf is not None and t.feedback_late != 0.0:  # the axis was at rest before the start
-        history_push(hbuf, quantize(x[int(t.feedback_mass)], t.feedback_res))
+        history_push(hbuf, feedback_reading(t, x, enc))
     for k in range(x_cmd.shape[0] - 1):
         # --- read feedback, profile, position law: tick k ---
-        xfb = feedback_position(t, x, hbuf)
+        xfb = feedback_position(t, x, hbuf, enc)
         if noise_x is not None:
             xfb += noise_x[k * n_sub, 0 if t.feedback_motor != 0.0 else 1]
         w_ref = position_tick(p, s, x_cmd, k, xfb)
@@ -159,7 +163,7 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
             step = k * n_sub + j
             # --- read feedback, velocity law (and the experiment's inputs) ---
             u, sat = _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into_speed, noise_w,
-                                      noise_x, out, u_add, open_loop)
+                                      noise_x, out, u_add, open_loop, enc)
             n_sat += sat
             # --- write command: the delay, the current loop ---
             u_act = actuate(t, ubuf, u, u_act)
@@ -170,22 +174,23 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
                     countdown = record_every
                     # between ticks the command is interpolated, as the NC's fine interpolation would
                     _record_row(rec, row, t, x, n, u if log_command else u_act,
-                                x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub)
+                                x_cmd[k] + (x_cmd[k + 1] - x_cmd[k]) * j / n_sub, enc)
                     row += 1
             # --- the plant over one Tv ---
             if f_ext is not None:
-                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, f_ext[step], masses)
+                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, f_ext[step], masses, enc)
             else:
-                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, None, masses)
+                plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, None, masses, enc)
     return n_sat
 
 
 @njit(cache=True, inline="always")
 def _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into_speed, noise_w, noise_x, out,
-                     u_add, open_loop):
+                     u_add, open_loop, enc):
     """Read feedback and velocity law of velocity period ``step`` of :func:`closed_loop_kernel` (``n``
     masses), with the experiment's excitation, noise and measured command (each None where absent)
-    and its ``out`` row. Returns the output and 1 where the excitation drove it past its limit
+    and its ``out`` row; the encoders read through their interpolation errors ``enc`` (None:
+    compiled away). Returns the output and 1 where the excitation drove it past its limit
     (real-time)."""
     r = 0.0
     w_ref_v = w_ref
@@ -193,12 +198,11 @@ def _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into
         r = exc[step]
         w_ref_v = w_ref + (r if exc_into_speed else 0.0)
     # the encoders as read this period (the measured speed of the noisy run is always hil.control's)
-    xm = quantize(x[0], t.res_motor)
-    v_motor = x[n]
+    xm, v_motor = motor_feedback(p, t, x, enc)
     if noise_x is not None:
         xm += noise_x[step, 0]
     if noise_w is not None:
-        v_motor = x[n] + noise_w[step]
+        v_motor = v_motor + noise_w[step]
     w_meas = speed_feedback(p, s, speed_filter, v_motor, xm)
     u_ctrl = 0.0 if open_loop else velocity_step(p, s, w_ref_v, w_meas, ff)
     u = u_ctrl
@@ -216,7 +220,7 @@ def _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into
         if not open_loop and (u > limit or u < -limit):
             u = limit if u > limit else -limit
     if out is not None:
-        xt_out = encoders(t, x)[1] + (noise_x[step, 1] if noise_x is not None else 0.0)
+        xt_out = encoders(t, x, enc)[1] + (noise_x[step, 1] if noise_x is not None else 0.0)
         tip_out = x[int(t.tip)] + (noise_x[step, 2] if noise_x is not None else 0.0)
         out[step, 0], out[step, 1], out[step, 2], out[step, 3], out[step, 4] = r, u, u_ctrl, w_ref_v - w_meas, w_meas
         out[step, 5], out[step, 6], out[step, 7], out[step, 8], out[step, 9] = w_ref, w_ref_v, xm, xt_out, tip_out
@@ -224,14 +228,14 @@ def _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into
 
 
 @njit(cache=True, inline="always")
-def _record_row(rec, row, t, x, n, u_act, x_cmd):
+def _record_row(rec, row, t, x, n, u_act, x_cmd, enc):
     """Record (real-time): row ``row`` of ``rec``, the plant's state (``n`` masses) as it is before
-    its step."""
+    its step (the encoders as they read, :func:`hil.control.encoders`)."""
     for i in range(n):
         rec.x[row, i] = x[i]
         rec.v[row, i] = x[n + i]
     rec.u[row] = u_act
-    rec.x_motor[row], rec.x_table[row] = encoders(t, x)
+    rec.x_motor[row], rec.x_table[row] = encoders(t, x, enc)
     rec.x_cmd[row] = x_cmd
 
 
@@ -256,7 +260,8 @@ def simulate(plant: Plant, ctrl: ControllerSettings, x_cmd, *, record_every: int
     run = _prepared(plant, ctrl, x_cmd, record_every, x0, u_add, f_ext, open_loop, torque)
     closed_loop_kernel(run.Ad, run.Bd, run.fric, run.codes, run.params, run.terms, run.p, run.state0, run.cmd,
                        run.ubuf, run.hbuf, run.rec, run.record_every, speed_filter=run.speed_filter,
-                       log_command=run.log_command, masses=mass_token(run.state0.size // 2), **run.inputs)
+                       log_command=run.log_command, masses=mass_token(run.state0.size // 2), enc=run.enc,
+                       **run.inputs)
     return _result(run, ctrl, plant, v_cmd)
 
 
@@ -280,6 +285,7 @@ class _Run(NamedTuple):
     inputs: dict
     K: int
     n_rec: int
+    enc: np.ndarray | None = None
 
 
 def _prepared(plant, ctrl, x_cmd, record_every, x0, u_add, f_ext, open_loop, torque) -> _Run:
@@ -318,7 +324,7 @@ def _prepared(plant, ctrl, x_cmd, record_every, x0, u_add, f_ext, open_loop, tor
             codes, params = np.zeros(0, np.int64), np.zeros((0, params.shape[1]))
     return _Run(disc.A, disc.B, plant.friction.as_tuple(), codes, params, terms.array, ctrl.as_array(), state0, cmd,
                 terms.delay_buffer(), terms.feedback_buffer(), Record(X, V, U, XM, XT, XC), record_every,
-                ctrl.speed_filter(), torque == "command", inputs, K, n_rec)
+                ctrl.speed_filter(), torque == "command", inputs, K, n_rec, terms.enc)
 
 
 def _result(run: _Run, ctrl: ControllerSettings, plant: Plant, v_cmd=None) -> SimulationResult:
@@ -362,14 +368,17 @@ def simulate_many(plants: list, ctrls: list, x_cmd, *, x0: float | None = None, 
         for r in runs:
             closed_loop_kernel(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, r.state0, r.cmd, r.ubuf, r.hbuf,
                                r.rec, r.record_every, speed_filter=r.speed_filter, log_command=r.log_command,
-                               masses=mass_token(r.state0.size // 2), **r.inputs)
+                               masses=mass_token(r.state0.size // 2), enc=r.enc, **r.inputs)
     return [_result(r, c, pl) for r, c, pl in zip(runs, ctrls, plants)]
 
 
 def _same_structure(runs: list[_Run]) -> bool:
     """Whether the runs differ only in numbers that :func:`closed_loop_batch` takes per run: the
-    same state size, effect codes, buffers' sizes, speed filter and record."""
+    same state size, effect codes, buffers' sizes, speed filter and record, and no encoder's
+    interpolation error (its rows are not batched: such runs go one after the other)."""
     r0 = runs[0]
+    if any(r.enc is not None for r in runs):
+        return False
 
     def shape(a):
         return None if a is None else a.shape

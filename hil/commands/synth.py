@@ -111,6 +111,22 @@ def _check_times(duration: float, sample_period: float) -> None:
         raise UserError(f"--sample-period {sample_period:g} s: fewer than 10 samples in --duration {duration:g} s")
 
 
+def _shown(value, kind, choices) -> str:
+    """A parameter's value as the text output writes it: a setting's name, a quantity in its unit."""
+    from hil.units import fmt
+    if choices:
+        return choices[int(round(value))]
+    return fmt(value, kind) if kind in DIMENSIONS else f"{value:g}"
+
+
+def _choices(effect: str | None, cfg) -> dict:
+    """The names of the effect's settings named by a word (encoder_error's encoder: motor, table)."""
+    from hil.plant_config import candidate
+    if not effect:
+        return {}
+    return {p.name: p.choices for p in candidate(effect, cfg).params if p.choices}
+
+
 def _param_values(args, cfg) -> tuple[dict | None, dict]:
     """--param NAME=VALUE of the effect, each read in its parameter's unit (SI); and the kind of
     quantity of every parameter of the effect (for the output)."""
@@ -140,6 +156,12 @@ def _param_values(args, cfg) -> tuple[dict | None, dict]:
             hint = f"did you mean {close[0]!r}? " if close else ""
             raise UserError(f"--param {name}: not a parameter of {args.effect} ({hint}its parameters: "
                             f"{', '.join(kinds)})")
+        choices = eff.param(name).choices
+        if choices:                 # a setting named by a word (encoder_error's encoder: motor or table)
+            if value.strip() not in choices:
+                raise UserError(f"--param {name}: expected one of {', '.join(choices)}, got {value.strip()!r}")
+            vals[name] = eff.param(name).number(value.strip())
+            continue
         vals[name] = parse_option(value.strip(), kinds[name] if kinds[name] in DIMENSIONS else "dimensionless",
                            f"--param {name}")
     return vals, kinds
@@ -219,8 +241,8 @@ def run(args) -> int:
     if args.json:
         print(dumps(info))
     else:
-        params = ", ".join(f"{k} = {fmt(v, kinds[k]) if kinds.get(k) in DIMENSIONS else f'{v:g}'}"
-                           for k, v in truth["params"].items())
+        choices = _choices(args.effect, cfg)
+        params = ", ".join(f"{k} = {_shown(v, kinds.get(k), choices.get(k))}" for k, v in truth["params"].items())
         print(f"wrote {args.out}: {info['samples']} samples every {fmt(sample_period, 'time')} "
               f"({fmt(info['duration'], 'time')}), hidden effect {truth['effect']}" + (f": {params}" if params else ""))
     return 0

@@ -23,10 +23,13 @@ from numba import njit
 from hil.control import (
     T,
     controller_from_config,
+    encoders,
     feedback_position,
+    feedback_reading,
     history_push,
     history_read,
     loop_terms,
+    motor_feedback,
     new_velocity_state,
     plant_cycle,
     plant_period,
@@ -44,44 +47,61 @@ __all__ = ["SimulatedPlant"]
 
 @njit(cache=True)
 def drive_cycle(Ad, Bd, fric, codes, eparams, terms, p, s, speed_filter, x, f, x_new, ubuf, hbuf, w_ref,
-                u_act):
+                u_act, enc=None):
     """One position period of a drive that closes the velocity loop itself (the simulated plant
     standing in for a drive in velocity or position mode; real-time): the velocity law on the
     speed reference ``w_ref``, then the command and the plant (hil.control's stages), every
     velocity period. Returns the current loop's output ``u_act``."""
     t = terms_of(terms)
-    n = Ad.shape[0] // 2
     for _ in range(int(t.substeps)):
-        w = speed_feedback(p, s, speed_filter, x[n], quantize(x[0], t.res_motor))
+        xm, v_motor = motor_feedback(p, t, x, enc)
+        w = speed_feedback(p, s, speed_filter, v_motor, xm)
         u = velocity_law(p, s, w_ref, w, 0.0)
-        u_act = plant_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, ubuf, hbuf, u, u_act)
+        u_act = plant_cycle(Ad, Bd, fric, codes, eparams, t, x, f, x_new, ubuf, hbuf, u, u_act, enc)
     return u_act
 
 
 @njit(cache=True)
-def coast_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, hbuf, u_act, steps):
+def coast_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, hbuf, u_act, steps, enc=None):
     """``steps`` plant periods with no torque commanded (a disabled drive; real-time): the current
     decays through the current loop's lag, the plant coasts (the feedback history goes on).
     Returns the current loop's output."""
     t = terms_of(terms)
     for _ in range(steps):
         u_act = u_act + t.lag_alpha * (0.0 - u_act)
-        plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act)
+        plant_period(Ad, Bd, fric, codes, eparams, t, x, f, x_new, hbuf, u_act, None, enc=enc)
     return u_act
 
 
 @njit(cache=True)
-def torque_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, ubuf, hbuf, u, u_act):
+def torque_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, ubuf, hbuf, u, u_act, enc=None):
     """One velocity period under the output ``u`` (a drive in torque mode; real-time):
     hil.control's :func:`~hil.control.plant_cycle`. Returns the current loop's output."""
-    return plant_cycle(Ad, Bd, fric, codes, eparams, terms_of(terms), x, f, x_new, ubuf, hbuf, u, u_act)
+    return plant_cycle(Ad, Bd, fric, codes, eparams, terms_of(terms), x, f, x_new, ubuf, hbuf, u, u_act, enc)
 
 
 @njit(cache=True)
-def drive_feedback(terms, x, hbuf):
+def drive_feedback(terms, enc, x, hbuf):
     """The position a drive's position loop closes on (real-time): hil.control's
     :func:`~hil.control.feedback_position`."""
-    return feedback_position(terms_of(terms), x, hbuf)
+    return feedback_position(terms_of(terms), x, hbuf, enc)
+
+
+@njit(cache=True)
+def encoder_feedback(terms, enc, p, x):
+    """The encoders as they read and the motor's speed as the drive derives it (real-time; a plant
+    with an encoder's interpolation error): hil.control's :func:`~hil.control.encoders` and
+    :func:`~hil.control.motor_feedback`."""
+    t = terms_of(terms)
+    xm, xt = encoders(t, x, enc)
+    return xm, xt, motor_feedback(p, t, x, enc)[1]
+
+
+@njit(cache=True)
+def pushed_feedback(terms, enc, x):
+    """The feedback encoder's reading that goes into the feedback delay's history (real-time):
+    hil.control's :func:`~hil.control.feedback_reading`."""
+    return feedback_reading(terms_of(terms), x, enc)
 
 
 class SimulatedPlant(Backend):
@@ -108,6 +128,9 @@ class SimulatedPlant(Backend):
                        self.terms.array)
         self._ubuf = self.terms.output_buffer()
         self._hbuf = self.terms.feedback_history()     # the position loop's feedback history (a feedback delay)
+        # an encoder's interpolation error (hil.sim_plant.effects.encoder): the readings go through the stages
+        self._enc = self.terms.enc
+        self._reads_wrong = self._enc is not None
         n = self.plant.n
         self.x = np.zeros(2 * n)
         self._xn = np.zeros(2 * n)
@@ -152,8 +175,11 @@ class SimulatedPlant(Backend):
 
     def _push_feedback(self) -> None:
         if self.terms.array[T.FEEDBACK_LATE] != 0.0:
-            history_push(self._hbuf, quantize(self.x[int(self.terms.array[T.FEEDBACK_MASS])],
-                                              self.terms.array[T.FEEDBACK_RES]))
+            if self._reads_wrong:
+                history_push(self._hbuf, pushed_feedback(self.terms.array, self._enc, self.x))
+            else:
+                history_push(self._hbuf, quantize(self.x[int(self.terms.array[T.FEEDBACK_MASS])],
+                                                  self.terms.array[T.FEEDBACK_RES]))
 
     def _late_feedback(self) -> float:
         """The position the position loop receives (the feedback delay's history), NaN without one."""
@@ -178,6 +204,11 @@ class SimulatedPlant(Backend):
     def read_feedback(self) -> Feedback:
         """This cycle's encoders, speed and current (real-time)."""
         n, pl = self.plant.n, self.plant
+        if self._reads_wrong:          # an encoder's interpolation error: the stages' readings
+            xm, xt, vm = encoder_feedback(self.terms.array, self._enc, self._p, self.x)
+            return Feedback(x_motor=float(xm), x_table=float(xt), v_motor=float(vm), output=float(self._u_act),
+                            x_tip=float(self.x[pl.tip]) if pl.tip != pl.table else float("nan"),
+                            x_feedback=self._late_feedback())
         return Feedback(x_motor=float(quantize(self.x[0], pl.motor_resolution)),
                         x_table=float(quantize(self.x[pl.table], pl.table_resolution)),
                         v_motor=float(self.x[n]), output=float(self._u_act),
@@ -192,7 +223,7 @@ class SimulatedPlant(Backend):
         """Advance one cycle (real-time)."""
         if not self.enabled:          # no torque: the plant coasts (friction and effects still act)
             steps = 1 if self.closes == "none" else self.ctrl.substeps
-            self._u_act = coast_cycle(*self._model, self.x, self._f, self._xn, self._hbuf, self._u_act, steps)
+            self._u_act = coast_cycle(*self._model, self.x, self._f, self._xn, self._hbuf, self._u_act, steps, self._enc)
             self.time += steps * self.ctrl.velocity_period
             return
         if self.closes == "none":
@@ -200,20 +231,21 @@ class SimulatedPlant(Backend):
             return
         if self.closes == "both":
             prev = self._prev_position if self._prev_position is not None else self._set.position
-            xfb = drive_feedback(self.terms.array, self.x, self._hbuf)
+            xfb = drive_feedback(self.terms.array, self._enc, self.x, self._hbuf)
             # the drive's interpolation: the setpoint is where to be at the next tick
             w_ref = position_law(self._p, prev, self._set.position, xfb)
             self._prev_position = self._set.position
         else:
             w_ref = self._set.speed
         self._u_act = drive_cycle(*self._model, self._p, self._s, self._speed_filter, self.x, self._f, self._xn,
-                                  self._ubuf, self._hbuf, w_ref, self._u_act)
+                                  self._ubuf, self._hbuf, w_ref, self._u_act, self._enc)
         self.time += self.ctrl.position_period
 
     def advance(self, u: float) -> None:
         """One velocity period under the output ``u`` (torque or command): the plant's transport
         delay, the current loop and the plant (real-time)."""
-        self._u_act = torque_cycle(*self._model, self.x, self._f, self._xn, self._ubuf, self._hbuf, u, self._u_act)
+        self._u_act = torque_cycle(*self._model, self.x, self._f, self._xn, self._ubuf, self._hbuf, u, self._u_act,
+                                   self._enc)
         self.time += self.ctrl.velocity_period
 
     _step = advance          # the name the drive simulators call (hil.drivers.canopen, serial)

@@ -142,7 +142,7 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
     sat = closed_loop_kernel(disc.A, disc.B, plant.friction.as_tuple(), terms.codes, terms.params, terms.array,
                              ctrl.as_array(), x0v, x_cmd, terms.delay_buffer(), terms.feedback_buffer(),
                              exc=r, exc_into_speed=st.input == "velocity", noise_w=nw, noise_x=nx, out=out,
-                             speed_filter=ctrl.speed_filter())
+                             speed_filter=ctrl.speed_filter(), enc=terms.enc)
     return FrfRecord(out, tv, exc, start, st.periods, int(sat), plant.tip != plant.table, st.input, "sim")
 
 

@@ -90,7 +90,7 @@ def effect_values(name: str, cfg) -> dict:
     out = {}
     for p in eff.params:
         v = cfg.get(f"effects.{eff.name}.{p.name}")
-        out[p.name] = float(v if v is not None else cfg[f"effects.{name}.{p.name}"])
+        out[p.name] = p.number(v if v is not None else cfg[f"effects.{name}.{p.name}"])
     return out
 
 

@@ -15,15 +15,17 @@ from functools import cached_property
 import numpy as np
 
 from hil.ident.scores import MIN_SCORE, bic_score
-from hil.plant_config import configure
+from hil.plant_config import candidate, configure
 from hil.units import fmt_si
 
 __all__ = ["EffectContext", "configured_value"]
 
 
 def configured_value(cfg, effect: str, param: str) -> float:
-    """The value ``cfg`` gives ``param`` of ``effect`` now (0 where it gives none)."""
-    return float(cfg.get(f"effects.{effect}.{param}", 0.0) or 0.0)
+    """The value ``cfg`` gives ``param`` of ``effect`` now (0 where it gives none; a setting named by
+    a word, its number)."""
+    v = cfg.get(f"effects.{effect}.{param}", 0.0) or 0.0
+    return candidate(effect, cfg).param(param).number(v) if isinstance(v, str) else float(v)
 
 
 class EffectContext:
@@ -61,6 +63,13 @@ class EffectContext:
 
     def configured(self, effect: str, param: str) -> float:
         """The value the model's config gives ``param`` of ``effect`` now (0 where it gives none)."""
+        return configured_value(self.cfg, effect, param)
+
+    def given(self, effect: str, param: str) -> float | None:
+        """The value the model's config gives ``param`` of ``effect`` (a setting the user states: an
+        encoder's signal period), None where it gives none."""
+        if self.cfg.get(f"effects.{effect}.{param}") is None:
+            return None
         return configured_value(self.cfg, effect, param)
 
     @property

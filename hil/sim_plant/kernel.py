@@ -1,11 +1,17 @@
 """Compiled pieces of the plant used inside the simulation loops: the plant step (exact
 zero-order hold over one velocity period), dry friction on the motor (time-stepping, with
-stiction) and the force terms of plant effects.
+stiction), the force terms of plant effects and the encoders' readings.
 
 Effects reach the compiled loop as rows of a small table: a code and up to ``N_EFFECT_PARAMS``
 numbers. The Python side of each effect (hil.sim_plant.effects) writes its rows into
 ``Plant.effects``; :func:`effect_table` turns them into the arrays the loops take. This module is
 the only place that knows what the codes mean.
+
+A term may act on a reading instead of a force: ``ENCODER_ERROR`` (an encoder's interpolation
+error, hil.sim_plant.effects.encoder) changes what an encoder reads, :func:`reading` (and the
+motor's speed derived from it, :func:`reading_speed`), which hil.control's feedback stages call
+with the table's encoder rows alone (:func:`encoder_rows`); a plant without them passes None,
+which the compiled loops leave out: it reads the true positions, bit for bit and at no cost.
 """
 from __future__ import annotations
 
@@ -18,6 +24,8 @@ from hil.sim_plant.plant import Plant
 
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
            "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "LEAD_ERROR_LINEAR", "FORCE_ALONG_TRAVEL",
+           "ENCODER_ERROR", "MOTOR_ENCODER", "TABLE_ENCODER", "encoder_error", "encoder_rows", "reading",
+           "reading_speed",
            "empty_effects", "effect_table", "time_delay", "feedback_delay", "link_compliance", "effect_forces",
            "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token"]
 
@@ -36,6 +44,11 @@ FEEDBACK_DELAY = 7       # [delay s]: the position loop's feedback is late (hil.
 STIFFNESS_ALONG_TRAVEL = 8
 LEAD_ERROR_LINEAR = 9    # [link, strain (lead error per m), x_ref m, stiffness N/m]: x1 -> nut x1 + eps (x1 - x_ref)
 FORCE_ALONG_TRAVEL = 10  # [mass, force at x = 0 N, slope N/m]: f0 + f1 x on that mass (a cable carrier)
+# [encoder (MOTOR_ENCODER, TABLE_ENCODER), signal period m, amplitude of 1 cycle per period m, its phase rad,
+# amplitude of 2 cycles per period m, its phase rad]: the encoder reads x + e(x), no force (reading())
+ENCODER_ERROR = 11
+MOTOR_ENCODER = 0        # the motor's encoder (mass 1)
+TABLE_ENCODER = 1        # the linear scale on the table (the plant's table mass)
 
 
 def empty_effects():
@@ -53,6 +66,14 @@ def effect_table(plant: Plant):
     for i, (_, q) in enumerate(plant.effects):
         params[i, :len(q)] = q
     return codes, params
+
+
+def encoder_rows(codes, params):
+    """The ``ENCODER_ERROR`` rows of an effect table (:func:`effect_table`), or None where it has
+    none (the compiled readings then leave the encoders' errors out)."""
+    if codes is None or not np.any(codes == ENCODER_ERROR):
+        return None
+    return np.ascontiguousarray(params[codes == ENCODER_ERROR])
 
 
 def time_delay(plant: Plant) -> float:
@@ -142,6 +163,43 @@ def effect_forces_at(codes, params, x, xo, v, vo, f):
 def effect_forces(codes, params, x, v, f):
     """Add the forces of the effect terms at state (x, v) to ``f`` (one entry per mass)."""
     effect_forces_at(codes, params, x, 0, v, 0, f)
+
+
+@njit(cache=True, inline="always")
+def encoder_error(q, x):
+    """The interpolation error (m) of one ``ENCODER_ERROR`` row ``q`` at the true position ``x``:
+    a1 sin(2 pi x / P + phi1) + a2 sin(4 pi x / P + phi2)."""
+    th = 2.0 * math.pi * x / q[1]
+    return q[2] * math.sin(th + q[3]) + q[4] * math.sin(2.0 * th + q[5])
+
+
+@njit(cache=True, inline="always")
+def reading(enc, encoder, x):
+    """What ``encoder`` (:data:`MOTOR_ENCODER`, :data:`TABLE_ENCODER`) reads at the true position
+    ``x``, before its quantization: x plus the error of each of its rows among the ``ENCODER_ERROR``
+    rows ``enc`` (:func:`encoder_rows`). ``x`` itself, unchanged, where it has none (``enc`` None:
+    compiled away)."""
+    r = x
+    if enc is not None:
+        for i in range(enc.shape[0]):
+            if int(enc[i, 0]) == encoder:
+                r += encoder_error(enc[i], x)
+    return r
+
+
+@njit(cache=True, inline="always")
+def reading_speed(enc, x, v, tv):
+    """The motor's speed (m/s) as the drive derives it from the motor encoder, at the true position
+    ``x`` and speed ``v``: v plus the change of the encoder's error over one velocity period ``tv``
+    at that speed, (e(x) - e(x - v tv)) / tv (v e'(x) where a period of the error takes many
+    velocity periods; the backward difference of the readings at constant speed, exactly). ``v``
+    itself, unchanged, without a motor-encoder row among ``enc`` (None: compiled away)."""
+    r = v
+    if enc is not None:
+        for i in range(enc.shape[0]):
+            if int(enc[i, 0]) == MOTOR_ENCODER:
+                r += (encoder_error(enc[i], x) - encoder_error(enc[i], x - v * tv)) / tv
+    return r
 
 
 @njit(cache=True, inline="always")

@@ -3,7 +3,8 @@ its hooks, the :data:`CATALOGUE`), one module per family: friction (and force), 
 (backlash, stiffness along the travel, lead error), delays, recording (skews, sensor offsets),
 structure (an added mode, a mass change), motor (torque ripple), drive (the current loop's lag,
 the torque constant), travel (the screw's thermal elongation, a cable carrier's force), flexible (a
-flexible transmission at the drive: a 2-mass model).
+flexible transmission at the drive: a 2-mass model), encoder (an encoder's interpolation error: a
+reading, not a motion).
 
 A new effect is one module: a registered subclass of :class:`Effect` (imported once, by the
 package here or by its user) with its hooks; nothing in the identification names it.
@@ -24,6 +25,7 @@ from hil.sim_plant.effects.base import (
 )
 from hil.sim_plant.effects.delays import ActuatorDelay, FeedbackDelay
 from hil.sim_plant.effects.drive import CurrentLoopLag, TorqueConstant
+from hil.sim_plant.effects.encoder import EncoderError
 from hil.sim_plant.effects.flexible import RING_WINDOW, FlexibleTransmission, edges, ringing
 from hil.sim_plant.effects.friction import (
     AsymmetricFriction,
@@ -43,7 +45,7 @@ __all__ = ["Param", "ByActuator", "Effect", "CATALOGUE", "ALIASES", "register", 
            "ConstantForce", "Backlash", "StiffnessAlongTravel", "StiffnessFixedFixed", "PitchError",
            "ActuatorDelay", "FeedbackDelay", "ChannelSkew", "TipSkew", "ForceOffset", "PositionOffset",
            "TorqueRipple", "CompliantMode", "MassChange", "CurrentLoopLag", "TorqueConstant", "ScrewElongation",
-           "CableCarrier", "FlexibleTransmission", "edges", "ringing", "RING_WINDOW"]
+           "CableCarrier", "FlexibleTransmission", "edges", "ringing", "RING_WINDOW", "EncoderError"]
 
 # the order the catalogue has always listed its effects in (candidate lists, the diagnosis' ties,
 # the docs' table); an effect registered later (a new family, a user's module) follows these
@@ -54,7 +56,9 @@ _ORDER = ("coulomb_friction", "viscous_friction", "stribeck_friction", "asymmetr
           # the drive engineer's checklist (issue 24, item 3)
           "current_loop_lag", "torque_constant", "screw_elongation", "cable_carrier",
           # the flexible transmission at the drive (issue 25)
-          "flexible_transmission")
+          "flexible_transmission",
+          # the checklist's encoder: its interpolation error (issue 24, item 3)
+          "encoder_error")
 
 
 def _in_order() -> None:

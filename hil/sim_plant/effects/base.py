@@ -44,7 +44,8 @@ The context ``ctx`` is built by hil.ident (hil.ident.context.EffectContext) and 
 the physics imports nothing of the identification. It carries the replay's record and residual
 before the fit (``meas``, ``res0``, ``v_cmd``, ``moving``, ``force_channel``,
 ``force_residual``, ``force_unit``, ``unit()``, ``sample_period``), the model (``plant``,
-``controller``, ``scale``; what the config has: ``configured(effect, param)``, ``rotary``,
+``controller``, ``scale``; what the config has: ``configured(effect, param)`` (0 where it has
+none), ``given(effect, param)`` (None where it has none), ``rotary``,
 ``velocity_period``, ``position_period``, ``position_feedback``), for evidence the channel and modes (``chan``,
 ``base_modes``), ``fmt_si`` (hil.units.fmt_si), and the helpers that simulate (``grid_starts``, ``prefilter``,
 ``periodic_starts``, ``mode_targets``, ``residuals_with``, ``cost``, ``pays``). Hooks use numpy.
@@ -80,12 +81,32 @@ class Param:
     guess: float
     doc: str
     fit: bool = True       # False: a setting of the effect (a place, not a strength), held during a fit
+    # names of a setting's whole values 0, 1, ... (``encoder``: "motor", "table"): a configuration
+    # writes the name, the physics takes the number (:meth:`number`, :meth:`written`)
+    choices: tuple = ()
 
     def kind_for(self, rotary: bool) -> str:
         """The unit kind on a rotary (motor and screw) or a linear actuator."""
         if isinstance(self.kind, ByActuator):
             return self.kind.rotary if rotary else self.kind.linear
         return self.kind
+
+    def number(self, value) -> float:
+        """The value as the physics takes it: a choice's name as its number (ValueError: not one of them)."""
+        if isinstance(value, str):
+            if value not in self.choices:
+                raise ValueError(f"{self.name}: expected one of {', '.join(self.choices) or 'a number'}, got {value!r}")
+            return float(self.choices.index(value))
+        return float(value)
+
+    def written(self, value):
+        """The value as a configuration writes it: a choice's name, else the number (SI)."""
+        if self.choices:
+            i = int(round(float(value)))
+            if not 0 <= i < len(self.choices):
+                raise ValueError(f"{self.name}: expected one of {', '.join(self.choices)}, got {value!r}")
+            return self.choices[i]
+        return float(value)
 
 
 class Effect(ABC):
