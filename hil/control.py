@@ -45,6 +45,7 @@ from numba import njit
 from hil.sim_plant.kernel import (
     MOTOR_ENCODER,
     TABLE_ENCODER,
+    dry_friction,
     effect_table,
     encoder_rows,
     feedback_delay,
@@ -482,7 +483,7 @@ class LoopTerms:
         t[T.FEEDBACK_MOTOR], t[T.FEEDBACK_MASS] = (1.0, 0) if motor_fb else (0.0, plant.table)
         t[T.FEEDBACK_RES] = plant.motor_resolution if motor_fb else plant.table_resolution
         t[T.RES_MOTOR], t[T.RES_TABLE] = plant.motor_resolution, plant.table_resolution
-        t[T.TABLE], t[T.TIP], t[T.DRY] = plant.table, plant.tip, 1.0 if plant.friction.active else 0.0
+        t[T.TABLE], t[T.TIP], t[T.DRY] = plant.table, plant.tip, 1.0 if dry_friction(plant) else 0.0
         return replace(self, array=t)
 
     @property

@@ -76,4 +76,6 @@ def test_every_effect_ranked_first(effect):
     c = d["candidates"][0]
     assert c.error_after <= max(0.2 * c.error_before, 1.5 * rp.noise[c.channel])
     if effect == "asymmetric_friction":
-        assert not any(cb["preferred"] for cb in d["combinations"])
+        # its own mimic (Coulomb friction and a constant force) is not preferred to it; another richer
+        # candidate's may be (load_dependent_friction's, Coulomb friction and a mass change, here is)
+        assert not any(cb["preferred"] for cb in d["combinations"] if cb["explains"] == effect)

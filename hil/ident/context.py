@@ -6,7 +6,10 @@ added by hil.ident.starts.StartContext).
 
 Conventions as the callers had them: ``v_cmd`` the commanded velocity (np.gradient of x_cmd on
 the record's times), ``moving`` |v_cmd| > 2 % of max|v_cmd|; the force residual in the force
-channel's units (motor torque on a rotary axis), None without a force channel.
+channel's units (motor torque on a rotary axis), None without a force channel; ``motion`` the
+measured velocity and acceleration as the inverse model has them (hil.ident.joint: the motor's
+position, else the table's, else the command, filtered forward and backward below
+min(100 Hz, 0.2 / sample period) and differentiated, hil.ident.inverse.motion), record by record.
 """
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ from functools import cached_property
 
 import numpy as np
 
+from hil.ident.inverse import motion
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.plant_config import candidate, configure
 from hil.units import fmt_si
@@ -101,6 +105,16 @@ class EffectContext:
     def moving(self) -> np.ndarray:
         v = self.v_cmd
         return np.abs(v) > 0.02 * max(float(np.max(np.abs(v))), 1e-12)
+
+    @cached_property
+    def motion(self) -> tuple[np.ndarray, np.ndarray]:
+        """(v, a) of the measured motion (m/s, m/s^2; the module's definition), on the record's
+        samples (several records: each its own, joined)."""
+        va = []
+        for p in getattr(self.replay, "parts", [self.replay]):
+            x = next(p.meas[c] for c in ("x_motor", "x_table", "x_cmd") if c in p.meas)
+            va.append(motion(p.meas.t, x, cutoff=min(100.0, 0.2 / p.sample_period)))
+        return np.concatenate([v for v, _ in va]), np.concatenate([a for _, a in va])
 
     @cached_property
     def force_residual(self):

@@ -5,7 +5,9 @@ Per effect (r the residual before the fit, v the commanded velocity, "moving" |v
 max|v|):
 
 * friction and force effects: the regression of the force residual while moving,
-  r = Fc sign(v) + c v + f0 (per direction, level and slope, for asymmetric friction);
+  r = Fc sign(v) + c v + f0 (per direction, level and slope, for asymmetric friction); a ball
+  screw's load-dependent friction, r on sign(v) and |F_link| sign(v) (the link's force from the
+  measured motion), and what it looks like (Coulomb friction and a mass change while accelerating);
 * position-periodic effects: the fitted period (x_motor - x_table for a lead error);
 * an added mode: its frequency, against the model's modes (the chain's undamped natural
   frequencies sqrt(eig(M^-1 K)) / 2 pi);

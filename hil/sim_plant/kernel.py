@@ -2,6 +2,12 @@
 zero-order hold over one velocity period), dry friction on the motor (time-stepping, with
 stiction), the force terms of plant effects and the encoders' readings.
 
+Most terms are forces on the masses. One adds to the dry friction's level instead
+(``LOAD_FRICTION``: a ball screw's friction growing with the axial force the nut carries,
+mu |F_link|, F_link = k (x_i - x_i+1) + c (v_i - v_i+1) the link's spring and damper force), so
+that it sticks and slides with the motor's Coulomb friction (:func:`friction_force`): the effect
+forces return that extra level, 0 without such a term (then the friction is the plant's alone).
+
 Effects reach the compiled loop as rows of a small table: a code and up to ``N_EFFECT_PARAMS``
 numbers. The Python side of each effect (hil.sim_plant.effects) writes its rows into
 ``Plant.effects``; :func:`effect_table` turns them into the arrays the loops take. This module is
@@ -25,7 +31,7 @@ from hil.sim_plant.plant import Plant
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
            "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "LEAD_ERROR_LINEAR", "FORCE_ALONG_TRAVEL",
            "ENCODER_ERROR", "MOTOR_ENCODER", "TABLE_ENCODER", "encoder_error", "encoder_rows", "reading",
-           "reading_speed",
+           "reading_speed", "LOAD_FRICTION", "dry_friction",
            "empty_effects", "effect_table", "time_delay", "feedback_delay", "link_compliance", "effect_forces",
            "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token"]
 
@@ -49,6 +55,9 @@ FORCE_ALONG_TRAVEL = 10  # [mass, force at x = 0 N, slope N/m]: f0 + f1 x on tha
 ENCODER_ERROR = 11
 MOTOR_ENCODER = 0        # the motor's encoder (mass 1)
 TABLE_ENCODER = 1        # the linear scale on the table (the plant's table mass)
+# [link, coefficient (1/eta - 1), stiffness N/m, damping N s/m]: the motor's dry friction level grows by
+# coefficient |k (x_i - x_i+1) + c (v_i - v_i+1)|, the link's force (a ball screw's load-dependent friction)
+LOAD_FRICTION = 12
 
 
 def empty_effects():
@@ -86,6 +95,12 @@ def feedback_delay(plant: Plant) -> float:
     return float(sum(q[0] for c, q in plant.effects if c == FEEDBACK_DELAY))
 
 
+def dry_friction(plant: Plant) -> bool:
+    """Whether the plant step decides dry friction on the motor: the plant's own levels, or a
+    ``LOAD_FRICTION`` row (a level that only the link's force gives)."""
+    return plant.friction.active or any(c == LOAD_FRICTION for c, _ in plant.effects)
+
+
 @njit(cache=True, inline="always")
 def link_compliance(q, x_nut):
     """Compliance (m/N) of a ``STIFFNESS_ALONG_TRAVEL`` row with the nut at ``x_nut``: the quadratic
@@ -104,7 +119,9 @@ def link_compliance(q, x_nut):
 def effect_forces_at(codes, params, x, xo, v, vo, f):
     """Add the forces of the effect terms at state (x, v) to ``f`` (one entry per mass), the
     positions read from ``x`` at offset ``xo``, the velocities from ``v`` at ``vo``: the plant step
-    passes its state vector twice, unsliced (real-time: no array views per step)."""
+    passes its state vector twice, unsliced (real-time: no array views per step). Returns what the
+    terms add to the level of the dry friction on the motor (N; 0.0 without ``LOAD_FRICTION``)."""
+    extra_level = 0.0
     for r in range(codes.shape[0]):
         c = codes[r]
         q = params[r]
@@ -157,6 +174,11 @@ def effect_forces_at(codes, params, x, xo, v, vo, f):
                 f[i] -= q[1] * v[vo + i]
             else:
                 f[i] -= q[2] * v[vo + i]
+        elif c == LOAD_FRICTION:
+            # no force here: the level joins the motor's dry friction, which decides sticking (friction_force)
+            i = int(q[0])
+            extra_level += q[1] * abs(q[2] * (x[xo + i] - x[xo + i + 1]) + q[3] * (v[vo + i] - v[vo + i + 1]))
+    return extra_level
 
 
 @njit(cache=True)
@@ -203,7 +225,7 @@ def reading_speed(enc, x, v, tv):
 
 
 @njit(cache=True, inline="always")
-def friction_force(fric, v_start, v_free, b):
+def friction_force(fric, v_start, v_free, b, extra_level=0.0):
     """Dry friction force on mass 1 over one step, and whether the motor sticks (time-stepping treatment of Coulomb friction).
 
     ``v_free``: mass 1's velocity at the end of the step without dry friction; ``b``: the
@@ -212,7 +234,9 @@ def friction_force(fric, v_start, v_free, b):
     otherwise the full level acts against the motion. This keeps a stuck axis stuck while the
     torque stays below the level, instead of creeping as a smoothed sign() would.
 
-    fric = [sliding +, sliding -, break-away +, break-away -, Stribeck velocity]."""
+    fric = [sliding +, sliding -, break-away +, break-away -, Stribeck velocity]; ``extra_level``
+    (N, >= 0): added to the level in both directions, at rest and sliding (a load-dependent
+    friction, :data:`LOAD_FRICTION`; a literal 0.0 where the plant has no effects compiles away)."""
     f_stop = -v_free / b
     # level in the direction the motor would move
     if f_stop > 0.0:          # it would move in -x
@@ -226,6 +250,8 @@ def friction_force(fric, v_start, v_free, b):
         level = slide + (stat - slide) * math.exp(-(v_start / vs) ** 2)
     else:
         level = slide
+    if extra_level > 0.0:
+        level += extra_level
     if abs(f_stop) <= level:
         return f_stop, True
     return (level if f_stop > 0.0 else -level), False
@@ -254,19 +280,21 @@ def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new, fext=Non
     drive force on mass 1, the effects' forces, external forces ``fext`` (one per mass, N, held
     over the step: a measured cutting force; None: compiled away; they need ``codes``, an empty
     table when there are no effects) and the dry friction on the motor (which needs the free
-    motion of the step to decide between sticking and sliding). ``masses``: None, or
-    :func:`mass_token` of the chain's size, which the loop is then compiled for.
+    motion of the step to decide between sticking and sliding; its level the plant's ``fric``
+    plus what the effects add, :data:`LOAD_FRICTION`; ``dry``: :func:`dry_friction`). ``masses``:
+    None, or :func:`mass_token` of the chain's size, which the loop is then compiled for.
 
     Written for speed (this is the simulator's inner loop): one pass over Ad, the friction decided
     from mass 1's free velocity alone, the other force columns only when effects exist."""
     nn = state_size(Ad, masses)
     n = nn // 2
     f0 = f_drive
+    extra_level = 0.0                  # the effects' addition to the dry friction's level
     effects = codes is not None        # None (no effects): numba compiles the branch away
     if effects:
         for i in range(n):
             f[i] = 0.0
-        effect_forces_at(codes, eparams, x, 0, x, n, f)
+        extra_level = effect_forces_at(codes, eparams, x, 0, x, n, f)
         if fext is not None:
             for i in range(n):
                 f[i] += fext[i]
@@ -280,7 +308,7 @@ def plant_step(Ad, Bd, x, f_drive, fric, dry, codes, eparams, f, x_new, fext=Non
         if effects:
             for c in range(1, n):
                 v_free += Bd[n, c] * f[c]
-        ff, stuck = friction_force(fric, x[n], v_free, Bd[n, 0])
+        ff, stuck = friction_force(fric, x[n], v_free, Bd[n, 0], extra_level)
         f0 += ff
     for r in range(nn):
         acc = Bd[r, 0] * f0

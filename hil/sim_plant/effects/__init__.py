@@ -3,7 +3,8 @@ its hooks, the :data:`CATALOGUE`), one module per family: friction (and force), 
 (backlash, stiffness along the travel, lead error), delays, recording (skews, sensor offsets),
 structure (an added mode, a mass change), motor (torque ripple), drive (the current loop's lag,
 the torque constant), travel (the screw's thermal elongation, a cable carrier's force), flexible (a
-flexible transmission at the drive: a 2-mass model), encoder (an encoder's interpolation error: a
+flexible transmission at the drive: a 2-mass model), load_friction (a ball screw's preload friction
+and its friction growing with the axial load), encoder (an encoder's interpolation error: a
 reading, not a motion).
 
 A new effect is one module: a registered subclass of :class:`Effect` (imported once, by the
@@ -34,6 +35,7 @@ from hil.sim_plant.effects.friction import (
     StribeckFriction,
     ViscousFriction,
 )
+from hil.sim_plant.effects.load_friction import LoadDependentFriction
 from hil.sim_plant.effects.motor import TorqueRipple
 from hil.sim_plant.effects.recording import ChannelSkew, ForceOffset, PositionOffset, TipSkew
 from hil.sim_plant.effects.structure import CompliantMode, MassChange
@@ -45,7 +47,8 @@ __all__ = ["Param", "ByActuator", "Effect", "CATALOGUE", "ALIASES", "register", 
            "ConstantForce", "Backlash", "StiffnessAlongTravel", "StiffnessFixedFixed", "PitchError",
            "ActuatorDelay", "FeedbackDelay", "ChannelSkew", "TipSkew", "ForceOffset", "PositionOffset",
            "TorqueRipple", "CompliantMode", "MassChange", "CurrentLoopLag", "TorqueConstant", "ScrewElongation",
-           "CableCarrier", "FlexibleTransmission", "edges", "ringing", "RING_WINDOW", "EncoderError"]
+           "CableCarrier", "FlexibleTransmission", "LoadDependentFriction", "edges", "ringing", "RING_WINDOW",
+           "EncoderError"]
 
 # the order the catalogue has always listed its effects in (candidate lists, the diagnosis' ties,
 # the docs' table); an effect registered later (a new family, a user's module) follows these
@@ -54,7 +57,7 @@ _ORDER = ("coulomb_friction", "viscous_friction", "stribeck_friction", "asymmetr
           "position_offset", "stiffness_along_travel", "stiffness_along_travel_fixed_fixed", "pitch_error",
           "torque_ripple", "compliant_mode", "mass_change",
           # the drive engineer's checklist (issue 24, item 3)
-          "current_loop_lag", "torque_constant", "screw_elongation", "cable_carrier",
+          "current_loop_lag", "torque_constant", "screw_elongation", "cable_carrier", "load_dependent_friction",
           # the flexible transmission at the drive (issue 25)
           "flexible_transmission",
           # the checklist's encoder: its interpolation error (issue 24, item 3)

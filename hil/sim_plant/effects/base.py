@@ -30,7 +30,8 @@ A new effect is one module (and its test): a subclass of :class:`Effect` decorat
   the points of :meth:`Effect.grid` costed by ``ctx.grid_starts``, else
   :meth:`Effect.regression_start` and the guess);
 * :meth:`Effect.regression_start` ``(ctx) -> dict | None``: a start from the linear regression
-  of the force residual while moving (``ctx.force_regression()``);
+  of the force residual while moving (``ctx.force_residual`` on ``ctx.moving``; the friction
+  module's ``force_levels``);
 * :attr:`Effect.synth_strength`: the values ``hil synth`` hides by default (for the paper bench);
 * :attr:`Effect.linear_param` and :meth:`Effect.linear_column` ``(ctx) -> (column, value now)``:
   an effect linear in that one parameter through the inverse model of a rigid axis, screened in
@@ -43,7 +44,8 @@ A new effect is one module (and its test): a subclass of :class:`Effect` decorat
 The context ``ctx`` is built by hil.ident (hil.ident.context.EffectContext) and used duck-typed:
 the physics imports nothing of the identification. It carries the replay's record and residual
 before the fit (``meas``, ``res0``, ``v_cmd``, ``moving``, ``force_channel``,
-``force_residual``, ``force_unit``, ``unit()``, ``sample_period``), the model (``plant``,
+``force_residual``, ``force_unit``, ``unit()``, ``sample_period``; ``motion``, the measured
+velocity and acceleration as the inverse model has them), the model (``plant``,
 ``controller``, ``scale``; what the config has: ``configured(effect, param)`` (0 where it has
 none), ``given(effect, param)`` (None where it has none), ``rotary``,
 ``velocity_period``, ``position_period``, ``position_feedback``), for evidence the channel and modes (``chan``,
@@ -186,7 +188,7 @@ class Effect(ABC):
 
     def regression_start(self, ctx) -> dict[str, float] | None:
         """A start from the linear regression of the force residual while moving (a friction or
-        force effect: ``ctx.force_regression()``); None: the effect has none."""
+        force effect: ``ctx.force_residual`` on ``ctx.moving``); None: the effect has none."""
         return None
 
     def linear_column(self, ctx):

@@ -20,7 +20,7 @@ from hil.sim_plant.plant import Plant
 __all__ = ["FlexibleTransmission", "edges", "ringing", "RING_WINDOW"]
 
 # link-indexed kernel terms: a link inserted at the drive moves them one link on
-_LINK_TERMS = (kernel.BACKLASH, kernel.PITCH_ERROR, kernel.STIFFNESS_ALONG_TRAVEL)
+_LINK_TERMS = (kernel.BACKLASH, kernel.PITCH_ERROR, kernel.STIFFNESS_ALONG_TRAVEL, kernel.LOAD_FRICTION)
 RING_WINDOW = 0.1        # s after each edge of the command in which the residual's ringing is looked for
 
 
