@@ -15,10 +15,16 @@ solve_ivp, no code of this project) with hidden effects drawn at random over phy
 up to +-3 %; ``hil diagnose`` (the chain, a fresh process per record) on each, and the share of
 records whose every hidden effect is named, the extra effects named, and the false alarms on
 clean records (a drifted parameter named within 1 % of its true value is a finding, not an
-alarm). ``--json`` prints every record's outcome and the summary as JSON.
+alarm; ``mass_change`` names the table mass m2, m2 + its mass). ``--json`` prints every record's outcome and the summary as JSON.
 
     python benchmarks/bench_diagnose.py [--effect coulomb_friction] [--jobs N] [--emps] [--chain-only]
     python benchmarks/bench_diagnose.py --matrix [--n 4] [--seed 0] [--duration 4] [--jobs N] [--json]
+                                            [--keep DIR] [--only N,N] [--records-at-once N]
+
+``--keep DIR`` keeps the records, their draws and the diagnoses' JSON to study them; a record kept
+there with the same draw is read back, not simulated again (the independent simulator takes tens
+of seconds a record). ``--only`` diagnoses some records of the draw (the draw itself is the
+whole ``--n``'s, so record 5 is the same with or without it).
 """
 import argparse
 import math
@@ -56,9 +62,19 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0, help="--matrix: seed of the draws (default 0)")
     ap.add_argument("--duration", type=float, default=4.0, help="--matrix: seconds per record (default 4)")
     ap.add_argument("--json", action="store_true", help="--matrix: print the outcome as JSON")
+    ap.add_argument("--keep", metavar="DIR", default=None,
+                    help="--matrix: keep every record (recN.csv), its draw (recN.spec.json), its diagnosis "
+                         "(recN.diagnose.json) and the diagnosis's log (recN.stderr.txt) in DIR; a record already "
+                         "there with the same draw is read back instead of simulated again")
+    ap.add_argument("--only", metavar="N,N", default=None,
+                    help="--matrix: only these records of the draw (0-based, comma-separated)")
+    ap.add_argument("--records-at-once", type=int, default=1, metavar="N",
+                    help="--matrix: make and diagnose N records at the same time, each in its own process "
+                         "(default 1; the diagnose times then share the CPUs)")
     a = ap.parse_args()
     if a.matrix:
-        run_matrix(a.n, a.seed, a.duration, a.jobs, a.json)
+        only = [int(i) for i in a.only.split(",")] if a.only else None
+        run_matrix(a.n, a.seed, a.duration, a.jobs, a.json, keep=a.keep, only=only, at_once=a.records_at_once)
         return
     cfg_path = ROOT / "config" / "paper_bench.toml"
     cfg = load(cfg_path)
@@ -219,6 +235,10 @@ def draw_records(n: int, seed: int, bench):
                 vals[key[0]][j] *= 1.0 + rng.uniform(-0.03, 0.03)
                 truth[f"parameter:plant.{key}"] = {"value": vals[key[0]][j]}
             changes = {k: tuple(v) for k, v in vals.items()}
+            # mass_change is the table mass m2 by another name (the diagnosis's ranking says so):
+            # named on a clean record, it is a finding when m2 + its mass lies within 1 % of m2's
+            # true value, as parameter:plant.m2 itself
+            truth["mass_change"] = {"mass": vals["m"][1] - bench.m[1], "table_mass": vals["m"][1]}
             effects = []
         else:
             effects = list(rng.choice(names, size=1 if kind == "single" else 2, replace=False))
@@ -266,8 +286,11 @@ def score(spec: dict, d: dict) -> dict:
         if nm in used:
             continue
         if spec["kind"] == "clean":
-            true = spec["truth"].get(nm, {}).get("value")
-            got = (params.get(nm) or {}).get("value")
+            truth = spec["truth"].get(nm, {})
+            true, got = truth.get("value"), (params.get(nm) or {}).get("value")
+            if "table_mass" in truth and (params.get(nm) or {}).get("mass") is not None:
+                # (mass_change: the table mass it names against m2's true value)
+                true, got = truth["table_mass"], truth["table_mass"] - truth["mass"] + params[nm]["mass"]
             if true is not None and got is not None and abs(got - true) <= 0.01 * abs(true):
                 findings.append(nm)
             else:
@@ -287,12 +310,86 @@ def _simulate_record(spec, bench, duration):
     return ivp.measure(ch, spec["seed"])
 
 
-def run_matrix(n: int, seed: int, duration: float, jobs, as_json: bool) -> dict:
-    """Simulate the records, diagnose each in a fresh ``hil diagnose`` process, print the figures."""
+def _spec_json(spec: dict) -> dict:
+    """A record's draw as plain JSON (tuples as lists), to tell a kept record's draw from another."""
     import json
 
     from hil.io.jsonout import dumps
+    return json.loads(dumps(spec))
+
+
+def _record(i, spec, bench, duration, keep):
+    """The record ``i`` of the draw as a file: (path, seconds simulated, read back). With ``keep``
+    the record is kept there, and read back where the same draw is kept already."""
+    import json
+
     from hil.io.measurement import write
+    folder = Path(keep)
+    rec, drawn = folder / f"rec{i}.csv", folder / f"rec{i}.spec.json"
+    want = dict(_spec_json(spec), duration_s=duration)
+    if rec.exists() and drawn.exists() and json.loads(drawn.read_text()) == want:
+        return rec, 0.0, True
+    t0 = time.perf_counter()
+    ch = _simulate_record(spec, bench, duration)
+    t_sim = time.perf_counter() - t0
+    write(rec, ch, {"sample_period": f"{bench.tp} s", "source": "tests/independent/plant_ivp.py"})
+    drawn.write_text(json.dumps(want, indent=1))
+    return rec, t_sim, False
+
+
+def _one_record(i, spec, bench, duration, folder, jobs, keep: bool) -> dict:
+    """Record ``i`` made (or read back from ``folder``) and diagnosed by ``hil diagnose --json`` in a
+    fresh process: its outcome row (:func:`score`), kept in ``folder`` with the diagnosis when ``keep``."""
+    import json
+
+    from hil.io.jsonout import dumps
+    try:
+        rec, t_sim, reused = _record(i, spec, bench, duration, folder)
+    except RuntimeError as exc:
+        # the independent simulator could not make the record (stick-slip switching without end in a
+        # period): no record, nothing to diagnose; counted apart
+        return {"record": i, "kind": spec["kind"], "effects": spec["effects"], "truth": spec["truth"],
+                "not_simulated": f"tests/independent/plant_ivp.py: {exc}", "load": load_avg()}
+    cmd = [sys.executable, "-m", "hil.cli", "diagnose", str(rec), "--config", str(ROOT / "config" / "paper_bench.toml"),
+           "--json"]
+    if jobs:
+        cmd += ["--jobs", str(jobs)]
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+    t_diag = time.perf_counter() - t0
+    if keep:
+        (folder / f"rec{i}.stderr.txt").write_text(p.stderr)
+    if p.returncode != 0:
+        raise SystemExit(f"record {i} ({spec['effects']}): hil diagnose failed: {p.stderr.strip()[-400:]}")
+    if keep:
+        (folder / f"rec{i}.diagnose.json").write_text(p.stdout)
+    out = score(spec, json.loads(p.stdout))
+    row = {"record": i, "kind": spec["kind"], "effects": spec["effects"], "truth": spec["truth"], **out,
+           "simulate_s": None if reused else round(t_sim, 1), "diagnose_s": round(t_diag, 1), "load": load_avg()}
+    if keep:
+        (folder / f"rec{i}.outcome.json").write_text(dumps(row, indent=1))
+    return row
+
+
+def _print_row(row: dict, as_json: bool) -> None:
+    if as_json:
+        return
+    if "not_simulated" in row:
+        print(f"{row['record']:3d} {row['kind']:6s} {'+'.join(row['effects']) or 'drifts':45s} not simulated: "
+              f"{row['not_simulated']}", flush=True)
+        return
+    print(f"{row['record']:3d} {row['kind']:6s} {'+'.join(row['effects']) or 'drifts':45s} named "
+          f"{', '.join(row['named']) or '-':50s} {'ok' if row['all_named'] else 'MISSED'}  "
+          f"extra {len(row['extra'])}  alarms {len(row['false_alarms'])}  ({row['diagnose_s']:.0f} s)", flush=True)
+
+
+def run_matrix(n: int, seed: int, duration: float, jobs, as_json: bool, keep: str | None = None,
+               only: list | None = None, at_once: int = 1) -> dict:
+    """Simulate the records, diagnose each in a fresh ``hil diagnose`` process, print the figures
+    (``keep``: a folder that keeps the records and the diagnoses; ``only``: the records of the draw
+    to run; ``at_once``: records made and diagnosed at the same time, each in its own process)."""
+    from hil.io.jsonout import dumps
     sys.path.insert(0, str(ROOT / "tests" / "independent"))
     import plant_ivp as ivp
     cfg_path = ROOT / "config" / "paper_bench.toml"
@@ -300,34 +397,27 @@ def run_matrix(n: int, seed: int, duration: float, jobs, as_json: bool) -> dict:
     specs = draw_records(n, seed, bench)
     load0 = load_avg()
     rows = []
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with tempfile.TemporaryDirectory() as tmp:
-        for i, spec in enumerate(specs):
-            t0 = time.perf_counter()
-            ch = _simulate_record(spec, bench, duration)
-            t_sim = time.perf_counter() - t0
-            rec = Path(tmp) / f"rec{i}.csv"
-            write(rec, ch, {"sample_period": f"{bench.tp} s", "source": "tests/independent/plant_ivp.py"})
-            cmd = [sys.executable, "-m", "hil.cli", "diagnose", str(rec), "--config", str(cfg_path), "--json"]
-            if jobs:
-                cmd += ["--jobs", str(jobs)]
-            t0 = time.perf_counter()
-            p = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
-            t_diag = time.perf_counter() - t0
-            if p.returncode != 0:
-                raise SystemExit(f"record {i} ({spec['effects']}): hil diagnose failed: {p.stderr.strip()[-400:]}")
-            out = score(spec, json.loads(p.stdout))
-            row = {"record": i, "kind": spec["kind"], "effects": spec["effects"], "truth": spec["truth"], **out,
-                   "simulate_s": round(t_sim, 1), "diagnose_s": round(t_diag, 1)}
-            rows.append(row)
-            if not as_json:
-                print(f"{i:3d} {spec['kind']:6s} {'+'.join(spec['effects']) or 'drifts':45s} named "
-                      f"{', '.join(out['named']) or '-':50s} {'ok' if out['all_named'] else 'MISSED'}  "
-                      f"extra {len(out['extra'])}  alarms {len(out['false_alarms'])}  ({t_diag:.0f} s)", flush=True)
+        folder = Path(keep) if keep else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        todo = [(i, spec) for i, spec in enumerate(specs) if only is None or i in only]
+        if at_once > 1:
+            from concurrent.futures import ProcessPoolExecutor
+            with ProcessPoolExecutor(at_once) as pool:
+                futs = [pool.submit(_one_record, i, spec, bench, duration, folder, jobs, bool(keep)) for i, spec in todo]
+                for f in futs:
+                    rows.append(f.result())
+                    _print_row(rows[-1], as_json)
+        else:
+            for i, spec in todo:
+                rows.append(_one_record(i, spec, bench, duration, folder, jobs, bool(keep)))
+                _print_row(rows[-1], as_json)
     summary = summarize(rows)
     summary.update({"seed": seed, "duration_s": duration, "load_before": load0, "load_after": load_avg(),
                     "command": f"python benchmarks/bench_diagnose.py --matrix --n {n} --seed {seed} "
-                               f"--duration {duration:g}" + (f" --jobs {jobs}" if jobs else "")})
+                               f"--duration {duration:g}" + (f" --jobs {jobs}" if jobs else "")
+                               + (f" --only {','.join(map(str, only))}" if only is not None else "")
+                               + (f" --records-at-once {at_once}" if at_once > 1 else "")})
     if as_json:
         print(dumps({"records": rows, "summary": summary}, indent=1))
     else:
@@ -339,9 +429,11 @@ def run_matrix(n: int, seed: int, duration: float, jobs, as_json: bool) -> dict:
 
 
 def summarize(rows: list) -> dict:
-    eff = [r for r in rows if r["kind"] != "clean"]
-    clean = [r for r in rows if r["kind"] == "clean"]
-    return {"records": len(rows), "effect_records": len(eff), "clean_records": len(clean),
+    made = [r for r in rows if "not_simulated" not in r]
+    eff = [r for r in made if r["kind"] != "clean"]
+    clean = [r for r in made if r["kind"] == "clean"]
+    return {"records": len(made), "not_simulated": len(rows) - len(made), "effect_records": len(eff),
+            "clean_records": len(clean),
             "all_named": sum(r["all_named"] for r in eff),
             "share_all_named": (sum(r["all_named"] for r in eff) / len(eff)) if eff else None,
             "extra": sum(len(r["extra"]) for r in eff), "false_alarms": sum(len(r["false_alarms"]) for r in clean),

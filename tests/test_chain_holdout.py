@@ -66,6 +66,23 @@ def test_split_moves_in_pairs():
     assert split_moves(one) is None
 
 
+def test_moves_in_one_direction_have_halves_too():
+    # three moves of 20 mm, all in +x, 0.3 s rests between them: cut where the direction changes
+    # alone, the record was one move and had no held-out half (the chain judged its steps on the
+    # record alone); cut where the motion starts after a rest, the first and third moves estimate
+    # and the second is held out
+    t = np.arange(0, 3.0, 4e-3)
+    x = np.zeros_like(t)
+    for i in range(3):
+        a = i * 1.0
+        ramp = 0.5 - 0.5 * np.cos(np.pi * np.clip((t - a) / 0.7, 0, 1))
+        x += 0.02 * np.where(t >= a, ramp, 0.0)
+    rp = SimpleNamespace(meas=Measurement({"t": t, "x_cmd": x}, source="staircase"))
+    est, held = split_moves(rp)
+    assert est[(t < 0.95) | (t > 2.05)].all() and held[(t > 1.05) & (t < 1.95)].all()
+    assert held.sum() + est.sum() == t.size and not (est & held).any()
+
+
 def test_backlash_chain_adds_nothing_after_the_backlash():
     # a 20 um backlash: after it, the table rattling in the gap leaves a residual the BIC still
     # pays k1 for (+0.1 %; the chain without a held-out part went on to a ripple of 0.7 mN m);

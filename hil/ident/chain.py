@@ -105,7 +105,8 @@ def _same(name: str, cfg) -> str:
 def _moves(t, x_cmd) -> list[tuple[int, int]]:
     """(start, end) sample ranges of the record's moves: a stretch of motion in one direction with
     the standstill after it (standstill: |v| of the command below 1 % of its maximum); the record
-    is cut where the direction of motion changes."""
+    is cut where the direction of motion changes, or, where it never changes, where the motion
+    starts after a standstill."""
     v = np.gradient(np.asarray(x_cmd, float), t)
     sign = np.where(np.abs(v) < 0.01 * max(float(np.max(np.abs(v))), 1e-12), 0.0, np.sign(v))
     nz = np.flatnonzero(sign)
@@ -114,6 +115,11 @@ def _moves(t, x_cmd) -> list[tuple[int, int]]:
     # a standstill belongs to the move before it (the first one to the first move)
     filled = sign[nz[np.clip(np.searchsorted(nz, np.arange(sign.size), side="right") - 1, 0, None)]]
     cuts = list(np.flatnonzero(np.diff(filled)) + 1)
+    if not cuts:
+        # every motion in one direction: the moves are cut where the motion starts after a
+        # standstill (without, a record of moves one after the other would have no halves)
+        starts = np.flatnonzero((sign[1:] != 0) & (sign[:-1] == 0)) + 1
+        cuts = [int(c) for c in starts[starts > nz[0]]]
     ends = [0] + [int(c) for c in cuts] + [sign.size]
     return [(a, b) for a, b in zip(ends[:-1], ends[1:]) if b > a]
 

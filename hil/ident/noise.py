@@ -16,7 +16,14 @@ Per channel, in this order:
     ``MEASURED_MIN`` samples, less a straight line per segment (the holding current and its creep are the model's business), pooled
     over the quiet segments as below (:func:`channel_standstill_noise`). A drive's current hunts
     around its holding value at rest (the loop answering its encoder's steps); no deterministic
-    model follows that, and the record's quantization (1 mA) says nothing about it;
+    model follows that, and the record's quantization (1 mA) says nothing about it. Per segment
+    the lesser of the channel's variance and the residual's (each about its line): an axis whose
+    lightly damped mode rings for seconds after a move (the paper bench's tip, 15 Hz at a damping
+    ratio of 0.015) holds that ringing in its current at rest, which the model replays and the
+    residual has not; the noise is no larger than either. Where it exists, this is the force
+    channel's standstill figure (not the residual's AR estimate below, which holds the model's
+    error at rest where the model is wrong there: the noise is no larger than the channel's own
+    variation at rest);
   - the standstill noise: the residual in the settled part of each standstill of the command
     (hil.ident.residual.motion_phases; each standstill less its first ``SETTLE`` s, at most half of
     it), less a straight line per segment (a static offset or a creep is a model error, not noise),
@@ -108,21 +115,30 @@ def _pooled(est):
     return math.sqrt(sum(v * d for v, d in quiet) / dof), int(dof)
 
 
-def channel_standstill_noise(t, x_cmd, y):
+def channel_standstill_noise(t, x_cmd, y, residual=None):
     """The measured channel ``y``'s noise in the settled standstills of the command: per segment the
     variance about a straight line (SSR / (n - 2)), the quiet segments pooled (within ``QUIET``
     times the quietest's variance): (RMS, degrees of freedom), or (None, 0) without a standstill
     of at least :data:`MEASURED_MIN` samples (a short rest holds the loop's settling, which a
-    straight line does not take out: it would read as noise)."""
+    straight line does not take out: it would read as noise).
+
+    With the model's ``residual`` of the channel, per segment the lesser of the two variances: the
+    channel at rest holds its noise and the axis's own motion there (a lightly damped mode ringing
+    after a move, which the model replays), the residual its noise and the model's error there;
+    the noise is no larger than either."""
     y = np.asarray(y, float)
+    r = None if residual is None else np.asarray(residual, float)
     est = []
     for s, e in _segments(t, x_cmd):
         n = e - s
         if n < MEASURED_MIN:
             continue
         k = np.arange(n, dtype=float)
-        seg = y[s:e] - np.polyval(np.polyfit(k, y[s:e], 1), k)
-        est.append((float(np.sum(seg * seg)) / (n - 2), n - 2))
+        var = []
+        for sig in (y,) if r is None else (y, r):
+            seg = sig[s:e] - np.polyval(np.polyfit(k, sig[s:e], 1), k)
+            var.append(float(np.sum(seg * seg)) / (n - 2))
+        est.append((min(var), n - 2))
     return _pooled(est)
 
 
@@ -178,8 +194,11 @@ def record_noise(meas, cfg, residuals: dict) -> dict:
         s, n = standstill_noise(t, xc, r)
         src = f"standstill ({n} samples)"
         if c in FORCE_CHANNELS and c in meas:
-            sm, nm = channel_standstill_noise(t, xc, meas[c])
-            if sm is not None and sm > (s or 0.0):
+            # the measured channel at rest, or the residual where that is quieter (the axis rings
+            # after a move as the model does): an upper bound of the noise from the record itself,
+            # which the residual's AR estimate, holding the model's error at rest, can exceed
+            sm, nm = channel_standstill_noise(t, xc, meas[c], r)
+            if sm is not None:
                 s, src = sm, f"standstill noise of the measured channel ({nm} samples)"
         if (s is not None and s > 0) or q > 0:
             src = "quantization" if (s is None or fq >= s) else src

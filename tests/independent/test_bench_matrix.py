@@ -51,3 +51,15 @@ def test_small_matrix_json_adds_up():
         assert len(r["named"]) >= len(r["extra"]) + len(r["false_alarms"]) + len(r["findings"])
         assert set(r["missed"]) <= set(r["effects"])
         assert r["kind"] != "pair" or len(r["effects"]) == 2
+
+
+def test_mass_change_on_a_clean_record_is_the_table_mass():
+    # mass_change is parameter:plant.m2 by another name: on a clean record whose m2 drifted by
+    # +8 kg, a mass_change of +7.9 kg names m2 within 0.03 % (a finding), one of -8 kg 4 % off (an alarm)
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import bench_diagnose as bd
+    clean = {"kind": "clean", "effects": [], "truth": {"mass_change": {"mass": 8.0, "table_mass": 400.0}}}
+    for dm, finding in ((7.9, True), (-8.0, False)):
+        out = bd.score(clean, {"verdict": "mass_change",
+                               "chain": [{"effects": ["mass_change"], "params": {"mass_change": {"mass": dm}}}]})
+        assert out["findings" if finding else "false_alarms"] == ["mass_change"], out
