@@ -147,9 +147,14 @@ def test_wheel_installed_outside_the_clone_runs_the_canopen_walkthrough(wheel, t
         drive.send_signal(signal.SIGINT)
         try:
             drive.wait(timeout=20)
-        except subprocess.TimeoutExpired:   # hung: its threads' stacks (hil drive-sim dumps them on SIGUSR1)
+        except subprocess.TimeoutExpired:   # hung: its signal masks and threads' stacks (dumped on SIGUSR1)
+            try:
+                masks = [ln for ln in Path(f"/proc/{drive.pid}/status").read_text().splitlines() if ln.startswith("Sig")]
+            except OSError:
+                masks = []
             drive.send_signal(signal.SIGUSR1)
             time.sleep(2.0)
             drive.kill()
             drive.wait()
-    assert drive.returncode == 0, f"hil drive-sim did not end on SIGINT: {drive.stderr.read()}"
+            pytest.fail(f"hil drive-sim did not end on SIGINT ({'; '.join(masks)}): {drive.stderr.read()}")
+    assert drive.returncode == 0, drive.stderr.read()
