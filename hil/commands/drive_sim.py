@@ -271,10 +271,6 @@ def run(args) -> int:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, _terminate)
-    if hasattr(signal, "pthread_sigmask"):
-        # Ctrl-C and SIGTERM stop it whatever signal mask it inherited (a mask survives exec: a parent
-        # thread that had them blocked when it started this process would leave it deaf to both)
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     if hasattr(signal, "SIGUSR1"):      # kill -USR1 PID: every thread's stack on stderr, for a drive that seems hung
         import faulthandler
         faulthandler.register(signal.SIGUSR1, all_threads=True)
