@@ -111,9 +111,11 @@ def _run(tree: Path, args, tmp: str, env):
 
 
 def collect(tree: Path) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree), MPLBACKEND="Agg", HIL_NO_PROGRESS="1")
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
+        # a state directory of its own: a trip latched by anyone's run in the user's state would refuse the moves
+        env = dict(os.environ, PYTHONPATH=str(tree), MPLBACKEND="Agg", HIL_NO_PROGRESS="1",
+                   HIL_STATE_DIR=os.path.join(tmp, "state"))
         for name, args in COMMANDS.items():
             p = _run(tree, args, tmp, env)
             entry = {"rc": p.returncode}
