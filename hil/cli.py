@@ -138,23 +138,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _hear_interrupts() -> None:
-    """Ctrl-C (SIGINT) and SIGTERM reach the command whatever signal mask it inherited: a mask
-    survives exec, and a parent's thread that had them blocked when it started this process would
-    leave a run, a drive simulator or a scope's hold deaf to both. (An inherited SIG_IGN, a shell's
-    background job, is left as it is.)"""
-    import signal
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
-
-
 def main(argv: list[str] | None = None) -> int:
     if sys.stdout is None:        # started with stdout closed (>&-): the run goes on, its text goes nowhere
         sys.stdout = open(os.devnull, "w")
     parser = build_parser()
     args = parser.parse_args(argv)
     setup_logging(args.log_level)
-    _hear_interrupts()
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

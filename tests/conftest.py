@@ -1,4 +1,5 @@
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -21,6 +22,11 @@ def _keep_checkout_off_path() -> None:
 
 
 _keep_checkout_off_path()
+# a suite started as a background job of a shell (nohup ... &) inherits SIGINT ignored, and so would every
+# command it starts (an ignored signal stays ignored across exec): the tests that stop a drive simulator or
+# a scope's hold with Ctrl-C need it heard (a handler is reset to the default in a child)
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 sys.path.insert(0, str(ROOT / "benchmarks"))
 os.environ.setdefault("MPLBACKEND", "Agg")
 
