@@ -32,7 +32,7 @@ from hil.units import DIMENSIONS, fmt, parse
 
 __all__ = ["plant_from_config", "apply_effects", "record_effects", "measurement_key", "ParameterEffect", "candidate",
            "configure", "default_parameters", "control_bounds", "CONTROL_PARAMETERS", "load_components",
-           "components_from_dict"]
+           "components_from_dict", "without_replaced"]
 
 
 # --- the plant -----------------------------------------------------------------------------------
@@ -132,6 +132,18 @@ def record_effects(cfg: Config) -> list[tuple[RecordEffect, dict]]:
     """The artefacts of the recording the config switches on (``channel_skew``, ``tip_skew``):
     (effect, values) each, for the replay and the synthesized records to apply to the channels."""
     return [(eff, values) for _, eff, values in _configured_effects(cfg) if isinstance(eff, RecordEffect)]
+
+
+def without_replaced(cfg: Config) -> Config:
+    """The config without the effects that a later one sets anew (``Effect.replaces``: a
+    ``coulomb_friction`` before an ``asymmetric_friction`` acts on nothing): the same plant, and no
+    value left that reads as if it counted."""
+    names = [eff.name for _, eff, _ in _configured_effects(cfg)]
+    dead = {r for i, n in enumerate(names) for r in effect(n).replaces if r in names[:i]}
+    if not dead:
+        return cfg
+    return cfg.with_values({k: None for k in cfg.keys()
+                            if k.startswith("effects.") and effect(k.split(".")[1]).name in dead})
 
 
 def apply_effects(plant: Plant, cfg: Config) -> Plant:

@@ -134,7 +134,8 @@ def run(args) -> int:
     from hil.io.config_write import write_config
     note = f"hil emps on {Path(args.data).name}"
     write_config(out / "emps_fitted.toml", args.config, cfgs["fitted"], note=note, inputs=(args.data, args.config))
-    write_config(out / "emps_asymmetric.toml", args.config, cfgs["asymmetric"], note=note,
+    from hil.plant_config import without_replaced
+    write_config(out / "emps_asymmetric.toml", args.config, without_replaced(cfgs["asymmetric"]), note=note,
                  inputs=(args.data, args.config))
     a, b = analyse(res.replay, cfgs["start"]), analyse(res.replay, cfgs["fitted"])
     figs = comparison_figures(a, out, after=b)

@@ -242,7 +242,8 @@ def fitted_text(keys, new, stderr) -> list[str]:
 def _write(args, new, stderr, note, inputs) -> list[str]:
     """--out as an edit of --config: the changed keys only (hil.io.config_write)."""
     from hil.io.config_write import write_config
-    return write_config(args.out, args.config, new, stderr=stderr, note=note, inputs=inputs)
+    from hil.plant_config import without_replaced
+    return write_config(args.out, args.config, without_replaced(new), stderr=stderr, note=note, inputs=inputs)
 
 
 def worse_effects(rp, steps, new) -> dict | None:

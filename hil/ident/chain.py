@@ -65,7 +65,7 @@ from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
-from hil.plant_config import candidate, measurement_key
+from hil.plant_config import candidate, measurement_key, without_replaced
 
 logger = logging.getLogger(__name__)
 
@@ -412,7 +412,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         best = last["candidates"][0] if last and last["candidates"] else None
         final["residual"] = residual_evidence(cur, cur.base_residuals, best)
     out = dict(first)
-    out.update(chain=steps, final=final, diagnoses=diags, config=cur.cfg)
+    # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
+    out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out
 
 

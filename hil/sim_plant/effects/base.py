@@ -126,6 +126,9 @@ class Effect(ABC):
     # asymmetric Coulomb levels = symmetric Coulomb + a constant force while moving: ``diagnose``
     # fits each combination jointly and prefers it when it explains as much by the same BIC score
     mimicked_by: tuple = ()
+    # effects whose action this one sets anew when it comes after them (asymmetric friction sets the
+    # friction and the motor's viscous damping): before it in a configuration they act on nothing
+    replaces: tuple = ()
     periodic: bool = False     # parameters include a period along the travel
 
     @property

@@ -148,6 +148,7 @@ class StribeckFriction(Effect):
               Param("velocity", "speed", 1e-5, 1.0, 2e-3, "Stribeck velocity (load side)"))
     nests = ("coulomb_friction",)
 
+    replaces = ("coulomb_friction",)              # it sets the dry friction anew
     def apply(self, plant, values):
         r = to_linear(plant)
         fc, fs = values["level"] * r, max(values["static"], values["level"]) * r
@@ -178,6 +179,8 @@ class AsymmetricFriction(Effect):
     # while moving, (Fc+ + Fc-)/2 sign(v) + (Fc+ - Fc-)/2 is Coulomb friction plus a constant force
     mimicked_by = (("coulomb_friction", "constant_force"),)
 
+    # it sets the dry friction and the motor's viscous damping anew
+    replaces = ("coulomb_friction", "viscous_friction", "stribeck_friction")
     def apply(self, plant, values):
         r = to_linear(plant)
         fp, fn = values["level_pos"] * r, values["level_neg"] * r
