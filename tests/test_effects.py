@@ -40,7 +40,49 @@ def test_constant_force_static_deflection():
     assert r.u[-1] == pytest.approx(-F * 0.01 / (2 * np.pi), rel=1e-3)
 
 
+@pytest.mark.parametrize("F", [250.0, -90.0])
+def test_constant_force_on_the_table_leans_it_on_the_screw(F):
+    # the same torque at rest, but the force now passes through the screw: the table sits F / k1
+    # ahead of the motor (the tip, with no force of its own, follows the table); on the motor, no offset
+    x = np.zeros(4000)
+    on_table = simulate_config(configure(candidate("constant_force"), CFG, {"force": F, "place": 1.0}), x)
+    assert on_table.u[-1] == pytest.approx(-F * 0.01 / (2 * np.pi), rel=1e-3)
+    ch = on_table.channels()
+    assert ch["x_table"][-1] - ch["x_motor"][-1] == pytest.approx(F / CFG["plant.k1"], rel=1e-3)
+    assert ch["x_tip"][-1] - ch["x_table"][-1] == pytest.approx(0.0, abs=1e-3 * abs(F) / CFG["plant.k1"])
+    ch = simulate_config(configure(candidate("constant_force"), CFG, {"force": F}), x).channels()
+    assert abs(ch["x_table"][-1] - ch["x_motor"][-1]) < 1e-3 * abs(F) / CFG["plant.k1"]
+
+
+def test_constant_force_place_is_written_by_name():
+    cfg = configure(candidate("constant_force"), CFG, {"force": 10.0, "place": 1.0})
+    assert cfg["effects.constant_force.place"] == "table"
+
+
 def test_parameter_effect_sets_key():
     eff = candidate("parameter:c2", CFG)
     assert eff.name == "parameter:plant.c2"
     assert configure(eff, CFG, {"value": 40.0})["plant.c2"] == 40.0
+
+
+ASYM = {"effects.asymmetric_friction.level_pos": 2.0, "effects.asymmetric_friction.level_neg": 1.0,
+        "effects.asymmetric_friction.viscous_pos": 0.01, "effects.asymmetric_friction.viscous_neg": 0.02}
+
+
+def test_an_effect_set_anew_leaves_the_written_config_and_nothing_moves():
+    # asymmetric friction after Coulomb and viscous friction sets both anew: they leave, bit for bit
+    # the same simulation (issue 25: the chain's config kept coulomb_friction.level beside it)
+    from hil.plant_config import without_replaced
+    cfg = CFG.with_values({"effects.coulomb_friction.level": 1.5, "effects.viscous_friction.coefficient": 0.01, **ASYM})
+    clean = without_replaced(cfg)
+    left = {k.split(".")[1] for k in clean.keys() if k.startswith("effects.") and clean.values[k] is not None}
+    assert left == {"asymmetric_friction"}
+    a, b = simulate_config(cfg, X).channels(), simulate_config(clean, X).channels()
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_an_effect_after_its_replacement_stays():
+    # Coulomb friction after the asymmetric one sets the dry friction again: it counts, and stays
+    from hil.plant_config import without_replaced
+    cfg = CFG.with_values(ASYM).with_values({"effects.coulomb_friction.level": 1.5})
+    assert without_replaced(cfg) is cfg

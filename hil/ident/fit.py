@@ -224,7 +224,9 @@ def _fit_one(obj: Objective, base_cfg, eff: Effect, starts: list[dict], max_nfev
     fitted = eff.fitted_params
     names = [p.name for p in fitted]
     for start in starts:
-        held = {p.name: start[p.name] for p in eff.params if not p.fit}    # settings, not fitted
+        # settings, not fitted; one a start does not give (a pair screened on its linear parameters)
+        # keeps the value the config has
+        held = {p.name: start[p.name] for p in eff.params if not p.fit and p.name in start}
         scale = np.array([_param_scale(p, start[p.name]) for p in fitted])
         lo = np.array([p.lower for p in fitted]) / scale
         hi = np.array([p.upper for p in fitted]) / scale

@@ -180,7 +180,8 @@ def fit_frf(cfg, data: FrfData, names: list[str], min_coherence: float = 0.8, ma
     except Exception:       # an effect whose guess needs a time record: keep the catalogue's guess
         pass
     params = list(eff.fitted_params)
-    held = {p.name: start[p.name] for p in eff.params if not p.fit}     # settings of the effect, not fitted
+    # settings of the effect, not fitted (one a start does not give keeps the config's value)
+    held = {p.name: start[p.name] for p in eff.params if not p.fit and p.name in start}
     logs = [p.lower >= 0 and start[p.name] > 0 for p in params]
 
     def to_values(z):

@@ -132,8 +132,11 @@ def test_logged_command_leads_actual_by_the_delay():
 EFFECT_CASES = {
     "compliant_mode": ({"effects.compliant_mode.mass": 1.0, "effects.compliant_mode.frequency": 60.0,
                         "effects.compliant_mode.damping_ratio": 0.02}, ivp.Hidden(mode=(1.0, 60.0, 0.02)), POS_TOL),
-    # the catalogue's constant force acts on the motor's mass
+    # the catalogue's constant force acts on the motor's mass by default
     "constant_force": ({"effects.constant_force.force": 200.0}, ivp.Hidden(force=200.0, force_mass=0), POS_TOL),
+    # and, placed there, on the table (gravity on an inclined axis)
+    "constant_force_table": ({"effects.constant_force.force": -150.0, "effects.constant_force.place": "table"},
+                             ivp.Hidden(force=-150.0, force_mass=1), POS_TOL),
     "coulomb_friction": ({"effects.coulomb_friction.level": 2.2}, ivp.Hidden(coulomb_pos=2.2, coulomb_neg=2.2), 2e-8),
     "torque_ripple": ({"effects.torque_ripple.amplitude": 0.3, "effects.torque_ripple.period": 0.01 / 6,
                        "effects.torque_ripple.phase": 0.4}, ivp.Hidden(ripple=((0.3, 0.01 / 6, 0.4),)), 2e-7),

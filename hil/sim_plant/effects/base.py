@@ -269,7 +269,9 @@ class Combination(Effect):
         self.periodic = any(m.periodic for m in self.members)
 
     def split(self, values: dict) -> list[dict]:
-        return [{p.name: values[f"{n}.{p.name}"] for p in m.params} for n, m in zip(self.names, self.members)]
+        """Each member's values (a setting ``values`` does not give is left to the configuration)."""
+        return [{p.name: values[f"{n}.{p.name}"] for p in m.params if f"{n}.{p.name}" in values}
+                for n, m in zip(self.names, self.members)]
 
     def applicable(self, plant):
         return all(m.applicable(plant) for m in self.members)

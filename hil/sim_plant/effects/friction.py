@@ -32,6 +32,7 @@ __all__ = ["CoulombFriction", "ViscousFriction", "StribeckFriction", "Asymmetric
            "force_levels", "force_levels_per_direction", "MIN_MOVING"]
 
 MIN_MOVING = 16       # moving samples a regression start needs
+PLACES = ("motor", "table")     # where a constant force acts (its setting ``place``)
 
 
 def force_levels(ctx):
@@ -222,29 +223,52 @@ class AsymmetricFriction(Effect):
 @register
 class ConstantForce(Effect):
     name = "constant_force"
-    description = "a constant force on the moving masses (gravity on an inclined axis, a cable, an offset)"
-    params = (Param("force", "force", -1e5, 1e5, 0.0, "force on the load side, + in +x"),)
+    description = ("a constant force on the motor's mass or on the table (gravity on an inclined axis, a weight "
+                   "compensation, a cable)")
+    params = (Param("force", "force", -1e5, 1e5, 0.0, "force on the load side, + in +x"),
+              Param("place", "dimensionless", 0.0, 1.0, 0.0,
+                    "the mass it acts on: motor (the motor's reflected mass) or table (a setting)",
+                    fit=False, choices=PLACES))
 
     def apply(self, plant, values):
-        return dataclasses.replace(plant, effects=plant.effects + ((kernel.CONSTANT_FORCE, (0.0, values["force"])),))
+        place = int(round(values.get("place", 0.0)))
+        if place not in (0, 1):
+            raise ValueError(f"{self.name}: place must be motor or table (got {values['place']!r})")
+        mass = float(plant.table) if place == 1 else 0.0
+        return dataclasses.replace(plant, effects=plant.effects + ((kernel.CONSTANT_FORCE, (mass, values["force"])),))
 
     def guess(self, plant, scale):
-        return {"force": 0.1 * scale.get("force", 1.0)}
+        return {"force": 0.1 * scale.get("force", 1.0), "place": 0.0}
 
-    synth_strength = {"force": 400.0}
+    synth_strength = {"force": 400.0, "place": 0.0}
     linear_param = "force"
 
     def evidence(self, ctx, values):
         if ctx.force_residual is None:
             return ""
         coef = force_levels(ctx)
-        return f"{ctx.force_channel} residual has a mean of {ctx.fmt_si(coef[2], ctx.force_unit, 3)} in both directions; "
+        seen = f"{ctx.force_channel} residual has a mean of {ctx.fmt_si(coef[2], ctx.force_unit, 3)} in both directions; "
+        if ctx.plant.table != 0:
+            # where it acts shows in the positions only: on the table it leans the table on the screw
+            # by F / k1 (a static motor - table offset), on the motor it does not
+            seen += f"acting on the {PLACES[int(round(values.get('place', 0.0)))]}; "
+        return seen
 
     def regression_start(self, ctx):
         if not _can_regress(ctx):
             return None
         # the force channel is in motor units (torque on a rotary axis): a load-side force is that times k
-        return {"force": ctx.configured(self.name, "force") - float(force_levels(ctx)[2]) * ctx.force_to_load}
+        return {"force": ctx.configured(self.name, "force") - float(force_levels(ctx)[2]) * ctx.force_to_load,
+                "place": ctx.configured(self.name, "place")}
+
+    def starts(self, ctx, guess):
+        """The regression's start and the guess at the place the config gives; where it gives none
+        and the table is a mass of its own, at both places, the cheaper two kept (one simulation each):
+        the torque is the same, the motor - table offset is not."""
+        starts = super().starts(ctx, guess)
+        if ctx.given(self.name, "place") is not None or ctx.plant.table == 0:
+            return starts
+        return ctx.prefilter(self, [dict(s, place=float(p)) for s in starts for p in range(len(PLACES))])
 
     def linear_column(self, ctx):
         return -np.ones_like(ctx.v) / ctx.force_to_load, ctx.configured(self.name, "force")
