@@ -156,6 +156,11 @@ def apply_effects(plant: Plant, cfg: Config) -> Plant:
     return plant
 
 
+# a controller setting the fit moves by less than this share of its configured value is not a finding
+# (ParameterEffect.degenerate): the drive's settings are entered numbers
+SETTING_TOLERANCE = 0.01
+
+
 class ParameterEffect(Effect):
     """``parameter:<dotted name>``: re-identify a parameter the config already has (a mass, a
     stiffness, a damping, a friction value). It changes the config, not the plant."""
@@ -188,6 +193,22 @@ class ParameterEffect(Effect):
 
     def apply(self, plant, values):      # pragma: no cover - parameters act on the config
         raise TypeError("parameter effects act on the config: use hil.plant_config.configure()")
+
+    def degenerate(self, values, cfg=None):
+        # a controller setting is a number entered in the drive: one that differs from the config
+        # differs by an entry (a unit, a scaling, another tuning), not by a fraction of a percent;
+        # a sliver that small is another effect's shadow
+        old = cfg.get(self.key) if cfg is not None else None
+        if not self.key.startswith("control.") or not isinstance(old, (int, float)) or isinstance(old, bool) \
+                or not old:
+            return ""
+        if values.get("value") is None:
+            return ""
+        change = values["value"] / old - 1.0
+        if abs(change) >= SETTING_TOLERANCE:
+            return ""
+        return (f"{self.key} moved by {100 * change:+.2g} % of its setting, within the {100 * SETTING_TOLERANCE:.0f} % "
+                f"that tells an entry in the drive from another effect's shadow; ")
 
     def evidence(self, ctx, values):
         """The config value before and after, in its unit (hil.sim_plant.effects.base: the hook)."""

@@ -58,6 +58,9 @@ JSON_KEYS = {
                                            "their combination): [name, name, r]"),
     "candidates[].worse_than_without": JsonKey("", "the fit left more error than the model without the effect: it "
                                                    "stopped in a wrong basin (said in its evidence; never significant)"),
+    "candidates[].degenerate": JsonKey("", "why the fit names another effect, \"\" when it does not: a mode at the bound of "
+                                       "its range (a rigid mass, a damper), a controller setting moved by under 1 %; such "
+                                       "a fit is never significant and ranks after the others"),
     "also_missing": JsonKey("", "effects missing beside the verdict (a preferred combination's other members): "
                                 "effect, params (SI), score (the BIC fall when it is left out), significant, "
                                 "evidence"),

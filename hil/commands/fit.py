@@ -48,7 +48,7 @@ JSON_KEYS = {
                                          "errors)"),
     "written": JsonKey("", "the config was written (false: an effect made the error worse, exit 2)", when=_RECORD),
     "steps": JsonKey("", "each --add fit in turn, then the joint refit: effect, params (SI), stderr (SI), channel, "
-                         "error_before, error_after, score, evidence, gain, significant, worse_than_without, confounded (as diagnose's "
+                         "error_before, error_after, score, evidence, gain, significant, worse_than_without, confounded, degenerate (as diagnose's "
                          "candidates[])", when=_RECORD),
     "fitted": JsonKey("SI", "per written config key: value, stderr (standard error) and unit (its SI unit)",
                       when=_RECORD),

@@ -341,7 +341,9 @@ def _rank_single(cands: list) -> list:
     # puts the catalogue effect, which names the physics, before the parameter: the same fit when
     # the scores agree to 1e-4, or when both leave the same error in every channel (to 2 %: the
     # fits' convergence differs, the model does not) and the scores lie within MIN_SCORE
-    cands = sorted(cands, key=lambda c: -c.score)
+    # a fit that names another effect (Effect.degenerate: a mode at its bound is a rigid mass) ranks
+    # after every one that does not: its score belongs to what it turned into
+    cands = sorted(cands, key=lambda c: (bool(getattr(c, "degenerate", "")), -c.score))
     for i in range(len(cands) - 1):
         a, b = cands[i], cands[i + 1]
         if a.effect.startswith("parameter:") and not b.effect.startswith("parameter:") and not isinstance(b, Combo) \

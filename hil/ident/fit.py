@@ -10,7 +10,10 @@ scored (hil.ident.scores.bic_score) and described (hil.ident.evidence); its gain
 falls the most, relatively. A fitted effect that leaves more weighted error than the model without
 it has stopped in a wrong basin (the effect-free model is one of its values, or the limit of them):
 the candidate says so (``worse_than_without``, and in its evidence), and its negative score keeps
-it from any verdict.
+it from any verdict. A fit that ends where its effect turns into another (``Effect.degenerate``: a
+mode at the bound of its frequency or damping is a rigid mass or a damper; a controller setting moved
+by under 1 % is another effect's shadow) says so in ``degenerate`` and its evidence, and is never
+significant.
 
 :func:`fit_effects` adds effects one after the other (greedy), then refits them all together
 from the greedy values; :func:`joint_refit` refits config keys together from their values.
@@ -70,6 +73,7 @@ class Candidate:
     stderr: dict = field(default_factory=dict)      # standard error of each fitted parameter (SI; NaN: none)
     worse_than_without: bool = False    # the fit left more error than the model without the effect: a wrong basin
     confounded: list = field(default_factory=list)   # [name, name, r]: fitted parameters correlated above CONFOUNDED
+    degenerate: str = ""         # why the fit names another effect (Effect.degenerate): never significant
 
     def as_json(self) -> dict:
         return {"effect": self.effect, "params": {k: float(v) for k, v in self.params.items()},
@@ -78,7 +82,7 @@ class Candidate:
                 "error_after": float(self.error_after), "score": float(self.score), "evidence": self.evidence,
                 "gain": float(self.gain), "significant": bool(self.significant),
                 "worse_than_without": bool(self.worse_than_without),
-                "confounded": [[a, b, float(r)] for a, b, r in self.confounded]}
+                "confounded": [[a, b, float(r)] for a, b, r in self.confounded], "degenerate": self.degenerate}
 
 
 def _covariance(sol):
@@ -290,11 +294,16 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     significant = score > MIN_SCORE and before > SIGNIFICANT_ABOVE_NOISE * floor
     ev = evidence(name, vals, replay, res0, chan, before, after, model_modes(cfg))
     worse = e1 > e0 * (1 + WORSE_TOL)
+    why = eff.degenerate(vals, cfg)
+    if why:          # it fits, but as another effect (a mode at its bound) or a sliver of a setting
+        ev = why + ev
+        significant = False
     if worse:
         ev = (f"the fit is wrong: it leaves {100 * (e1 / e0 - 1):.2g} % more weighted error than the model without "
               f"{name} (a wrong basin); " + ev)
     return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant and not worse, cfg1,
-                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se, worse, confounded)
+                     {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se, worse, confounded,
+                     why)
 
 
 def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=None):

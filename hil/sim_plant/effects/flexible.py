@@ -171,6 +171,16 @@ class FlexibleTransmission(Effect):
         allp = coarse + fine
         return [allp[k] for _, k in pool][:3]
 
+    def degenerate(self, values, cfg=None):
+        # a link at a bound of its range is no resonance of the drive: a load of a few percent of the
+        # mass, a link too stiff or too soft to ring, or damped past ringing
+        at = [n for n in self._at_bound(values, ("load_share", "frequency", "damping_ratio"))
+              if n != "damping_ratio" or values[n] > 0.5]
+        if not at:
+            return ""
+        return (f"a 2-mass link at the bound of its range ({', '.join(f'{n} {values[n]:.4g}' for n in at)}) is no "
+                f"resonance of the drive; ")
+
     def evidence(self, ctx, values) -> str:
         """The ringing the residual shows after the record's edges, and the link the fit gives."""
         m_motor, m_load, k, c = self.link(ctx.plant, values)

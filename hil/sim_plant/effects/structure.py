@@ -56,6 +56,16 @@ class CompliantMode(Effect):
     def cost_factor(self) -> int:
         return 3
 
+    def degenerate(self, values, cfg=None):
+        # stiff to the frequency's bound, or damped past ringing, the "mode" is a rigid mass on the
+        # tip (parameter:plant.m3) or a damper: not a mode
+        at = [n for n in self._at_bound(values, ("frequency", "damping_ratio"))
+              if values[n] > 0.5 * (self.param(n).upper + self.param(n).lower)]
+        if not at:
+            return ""
+        return (f"a mode at its bound ({', '.join(f'{n} {values[n]:.4g}' for n in at)}) is no mode: a rigid "
+                f"{values.get('mass', 0.0):.3g} kg on the tip or a damper; ")
+
     def evidence(self, ctx, values):
         f = values.get("frequency", 0.0)
         near = [fm for fm in ctx.base_modes if abs(fm - f) < 0.1 * f]
