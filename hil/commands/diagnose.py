@@ -61,6 +61,9 @@ JSON_KEYS = {
     "candidates[].degenerate": JsonKey("", "why the fit names another effect, \"\" when it does not: a mode at the bound of "
                                        "its range (a rigid mass, a damper), a controller setting moved by under 1 %; such "
                                        "a fit is never significant and ranks after the others"),
+    "shown_together": JsonKey("", "two effects that show only together: no single effect closed half the gap, the best "
+                                  "fit with the next verdict on top of it did (the chain's first step adds both)",
+                              when="the chain found such a pair"),
     "also_missing": JsonKey("", "effects missing beside the verdict (a preferred combination's other members): "
                                 "effect, params (SI), score (the BIC fall when it is left out), significant, "
                                 "evidence"),
@@ -175,7 +178,7 @@ def candidates_json(d, unit=None):
     out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
-    for k in ("estimation", "validation", "run_to_run"):
+    for k in ("shown_together", "estimation", "validation", "run_to_run"):
         if k in d:
             out[k] = d[k]
     if "chain" in d:
@@ -309,6 +312,8 @@ def ranking_text(d) -> list[str]:
         lines.append(f"    {c.evidence}")
     else:
         lines.append(f"verdict: {verdicts.get(verdict, verdict)}")
+    if d.get("shown_together"):
+        lines.append(f"    {d['shown_together']}")
     shown = {verdict}
     for m in d.get("also_missing", []):
         lines.append(f"also missing: {m['effect']} (score {m['score']:.1f} in the joint fit beside {verdict}: "

@@ -256,6 +256,68 @@ def _stderr_of(fit, names) -> tuple[dict, list]:
     return out, [list(p) for p in fit.confounded]
 
 
+def _add_verdict(cur, d, verdict, add, fit_nfev, progress):
+    """(config, fits) of a step's effects added on top of the model: a combination one after the
+    other, then together (hil fit --add ...); a single verdict the diagnosis's fit, polished from
+    where it stopped (weighted by the residual the fit left: the channel still far from its floor
+    leads)."""
+    if len(add) > 1:
+        return fit_effects(cur, add, max_nfev=fit_nfev, progress=progress)
+    lead = next(c for c in d["candidates"] if c.effect == verdict)
+    if progress:
+        expect(progress, 1)
+        progress(verdict)
+    at = cur.with_config(lead.cfg)
+    c1 = evaluate(at, verdict, max_nfev=fit_nfev, start=lead.params)
+    c1 = c1 if _weighted(at, c1.res) <= _weighted(at, at.base_residuals) else lead
+    return c1.cfg, [c1]
+
+
+def _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw) -> dict | None:
+    """The first step when no single effect closes :data:`HALF_GAP` (the verdict ``unexplained``):
+    the best significant fit (its own: not degenerate, not worse than without) taken into the model,
+    the model diagnosed again, and its verdict fitted on top; then both refitted together. Kept when
+    the pair closes half the gap on the channel where it shows most; else None (the chain ends
+    ``unexplained``, as before). Returns the step's ``verdict``, ``effects``, ``text`` (what it
+    says), and its fits and config (``_fits``, ``_config``)."""
+    lead = next((c for c in d["candidates"] if c.significant and not isinstance(c, dict)
+                 and "+" not in c.effect), None)
+    if lead is None:
+        return None
+    at = cur.with_config(lead.cfg)
+    rest = [n for n in cands if _same(n, cur.cfg) != _same(lead.effect, cur.cfg)]
+    d2 = diagnose(at, rest, progress=progress, jobs=jobs, max_nfev=max_nfev, min_gap=0.0, **kw)
+    second = d2["verdict"]
+    if second in ("none", "unexplained"):
+        return None
+    c2 = next(c for c in d2["candidates"] if c.effect == second)
+    pair = [lead.effect, second]
+    name = "+".join(pair)
+    start = {f"{n}.{k}": v for n in pair for k, v in effect_values(n, c2.cfg).items()}
+    if progress:
+        expect(progress, 1)
+        progress(name)
+    try:
+        joint = evaluate(cur.with_config(c2.cfg), name, max_nfev=fit_nfev, start=start)
+    except ValueError:
+        return None
+    res0 = cur.base_residuals
+    cfg1, res1 = (joint.cfg, joint.res) if _weighted(cur, joint.res) < _weighted(cur, c2.res) else (c2.cfg, c2.res)
+    floor = cur.noise
+    e0, e1 = rms(res0), rms(res1)
+    closed = {c: gap_closed(e0[c], e1[c], floor[c]) for c in e0}
+    chan = max(closed, key=closed.get)
+    alone = gap_closed(lead.error_before, lead.error_after, floor.get(lead.channel, 0.0))
+    logger.info("shown together: %s closes %.2f of the gap in %s (%s alone %.2f)", name, closed[chan], chan,
+                lead.effect, alone)
+    if closed[chan] < HALF_GAP:
+        return None
+    text = (f"{lead.effect} and {second} show only together: {lead.effect} alone closed {100 * alone:.0f} % of the gap "
+            f"in {lead.channel}, with {second} fitted on top and both refitted together {100 * closed[chan]:.0f} % in "
+            f"{chan}; {second}: {c2.evidence}")
+    return {"verdict": lead.effect, "effects": pair, "text": text, "_fits": [lead, c2, joint], "_config": cfg1}
+
+
 def _weighted(replay, res) -> float:
     return float(np.sum(replay.objective.vector(res) ** 2))
 
@@ -327,25 +389,21 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if first is None:
             first = d
         verdict = d["verdict"]
-        if verdict in ("none", "unexplained"):
+        together = None
+        if verdict == "unexplained" and i == 0 and max_steps > 1:
+            # two effects that show only together (a table leaning on one flank of a backlash only
+            # under a force on it): the best fit on top of the model, the next verdict on top of that
+            together = _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw)
+        if together is not None:
+            verdict, add, cfg1, fits = together["verdict"], together["effects"], together["_config"], together["_fits"]
+            first = dict(d, verdict=verdict, shown_together=together["text"])
+        elif verdict in ("none", "unexplained"):
             end = ("noise floor reached" if verdict == "none" else
                    "unexplained" if i == 0 else "no effect pays for its parameters")
             break
-        add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
-        if len(add) > 1:
-            # a combination: one after the other on top of the model, then together (hil fit --add ...)
-            cfg1, fits = fit_effects(cur, add, max_nfev=fit_nfev, progress=progress)
         else:
-            # the diagnosis's fit, polished from where it stopped
-            lead = next(c for c in d["candidates"] if c.effect == verdict)
-            if progress:
-                expect(progress, 1)
-                progress(verdict)
-            # (weighted by the residual the fit left: the channel still far from its floor leads)
-            at = cur.with_config(lead.cfg)
-            c1 = evaluate(at, verdict, max_nfev=fit_nfev, start=lead.params)
-            c1 = c1 if _weighted(at, c1.res) <= _weighted(at, at.base_residuals) else lead
-            cfg1, fits = c1.cfg, [c1]
+            add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
+            cfg1, fits = _add_verdict(cur, d, verdict, add, fit_nfev, progress)
         res1 = cur.residuals(cfg1)
         joint = None
         if found:
@@ -372,6 +430,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             break
         held = _earned(cur, split, add, found, cfg1, fit_nfev) if split else None
         lead = next((c for c in d["candidates"] if c.effect == verdict), None)
+        if together is not None:
+            lead = None
         err1 = rms(res1)
         se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
         if held is not None and not held["earned"]:
@@ -386,7 +446,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "params": {n: effect_values(n, cfg1) for n in found},
                       "error_before": err0, "error_after": err1,
                       "gap_closed": {c: gap_closed(err0[c], err1[c], floor[c]) for c in err0},
-                      "score": float(paid), "evidence": lead.evidence if lead is not None else "",
+                      "score": float(paid),
+                      "evidence": (together["text"] if together is not None else
+                                   lead.evidence if lead is not None else ""),
                       "refitted_together": joint is not None, "stderr": se, "confounded": conf,
                       "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
                       "_fits": fits, "_joint": joint, "_config": cfg1})

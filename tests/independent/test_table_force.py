@@ -61,3 +61,33 @@ def test_diagnose_names_a_force_on_the_table(tmp_path, force, seed):
     assert found["effects.constant_force.place"] == "table"
     assert found["effects.constant_force.force"] == pytest.approx(force, rel=0.02)
     assert np.isfinite(d["final"]["error"]["x_table"])
+
+
+def _pair_record(force, gap, duration, seed):
+    x = ivp.command_sequence(duration, BENCH.tp, seed, v_max=0.15)
+    return ivp.measure(ivp.simulate(BENCH, x, ivp.Hidden(force=force, force_mass=1, gap=gap)), seed)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("force,gap,seed,together", [(-65.0, 34e-6, 6, True), (120.0, 12e-6, 2, False)])
+def test_a_backlash_under_a_table_force_shows_only_with_it(tmp_path, force, gap, seed, together):
+    # the force leans the table on one flank of the gap: without it the model's table floats in the
+    # gap at cruise and the backlash alone fits a micrometre; no single effect closes half the gap,
+    # the pair does (the chain's first step adds both). A small gap under a larger force: the force
+    # closes half the gap alone, the backlash comes next
+    from hil.cli import main
+    path = write(tmp_path / "rec.csv", _pair_record(force, gap, 4.0, seed), {"sample_period": f"{BENCH.tp} s"})
+    out = io.StringIO()
+    with redirect_stdout(out):
+        rc = main(["diagnose", str(path), "--config", str(CFG_PATH), "--json", "--jobs", "1", "--max-steps", "3",
+                   "--candidates", "constant_force,backlash,cable_carrier,force_offset,parameter:plant.k1,mass_change",
+                   "--out", str(tmp_path / "found.toml")])
+    assert rc == 0
+    d = json.loads(out.getvalue())
+    named = {e for s in d["chain"] for e in s["effects"]}
+    assert named == {"constant_force", "backlash"}
+    assert bool(d.get("shown_together")) is together and (len(d["chain"][0]["effects"]) == 2) is together
+    found = load(tmp_path / "found.toml")
+    assert found["effects.constant_force.place"] == "table"
+    assert found["effects.constant_force.force"] == pytest.approx(force, rel=0.05)
+    assert found["effects.backlash.gap"] == pytest.approx(gap, rel=0.05)
