@@ -194,7 +194,7 @@ class ParameterEffect(Effect):
     def apply(self, plant, values):      # pragma: no cover - parameters act on the config
         raise TypeError("parameter effects act on the config: use hil.plant_config.configure()")
 
-    def degenerate(self, values, cfg=None):
+    def degenerate(self, values, cfg=None, sample_period=None):
         # a controller setting is a number entered in the drive: one that differs from the config
         # differs by an entry (a unit, a scaling, another tuning), not by a fraction of a percent;
         # a sliver that small is another effect's shadow

@@ -27,6 +27,14 @@ def test_a_mode_at_its_bound_is_no_mode(values, bound):
     assert bool(candidate("compliant_mode").degenerate(values)) is bound
 
 
+def test_a_mode_above_the_records_nyquist_frequency_is_a_mass():
+    # 4 ms samples show at most 125 Hz: a 165 Hz, undamped 0.08 kg "mode" (a clean record with the tip
+    # drifted) is the tip's mass; the same mode on a 1 ms record is a mode
+    v = {"mass": 0.082, "frequency": 164.8, "damping_ratio": 1e-4}
+    assert "Nyquist" in candidate("compliant_mode").degenerate(v, None, 4e-3)
+    assert not candidate("compliant_mode").degenerate(v, None, 1e-3)
+
+
 @pytest.mark.parametrize("values,bound", [({"load_share": 0.02, "frequency": 93.0, "damping_ratio": 1.0}, True),
                                           ({"load_share": 0.5, "frequency": 1000.0, "damping_ratio": 0.1}, True),
                                           ({"load_share": 0.86, "frequency": 590.0, "damping_ratio": 0.0995}, False)])

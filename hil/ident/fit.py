@@ -294,7 +294,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     significant = score > MIN_SCORE and before > SIGNIFICANT_ABOVE_NOISE * floor
     ev = evidence(name, vals, replay, res0, chan, before, after, model_modes(cfg))
     worse = e1 > e0 * (1 + WORSE_TOL)
-    why = eff.degenerate(vals, cfg)
+    why = eff.degenerate(vals, cfg, replay.sample_period)
     if why:          # it fits, but as another effect (a mode at its bound) or a sliver of a setting
         ev = why + ev
         significant = False

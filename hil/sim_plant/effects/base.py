@@ -199,12 +199,12 @@ class Effect(ABC):
         inverse model's motion (``ctx.v``, ``ctx.a``; hil.ident.joint); None: not linear."""
         return None
 
-    def degenerate(self, values: dict[str, float], cfg=None) -> str:
+    def degenerate(self, values: dict[str, float], cfg=None, sample_period: float | None = None) -> str:
         """Why the fitted ``values`` are not this effect's own finding, "" when they are: a fit that
         ends where the effect turns into another (a mode at its frequency bound or critically
         damped: a rigid mass, a damper) names the wrong thing. The diagnosis never calls such a
         fit significant, and says why in its evidence. ``cfg``: the model's config the fit
-        started from."""
+        started from; ``sample_period``: the record's (s)."""
         return ""
 
     def _at_bound(self, values: dict[str, float], names: tuple, rel: float = 0.01) -> list[str]:
@@ -301,8 +301,8 @@ class Combination(Effect):
     def guess(self, plant, scale):
         return {f"{n}.{k}": v for n, m in zip(self.names, self.members) for k, v in m.guess(plant, scale).items()}
 
-    def degenerate(self, values, cfg=None):
-        return "".join(m.degenerate(v, cfg) for m, v in zip(self.members, self.split(values)))
+    def degenerate(self, values, cfg=None, sample_period=None):
+        return "".join(m.degenerate(v, cfg, sample_period) for m, v in zip(self.members, self.split(values)))
 
     def regression_start(self, ctx):
         """The members' regression starts together; None unless every member has one."""

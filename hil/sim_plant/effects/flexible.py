@@ -171,7 +171,7 @@ class FlexibleTransmission(Effect):
         allp = coarse + fine
         return [allp[k] for _, k in pool][:3]
 
-    def degenerate(self, values, cfg=None):
+    def degenerate(self, values, cfg=None, sample_period=None):
         # a link at a bound of its range is no resonance of the drive: a load of a few percent of the
         # mass, a link too stiff or too soft to ring, or damped past ringing
         at = [n for n in self._at_bound(values, ("load_share", "frequency", "damping_ratio"))

@@ -56,11 +56,16 @@ class CompliantMode(Effect):
     def cost_factor(self) -> int:
         return 3
 
-    def degenerate(self, values, cfg=None):
+    def degenerate(self, values, cfg=None, sample_period=None):
         # stiff to the frequency's bound, or damped past ringing, the "mode" is a rigid mass on the
-        # tip (parameter:plant.m3) or a damper: not a mode
+        # tip (parameter:plant.m3) or a damper: not a mode; above the record's Nyquist frequency it
+        # cannot ring in the record at all, and what the fit took is the mass
         at = [n for n in self._at_bound(values, ("frequency", "damping_ratio"))
               if values[n] > 0.5 * (self.param(n).upper + self.param(n).lower)]
+        f = values.get("frequency")
+        if sample_period and f is not None and f > 0.5 / sample_period and "frequency" not in at:
+            return (f"a mode at {f:.4g} Hz, above the record's Nyquist frequency ({0.5 / sample_period:.4g} Hz), "
+                    f"cannot ring in it: a rigid {values.get('mass', 0.0):.3g} kg on the tip; ")
         if not at:
             return ""
         return (f"a mode at its bound ({', '.join(f'{n} {values[n]:.4g}' for n in at)}) is no mode: a rigid "
