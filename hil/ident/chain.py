@@ -11,7 +11,12 @@ Each step:
    parameters (the score above :data:`~hil.ident.scores.MIN_SCORE`), reporting the share of the
    gap it closed;
 2. the verdict and the effects ``also_missing`` beside it, fitted one after the other on top of
-   the model, then together (hil.ident.fit.fit_effects);
+   the model, then together (hil.ident.fit.fit_effects). When the first diagnosis is
+   ``unexplained``, two effects may show only together (a backlash under a force on the table,
+   which leans the table on one flank): the best significant fit is taken into the model, the
+   model diagnosed again and that verdict fitted on top, then both together; when the pair closes
+   :data:`~hil.ident.unexplained.HALF_GAP` of the gap the first step adds both
+   (``shown_together``), else the chain ends ``unexplained``;
 3. every effect found so far refitted together from those values (one
    :class:`~hil.sim_plant.effects.Combination`, bounded and scaled as any candidate's fit), kept when
    it lowers the weighted error; the step is kept when its BIC score on the record pays for the
