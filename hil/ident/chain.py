@@ -401,7 +401,6 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             together = _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw)
         if together is not None:
             verdict, add, cfg1, fits = together["verdict"], together["effects"], together["_config"], together["_fits"]
-            first = dict(d, verdict=verdict, shown_together=together["text"])
         elif verdict in ("none", "unexplained"):
             end = ("noise floor reached" if verdict == "none" else
                    "unexplained" if i == 0 else "no effect pays for its parameters")
@@ -459,6 +458,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "_fits": fits, "_joint": joint, "_config": cfg1})
         if held is not None:
             steps[-1].update(estimation_error=held.pop("estimation"), held_out=held)
+        if together is not None:
+            # the first diagnosis names the pair once the step is kept (refused, it stays unexplained)
+            first = dict(first, verdict=verdict, shown_together=together["text"])
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         cur = cur.with_config(cfg1)
     errf = rms(cur.base_residuals)
