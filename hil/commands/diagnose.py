@@ -108,6 +108,9 @@ JSON_KEYS = {
                           when="several records of one command"),
     "chain[].stderr": JsonKey("SI", "`{effect: {parameter: standard error}}` of the step's last fit (null: none)"),
     "chain[].confounded": JsonKey("", "pairs of that fit's parameters correlated above 0.9: [name, name, r]"),
+    "chain[].rival": JsonKey("", "the runner-up judged beside the verdict after the refit of everything found (a "
+                                 "later step, when it removed at least 0.8 of the verdict's share): effect, score, "
+                                 "verdict, verdict_score (BIC falls); the better is the step; null: none"),
     "chain[].estimation_error": JsonKey(CHANNEL_UNIT, "per channel, RMS error after the step on the data it was "
                                                       "fitted on (the record's estimation moves)",
                                         when="a held-out part (the record has moves both ways, or --validate)"),

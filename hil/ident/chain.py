@@ -65,7 +65,7 @@ import math
 
 import numpy as np
 
-from hil.ident.diagnosis import candidate_names, diagnose, is_open_loop
+from hil.ident.diagnosis import _close, candidate_names, diagnose, is_open_loop
 from hil.ident.fit import _fit_one, evaluate, fit_effects
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
@@ -323,6 +323,55 @@ def _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw) -> 
     return {"verdict": lead.effect, "effects": pair, "text": text, "_fits": [lead, c2, joint], "_config": cfg1}
 
 
+# a runner-up whose gain is at least this share of the verdict's is judged beside it (:func:`_rival`)
+RIVAL_GAIN = 0.8
+
+
+def _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress):
+    """(config, residuals, joint fit or None, BIC score) of a step: everything found so far refitted
+    together with ``add`` from the values it has now (kept when it lowers the weighted error), and
+    the step's score on the record (BIC, as every candidate's)."""
+    floor = replay.noise
+    res1 = cur.residuals(cfg1)
+    joint = None
+    if found:
+        name = "+".join(found + add)
+        start = {f"{n}.{k}": v for n in found + add for k, v in effect_values(n, cfg1).items()}
+        if progress:
+            expect(progress, 1)
+            progress(name)
+        try:
+            at = replay.with_config(cfg1)
+            joint = evaluate(at, name, max_nfev=fit_nfev, start=start)
+        except ValueError:
+            joint = None
+        if joint is not None and _weighted(at, joint.res) < _weighted(at, res1):
+            cfg1, res1 = joint.cfg, joint.res
+        else:
+            joint = None
+    k = sum(len(candidate(n, cur.cfg).params) for n in add)
+    return cfg1, res1, joint, bic_score(cur.base_residuals, res1, list(floor), k, floor)
+
+
+def _rival(d, verdict, add, have, cur):
+    """The runner-up of a later step's single verdict: the next significant single candidate of the
+    ranking (its own fit, not one already in the model) whose gain is at least :data:`RIVAL_GAIN`
+    of the verdict's; None when there is none."""
+    if len(add) != 1:
+        return None
+    ranked = [c for c in d["candidates"] if "+" not in c.effect]
+    lead = next((c for c in ranked if c.effect == verdict), None)
+    if lead is None:
+        return None
+    for c in ranked[ranked.index(lead) + 1:]:
+        if c.significant and _same(c.effect, cur.cfg) not in have:
+            # the same fit by another name (mass_change is parameter:plant.m<table>: the ranking put
+            # the one that names the physics first) is no rival
+            same = _close(c, lead, 0.02) and _close(lead, c, 0.02)
+            return c if c.gain >= RIVAL_GAIN * lead.gain and not same else None
+    return None
+
+
 def _weighted(replay, res) -> float:
     return float(np.sum(replay.objective.vector(res) ** 2))
 
@@ -408,27 +457,20 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         else:
             add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
             cfg1, fits = _add_verdict(cur, d, verdict, add, fit_nfev, progress)
-        res1 = cur.residuals(cfg1)
-        joint = None
-        if found:
-            # everything found so far refitted together, from the values it has now
-            name = "+".join(found + add)
-            start = {f"{n}.{k}": v for n in found + add for k, v in effect_values(n, cfg1).items()}
-            if progress:
-                expect(progress, 1)
-                progress(name)
-            try:
-                at = replay.with_config(cfg1)
-                joint = evaluate(at, name, max_nfev=fit_nfev, start=start)
-            except ValueError:
-                joint = None
-            if joint is not None and _weighted(at, joint.res) < _weighted(at, res1):
-                cfg1, res1 = joint.cfg, joint.res
-            else:
-                joint = None
-        # the step must pay for its parameters on the record (BIC, as every candidate's score)
-        k = sum(len(candidate(n, cur.cfg).params) for n in add)
-        paid = bic_score(cur.base_residuals, res1, list(floor), k, floor)
+        cfg1, res1, joint, paid = _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress)
+        rival = _rival(d, verdict, add, have, cur) if found and together is None else None
+        if rival is not None:
+            # a runner-up that removes about as much: the effects found before were fitted without
+            # it and may hold part of it (a friction fitted before a delay takes part of its phase),
+            # so both are judged after the refit of everything found (the better BIC is the step)
+            rcfg, rfits = _add_verdict(cur, d, rival.effect, [rival.effect], fit_nfev, progress)
+            r = _refit_found(replay, cur, found, [rival.effect], rcfg, fit_nfev, progress)
+            logger.info("chain step %d: %s scores %.1f, its rival %s %.1f after the refit of what was found", i + 1,
+                        verdict, paid, rival.effect, r[3])
+            rival = {"effect": rival.effect, "score": float(r[3]), "verdict": verdict, "verdict_score": float(paid)}
+            if r[3] > paid + MIN_SCORE:     # it pays beyond the scores' own noise
+                verdict, add, fits = rival["effect"], [rival["effect"]], rfits
+                cfg1, res1, joint, paid = r
         if i > 0 and paid <= MIN_SCORE:
             end = "no effect pays for its parameters"
             break
@@ -454,6 +496,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "evidence": (together["text"] if together is not None else
                                    lead.evidence if lead is not None else ""),
                       "refitted_together": joint is not None, "stderr": se, "confounded": conf,
+                      "rival": rival,
                       "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
                       "_fits": fits, "_joint": joint, "_config": cfg1})
         if held is not None:
