@@ -17,6 +17,9 @@ Each step:
    model diagnosed again and that verdict fitted on top, then both together; when the pair closes
    :data:`~hil.ident.unexplained.HALF_GAP` of the gap the first step adds both
    (``shown_together``), else the chain ends ``unexplained``;
+   A later step's single verdict is judged beside the runner-up of the ranking when that removes
+   at least :data:`RIVAL_GAIN` of the verdict's share (and is not the same fit by another name):
+   both go through 3., and the better BIC is the step (``rival``);
 3. every effect found so far refitted together from those values (one
    :class:`~hil.sim_plant.effects.Combination`, bounded and scaled as any candidate's fit), kept when
    it lowers the weighted error; the step is kept when its BIC score on the record pays for the
