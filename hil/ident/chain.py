@@ -288,8 +288,7 @@ def _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw) -> 
     the pair closes half the gap on the channel where it shows most; else None (the chain ends
     ``unexplained``, as before). Returns the step's ``verdict``, ``effects``, ``text`` (what it
     says), and its fits and config (``_fits``, ``_config``)."""
-    lead = next((c for c in d["candidates"] if c.significant and not isinstance(c, dict)
-                 and "+" not in c.effect), None)
+    lead = next((c for c in d["candidates"] if c.significant and "+" not in c.effect), None)
     if lead is None:
         return None
     at = cur.with_config(lead.cfg)

@@ -25,9 +25,21 @@ CFG = load(CFG_PATH)
 BENCH = ivp.bench_from_config(CFG)
 
 
-def _record(force, mass=1, duration=1.6, seed=5):
+def _record(force, mass=1, duration=1.6, seed=5, gap=0.0):
     x = ivp.command_sequence(duration, BENCH.tp, seed, v_max=0.15)
-    return ivp.measure(ivp.simulate(BENCH, x, ivp.Hidden(force=force, force_mass=mass)), seed)
+    return ivp.measure(ivp.simulate(BENCH, x, ivp.Hidden(force=force, force_mass=mass, gap=gap)), seed)
+
+
+def _diagnose(tmp_path, rec, max_steps, candidates):
+    """``hil diagnose --json --out`` on the record: (its JSON, the config it wrote)."""
+    from hil.cli import main
+    path = write(tmp_path / "rec.csv", rec, {"sample_period": f"{BENCH.tp} s"})
+    out = io.StringIO()
+    with redirect_stdout(out):
+        rc = main(["diagnose", str(path), "--config", str(CFG_PATH), "--json", "--jobs", "1", "--max-steps",
+                   str(max_steps), "--candidates", candidates, "--out", str(tmp_path / "found.toml")])
+    assert rc == 0
+    return json.loads(out.getvalue()), load(tmp_path / "found.toml")
 
 
 @pytest.mark.parametrize("mass", [1, 0])
@@ -47,25 +59,12 @@ def test_the_fit_finds_where_the_force_acts(mass):
 def test_diagnose_names_a_force_on_the_table(tmp_path, force, seed):
     # not a cable carrier (a force changing along the travel) nor the force on the motor: the one
     # parameter, on the table, within 2 % of the hidden force
-    from hil.cli import main
-    path = write(tmp_path / "rec.csv", _record(force, 1, duration=3.0, seed=seed), {"sample_period": f"{BENCH.tp} s"})
-    out = io.StringIO()
-    with redirect_stdout(out):
-        rc = main(["diagnose", str(path), "--config", str(CFG_PATH), "--json", "--jobs", "1", "--max-steps", "2",
-                   "--candidates", "constant_force,cable_carrier,coulomb_friction,parameter:plant.m2",
-                   "--out", str(tmp_path / "found.toml")])
-    assert rc == 0
-    d = json.loads(out.getvalue())
+    d, found = _diagnose(tmp_path, _record(force, 1, duration=3.0, seed=seed), 2,
+                         "constant_force,cable_carrier,coulomb_friction,parameter:plant.m2")
     assert [e for s in d["chain"] for e in s["effects"]] == ["constant_force"]
-    found = load(tmp_path / "found.toml")
     assert found["effects.constant_force.place"] == "table"
     assert found["effects.constant_force.force"] == pytest.approx(force, rel=0.02)
     assert np.isfinite(d["final"]["error"]["x_table"])
-
-
-def _pair_record(force, gap, duration, seed):
-    x = ivp.command_sequence(duration, BENCH.tp, seed, v_max=0.15)
-    return ivp.measure(ivp.simulate(BENCH, x, ivp.Hidden(force=force, force_mass=1, gap=gap)), seed)
 
 
 @pytest.mark.slow
@@ -75,19 +74,11 @@ def test_a_backlash_under_a_table_force_shows_only_with_it(tmp_path, force, gap,
     # gap at cruise and the backlash alone fits a micrometre; no single effect closes half the gap,
     # the pair does (the chain's first step adds both). A small gap under a larger force: the force
     # closes half the gap alone, the backlash comes next
-    from hil.cli import main
-    path = write(tmp_path / "rec.csv", _pair_record(force, gap, 4.0, seed), {"sample_period": f"{BENCH.tp} s"})
-    out = io.StringIO()
-    with redirect_stdout(out):
-        rc = main(["diagnose", str(path), "--config", str(CFG_PATH), "--json", "--jobs", "1", "--max-steps", "3",
-                   "--candidates", "constant_force,backlash,cable_carrier,force_offset,parameter:plant.k1,mass_change",
-                   "--out", str(tmp_path / "found.toml")])
-    assert rc == 0
-    d = json.loads(out.getvalue())
+    d, found = _diagnose(tmp_path, _record(force, 1, duration=4.0, seed=seed, gap=gap), 3,
+                         "constant_force,backlash,cable_carrier,force_offset,parameter:plant.k1,mass_change")
     named = {e for s in d["chain"] for e in s["effects"]}
     assert named == {"constant_force", "backlash"}
     assert bool(d.get("shown_together")) is together and (len(d["chain"][0]["effects"]) == 2) is together
-    found = load(tmp_path / "found.toml")
     assert found["effects.constant_force.place"] == "table"
     assert found["effects.constant_force.force"] == pytest.approx(force, rel=0.05)
     assert found["effects.backlash.gap"] == pytest.approx(gap, rel=0.05)
