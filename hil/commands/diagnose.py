@@ -108,6 +108,12 @@ JSON_KEYS = {
                           when="several records of one command"),
     "chain[].stderr": JsonKey("SI", "`{effect: {parameter: standard error}}` of the step's last fit (null: none)"),
     "chain[].confounded": JsonKey("", "pairs of that fit's parameters correlated above 0.9: [name, name, r]"),
+    "chain[].aliases": JsonKey("SI", "`{effect: [{key, params, r, slope, confounded}]}`: the config's own "
+                                     "parameters (the parameter: candidates) against the step's fitted ones: r, "
+                                     "their correlation were both fitted (one fitted parameter; for several, the "
+                                     "multiple correlation), slope, what a relative drift of the key, left out of "
+                                     "the model, moves each fitted parameter by (per unit of relative drift), "
+                                     "confounded, |r| above 0.9: the record cannot tell the two apart"),
     "chain[].rival": JsonKey("", "the runner-up judged beside the verdict after the refit of everything found (a "
                                  "later step, when it removed at least 0.8 of the verdict's share): effect, score, "
                                  "verdict, verdict_score (BIC falls); the better is the step; null: none"),
@@ -482,7 +488,19 @@ def _held_out_lines(s, rp) -> list[str]:
                      f"{'earned' if h['earned'] else 'not earned'}")
     if s.get("confounded"):
         lines.append("          confounded: " + ", ".join(f"{a} and {b} (r = {r:+.3f})" for a, b, r in s["confounded"]))
+    for eff, al in (s.get("aliases") or {}).items():
+        conf = [a for a in al if a["confounded"]]
+        if conf:
+            lines.append(f"          {eff} is confounded with the config's " + ", ".join(_alias_text(a) for a in conf))
     return lines
+
+
+def _alias_text(a) -> str:
+    """One alias in words: the key, the correlation and what 1 % of drift in it shows as."""
+    what = ("their ratio is what the record fixes" if len(a["params"]) == 1 and a["r"] > 0 else
+            "their product is what the record fixes" if len(a["params"]) == 1 else "together they take up its drift")
+    moves = ", ".join(f"{p} {0.01 * v:+.4g}" for p, v in zip(a["params"], a["slope"]))
+    return f"{a['key']} (r = {a['r']:+.3f}: {what}; 1 % more {a['key']} shows here as {moves})"
 
 
 def _write_config(args, d, source) -> None:

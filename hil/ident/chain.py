@@ -53,7 +53,11 @@ as ``--validate``'s), every step must earn its place on data it was not fitted o
 Each step reports its estimation error (the record's, or the estimation half's) and held-out
 error per channel, and the standard errors of everything found so far with the pairs of fitted
 parameters confounded in the step's last fit (hil.ident.fit: |correlation| above
-:data:`~hil.ident.fit.CONFOUNDED`).
+:data:`~hil.ident.fit.CONFOUNDED`); and the aliases of the config's own parameters in the step's
+effects (:func:`~hil.ident.fit.config_aliases`): a one-parameter step has no correlation of its
+own, yet on a record where k2 drifted a step that names m3 has found the tip mode's frequency,
+sqrt(k2 / m3), not the mass; the alias says so (m3 confounded with k2, r = +1.00) and how much a
+drift of k2 moves it.
 
 It stops when every channel is at its noise floor (``end`` "noise floor reached"), when the
 diagnosis finds nothing that pays ("no effect pays for its parameters"; the remainder above the
@@ -69,11 +73,11 @@ import math
 import numpy as np
 
 from hil.ident.diagnosis import _close, candidate_names, diagnose, is_open_loop
-from hil.ident.fit import _fit_one, evaluate, fit_effects
+from hil.ident.fit import _fit_one, config_aliases, evaluate, fit_effects
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
-from hil.plant_config import candidate, measurement_key, without_replaced
+from hil.plant_config import candidate, default_parameters, measurement_key, without_replaced
 
 logger = logging.getLogger(__name__)
 
@@ -264,6 +268,15 @@ def _stderr_of(fit, names) -> tuple[dict, list]:
     return out, [list(p) for p in fit.confounded]
 
 
+def _aliases(replay, cfg1, add) -> dict:
+    """{effect: :func:`~hil.ident.fit.config_aliases`} of a step's effects at the step's config
+    against the config's own parameters (the diagnosis's ``parameter:`` candidates): what a drift
+    of each, left out of the model, shows as in the step's fitted values."""
+    keys = [k.split(":", 1)[1] for k in default_parameters(cfg1, closed_loop=not is_open_loop(replay))]
+    at = replay.with_config(cfg1)
+    return {n: config_aliases(at, n, effect_values(n, cfg1), keys) for n in add}
+
+
 def _add_verdict(cur, d, verdict, add, fit_nfev, progress):
     """(config, fits) of a step's effects added on top of the model: a combination one after the
     other, then together (hil fit --add ...); a single verdict the diagnosis's fit, polished from
@@ -412,7 +425,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         that are artefacts of the recording, written to the config's ``[measurement]``); and,
         with a leading underscore, the fits and the config, left out of the JSON), ``stderr``
         ({effect: {param: standard error}} of the step's last fit) and ``confounded`` (its pairs of
-        parameters correlated above :data:`~hil.ident.fit.CONFOUNDED`); with a held-out part
+        parameters correlated above :data:`~hil.ident.fit.CONFOUNDED`), ``aliases`` ({effect:
+        :func:`~hil.ident.fit.config_aliases`}: what the config's own parameters, drifted, show as
+        in the step's values); with a held-out part
         ``estimation_error`` and ``held_out`` (:func:`held_out_fall`); ``final`` (the residual
         against the noise floor and why it ended; ``rejected``: the step the held-out data refused),
         ``diagnoses`` (every step's diagnosis) and ``config`` (the model with the whole chain).
@@ -498,7 +513,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "evidence": (together["text"] if together is not None else
                                    lead.evidence if lead is not None else ""),
                       "refitted_together": joint is not None, "stderr": se, "confounded": conf,
-                      "rival": rival,
+                      "aliases": _aliases(replay, cfg1, add), "rival": rival,
                       "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
                       "_fits": fits, "_joint": joint, "_config": cfg1})
         if held is not None:

@@ -50,7 +50,8 @@ logger = logging.getLogger(__name__)
 CONFOUNDED = 0.9     # |correlation| of two fitted parameters above which they are named as confounded
 WORSE_TOL = 1e-6     # relative: a fit leaving more weighted error than this above the effect-free model's is wrong
 
-__all__ = ["Candidate", "evaluate", "fd_steps", "fit_effects", "joint_refit", "standard_errors", "confounded_pairs", "CONFOUNDED"]
+__all__ = ["Candidate", "evaluate", "fd_steps", "fit_effects", "joint_refit", "standard_errors", "confounded_pairs",
+           "config_aliases", "CONFOUNDED"]
 
 
 @dataclass
@@ -134,6 +135,68 @@ def confounded_pairs(sol, names) -> list:
             if abs(r) > CONFOUNDED:
                 out.append([names[i], names[j], r])
     return sorted(out, key=lambda x: -abs(x[2]))
+
+
+def config_aliases(replay: Replay, name: str, values: dict, keys: list[str]) -> list[dict]:
+    """The aliases of the config's own parameters in a fit (the alias matrix of a design of
+    experiments, (J_p^T J_p)^-1 J_p^T J_q): what the fitted parameters of the effect ``name`` (at ``values``, in the replay's config) are
+    confounded with among the config's own parameters ``keys`` (a mass, a stiffness, a gain), which
+    the fit held: a one-parameter fit has no correlation matrix of its own, yet the data may see
+    its parameter only together with one the config holds (a tip mode's frequency is sqrt(k2 / m3):
+    a fit of m3 alone, on a record where k2 moved, finds the ratio, not the mass).
+
+    With the columns J_p of the weighted residual vector's derivative by each fitted parameter
+    (forward differences, the fit's steps) and J_q by the relative change of each key (a step of
+    1e-3):
+
+    * ``slope``: the change of the fitted parameters that a relative change of the key shows as
+      (least squares of J_q on the J_p): a relative drift d of q that the model does not have
+      moves the fit by slope * d, to first order;
+    * ``r``: for one fitted parameter the correlation the two would have if fitted together,
+      -J_p.J_q / (|J_p| |J_q|) (near +1: the data fix their ratio p / q; near -1: their product);
+      for several, the multiple correlation of J_q with the J_p (how much of the key's drift the
+      effect's parameters together can take up).
+
+    Returns one entry per key the record sees: {"key", "params" (the fitted parameters' names),
+    "r", "slope" (one per parameter, in its SI unit), "confounded" (|r| above
+    :data:`CONFOUNDED`: the record cannot tell the two apart)}, strongest first; [] when the columns
+    cannot be formed (a config that cannot be simulated)."""
+    eff = candidate(name, replay.cfg)
+    fitted = eff.fitted_params
+    cfg = replay.cfg
+
+    def number(k):
+        v = cfg.get(k)
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and v != 0 and math.isfinite(v)
+    keys = [k for k in keys if number(k) and k != getattr(eff, "key", None)]
+    if not fitted or not keys:
+        return []
+    x0 = np.array([float(values[p.name]) for p in fitted])
+    h = fd_steps(x0, [p.lower for p in fitted], [p.upper for p in fitted], 1e-3)
+    base = configure(eff, cfg, values)
+    cfgs = [base] + [configure(eff, cfg, dict(values, **{p.name: float(x0[i] + h[i])})) for i, p in enumerate(fitted)]
+    cfgs += [base.with_values({k: float(base[k]) * (1.0 + 1e-3)}) for k in keys]
+    got = replay.objective.residuals_many(cfgs)
+    if any(isinstance(r, Exception) for r in got):
+        return []
+    vec = [replay.objective.vector(r) for r in got]
+    jp = np.column_stack([(vec[1 + i] - vec[0]) / h[i] for i in range(len(fitted))])
+    jq = np.column_stack([(vec[1 + len(fitted) + j] - vec[0]) / 1e-3 for j in range(len(keys))])
+    if not np.all(np.isfinite(jp)) or not np.all(np.isfinite(jq)) or not np.any(jp):
+        return []
+    slope = np.linalg.lstsq(jp, jq, rcond=None)[0]          # (fitted, keys)
+    out = []
+    for j, k in enumerate(keys):
+        nq = float(np.linalg.norm(jq[:, j]))
+        if nq == 0:
+            continue
+        if len(fitted) == 1:
+            r = -float(jp[:, 0] @ jq[:, j]) / (float(np.linalg.norm(jp[:, 0])) * nq)
+        else:
+            r = float(np.linalg.norm(jp @ slope[:, j])) / nq
+        out.append({"key": k, "params": [p.name for p in fitted], "r": r, "slope": slope[:, j].tolist(),
+                    "confounded": bool(abs(r) > CONFOUNDED)})
+    return sorted(out, key=lambda e: -abs(e["r"]))
 
 
 _FAILED = (ValueError, ZeroDivisionError, FloatingPointError)   # a config that cannot be simulated
