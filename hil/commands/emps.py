@@ -33,8 +33,8 @@ the record's own held-out moves); the table gives each step's estimation and hel
 
 # the keys of --json (docs/reference/json.md is generated from them; tests/test_json_reference.py
 # checks them against what run() prints). The errors are the benchmark's: relative 2-norm errors in %.
-_PARAMS = ("M (kg), Fv (N*s/m), Fc (N), offset (N), and level_pos, level_neg (N), viscous_pos, "
-           "viscous_neg (N*s/m) when the model has asymmetric friction")
+_PARAMS = ("M (kg), Fv (N*s/m), Fc (N), offset (N); with asymmetric friction M, offset, level_pos, level_neg (N), "
+           "viscous_pos, viscous_neg (N*s/m) (it sets the dry and viscous friction anew: no Fv, Fc)")
 JSON_KEYS = {
     "rows": JsonKey("", "the table: one row per model, from the published reference to the fitted ones "
                         "(entries rows[].*)"),

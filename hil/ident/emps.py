@@ -87,12 +87,15 @@ def errors(replay: Replay, cfg) -> dict:
 
 
 def params_of(cfg) -> dict:
-    """The rigid model's parameters M, Fv, Fc and offset of a config (and the asymmetric levels when
-    it has them), in the benchmark's names and signs."""
+    """The rigid model's parameters M, Fv, Fc and offset of a config, in the benchmark's names and
+    signs; with asymmetric friction its levels and viscous coefficients in place of Fv and Fc (it
+    sets the motor's dry and viscous friction anew: the values the config still has for them are
+    not in the model)."""
     out = {"M": cfg["plant.m1"], "Fv": cfg.get("friction.viscous", 0.0),
            "Fc": cfg.get("effects.coulomb_friction.level", 0.0),
            "offset": -cfg.get("effects.constant_force.force", 0.0)}
     if "effects.asymmetric_friction.level_pos" in cfg:
+        del out["Fv"], out["Fc"]
         out.update({k: cfg[f"effects.asymmetric_friction.{k}"] for k in
                     ("level_pos", "level_neg", "viscous_pos", "viscous_neg")})
     return {k: float(v) for k, v in out.items()}
