@@ -77,3 +77,13 @@ def test_evaluate_tells_a_sliver_of_kv_from_a_different_entry():
     c = evaluate(Replay(Measurement(ch, source="synth"), CFG), "parameter:control.kv")
     assert c.params["value"] == pytest.approx(kv, rel=0.01)
     assert not c.degenerate and c.significant and np.isfinite(c.score)
+
+
+@pytest.mark.parametrize("f,sample_period,above", [(590.0, 1e-3, True), (590.0, 4e-4, False), (480.0, 1e-3, False)])
+def test_a_link_above_the_records_nyquist_frequency_cannot_ring_in_it(f, sample_period, above):
+    # EMPS's chain took a 590 Hz link on 1 ms samples (Nyquist 500 Hz) as its fourth step, a sliver
+    values = {"load_share": 0.86, "frequency": f, "damping_ratio": 0.0995}
+    why = candidate("flexible_transmission").degenerate(values, None, sample_period)
+    assert bool(why) is above
+    if above:
+        assert "above the record's Nyquist frequency (500 Hz)" in why

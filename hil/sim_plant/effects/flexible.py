@@ -157,7 +157,7 @@ class FlexibleTransmission(Effect):
                     if p.lower <= f <= p.upper:
                         coarse += [{"load_share": s, "frequency": float(f), "damping_ratio": z} for z in self.DAMPINGS]
         # and a log grid over the resolvable range: a stiff link the residual's peaks do not show
-            fmax = min(0.45 / float(np.median(np.diff(t))), p.upper)
+        fmax = min(0.45 / float(np.median(np.diff(t))), p.upper)
         coarse += [{"load_share": s, "frequency": float(f), "damping_ratio": 0.1} for s in self.SHARES
                    for f in np.geomspace(self.RING_MIN, fmax, self.GRID_FREQS)]
         costs = ctx.costs(self, coarse)
@@ -176,6 +176,12 @@ class FlexibleTransmission(Effect):
         # mass, a link too stiff or too soft to ring, or damped past ringing
         at = [n for n in self._at_bound(values, ("load_share", "frequency", "damping_ratio"))
               if n != "damping_ratio" or values[n] > 0.5]
+        f = values.get("frequency")
+        if sample_period and f is not None and f > 0.5 / sample_period and "frequency" not in at:
+            # as a tool-side mode: a link that cannot ring in the record moves its masses as one, and
+            # what the fit took is a sliver of another effect's residual
+            return (f"a 2-mass link at {f:.4g} Hz, above the record's Nyquist frequency ({0.5 / sample_period:.4g} Hz), "
+                    f"cannot ring in it: its masses move as one; ")
         if not at:
             return ""
         return (f"a 2-mass link at the bound of its range ({', '.join(f'{n} {values[n]:.4g}' for n in at)}) is no "
