@@ -136,14 +136,18 @@ def record_effects(cfg: Config) -> list[tuple[RecordEffect, dict]]:
 
 def without_replaced(cfg: Config) -> Config:
     """The config without the effects that a later one sets anew (``Effect.replaces``: a
-    ``coulomb_friction`` before an ``asymmetric_friction`` acts on nothing): the same plant, and no
-    value left that reads as if it counted."""
+    ``coulomb_friction`` before an ``asymmetric_friction`` acts on nothing) and without the plant's
+    keys that a configured effect sets anew (``Effect.replaces_keys``: the motor's friction and
+    viscous damping under an ``asymmetric_friction``, back to their defaults, none): the same plant,
+    and no value left that reads as if it counted."""
     names = [eff.name for _, eff, _ in _configured_effects(cfg)]
     dead = {r for i, n in enumerate(names) for r in effect(n).replaces if r in names[:i]}
-    if not dead:
+    keys = {k for n in names for k in effect(n).replaces_keys if cfg.get(k)}      # set, and not 0
+    if not dead and not keys:
         return cfg
-    return cfg.with_values({k: None for k in cfg.keys()
-                            if k.startswith("effects.") and effect(k.split(".")[1]).name in dead})
+    return cfg.with_values({**{k: None for k in cfg.keys()
+                               if k.startswith("effects.") and effect(k.split(".")[1]).name in dead},
+                            **{k: None for k in keys}})
 
 
 def apply_effects(plant: Plant, cfg: Config) -> Plant:

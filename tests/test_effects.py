@@ -77,6 +77,18 @@ def test_an_effect_set_anew_leaves_the_written_config_and_nothing_moves():
     clean = without_replaced(cfg)
     left = {k.split(".")[1] for k in clean.keys() if k.startswith("effects.") and clean.values[k] is not None}
     assert left == {"asymmetric_friction"}
+    # and the motor's own friction and viscous damping, which it sets anew wherever it stands
+    assert CFG["friction.viscous"] > 0 and clean["friction.viscous"] == 0.0
+    a, b = simulate_config(cfg, X).channels(), simulate_config(clean, X).channels()
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+
+
+def test_stribeck_friction_leaves_the_plants_dry_friction_and_keeps_its_damping():
+    from hil.plant_config import without_replaced
+    cfg = CFG.with_values({"friction.coulomb": 1.1, "effects.stribeck_friction.level": 1.3,
+                           "effects.stribeck_friction.static": 1.8, "effects.stribeck_friction.velocity": 0.01})
+    clean = without_replaced(cfg)
+    assert clean["friction.coulomb"] == 0.0 and clean["friction.viscous"] == CFG["friction.viscous"]
     a, b = simulate_config(cfg, X).channels(), simulate_config(clean, X).channels()
     assert all(np.array_equal(a[k], b[k]) for k in a)
 
@@ -85,4 +97,4 @@ def test_an_effect_after_its_replacement_stays():
     # Coulomb friction after the asymmetric one sets the dry friction again: it counts, and stays
     from hil.plant_config import without_replaced
     cfg = CFG.with_values(ASYM).with_values({"effects.coulomb_friction.level": 1.5})
-    assert without_replaced(cfg) is cfg
+    assert without_replaced(cfg)["effects.coulomb_friction.level"] == 1.5

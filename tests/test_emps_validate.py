@@ -57,6 +57,8 @@ def test_emps_validate_json(tmp_path, capsys):
             # asymmetric_friction sets the dry friction anew: the Coulomb level it replaced is left out
             # (the same plant), its own levels written
             assert "effects.coulomb_friction.level" not in cfg
+            # and the motor's viscous friction, which it sets anew too (the start config's Fv): none left
+            assert cfg["friction.viscous"] == 0.0
             for k in ("level_pos", "level_neg", "viscous_pos", "viscous_neg"):
                 assert cfg[f"effects.asymmetric_friction.{k}"] == pytest.approx(want[k], rel=1e-8)
         else:

@@ -129,6 +129,9 @@ class Effect(ABC):
     # effects whose action this one sets anew when it comes after them (asymmetric friction sets the
     # friction and the motor's viscous damping): before it in a configuration they act on nothing
     replaces: tuple = ()
+    # the plant's own config keys this one sets anew wherever it is configured (the plant's friction
+    # is built before every effect): with it they act on nothing
+    replaces_keys: tuple = ()
     periodic: bool = False     # parameters include a period along the travel
 
     @property

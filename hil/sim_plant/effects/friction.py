@@ -150,6 +150,7 @@ class StribeckFriction(Effect):
     nests = ("coulomb_friction",)
 
     replaces = ("coulomb_friction",)              # it sets the dry friction anew
+    replaces_keys = ("friction.coulomb", "friction.static")
     def apply(self, plant, values):
         r = to_linear(plant)
         fc, fs = values["level"] * r, max(values["static"], values["level"]) * r
@@ -182,6 +183,7 @@ class AsymmetricFriction(Effect):
 
     # it sets the dry friction and the motor's viscous damping anew
     replaces = ("coulomb_friction", "viscous_friction", "stribeck_friction")
+    replaces_keys = ("friction.coulomb", "friction.static", "friction.viscous")   # the motor's friction and damping
     def apply(self, plant, values):
         r = to_linear(plant)
         fp, fn = values["level_pos"] * r, values["level_neg"] * r
