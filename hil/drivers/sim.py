@@ -256,6 +256,33 @@ class SimulatedPlant(Backend):
     def close(self) -> None:
         self.enabled = False
 
+    def warm_up(self) -> None:
+        """Load every compiled function a cycle of this backend calls (enabled, disabled and
+        stepped by a drive simulator, and the feedback it reads) on this state and put the state
+        back as it was (not real-time). A drive simulator calls it before it serves: a function
+        first called in its cycle is compiled or loaded there, seconds on a fresh install, and the
+        drive neither answers nor greets a client meanwhile."""
+        import copy
+        kept = {k: copy.deepcopy(v) for k, v in vars(self).items()
+                if k in ("x", "_xn", "_f", "_s", "_ubuf", "_hbuf", "_u_act", "time", "_prev_position", "_set",
+                         "_enabled")}
+        try:
+            self.read_feedback()
+            self.enabled = False
+            self.sync()                           # coasting
+            self.enabled = True
+            self.write_setpoint(Setpoint(position=float(self.x[0]), speed=0.0, output=0.0))
+            self.sync()
+            self.advance(0.0)                     # a drive's own loop (its quick stop) steps the output
+            self.read_feedback()
+        finally:
+            for k, v in kept.items():
+                if isinstance(v, np.ndarray) and isinstance(getattr(self, k), np.ndarray) \
+                        and getattr(self, k).shape == v.shape:
+                    getattr(self, k)[:] = v       # in place: a caller may hold the array
+                else:
+                    setattr(self, k, v)
+
     # -- for a drive simulator that runs this plant as its shaft (hil.drivers.canopen.drive_sim,
     #    hil.drivers.serial.drive_sim): its own stop ramp, a change of mode, a fresh enable -------
     @property

@@ -189,6 +189,7 @@ class DriveSim:
     def _make_plant(self, mode: str) -> None:
         closes = cia402.MODE_CLOSES[mode]
         new = SimulatedPlant(self.cfg, closes=closes)
+        new.warm_up()                 # its cycles loaded before its first SYNC in the new mode
         if self.plant is not None:
             new.take_over(self.plant)
         new.open()
@@ -202,8 +203,10 @@ class DriveSim:
 
     def _warm_up(self) -> None:
         """Run the compiled plant and loop functions once on a throw-away copy, so that the first
-        SYNC is not held up by loading them (a late first answer)."""
+        SYNC is not held up by loading them (a late first answer), nor the first client's greeting
+        (the drive starts disabled: its plant coasts, another compiled function)."""
         pl = self.plant
+        pl.warm_up()
         x = pl.x.copy()
         pl.enabled = True
         pl.sync()

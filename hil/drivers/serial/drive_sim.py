@@ -130,8 +130,10 @@ class _Drive:
                               f"({exc})") from None
 
     def _warm_up(self) -> None:
-        """Compile the control law before the first command (a first setpoint must not take 100 ms)."""
+        """Compile the control law before the first command (a first setpoint must not take 100 ms),
+        and the plant's other cycles (coasting while disabled, the feedback it reads)."""
         pl = self.plant
+        pl.warm_up()
         pl.enable()
         pl.write_setpoint(Setpoint(position=0.0, speed=0.0))
         pl.sync()

@@ -1,0 +1,73 @@
+"""A simulated drive loads every compiled function of its cycle before it serves (issue 27's
+benchmark met it): the CANopen drive starts disabled, its plant coasts, and a coasting cycle first
+compiled inside ``serve`` (seconds on a fresh install, with no numba cache) held up the greeting
+of the first socketcand client past its 2 s (``canopen.connect_timeout``).
+
+Each check runs in a fresh interpreter, where nothing is loaded yet: after the drive's
+construction, every dispatcher of the plant's cycle has its compiled code (numba's own record of
+it, ``Dispatcher.signatures``), and the plant's state is as before the warm-up."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+CYCLE = ("drive_cycle", "coast_cycle", "torque_cycle", "drive_feedback")
+
+PROBE = r"""
+import json, sys
+import numpy as np
+from hil import config
+import hil.control as control
+import hil.drivers.sim as sim
+kind = sys.argv[1]
+cfg = config.load("paper_bench_canopen.toml" if kind == "canopen" else "serial_ascii_example.toml")
+if kind == "canopen":
+    import can
+    from hil.drivers.canopen.drive_sim import DriveSim
+    drive = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="warm_up_probe"), lockstep=True)
+    plant = drive.plant
+elif kind == "serial":
+    from hil.drivers.serial.drive_sim import _Drive
+    plant = _Drive(cfg).plant
+else:
+    plant = sim.SimulatedPlant(cfg, closes=kind)
+    plant.home_at(0.01)
+    before = {k: np.array(v, copy=True) for k, v in (("x", plant.x), ("hbuf", plant._hbuf), ("ubuf", plant._ubuf))}
+    plant.warm_up()
+    same = all(np.array_equal(before[k], v) for k, v in (("x", plant.x), ("hbuf", plant._hbuf), ("ubuf", plant._ubuf)))
+    same = same and plant.time == 0.0 and plant.output_actual == 0.0 and not plant.enabled
+    print(json.dumps({"same": bool(same)}))
+compiled = {name: len(getattr(sim, name).signatures) for name in %r}
+compiled["quantize"] = len(control.quantize.signatures)
+print(json.dumps(compiled))
+""" % (CYCLE,)
+
+
+def _probe(kind):
+    out = subprocess.run([sys.executable, "-c", PROBE, kind], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
+    assert out.returncode == 0, out.stderr[-2000:]
+    return [json.loads(line) for line in out.stdout.splitlines() if line.startswith("{")]
+
+
+@pytest.mark.parametrize("kind", ["canopen", "serial"])
+def test_a_drive_simulator_loads_its_whole_cycle_before_it_serves(kind):
+    (compiled,) = _probe(kind)
+    assert all(compiled.values()), f"not loaded before the first cycle: {[k for k, v in compiled.items() if not v]}"
+
+
+# what each arrangement's cycle calls (hil.drivers.sim.SimulatedPlant.sync, advance, read_feedback)
+CALLS = {"none": {"coast_cycle", "torque_cycle", "quantize"},
+         "velocity": {"drive_cycle", "coast_cycle", "torque_cycle", "quantize"},
+         "both": {"drive_cycle", "coast_cycle", "torque_cycle", "drive_feedback", "quantize"}}
+
+
+@pytest.mark.parametrize("closes", sorted(CALLS))
+def test_the_warm_up_leaves_the_state_as_it_was(closes):
+    state, compiled = _probe(closes)
+    assert state["same"]
+    assert {k for k, v in compiled.items() if v} == CALLS[closes]
