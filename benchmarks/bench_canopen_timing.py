@@ -251,14 +251,40 @@ def _cpu_s(pid) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def _tree_cpu_s(pid) -> float:
+    """CPU time (s) of a process and every process below it that still lives (the browser's
+    renderer, GPU and utility processes; Linux /proc)."""
+    parent = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    parent[int(entry)] = int(fh.read().rsplit(")", 1)[1].split()[1])
+            except OSError:
+                pass
+    tree, grew = {pid}, True
+    while grew:
+        below = {p for p, pp in parent.items() if pp in tree} - tree
+        tree |= below
+        grew = bool(below)
+    total = 0.0
+    for p in tree:
+        try:
+            total += _cpu_s(p)
+        except OSError:          # ended meanwhile
+            pass
+    return total
+
+
 class ScopePage:
     """The live scope of a run as the commands start it (hil.scope.server.ScopeProcess: the ring a
     shared mapping, the Bokeh server in its own process) with its page open in headless Chromium,
     streaming. ``loop_cpu``: the loop's CPU; the server and the browser go on the others; both
     ``nice`` steps nicer (the commands': hil.scope.server.SERVER_NICE)."""
 
-    def __init__(self, loop_cpu=None, nice=SERVER_NICE):
+    def __init__(self, loop_cpu=None, nice=SERVER_NICE, points=None):
         self.loop_cpu, self.nice = loop_cpu, nice
+        self.points = points
 
     def __enter__(self):
         import shutil
@@ -269,7 +295,8 @@ class ScopePage:
         chromium = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
         if chromium is None:
             raise SystemExit("--scope: no Chromium installed (Debian: apt-get install chromium)")
-        self.server = ScopeProcess(loop_cpu=self.loop_cpu, nice=self.nice)
+        self.server = ScopeProcess(loop_cpu=self.loop_cpu, nice=self.nice,
+                                   **({"max_points": self.points} if self.points else {}))
         self.ring = self.server.ring
         url = self.server.start()
         self.profile = tempfile.mkdtemp(prefix="bench-scope-")
@@ -297,11 +324,13 @@ class ScopePage:
             time.sleep(0.2)
         self.devtools.evaluate(RECORDER)
         self.cpu0, self.wall0 = _cpu_s(self.server.proc.pid), time.monotonic()
+        self.browser_cpu0 = _tree_cpu_s(self.browser.pid)
         return self
 
     def figures(self, res) -> dict:
         """After the run: the page's latency, frames per second, the server's CPU share."""
         cpu, wall = _cpu_s(self.server.proc.pid) - self.cpu0, time.monotonic() - self.wall0
+        browser_cpu = _tree_cpu_s(self.browser.pid) - self.browser_cpu0
         time.sleep(1.0)                          # the last frames
         frames = json.loads(self.devtools.evaluate("JSON.stringify(window.__frames)"))
         walls = res["_walls"]
@@ -310,7 +339,9 @@ class ScopePage:
         return {"page_latency_p50_ms": float(np.percentile(lat, 50) * 1e3) if lat.size else None,
                 "page_latency_p99_ms": float(np.percentile(lat, 99) * 1e3) if lat.size else None,
                 "page_latency_max_ms": float(lat.max() * 1e3) if lat.size else None,
-                "page_frames_per_s": len(run) / res["seconds"], "server_cpu_pct_of_one_core": 100.0 * cpu / wall}
+                "page_frames_per_s": len(run) / res["seconds"], "server_cpu_pct_of_one_core": 100.0 * cpu / wall,
+                "browser_cpu_pct_of_one_core": 100.0 * browser_cpu / wall,
+                "page_points_per_trace": self.server.max_points}
 
     def __exit__(self, *exc):
         import shutil
@@ -320,13 +351,13 @@ class ScopePage:
         shutil.rmtree(self.profile, ignore_errors=True)
 
 
-def _looped(cfg, seconds, spin, scope: bool, nice=SERVER_NICE) -> dict:
+def _looped(cfg, seconds, spin, scope: bool, nice=SERVER_NICE, points=None) -> dict:
     """The loop, without or with the live scope's page open and streaming (server and browser
     ``nice`` steps nicer)."""
     if not scope:
         res = loop(cfg, seconds, spin)
     else:
-        with ScopePage(cfg.get("runtime.loop_cpu"), nice) as page:
+        with ScopePage(cfg.get("runtime.loop_cpu"), nice, points) as page:
             res = loop(cfg, seconds, spin, ring=page.ring)
             res["period_s"] = 1.0 / res["rate_hz"]
             res.update(page.figures(res))
@@ -335,7 +366,7 @@ def _looped(cfg, seconds, spin, scope: bool, nice=SERVER_NICE) -> dict:
 
 
 def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False, loop_cpu=None,
-            nice=SERVER_NICE, drive_cpu=None):
+            nice=SERVER_NICE, drive_cpu=None, points=None):
     period = f"{1000.0 / rate:g} ms"
     # start-up over SDO is not what is measured: a generous answer time, so that a loaded machine (the
     # burner, a test run beside it) does not abort the configuration before the cycle starts
@@ -356,7 +387,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
             over.update({"canopen.interface": "virtual", "canopen.channel": f"bench{os.getpid()}"})
             cfg = config.load(CONFIG, over)
             sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=over["canopen.channel"]), lockstep=False)
-            res = _looped(cfg, seconds, spin, scope, nice)
+            res = _looped(cfg, seconds, spin, scope, nice, points)
             from hil.commands.drive_sim import answer_stats
             drive_stats = answer_stats(sim.answer_times)
         else:
@@ -373,7 +404,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
             if not drive.stdout.readline():               # the server is up
                 raise RuntimeError("hil drive-sim did not start")
             over.update({"canopen.interface": "socketcand", "canopen.channel": "can0", "canopen.port": port})
-            res = _looped(config.load(CONFIG, over), seconds, spin, scope, nice)
+            res = _looped(config.load(CONFIG, over), seconds, spin, scope, nice, points)
             _stop(drive)
             line = drive.stdout.readline()
             drive_stats = json.loads(line) if line.strip() else {}
@@ -427,7 +458,8 @@ def _scope_line(without: dict, with_scope: dict) -> str:
     return (f"  scope: lateness p50/p99/max {ratio('lateness_p50_us')}/{ratio('lateness_p99_us')}/"
             f"{ratio('lateness_max_us')} x, cycles without answer {without['cycles_without_answer']} -> "
             f"{w['cycles_without_answer']}; page latency p50/p99/max {ms} ms, {w['page_frames_per_s']:.1f} frames/s, "
-            f"server CPU {w['server_cpu_pct_of_one_core']:.1f} % of one core")
+            f"server CPU {w['server_cpu_pct_of_one_core']:.1f} %, browser CPU {w['browser_cpu_pct_of_one_core']:.0f} % "
+            f"of one core ({w['page_points_per_trace']} points a trace)")
 
 
 NOISE_KEYS = ("lateness_p50_us", "lateness_p99_us", "lateness_max_us", "cycles_without_answer")
@@ -500,8 +532,13 @@ def main(argv=None):
     ap.add_argument("--nice", type=int, default=SERVER_NICE, metavar="N",
                     help=f"with --scope: how much nicer the scope's server and the browser run (default {SERVER_NICE}, "
                          f"as the commands start the server; 0: at the loop process's own niceness)")
+    ap.add_argument("--points", type=int, default=None, metavar="N",
+                    help="with --scope: the page's points per trace at most (default: the commands' "
+                         "hil.scope.server.ScopeProcess max_points)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
+    if args.points is not None and args.points < 2:
+        ap.error(f"--points {args.points}: expected 2 or more")
     if args.all:
         args.transport, args.rate, args.duration, args.burner = "both", "250,1000", None, True
     transports = ("virtual", "socketcand") if args.transport == "both" else (args.transport,)
@@ -526,7 +563,7 @@ def main(argv=None):
                     for scope in ((False, True) if args.scope else (False,)):
                         results.append(run_one(transport, rate, seconds, burner, spin, args.priority,
                                                args.cpu_latency, scope, args.loop_cpu, args.nice,
-                                               args.drive_cpu))
+                                               args.drive_cpu, args.points))
                         results[-1]["repetition"] = repetition
                         if not args.json:
                             print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
