@@ -29,10 +29,14 @@ headless Chromium, a real client in its own process): the lateness and the cycle
 answer of both, and their ratio; the page's latency (from the cycle that wrote a row, as it ran,
 to the frame that brought the row into the page, ms: the page records when its newest row
 changes, on the same wall clock), its
-frames per second and the server's CPU time (its process, as the commands start it) as a share
-of one core (/proc). ``--repeat N``: each pair (without, with) N times, interleaved; then per
-figure the values of each side, their spread (largest minus smallest: the run-to-run noise of
-this machine) and whether the difference of the means is within it.
+frames per second, the server's CPU time (its process, as the commands start it) and the
+browser's (all its processes) as a share of one core (/proc); ``--points N`` sets the page's points
+per trace. ``--repeat N``: each pair (without, with) N times, interleaved; then per figure the
+values of each side, their spread (largest minus smallest: the run-to-run noise of this machine)
+and whether the difference of the means is within it. ``--peer`` adds to each pair a run without
+the page but with one CPU-bound process where its server and browser run, as nice: the peer that
+tells the page's own effect from what any work on those CPUs does to the loop on this machine
+(on a VM whose virtual CPUs share a core, the loop's worst lateness grows with either).
 
 ``--loop-cpu N`` (``runtime.loop_cpu``): the loop's thread pinned to CPU N, as on a real-time PC;
 the scope's server, the browser and the drive's process on the other CPUs, as the commands place
@@ -197,10 +201,12 @@ def _placed(cpus, nice=0):
     return place
 
 
-def start_burner(seconds):
-    """One core kept busy: a separate Python process spinning, bounded to ``seconds``."""
+def start_burner(seconds, preexec_fn=None):
+    """One core kept busy: a separate Python process spinning, bounded to ``seconds`` (placed by
+    ``preexec_fn``: :func:`_placed`)."""
     code = f"import time\nend = time.monotonic() + {float(seconds)!r}\nwhile time.monotonic() < end:\n    pass\n"
-    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            preexec_fn=preexec_fn)
 
 
 # the page records when the newest row it holds changes (every 5 ms), on the wall clock
@@ -366,7 +372,7 @@ def _looped(cfg, seconds, spin, scope: bool, nice=SERVER_NICE, points=None) -> d
 
 
 def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us", scope=False, loop_cpu=None,
-            nice=SERVER_NICE, drive_cpu=None, points=None):
+            nice=SERVER_NICE, drive_cpu=None, points=None, peer=False):
     period = f"{1000.0 / rate:g} ms"
     # start-up over SDO is not what is measured: a generous answer time, so that a loaded machine (the
     # burner, a test run beside it) does not abort the configuration before the cycle starts
@@ -379,6 +385,9 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
     try:
         if burner:
             burn = start_burner(seconds + 60.0)
+            time.sleep(0.5)
+        elif peer:           # the page's CPU share, without the page: where and how nice its server and browser run
+            burn = start_burner(seconds + 60.0, _placed(server_cpus(loop_cpu), nice))
             time.sleep(0.5)
         if transport == "virtual":
             import can
@@ -417,7 +426,7 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
     steal = None if steal_before is None or steal_after is None else steal_after - steal_before
     res.update({"steal_s": steal, "steal_pct": None if steal is None else 100.0 * steal / (wall * (os.cpu_count() or 1)),
                 "transport": ("virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)")
-                + (" +scope" if scope else ""), "scope": scope,
+                + (" +scope" if scope else " +busy page CPU" if peer else ""), "scope": scope, "peer": peer,
                 "load": "one core busy" if burner else "idle", "scope_nice": nice if scope else None,
                 "drive_answer_p50_us": drive_stats.get("answer_p50_us"),
                 "drive_answer_p99_us": drive_stats.get("answer_p99_us"),
@@ -475,12 +484,15 @@ def noise(runs) -> dict:
     (None with one repetition)."""
     out = {}
     for key in NOISE_KEYS:
-        a = [r[key] for r in runs if not r["scope"]]
+        a = [r[key] for r in runs if not r["scope"] and not r.get("peer")]
         b = [r[key] for r in runs if r["scope"]]
+        c = [r[key] for r in runs if r.get("peer")]
         spread = max(max(a) - min(a), max(b) - min(b)) if min(len(a), len(b)) > 1 else None
         diff = float(np.mean(b) - np.mean(a))
         out[key] = {"without": a, "with": b, "spread": spread, "difference": diff,
                     "within_noise": None if spread is None else bool(abs(diff) <= max(spread, NOISE_FLOOR[key]))}
+        if c:                # --peer: the same CPU taken by a plain process instead of the page
+            out[key].update({"peer": c, "difference_to_peer": float(np.mean(b) - np.mean(c))})
     return out
 
 
@@ -492,7 +504,9 @@ def _noise_lines(summary) -> list[str]:
         verdict = {True: "within the noise", False: "BEYOND the noise", None: "-"}[s["within_noise"]]
         lines.append(f"  {key:22s} without {', '.join(map(f, s['without']))} | with {', '.join(map(f, s['with']))}"
                      f" | spread {'-' if s['spread'] is None else f(s['spread'])} | with - without "
-                     f"{s['difference']:+.1f}: {verdict}")
+                     f"{s['difference']:+.1f}: {verdict}"
+                     + (f" | busy page CPU without the page {', '.join(map(f, s['peer']))}, with - busy "
+                        f"{s['difference_to_peer']:+.1f}" if "peer" in s else ""))
     return lines
 
 
@@ -522,6 +536,10 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=1, metavar="N",
                     help="with --scope: each pair (without, with the page) N times, interleaved, and the spread "
                          "between repetitions as the noise (default 1)")
+    ap.add_argument("--peer", action="store_true",
+                    help="with --scope: each repetition also without the page but with one CPU-bound process where "
+                         "its server and browser would run (as nice): how much any work there moves the loop's "
+                         "figures on this machine, the peer of the page's difference")
     ap.add_argument("--loop-cpu", type=int, default=None, metavar="N",
                     help="runtime.loop_cpu: the loop's thread pinned to CPU N; the scope's server, the browser and "
                          "the drive's process on the other CPUs (server and browser niced)")
@@ -537,6 +555,8 @@ def main(argv=None):
                          "hil.scope.server.ScopeProcess max_points)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
+    if args.peer and (not args.scope or args.burner or args.burner_only):
+        ap.error("--peer: with --scope, and without --burner (the peer's process is the one busy CPU)")
     if args.points is not None and args.points < 2:
         ap.error(f"--points {args.points}: expected 2 or more")
     if args.all:
@@ -560,16 +580,17 @@ def main(argv=None):
             for burner in loads:
                 first = len(results)
                 for repetition in range(args.repeat if args.scope else 1):
-                    for scope in ((False, True) if args.scope else (False,)):
+                    kinds = ((False, True) + (("peer",) if args.peer else ())) if args.scope else (False,)
+                    for kind in kinds:
                         results.append(run_one(transport, rate, seconds, burner, spin, args.priority,
-                                               args.cpu_latency, scope, args.loop_cpu, args.nice,
-                                               args.drive_cpu, args.points))
+                                               args.cpu_latency, kind is True, args.loop_cpu, args.nice,
+                                               args.drive_cpu, args.points, peer=kind == "peer"))
                         results[-1]["repetition"] = repetition
                         if not args.json:
                             print(_table(results[-1:]).splitlines()[-1] if len(results) > 1 else _table(results[-1:]),
                                   flush=True)
                     if args.scope and not args.json:
-                        print(_scope_line(results[-2], results[-1]), flush=True)
+                        print(_scope_line(*[r for r in results[-len(kinds):] if not r["peer"]]), flush=True)
                 if args.scope and args.repeat > 1:
                     summaries.append({"transport": transport, "rate_hz": rate, "burner": burner,
                                       "noise": noise(results[first:])})
