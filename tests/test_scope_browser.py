@@ -254,24 +254,31 @@ def test_the_timing_benchmark_compares_a_run_with_the_page_streaming():
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
                     reason="pinning needs Linux and two CPUs")
 def test_the_timing_benchmark_repeats_with_the_loop_pinned():
-    """--repeat 2 --loop-cpu N: two interleaved pairs (without, with the page), the loop on CPU N,
-    and the noise of the two repetitions computed from the runs it printed."""
+    """--repeat 2 --loop-cpu N --peer: two interleaved triples (without, with the page, with a busy
+    process where the page runs), the loop on CPU N, and the noise of the two repetitions computed
+    from the runs it printed; --points sets the page's points a trace."""
     pin = max(os.sched_getaffinity(0))
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks/bench_canopen_timing.py"), "--transport", "virtual",
                           "--rate", "250", "--duration", "2", "--scope", "--repeat", "2", "--loop-cpu", str(pin),
-                          "--json"], cwd=ROOT, capture_output=True, text=True, timeout=400,
-                         env=dict(os.environ, PYTHONPATH=str(ROOT)))
+                          "--peer", "--points", "500", "--json"], cwd=ROOT, capture_output=True, text=True,
+                         timeout=400, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert out.returncode == 0, out.stderr[-2000:]
     doc = json.loads(out.stdout)
     res = doc["results"]
-    assert [(r["scope"], r["repetition"], r["loop_cpu"], r["scope_nice"]) for r in res] == [
-        (False, 0, pin, None), (True, 0, pin, 10), (False, 1, pin, None), (True, 1, pin, 10)]
+    assert [(r["scope"], r["peer"], r["repetition"], r["loop_cpu"], r["scope_nice"]) for r in res] == [
+        (False, False, 0, pin, None), (True, False, 0, pin, 10), (False, True, 0, pin, None),
+        (False, False, 1, pin, None), (True, False, 1, pin, 10), (False, True, 1, pin, None)]
+    assert res[2]["transport"].endswith("+busy page CPU") and "page_frames_per_s" not in res[2]
+    assert [r["page_points_per_trace"] for r in res if r["scope"]] == [500, 500]
+    assert all(0 < r["browser_cpu_pct_of_one_core"] for r in res if r["scope"])
     (summary,) = doc["scope_noise"]
     p99 = summary["noise"]["lateness_p99_us"]
-    a, b = [res[0]["lateness_p99_us"], res[2]["lateness_p99_us"]], [res[1]["lateness_p99_us"], res[3]["lateness_p99_us"]]
-    assert p99["without"] == a and p99["with"] == b
+    a, b = [res[0]["lateness_p99_us"], res[3]["lateness_p99_us"]], [res[1]["lateness_p99_us"], res[4]["lateness_p99_us"]]
+    c = [res[2]["lateness_p99_us"], res[5]["lateness_p99_us"]]
+    assert p99["without"] == a and p99["with"] == b and p99["peer"] == c
     assert p99["spread"] == pytest.approx(max(abs(a[0] - a[1]), abs(b[0] - b[1])))
     assert p99["difference"] == pytest.approx((b[0] + b[1]) / 2 - (a[0] + a[1]) / 2)
+    assert p99["difference_to_peer"] == pytest.approx((b[0] + b[1]) / 2 - (c[0] + c[1]) / 2)
 
 
 # the page's downloads (an anchor with ``download`` clicked) kept instead of saved: [name, data URL]
