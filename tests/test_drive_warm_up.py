@@ -5,7 +5,10 @@ of the first socketcand client past its 2 s (``canopen.connect_timeout``).
 
 Each check runs in a fresh interpreter, where nothing is loaded yet: after the drive's
 construction, every dispatcher of the plant's cycle has its compiled code (numba's own record of
-it, ``Dispatcher.signatures``), and the plant's state is as before the warm-up."""
+it, ``Dispatcher.signatures``), and the plant's state is as before the warm-up. And a whole ``hil
+move`` on each real-axis path (host and simulated drive in one process) loads nothing compiled
+after its first cycle has begun: the drive's first feedback loaded ``quantize`` inside the cycle
+before (a compilation there on a fresh install, with the loop's watchdog running)."""
 import json
 import subprocess
 import sys
@@ -71,3 +74,65 @@ def test_the_warm_up_leaves_the_state_as_it_was(closes):
     state, compiled = _probe(closes)
     assert state["same"]
     assert {k for k, v in compiled.items() if v} == CALLS[closes]
+
+
+# a whole move, the set of compiled functions taken at the loop's first tick and at the end
+MOVE_PROBE = r"""
+import contextlib, io, json, os, sys, tempfile
+from pathlib import Path
+os.environ["HIL_STATE_DIR"] = tempfile.mkdtemp()
+from numba.core.registry import CPUDispatcher
+import hil.loop as L
+from hil import config
+from hil.cli import main
+
+def dispatchers():
+    out = {}
+    for name, mod in list(sys.modules.items()):
+        if name == "hil" or name.startswith("hil."):
+            for obj in list(vars(mod).values()):
+                if isinstance(obj, CPUDispatcher):
+                    out[obj.py_func.__module__ + "." + obj.py_func.__name__] = len(obj.signatures)
+    return out
+
+first = {}
+tick = L.ControlLoop._tick
+def first_tick(self, k, cmd):
+    if k == 0 and not first:
+        first.update(dispatchers())
+    return tick(self, k, cmd)
+L.ControlLoop._tick = first_tick
+out = Path(tempfile.mkdtemp())
+if sys.argv[1] == "canopen":
+    import can
+    from hil.drivers.canopen.drive_sim import DriveSim
+    sets = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": "warm_up_move"}
+    sim = DriveSim(config.load("config/paper_bench_canopen.toml", sets),
+                   bus=can.Bus(interface="virtual", channel="warm_up_move"), lockstep=True)
+    argv = ["--config", "config/paper_bench_canopen.toml", "--backend", "canopen", "--stroke", "20mm",
+            "--feed", "6000mm/min", "--amax", "2m/s^2", "--dwell", "0.3s"]
+    argv += sum((["--set", f"{k}={str(v).lower() if isinstance(v, bool) else v}"] for k, v in sets.items()), [])
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = main(["move", *argv, "--out", str(out)])
+    sim.close()
+else:
+    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    with SimulatedSerialDrive(config.load("config/serial_ascii_example.toml")) as drive, \
+            contextlib.redirect_stdout(io.StringIO()):
+        rc = main(["move", "--config", "config/serial_ascii_example.toml", "--backend", "serial", "--set",
+                   f'serial.port="{drive.port}"', "--stroke", "10mm", "--feed", "7000mm/min", "--tacc", "200ms",
+                   "--dwell", "0.3s", "--out", str(out)])
+end = dispatchers()
+print(json.dumps({"rc": rc, "ticked": bool(first),
+                  "loaded_in_cycle": sorted(k for k, v in end.items() if v > first.get(k, 0))}))
+"""
+
+
+@pytest.mark.parametrize("backend", ["canopen", "serial"])
+def test_nothing_compiled_is_loaded_once_the_loop_runs(backend):
+    out = subprocess.run([sys.executable, "-c", MOVE_PROBE, backend], cwd=ROOT, capture_output=True, text=True,
+                         timeout=300, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "HOME": str(Path.home())})
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["rc"] == 0 and got["ticked"]
+    assert got["loaded_in_cycle"] == []
