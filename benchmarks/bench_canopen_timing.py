@@ -427,7 +427,8 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
     res.update({"steal_s": steal, "steal_pct": None if steal is None else 100.0 * steal / (wall * (os.cpu_count() or 1)),
                 "transport": ("virtual (in process)" if transport == "virtual" else "socketcand (drive-sim process)")
                 + (" +scope" if scope else " +busy page CPU" if peer else ""), "scope": scope, "peer": peer,
-                "load": "one core busy" if burner else "idle", "scope_nice": nice if scope else None,
+                "load": "one core busy" if burner else "page CPU busy" if peer else "idle",
+                "scope_nice": nice if scope else None, "peer_nice": nice if peer else None,
                 "drive_answer_p50_us": drive_stats.get("answer_p50_us"),
                 "drive_answer_p99_us": drive_stats.get("answer_p99_us"),
                 "drive_answer_max_us": drive_stats.get("answer_max_us"),
@@ -555,12 +556,12 @@ def main(argv=None):
                          "hil.scope.server.ScopeProcess max_points)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     args = ap.parse_args(argv)
-    if args.peer and (not args.scope or args.burner or args.burner_only):
-        ap.error("--peer: with --scope, and without --burner (the peer's process is the one busy CPU)")
-    if args.points is not None and args.points < 2:
-        ap.error(f"--points {args.points}: expected 2 or more")
     if args.all:
         args.transport, args.rate, args.duration, args.burner = "both", "250,1000", None, True
+    if args.peer and (not args.scope or args.burner or args.burner_only):
+        ap.error("--peer: with --scope, and without --burner or --all (the peer's process is the one busy CPU)")
+    if args.points is not None and (args.points < 2 or not args.scope):
+        ap.error(f"--points {args.points}: with --scope, 2 or more")
     transports = ("virtual", "socketcand") if args.transport == "both" else (args.transport,)
     loads = (True,) if args.burner_only else (False, True) if args.burner else (False,)
     spin = args.spin                 # None: the clock's default for the period

@@ -269,6 +269,7 @@ def test_the_timing_benchmark_repeats_with_the_loop_pinned():
         (False, False, 0, pin, None), (True, False, 0, pin, 10), (False, True, 0, pin, None),
         (False, False, 1, pin, None), (True, False, 1, pin, 10), (False, True, 1, pin, None)]
     assert res[2]["transport"].endswith("+busy page CPU") and "page_frames_per_s" not in res[2]
+    assert res[2]["load"] == "page CPU busy" and res[2]["peer_nice"] == 10
     assert [r["page_points_per_trace"] for r in res if r["scope"]] == [500, 500]
     assert all(0 < r["browser_cpu_pct_of_one_core"] for r in res if r["scope"])
     (summary,) = doc["scope_noise"]

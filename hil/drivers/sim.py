@@ -263,7 +263,8 @@ class SimulatedPlant(Backend):
         first called in its cycle is compiled or loaded there, seconds on a fresh install, and the
         drive neither answers nor greets a client meanwhile."""
         import copy
-        kept = {k: copy.deepcopy(v) for k, v in vars(self).items()
+        # each attribute's object and a copy of its contents: the objects are put back, as they were
+        kept = {k: (v, copy.deepcopy(v)) for k, v in vars(self).items()
                 if k in ("x", "_xn", "_f", "_s", "_ubuf", "_hbuf", "_u_act", "time", "_prev_position", "_set",
                          "_enabled")}
         try:
@@ -276,12 +277,10 @@ class SimulatedPlant(Backend):
             self.advance(0.0)                     # a drive's own loop (its quick stop) steps the output
             self.read_feedback()
         finally:
-            for k, v in kept.items():
-                if isinstance(v, np.ndarray) and isinstance(getattr(self, k), np.ndarray) \
-                        and getattr(self, k).shape == v.shape:
-                    getattr(self, k)[:] = v       # in place: a caller may hold the array
-                else:
-                    setattr(self, k, v)
+            for k, (obj, contents) in kept.items():
+                if isinstance(obj, np.ndarray):
+                    obj[...] = contents           # the same array, with what it held
+                setattr(self, k, obj if isinstance(obj, np.ndarray) else contents)
 
     # -- for a drive simulator that runs this plant as its shaft (hil.drivers.canopen.drive_sim,
     #    hil.drivers.serial.drive_sim): its own stop ramp, a change of mode, a fresh enable -------

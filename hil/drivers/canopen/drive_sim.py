@@ -203,10 +203,10 @@ class DriveSim:
 
     def _warm_up(self) -> None:
         """Run the compiled plant and loop functions once on a throw-away copy, so that the first
-        SYNC is not held up by loading them (a late first answer), nor the first client's greeting
-        (the drive starts disabled: its plant coasts, another compiled function)."""
+        SYNC is not held up by loading them (a late first answer). The plant's own cycles (coasting
+        while disabled, as the drive starts, included) were loaded when it was made
+        (:meth:`_make_plant`): a first client's greeting is not held up either."""
         pl = self.plant
-        pl.warm_up()
         x = pl.x.copy()
         pl.enabled = True
         pl.sync()
