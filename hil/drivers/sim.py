@@ -17,6 +17,9 @@ For dry runs the runtime (hil.runtime) sends a whole command through the compile
 """
 from __future__ import annotations
 
+import copy
+from contextlib import contextmanager
+
 import numpy as np
 from numba import njit
 
@@ -256,18 +259,29 @@ class SimulatedPlant(Backend):
     def close(self) -> None:
         self.enabled = False
 
+    # the state a cycle changes (restored): the plant's, its loops', its buffers', its clock
+    _CYCLE_STATE = ("x", "_xn", "_f", "_s", "_ubuf", "_hbuf", "_u_act", "time", "_prev_position", "_set", "_enabled")
+
+    @contextmanager
+    def restored(self):
+        """Within it, cycles may run (a warm-up); after it, the state is as it was: the same array
+        objects with the contents they had, and the other values (not real-time)."""
+        kept = {k: (v, copy.deepcopy(v)) for k, v in vars(self).items() if k in self._CYCLE_STATE}
+        try:
+            yield self
+        finally:
+            for k, (obj, contents) in kept.items():
+                if isinstance(obj, np.ndarray):
+                    obj[...] = contents
+                setattr(self, k, obj if isinstance(obj, np.ndarray) else contents)
+
     def warm_up(self) -> None:
         """Load every compiled function a cycle of this backend calls (enabled, disabled and
-        stepped by a drive simulator, and the feedback it reads) on this state and put the state
-        back as it was (not real-time). A drive simulator calls it before it serves: a function
-        first called in its cycle is compiled or loaded there, seconds on a fresh install, and the
-        drive neither answers nor greets a client meanwhile."""
-        import copy
-        # each attribute's object and a copy of its contents: the objects are put back, as they were
-        kept = {k: (v, copy.deepcopy(v)) for k, v in vars(self).items()
-                if k in ("x", "_xn", "_f", "_s", "_ubuf", "_hbuf", "_u_act", "time", "_prev_position", "_set",
-                         "_enabled")}
-        try:
+        stepped by a drive simulator, and the feedback it reads), the state :meth:`restored` (not
+        real-time). A drive simulator calls it before it serves: a function first called in its
+        cycle is compiled or loaded there, seconds on a fresh install, and the drive neither
+        answers nor greets a client meanwhile."""
+        with self.restored():
             self.read_feedback()
             self.enabled = False
             self.sync()                           # coasting
@@ -276,11 +290,6 @@ class SimulatedPlant(Backend):
             self.sync()
             self.advance(0.0)                     # a drive's own loop (its quick stop) steps the output
             self.read_feedback()
-        finally:
-            for k, (obj, contents) in kept.items():
-                if isinstance(obj, np.ndarray):
-                    obj[...] = contents           # the same array, with what it held
-                setattr(self, k, obj if isinstance(obj, np.ndarray) else contents)
 
     # -- for a drive simulator that runs this plant as its shaft (hil.drivers.canopen.drive_sim,
     #    hil.drivers.serial.drive_sim): its own stop ramp, a change of mode, a fresh enable -------

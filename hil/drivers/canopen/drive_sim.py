@@ -202,21 +202,15 @@ class DriveSim:
         return self.time if self.lockstep else time.perf_counter()
 
     def _warm_up(self) -> None:
-        """Run the compiled plant and loop functions once on a throw-away copy, so that the first
-        SYNC is not held up by loading them (a late first answer). The plant's own cycles (coasting
-        while disabled, as the drive starts, included) were loaded when it was made
-        (:meth:`_make_plant`): a first client's greeting is not held up either."""
-        pl = self.plant
-        x = pl.x.copy()
-        pl.enabled = True
-        pl.sync()
-        self._quick_stop_step(1.0)
+        """Run the drive's quick stop once on the plant, its state put back (SimulatedPlant.restored),
+        so that the first SYNC is not held up by loading its compiled functions (a late first
+        answer). The plant's own cycles (coasting while disabled, as the drive starts, included)
+        were loaded when it was made (:meth:`_make_plant`): a first client's greeting is not held
+        up either."""
+        with self.plant.restored():
+            self.plant.enabled = True
+            self._quick_stop_step(1.0)
         self.stop_ramp.state = None
-        pl.enabled = False
-        pl.x[:] = x
-        pl.clear_output()
-        pl.restart_velocity_loop()
-        pl.restart_interpolation()
 
     def home_at(self, position: float) -> None:
         with self.lock:

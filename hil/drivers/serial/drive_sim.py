@@ -130,19 +130,11 @@ class _Drive:
                               f"({exc})") from None
 
     def _warm_up(self) -> None:
-        """Compile the control law before the first command (a first setpoint must not take 100 ms),
-        and the plant's other cycles (coasting while disabled, the feedback it reads)."""
-        pl = self.plant
-        pl.warm_up()
-        pl.enable()
-        pl.write_setpoint(Setpoint(position=0.0, speed=0.0))
-        pl.sync()
-        self._quick_stop_step()
-        pl.disable()
-        pl.home_at(0.0)
-        pl.restart_interpolation()
-        pl.clear_output()
-        pl.time = 0.0
+        """Load the plant's compiled cycles before the first command (a first setpoint must not take
+        100 ms): its control law, its coasting while disabled, the output steps of the quick stop
+        (:meth:`_quick_stop_step`) and the feedback it reads (SimulatedPlant.warm_up, the state put
+        back)."""
+        self.plant.warm_up()
 
     # -- replies -------------------------------------------------------------------------------
     def _reply(self, op, values=None) -> bytes:
