@@ -383,11 +383,8 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
     load_before, steal_before, t_before = os.getloadavg(), steal_seconds(), time.monotonic()
     burn, drive, sim, drive_stats = None, None, None, {}
     try:
-        if burner:
-            burn = start_burner(seconds + 60.0)
-            time.sleep(0.5)
-        elif peer:           # the page's CPU share, without the page: where and how nice its server and browser run
-            burn = start_burner(seconds + 60.0, _placed(server_cpus(loop_cpu), nice))
+        if burner or peer:   # a peer takes the page's CPU share without the page: where and as nice as it runs
+            burn = start_burner(seconds + 60.0, _placed(server_cpus(loop_cpu), nice) if peer else None)
             time.sleep(0.5)
         if transport == "virtual":
             import can
