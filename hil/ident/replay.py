@@ -48,7 +48,7 @@ import numpy as np
 from hil.control import controller_from_config
 from hil.errors import UserError
 from hil.ident.noise import record_noise
-from hil.ident.objective import Objective
+from hil.ident.objective import Objective, batched
 from hil.ident.residual import xcorr
 from hil.ident.synth import extend_command, torque_sampling
 from hil.plant_config import plant_from_config, record_effects
@@ -65,6 +65,11 @@ _FORCE = ("torque", "force", "command")
 _MODEL_ERRORS = (ValueError, ZeroDivisionError, FloatingPointError)
 #: loop configs whose simulated channels a record's replays keep (SimulationCache)
 SIM_CACHE_SIZE = 16
+#: ticks of command past a head's last sample that its simulation gets (Replay.head_costs): the
+#: position tick reads the command ahead for its feed-forward
+HEAD_LOOKAHEAD = 4
+#: samples a head needs at least (Replay.head_costs)
+HEAD_MIN = 64
 UNITS = {"x_motor": "m", "x_table": "m", "x_tip": "m", "x_motor-x_table": "m", "torque": "N*m", "force": "N",
          "command": "V", "e_table": "m", "e_tip": "m"}
 
@@ -213,23 +218,81 @@ class Replay:
             self._sims.put(key, ch)
         return self._on_samples(cfg, ch)
 
-    def _on_samples(self, cfg, ch: dict) -> dict[str, np.ndarray]:
+    def _on_samples(self, cfg, ch: dict, n: int | None = None) -> dict[str, np.ndarray]:
         """The loop's simulated channels ``ch`` of ``cfg`` on the measurement's sample times, with the
-        recording's artefacts."""
+        recording's artefacts (``n``: on the first ``n`` samples alone, :meth:`head_costs`; the
+        simulation covers them)."""
         out = {}
+        t = self.meas.t if n is None else self.meas.t[:n]
         for c in self.channels + ["x_motor", "x_table", "x_tip"]:
             if c in ch:
                 y = ch[c]
-                out[c] = y[:self.meas.t.size].copy() if self.one_to_one else np.interp(self.meas.t, self.t_sim, y)
+                out[c] = y[:t.size].copy() if self.one_to_one else np.interp(t, self.t_sim[:y.size], y)
         if "u_add" in self.meas and not self.open_loop and not cfg.get("measurement.output_includes_u_add", True):
             # the record logged the controller's own output: the simulated one less the added command
             plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
-            u = _in_controller_units(self.meas, "u_add", plant, "u_add")
+            u = _in_controller_units(self.meas, "u_add", plant, "u_add")[:t.size]
             for c in _FORCE:
                 if c in out:
                     out[c] = out[c] - u * (plant.force_gain if c == "force" else 1.0)
         for eff, vals in record_effects(cfg):
-            out = eff.apply_record(self.meas.t, out, vals)
+            out = eff.apply_record(t, out, vals)
+        return out
+
+    def head_costs(self, cfgs: list, share: float) -> list | None:
+        """Per config the weighted squared error (as ``sum(objective.vector(r) ** 2)``) of the record's
+        first ``share`` of samples alone, a lower bound of its whole error: the loop simulated over
+        those samples only (and :data:`HEAD_LOOKAHEAD` ticks of command past them, which the
+        feed-forward reads), the same numbers as the first samples of :meth:`residuals_many`'s, the
+        loop being causal. A config whose model raises gets None. None for all when the record
+        cannot be cut so: a recording artefact in a config (they may read samples either side), or
+        too few samples."""
+        n = int(self.meas.t.size * share)
+        if n < HEAD_MIN:
+            return None
+        ok = []
+        for cfg in cfgs:
+            try:
+                if record_effects(cfg):
+                    return None
+                ok.append(True)
+            except _MODEL_ERRORS:
+                ok.append(False)
+        # the loop's ticks that cover the first n samples, with one beyond (interpolation's neighbour)
+        ticks = n if self.one_to_one else int(np.searchsorted(self.t_sim, self.meas.t[n - 1], side="right")) + 1
+        if ticks + HEAD_LOOKAHEAD + 1 >= self.x_cmd_sim.size:
+            return None
+        cmd = extend_command(self.x_cmd_sim)[:ticks + HEAD_LOOKAHEAD]
+        out: list = [None] * len(cfgs)
+        todo = []
+        for i, cfg in enumerate(cfgs):
+            if not ok[i]:
+                continue
+            try:
+                plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
+                todo.append((i, cfg, plant, controller_from_config(cfg, plant)))
+            except _MODEL_ERRORS:
+                pass
+        groups: dict = {}
+        for item in todo:
+            inputs = self.inputs(item[2], item[3])
+            groups.setdefault((id(inputs), torque_sampling(item[1])), []).append(item)
+        w = self.objective.weights
+        for (_, torque), group in groups.items():
+            runs = [group] if batched() else [[g] for g in group]
+            for run in runs:
+                try:
+                    res = simulate_many([g[2] for g in run], [g[3] for g in run], cmd, x0=self.x0, torque=torque,
+                                        **self.inputs(run[0][2], run[0][3]))
+                except _MODEL_ERRORS:
+                    continue
+                for (i, cfg, _, _), r in zip(run, res):
+                    try:
+                        sim = self._on_samples(cfg, _first(r, ticks).channels(), n)
+                        res_i = self._residuals_of(cfg, sim, cut=n)
+                        out[i] = float(np.sum(np.concatenate([res_i[c] * w[c] for c in w]) ** 2))
+                    except _MODEL_ERRORS:
+                        pass
         return out
 
     def residuals_many(self, cfgs: list) -> list:
@@ -286,7 +349,7 @@ class Replay:
     def residuals(self, cfg=None, first: bool = False) -> dict[str, np.ndarray]:
         return self._residuals_of(cfg, self.simulated(cfg), first)
 
-    def _residuals_of(self, cfg, sim: dict, first: bool = False) -> dict[str, np.ndarray]:
+    def _residuals_of(self, cfg, sim: dict, first: bool = False, cut: int | None = None) -> dict[str, np.ndarray]:
         out = {}
         for c in self.channels:
             if c not in sim:        # e.g. a linear actuator's model against a rotary record's torque
@@ -298,7 +361,9 @@ class Replay:
             if first and self.align:
                 self.shifts[c] = _best_shift(y, sim[c])
             s = self.shifts.get(c, 0)
-            out[c] = _shifted(y, s) - sim[c] if s else y - sim[c]
+            if s:
+                y = _shifted(y, s)
+            out[c] = (y if cut is None else y[:cut]) - sim[c]
         return out
 
     def unit(self, chan) -> str:

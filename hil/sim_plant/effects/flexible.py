@@ -160,14 +160,14 @@ class FlexibleTransmission(Effect):
         fmax = min(0.45 / float(np.median(np.diff(t))), p.upper)
         coarse += [{"load_share": s, "frequency": float(f), "damping_ratio": 0.1} for s in self.SHARES
                    for f in np.geomspace(self.RING_MIN, fmax, self.GRID_FREQS)]
-        costs = ctx.costs(self, coarse)
+        costs = ctx.costs(self, coarse, keep=3)
         best = coarse[min(range(len(coarse)), key=costs.__getitem__)]
         n, span = self.FINE
         sp = self.param("load_share")
         fine = [dict(best, load_share=min(max(best["load_share"] + 0.25 * span * i / n, sp.lower), sp.upper),
                      frequency=min(max(best["frequency"] * (1 + span * j / n), p.lower), p.upper))
                 for i in range(-n, n + 1) for j in range(-n, n + 1) if i or j]
-        pool = sorted(zip(costs + ctx.costs(self, fine), range(len(coarse) + len(fine))))
+        pool = sorted(zip(costs + ctx.costs(self, fine, keep=3, known=costs), range(len(coarse) + len(fine))))
         allp = coarse + fine
         return [allp[k] for _, k in pool][:3]
 
