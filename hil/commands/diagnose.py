@@ -71,7 +71,9 @@ JSON_KEYS = {
                                 "explains, preferred, score, rich_against_combination, explained (fraction), "
                                 "rich_score, params (SI), channel, error_before, error_after, evidence, members"),
     "joint_candidates": JsonKey("", "pairs of friction or force effects fitted together: effects, preferred, score, "
-                                    "second_member_score, best_single, best_single_score, gain (fraction), params"),
+                                    "second_member_score, best_single, best_single_score, gain (fraction), params; "
+                                    "and a preferred pair's leader fitted with one of the strongest single "
+                                    "candidates: rival_of (the screened pair, + joined; screen_synergy null)"),
     "noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the RMS noise floor of the record (units: units.noise_floor)"),
     "noise_floor_source": JsonKey("", "per channel, where the floor comes from: `given` (config or file header), "
                                       "`quantization`, `standstill (N samples)` or the third-difference fallback"),
@@ -349,7 +351,8 @@ def ranking_text(d) -> list[str]:
                      f"{cb['rich_against_combination']:.1f} -> "
                      f"{'named first' if cb['preferred'] else cb['explains'] + ' first'}")
     for j in d.get("joint_candidates", []):
-        lines.append(f"joint candidate {' + '.join(j['effects'])} (fitted together): score {j['score']:.1f}, "
+        how = f"against {j['rival_of'].replace('+', ' + ')}" if j.get("rival_of") else "fitted together"
+        lines.append(f"joint candidate {' + '.join(j['effects'])} ({how}): score {j['score']:.1f}, "
                      f"{100 * j['gain']:.0f} % of the weighted error removed, the second member "
                      f"{j['second_member_score']:.1f} on top -> {'named first' if j['preferred'] else 'not named'}")
     return lines

@@ -105,7 +105,7 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
         better = {c.effect: c for c in evaluate_many(replay, work, res0, jobs, progress) if c is not None}
         out = [better.get(c.effect, c) if better.get(c.effect, c).score >= c.score else c for c in out]
     combos = _combinations(replay, out, res0, jobs, progress, max_nfev, refine)
-    joints = _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names)
+    joints = _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names, min_gap)
     ranked, lead = _rank(out, combos + joints, replay.noise)
     also = []
     if lead is not None:
@@ -269,21 +269,26 @@ class Joint(Combo):
         return self.preferred
 
     def as_json(self) -> dict:
-        return {"effects": [m["effect"] for m in self.members], "preferred": bool(self.preferred),
-                "score": float(self.cand.score), "second_member_score": float(self.pair),
-                "best_single": self.single.effect if self.single is not None else None,
-                "best_single_score": float(self.single.score) if self.single is not None else None,
-                "screen_synergy": float(self.screen["synergy"]), "params": {k: float(v) for k, v in self.cand.params.items()},
-                "channel": self.cand.channel, "error_before": float(self.cand.error_before),
-                "error_after": float(self.cand.error_after), "gain": float(self.cand.gain),
-                "evidence": self.cand.evidence,
-                "members": [{k: (float(v) if isinstance(v, float) else v) for k, v in m.items()} for m in self.members]}
+        out = {"effects": [m["effect"] for m in self.members], "preferred": bool(self.preferred),
+               "score": float(self.cand.score), "second_member_score": float(self.pair),
+               "best_single": self.single.effect if self.single is not None else None,
+               "best_single_score": float(self.single.score) if self.single is not None else None,
+               "screen_synergy": float(self.screen["synergy"]) if "synergy" in self.screen else None,
+               "params": {k: float(v) for k, v in self.cand.params.items()},
+               "channel": self.cand.channel, "error_before": float(self.cand.error_before),
+               "error_after": float(self.cand.error_after), "gain": float(self.cand.gain),
+               "evidence": self.cand.evidence,
+               "members": [{k: (float(v) if isinstance(v, float) else v) for k, v in m.items()} for m in self.members]}
+        if "rival_of" in self.screen:
+            out["rival_of"] = self.screen["rival_of"]
+        return out
 
 
-def _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names) -> list[Joint]:
+def _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names, min_gap=0.0) -> list[Joint]:
     """The pairs of friction and force effects screened by the inverse model (hil.ident.joint),
     the best few whose screen pays against their better member refined by simulation; pairs
-    already fitted as a combination against a richer effect are left out."""
+    already fitted as a combination against a richer effect are left out; and the rivals of the
+    pair that would be named (:func:`_rival_pairs`)."""
     by_name = {c.effect: c for c in out}
     taken = {frozenset(m["effect"] for m in c.members) for c in combos}
     pool = [n for n in names if n in by_name]
@@ -301,7 +306,47 @@ def _joint_pairs(replay, out, res0, jobs, progress, max_nfev, combos, names) -> 
         members = _members(replay, fc, by_name, res0, max_nfev)
         lead = max(members, key=lambda d: by_name[d["effect"]].score)["effect"]
         joints.append(Joint(fc, members, lead, s, best))
-    return joints
+    return joints + _rival_pairs(replay, out, res0, jobs, progress, max_nfev, joints, best, min_gap)
+
+
+def _rival_pairs(replay, out, res0, jobs, progress, max_nfev, joints, best, min_gap=0.0) -> list["Joint"]:
+    """The leader of a preferred screened pair fitted together with each of the :data:`JOINT_REFINE`
+    strongest significant single candidates outside the pair: the screen sees friction and forces
+    only, and its second member may stand in for an effect it cannot see (a mass change taking a
+    feedback delay's share of the torque beside Coulomb friction). Left out: a member by another
+    name (``parameter:plant.m<table>`` is mass_change), an effect that nests the leader or that it
+    nests (asymmetric_friction and coulomb_friction), a degenerate fit. Each such pair is a joint
+    candidate like the screened ones (``screen``: ``{"rival_of": the screened pair}``); the ranking
+    then names the best pair. Only where the screened pair would be the verdict: it closes at least
+    ``min_gap`` of the gap to the floor (else the diagnosis is ``unexplained`` and the chain looks
+    for two effects that show only together from the strongest single one)."""
+    lead = max((j for j in joints if j.prefer(replay.noise)), key=lambda j: j.score, default=None)
+    if lead is None or gap_closed(lead.cand.error_before, lead.cand.error_after,
+                                  replay.noise.get(lead.cand.channel, 0.0)) < min_gap:
+        return []
+    by_name = {c.effect: c for c in out}
+    members = {candidate(m["effect"], replay.cfg).name for m in lead.members}
+
+    def kin(a, b) -> bool:
+        return a in getattr(CATALOGUE.get(b), "nests", ()) or b in getattr(CATALOGUE.get(a), "nests", ())
+    singles = [c for c in sorted(out, key=lambda c: -c.score)
+               if c.significant and "+" not in c.effect and candidate(c.effect, replay.cfg).name not in members
+               and not kin(c.effect, lead.leader) and not getattr(c, "degenerate", "")][:JOINT_REFINE]
+    if not singles:
+        return []
+    work = []
+    for c in singles:
+        pair = [lead.leader, c.effect]
+        start = {f"{n}.{k}": v for n in pair for k, v in by_name[n].params.items()}
+        work.append(("+".join(pair), max_nfev, start, 1))
+    rivals = []
+    for fc in evaluate_many(replay, work, res0, jobs, progress):
+        if fc is None:
+            continue
+        ms = _members(replay, fc, by_name, res0, max_nfev)
+        leader = max(ms, key=lambda d: by_name[d["effect"]].score)["effect"]
+        rivals.append(Joint(fc, ms, leader, {"rival_of": lead.effect}, best))
+    return rivals
 
 
 def _rank(cands: list[Candidate], combos: list | None = None, floor=None):
