@@ -239,6 +239,19 @@ class Replay:
             out = eff.apply_record(t, out, vals)
         return out
 
+    def _loop(self, cfg) -> tuple:
+        """(plant, controller) of a config's loop."""
+        plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
+        return plant, controller_from_config(cfg, plant)
+
+    def _batches(self, todo: dict) -> list:
+        """The keys of ``todo`` ({key: (cfg, plant, ctrl)}) in groups whose loops share their inputs
+        and torque sampling, so that each runs in one batch: [(torque sampling, [key, ...]), ...]."""
+        groups: dict = {}
+        for key, (cfg, plant, ctrl) in todo.items():
+            groups.setdefault((id(self.inputs(plant, ctrl)), torque_sampling(cfg)), []).append(key)
+        return [(torque, group) for (_, torque), group in groups.items()]
+
     def head_costs(self, cfgs: list, share: float) -> list | None:
         """Per config the weighted squared error (as ``sum(objective.vector(r) ** 2)``) of the record's
         first ``share`` of samples alone, a lower bound of its whole error: the loop simulated over
@@ -264,29 +277,25 @@ class Replay:
             return None
         cmd = extend_command(self.x_cmd_sim)[:ticks + HEAD_LOOKAHEAD]
         out: list = [None] * len(cfgs)
-        todo = []
+        todo = {}                       # index -> (cfg, plant, ctrl)
         for i, cfg in enumerate(cfgs):
             if not ok[i]:
                 continue
             try:
-                plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
-                todo.append((i, cfg, plant, controller_from_config(cfg, plant)))
+                todo[i] = (cfg, *self._loop(cfg))
             except _MODEL_ERRORS:
                 pass
-        groups: dict = {}
-        for item in todo:
-            inputs = self.inputs(item[2], item[3])
-            groups.setdefault((id(inputs), torque_sampling(item[1])), []).append(item)
         w = self.objective.weights
-        for (_, torque), group in groups.items():
+        for torque, group in self._batches(todo):
             runs = [group] if batched() else [[g] for g in group]
             for run in runs:
+                loops = [todo[i] for i in run]
                 try:
-                    res = simulate_many([g[2] for g in run], [g[3] for g in run], cmd, x0=self.x0, torque=torque,
-                                        **self.inputs(run[0][2], run[0][3]))
+                    res = simulate_many([lp[1] for lp in loops], [lp[2] for lp in loops], cmd, x0=self.x0,
+                                        torque=torque, **self.inputs(loops[0][1], loops[0][2]))
                 except _MODEL_ERRORS:
                     continue
-                for (i, cfg, _, _), r in zip(run, res):
+                for i, (cfg, _, _), r in zip(run, loops, res):
                     try:
                         sim = self._on_samples(cfg, _first(r, ticks).channels(), n)
                         res_i = self._residuals_of(cfg, sim, cut=n)
@@ -312,15 +321,10 @@ class Replay:
             if key in sims or key in todo or key in errors:
                 continue
             try:
-                plant = self.plant if cfg is self.cfg else plant_from_config(cfg)
-                todo[key] = (cfg, plant, controller_from_config(cfg, plant))
+                todo[key] = (cfg, *self._loop(cfg))
             except _MODEL_ERRORS as e:
                 errors[key] = e
-        groups: dict = {}               # the loops that share their inputs and sampling run together
-        for key, (cfg, plant, ctrl) in todo.items():
-            inputs = self.inputs(plant, ctrl)
-            groups.setdefault((id(inputs), torque_sampling(cfg)), []).append(key)
-        for (_, torque), group in groups.items():
+        for torque, group in self._batches(todo):
             plants = [todo[k][1] for k in group]
             ctrls = [todo[k][2] for k in group]
             try:

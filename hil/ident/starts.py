@@ -320,12 +320,7 @@ def _costs(eff, replay, starts, cfg) -> list[float]:
 def _costs_batched(eff, obj, starts, cfg) -> list[float]:
     """:func:`_costs` with the simulations in one batched call: a start whose model raises a
     ValueError costs infinity (any other error is raised, as one by one)."""
-    cfgs = []
-    for s in starts:
-        try:
-            cfgs.append(configure(eff, cfg, s))
-        except ValueError:
-            cfgs.append(None)
+    cfgs = _configured(eff, cfg, starts)
     got = iter(obj.residuals_many([c for c in cfgs if c is not None]))
     costs = []
     for c in cfgs:
@@ -334,6 +329,17 @@ def _costs_batched(eff, obj, starts, cfg) -> list[float]:
             raise r
         costs.append(math.inf if r is None or isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2)))
     return costs
+
+
+def _configured(eff, cfg, starts) -> list:
+    """Per start the config with ``eff`` at its values, or None where they are refused (ValueError)."""
+    out = []
+    for s in starts:
+        try:
+            out.append(configure(eff, cfg, s))
+        except ValueError:
+            out.append(None)
+    return out
 
 
 def _bounded_costs(eff, replay, starts, cfg, keep: int, known=()) -> list[float]:
@@ -345,12 +351,7 @@ def _bounded_costs(eff, replay, starts, cfg, keep: int, known=()) -> list[float]
     the cheapest. The cheapest ``keep`` and their costs are :func:`_costs`'s, in the same order."""
     heads = None
     if len(starts) + len(known) > keep > 0 and hasattr(replay, "head_costs"):
-        cfgs = []
-        for s in starts:
-            try:
-                cfgs.append(configure(eff, cfg, s))
-            except ValueError:
-                cfgs.append(None)
+        cfgs = _configured(eff, cfg, starts)
         got = replay.head_costs([c for c in cfgs if c is not None], HEAD_SHARE)
         if got is not None:
             it = iter(got)
