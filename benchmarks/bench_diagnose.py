@@ -262,14 +262,15 @@ def draw_records(n: int, seed: int, bench):
 
 
 def named_effects(d: dict) -> tuple[list, dict]:
-    """The effects ``hil diagnose --json`` names (its chain's steps, else its verdict) and their
-    fitted parameters."""
+    """The effects ``hil diagnose --json`` names (its chain's steps, less those a later step
+    dropped from the model, else its verdict) and their fitted parameters."""
     names, params = [], {}
     for step in d.get("chain") or []:
         for e in step.get("effects") or [step.get("effect")]:
             for part in str(e).split("+"):
                 if part and part not in names:
                     names.append(part)
+        names = [n for n in names if n not in {x["effect"] for x in step.get("dropped", [])}]
         params = step.get("params") or params
     if not names and d.get("verdict") not in (None, "none", "unexplained"):
         names = [p for p in str(d["verdict"]).split("+")]

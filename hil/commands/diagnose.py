@@ -108,6 +108,10 @@ JSON_KEYS = {
                               "records' own floor, quantization: q/sqrt(12)), error_over (the final error in "
                               "multiples of each part), within (every channel with a spread within it, the others at their own floor)",
                           when="several records of one command"),
+    "chain[].dropped": JsonKey("SI", "effects of earlier steps that no longer pay for their parameters beside the "
+                                     "step's effects, dropped from the model: effect, params (as it stood), score "
+                                     "(its BIC score with the step's effects)",
+                               when="a step made an earlier effect unnecessary"),
     "chain[].stderr": JsonKey("SI", "`{effect: {parameter: standard error}}` of the step's last fit (null: none)"),
     "chain[].confounded": JsonKey("", "pairs of that fit's parameters correlated above 0.9: [name, name, r]"),
     "chain[].aliases": JsonKey("SI", "`{effect: [{key, params, r, slope, confounded}]}`: the config's own "
@@ -420,6 +424,10 @@ def chain_text(d, rp) -> list[str]:
         if s.get("recording_artefacts"):
             lines.append(f"          {', '.join(s['recording_artefacts'])}: a recording artefact, not physics "
                          f"(the config's [measurement]; the model of the axis unchanged)")
+        for e in s.get("dropped", []):
+            par = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
+            lines.append(f"          - {e['effect']} [{par}]: no longer pays beside this step's effects "
+                         f"(BIC score {e['score']:.1f}): dropped from the model")
         lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
                                            f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))

@@ -50,6 +50,17 @@ as ``--validate``'s), every step must earn its place on data it was not fitted o
   than the model's own retuning is not earned. A step that does not earn its place ends the chain
   (``end`` "no step earns its place on the held-out data", the step under ``final.rejected``).
 
+An effect found at an earlier step that no longer pays for its parameters once a step's effects
+are in the model is dropped (``chain[].dropped``; stepwise selection's backward step): it is set
+back to the start model's values alone, the rest kept as the step fitted them, and its BIC score
+(the error with it against without it) compared with :data:`~hil.ident.scores.MIN_SCORE`; the
+weakest goes first, and the others are judged again without it. Refitting the rest without it
+could only lower the error without it, so an effect that does not pay so would pay less still.
+A dropped effect is no candidate again. (On Coulomb friction with an actuator delay the first
+step takes the friction with a mass change, the inverse model's pair, that stands in for the
+delay's share of the torque; once the delay is found the mass is refitted to almost nothing and
+dropped.)
+
 Each step reports its estimation error (the record's, or the estimation half's) and held-out
 error per channel, and the standard errors of everything found so far with the pairs of fitted
 parameters confounded in the step's last fit (hil.ident.fit: |correlation| above
@@ -368,6 +379,46 @@ def _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress):
     return cfg1, res1, joint, bic_score(cur.base_residuals, res1, list(floor), k, floor)
 
 
+def _without(name: str, cfg, base):
+    """``cfg`` with the effect ``name`` as the start model ``base`` has it: a parameter at base's
+    value, a recording artefact's key and an effect's section as base holds them (absent: removed)."""
+    eff = candidate(name, base)
+    key = getattr(eff, "key", None) or measurement_key(eff)
+    if key is not None:
+        return cfg.with_values({key: base.get(key)})
+    prefix = f"effects.{eff.name}."
+    return cfg.with_values({k: base.get(k) for k in cfg.values if k.startswith(prefix)})
+
+
+def _unpaid(replay, found, add, cfg1, res1) -> list[dict]:
+    """The effects of earlier steps that no longer pay for their parameters once a step's effects
+    ``add`` are in the model (the module's definition): each effect found before the step set back
+    to the start model's values alone, the rest as the step fitted them, and its BIC score (the
+    error with it against without it); the weakest at most :data:`~hil.ident.scores.MIN_SCORE` is
+    dropped, and the rest judged again without it. Returns the config and residuals after the
+    drops and one entry per dropped effect (``effect``, ``params`` as it stood, ``score``)."""
+    floor = replay.noise
+    dropped = []
+    while True:
+        earlier = [n for n in found if n not in add]
+        if not earlier:
+            return cfg1, res1, dropped
+        cfgs = [_without(n, cfg1, replay.cfg) for n in earlier]
+        scores = []
+        for n, r in zip(earlier, replay.residuals_many(cfgs)):
+            k = len(candidate(n, replay.cfg).params)
+            scores.append(math.inf if isinstance(r, Exception) else bic_score(r, res1, list(floor), k, floor))
+        i = int(np.argmin(scores))
+        if not scores[i] <= MIN_SCORE:
+            return cfg1, res1, dropped
+        name = earlier[i]
+        logger.info("chain: %s no longer pays (BIC score %.1f with the step's effects): dropped", name, scores[i])
+        dropped.append({"effect": name, "params": effect_values(name, cfg1), "score": float(scores[i])})
+        cfg1 = cfgs[i]
+        res1 = replay.residuals(cfg1)
+        found = [n for n in found if n != name]
+
+
 def _rival(d, verdict, add, have, cur):
     """The runner-up of a later step's single verdict: the next significant single candidate of the
     ranking (its own fit, not one already in the model) whose gain is at least :data:`RIVAL_GAIN`
@@ -440,6 +491,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     end = f"max steps ({max_steps})"
     split = _holdout_parts(replay, holdout)
     rejected = None
+    gone: list[str] = []        # effects dropped by a later step (no candidates again)
     for i in range(max(1, max_steps)):
         err0 = rms(cur.base_residuals)
         if at_noise_floor(err0, floor):
@@ -449,7 +501,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 diags.append(first)
             break
         pool = names or candidate_names(cur.cfg, cur.plant, open_loop=is_open_loop(cur))
-        have = {_same(n, cur.cfg) for n in found}
+        have = {_same(n, cur.cfg) for n in found + gone}
         cands = [n for n in pool if _same(n, cur.cfg) not in have]
         if not cands:
             end = "no candidate left"
@@ -505,6 +557,11 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                         " + ".join(add), held["fall"], held["uncertainty"])
             break
         found += add
+        cfg1, res1, dropped = _unpaid(replay, found, add, cfg1, res1)
+        if dropped:
+            found = [n for n in found if n not in {e["effect"] for e in dropped}]
+            gone += [e["effect"] for e in dropped]
+            err1 = rms(res1)
         steps.append({"step": i + 1, "effect": verdict, "effects": list(add),
                       "params": {n: effect_values(n, cfg1) for n in found},
                       "error_before": err0, "error_after": err1,
@@ -516,6 +573,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "aliases": _aliases(replay, cfg1, add), "rival": rival,
                       "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
                       "_fits": fits, "_joint": joint, "_config": cfg1})
+        if dropped:
+            steps[-1]["dropped"] = dropped
         if held is not None:
             steps[-1].update(estimation_error=held.pop("estimation"), held_out=held)
         if together is not None:
