@@ -224,6 +224,7 @@ def test_feedback_delay_and_coulomb_both_named(level, delay, seed):
     if screened:        # the screen's pair stood in for the delay: a rival pair of its leader says so
         best = max(screened, key=lambda j: j["score"])
         rivals = [j for j in d["joint_candidates"] if j.get("rival_of") == "+".join(best["effects"])]
+        assert rivals, d["joint_candidates"]
         top = max(rivals, key=lambda j: j["score"])
         assert set(top["effects"]) == {"coulomb_friction", "feedback_delay"} and top["score"] > best["score"]
         json.loads(json.dumps(d["joint_candidates"], allow_nan=False))

@@ -39,7 +39,7 @@ def _variants(effect, base=CFG):
 
 
 # the loop's structures a head must cut alike: delays (their buffers), the current loop, friction,
-# a backlash's contact, a mode, the speed filter; and the controller's settings
+# a backlash's contact, a mode, a flexible link; and the controller's settings
 EFFECTS = ["feedback_delay", "actuator_delay", "current_loop_lag", "coulomb_friction", "backlash", "compliant_mode",
            "torque_ripple", "flexible_transmission"]
 

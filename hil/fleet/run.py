@@ -153,7 +153,10 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
         if settings.max_steps >= 1:
             cands = list(settings.candidates) if settings.candidates else None
             d = diagnose_chain(rp, cands, max_steps=settings.max_steps, jobs=1, fit_nfev=settings.fit_nfev)
-            named = [e for s in d["chain"] for e in s["effects"]]
+            named = []
+            for s in d["chain"]:        # what the model holds: less what a later step dropped
+                gone = {x["effect"] for x in s.get("dropped", [])}
+                named = [e for e in named + s["effects"] if e not in gone]
             fig.update(verdict=d["verdict"], named=named, end=d["final"]["end"],
                        final_error=d["final"]["error"], noise_floor=d["final"]["noise_floor"],
                        above_floor=d["final"]["above_floor"], at_noise_floor=bool(d["final"]["at_noise_floor"]),

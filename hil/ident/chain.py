@@ -400,7 +400,7 @@ def _unpaid(replay, found, add, cfg1, res1) -> list[dict]:
     floor = replay.noise
     dropped = []
     while True:
-        earlier = [n for n in found if n not in add]
+        earlier = [n for n in found if n not in add and "+" not in n]
         if not earlier:
             return cfg1, res1, dropped
         cfgs = [_without(n, cfg1, replay.cfg) for n in earlier]

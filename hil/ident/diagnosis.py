@@ -315,28 +315,38 @@ def _rival_pairs(replay, out, res0, jobs, progress, max_nfev, joints, best, min_
     only, and its second member may stand in for an effect it cannot see (a mass change taking a
     feedback delay's share of the torque beside Coulomb friction). Left out: a member by another
     name (``parameter:plant.m<table>`` is mass_change), an effect that nests the leader or that it
-    nests (asymmetric_friction and coulomb_friction), a degenerate fit. Each such pair is a joint
-    candidate like the screened ones (``screen``: ``{"rival_of": the screened pair}``); the ranking
-    then names the best pair. Only where the screened pair would be the verdict: it closes at least
-    ``min_gap`` of the gap to the floor (else the diagnosis is ``unexplained`` and the chain looks
-    for two effects that show only together from the strongest single one)."""
+    nests (asymmetric_friction and coulomb_friction), a degenerate fit, a pair already screened.
+    Each such pair is a joint candidate like the screened ones (``screen``: ``{"rival_of": the
+    screened pair}``); the ranking then names the best pair. Only where the screened pair would be
+    the verdict: it closes at least ``min_gap`` of the gap to the floor (else the diagnosis is
+    ``unexplained`` and the chain looks for two effects that show only together from the strongest
+    single one)."""
     lead = max((j for j in joints if j.prefer(replay.noise)), key=lambda j: j.score, default=None)
     if lead is None or gap_closed(lead.cand.error_before, lead.cand.error_after,
                                   replay.noise.get(lead.cand.channel, 0.0)) < min_gap:
         return []
-    by_name = {c.effect: c for c in out}
-    members = {candidate(m["effect"], replay.cfg).name for m in lead.members}
+
+    def name(n: str) -> str:       # the catalogue's name of an alias (time_delay is actuator_delay)
+        return n if n.startswith("parameter:") else candidate(n, replay.cfg).name
+    # by the names a combination's members carry, and by those the candidates were given
+    by_name = {**{name(c.effect): c for c in out}, **{c.effect: c for c in out}}
+    members = [by_name[m["effect"]] for m in lead.members]
+    taken = {frozenset(name(m["effect"]) for m in j.members) for j in joints}
 
     def kin(a, b) -> bool:
         return a in getattr(CATALOGUE.get(b), "nests", ()) or b in getattr(CATALOGUE.get(a), "nests", ())
+
+    def same(c, m) -> bool:         # the same fit by another name (parameter:plant.m<table> is mass_change)
+        return name(c.effect) == name(m.effect) or (_close(c, m, 0.02) and _close(m, c, 0.02))
     singles = [c for c in sorted(out, key=lambda c: -c.score)
-               if c.significant and "+" not in c.effect and candidate(c.effect, replay.cfg).name not in members
-               and not kin(c.effect, lead.leader) and not getattr(c, "degenerate", "")][:JOINT_REFINE]
+               if c.significant and "+" not in c.effect and not any(same(c, m) for m in members)
+               and not kin(name(c.effect), lead.leader) and not getattr(c, "degenerate", "")
+               and frozenset((lead.leader, name(c.effect))) not in taken][:JOINT_REFINE]
     if not singles:
         return []
     work = []
     for c in singles:
-        pair = [lead.leader, c.effect]
+        pair = [lead.leader, name(c.effect)]
         start = {f"{n}.{k}": v for n in pair for k, v in by_name[n].params.items()}
         work.append(("+".join(pair), max_nfev, start, 1))
     rivals = []

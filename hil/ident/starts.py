@@ -311,10 +311,17 @@ def _costs(eff, replay, starts, cfg) -> list[float]:
     costs = []
     for s in starts:
         try:
-            costs.append(float(np.sum(obj.vector(obj.residuals(configure(eff, cfg, s))) ** 2)))
+            costs.append(_cost(obj, obj.residuals(configure(eff, cfg, s))))
         except ValueError:
             costs.append(math.inf)
     return costs
+
+
+def _cost(obj, res) -> float:
+    """The weighted squared error of residuals ``res``; inf where it is not a number (a loop that ran
+    away): such a start is never among the cheapest."""
+    c = float(np.sum(obj.vector(res) ** 2))
+    return math.inf if math.isnan(c) else c
 
 
 def _costs_batched(eff, obj, starts, cfg) -> list[float]:
@@ -327,7 +334,7 @@ def _costs_batched(eff, obj, starts, cfg) -> list[float]:
         r = next(got) if c is not None else None
         if isinstance(r, Exception) and not isinstance(r, ValueError):
             raise r
-        costs.append(math.inf if r is None or isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2)))
+        costs.append(math.inf if r is None or isinstance(r, Exception) else _cost(obj, r))
     return costs
 
 
