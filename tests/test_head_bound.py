@@ -104,3 +104,24 @@ def test_bounded_costs_of_a_start_that_cannot_be_configured():
     grid = [{"gap": -1.0}, {"gap": 20e-6}, {"gap": 150e-6}, {"gap": 2e-6}]
     got = _bounded_costs(eff, rp, grid, CFG, 1)
     assert got[0] == math.inf and got[1] == _costs(eff, rp, [grid[1]], CFG)[0]
+
+
+@pytest.mark.parametrize("batch", ["1", "0"])
+def test_a_cost_that_is_not_a_number_is_never_the_cheapest(batch, monkeypatch):
+    # a loop that runs away late gives a finite head and a whole error that is not a number: it is
+    # inf on both paths, and the bound keeps what the whole simulations keep
+    monkeypatch.setenv("HIL_BATCH", batch)
+    rp = _replay("backlash", {"gap": 20e-6}, seed=4)
+    eff = CATALOGUE["backlash"]
+    grid = [{"gap": 5e-6}, {"gap": 20e-6}, {"gap": 60e-6}, {"gap": 2e-6}]
+    obj = rp.objective
+    one, many = obj.residuals, obj.residuals_many
+
+    def spoilt(cfg, r):
+        return {c: np.full_like(v, np.nan) for c, v in r.items()} if cfg["effects.backlash.gap"] == 5e-6 else r
+    monkeypatch.setattr(obj, "residuals", lambda cfg: spoilt(cfg, one(cfg)))
+    monkeypatch.setattr(obj, "residuals_many", lambda cfgs: [spoilt(c, r) for c, r in zip(cfgs, many(cfgs))])
+    whole = _costs(eff, rp, grid, CFG)
+    assert whole[0] == math.inf and all(math.isfinite(c) for c in whole[1:])
+    got = _bounded_costs(eff, rp, grid, CFG, 1)
+    assert int(np.argmin(got)) == int(np.argmin(whole)) == 1 and got[1] == whole[1]
