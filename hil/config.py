@@ -121,6 +121,10 @@ SCHEMA: dict[str, Field] = {
     "plant.c*": Field("damping", "plant.c1 .. plant.c(N-1): damping between mass i and i+1", nonnegative=True),
     "plant.table_mass": Field("int", "which mass carries the linear encoder (x_table); 0 = mass 2, or mass 1 "
                               "for a 1-dof chain", default=0, nonnegative=True),
+    "plant.tolerance": Field("dimensionless", "how well the config knows the chain's masses, stiffnesses and dampings "
+                                              "(relative): a record they explain, moved within it, is the config's "
+                                              "own plant (hil diagnose names no drift within it); 0: no tolerance",
+                             default=0.05, nonnegative=True, maximum=0.5),
     "plant.tip_mass": Field("int", "which mass is the tool tip (x_tip); 0 = the last mass", default=0,
                             nonnegative=True),
     # --- friction on the motor (Eq. 11) ----------------------------------------------------

@@ -195,6 +195,9 @@ class ParameterEffect(Effect):
     def applicable(self, plant):
         return True
 
+    def drifted_key(self, plant):
+        return self.key
+
     def apply(self, plant, values):      # pragma: no cover - parameters act on the config
         raise TypeError("parameter effects act on the config: use hil.plant_config.configure()")
 

@@ -117,9 +117,15 @@ DRIFTS = [([("plant.m2", 1.03), ("plant.k2", 0.97)], 3),
 @pytest.mark.slow
 @pytest.mark.parametrize("drifts,seed", DRIFTS)
 def test_drifted_parameters_only(drifts, seed):
-    # a clean record of a plant with two parameters 3 % off: the chain (whole catalogue) names at
-    # most the drifted parameters, each within 1 % of its true value, and stops
+    # a clean record of a plant with two parameters 3 % off: within the config's default tolerance
+    # (plant.tolerance 3 %) it is the config's own plant, nothing named; without a tolerance the
+    # chain (whole catalogue) names at most the drifted parameters, each within 1 % of its true
+    # value, and stops
     rp = _record([(f"parameter:{k}", {"value": CFG[k] * f}) for k, f in drifts], seed)
+    d = diagnose_chain(rp, jobs=2, holdout="moves")
+    assert d["verdict"] == "none" and d["chain"] == [] and d["final"]["at_noise_floor"]
+    assert d["final"]["end"] == "noise floor reached within the config's tolerance"
+    rp = rp.with_config(rp.cfg.with_values({"plant.tolerance": 0.0}))
     d = diagnose_chain(rp, jobs=2, holdout="moves")
     true = {f"parameter:{k}": CFG[k] * f for k, f in drifts}
     true["mass_change"] = next((CFG[k] * (f - 1) for k, f in drifts if k == "plant.m2"), None)

@@ -41,8 +41,9 @@ beside the estimation records' ("estimation" and "validation" in the JSON).
 CHANNEL_UNIT = "the channel's (m, N*m, N, V)"
 JSON_KEYS = {
     "verdict": JsonKey("", "the effect the model misses (a catalogue name or `parameter:<key>`), `none` (the "
-                           "model matches down to the noise floor) or `unexplained` (above it, and no candidate "
-                           "explains it)"),
+                           "model matches down to the noise floor, or the chain found a drift of the config within "
+                           "its tolerance and nothing beyond it: final.tolerance) or `unexplained` (above it, and no "
+                           "candidate explains it)"),
     "candidates": JsonKey("", "every candidate fitted, best score first (entries candidates[].*)"),
     "candidates[].effect": JsonKey("", "catalogue effect, `a+b` combination or `parameter:<key>`"),
     "candidates[].params": JsonKey("SI", "fitted parameters by name (units: reference/effects.md)"),
@@ -135,8 +136,9 @@ JSON_KEYS = {
     "final.noise_floor": JsonKey(CHANNEL_UNIT, "per channel, the noise floor"),
     "final.above_floor": JsonKey("1", "per channel, ratio of the error to the noise floor"),
     "final.at_noise_floor": JsonKey("", "every channel at its noise floor"),
-    "final.end": JsonKey("", "why the chain ended: `noise floor reached`, `no effect pays for its parameters`, "
-                             "`unexplained`, `no candidate left`, `max steps (N)`"),
+    "final.end": JsonKey("", "why the chain ended: `noise floor reached`, `noise floor reached within the config's "
+                             "tolerance`, `no effect pays for its parameters`, `unexplained`, `no candidate left`, "
+                             "`max steps (N)`"),
     "final.steps": JsonKey("", "number of steps that added effects"),
     "final.floor_parts": JsonKey(CHANNEL_UNIT, "per channel, the parts of the noise floor the records have: "
                                                "quantization (q/sqrt(12)), standstill (the standstill noise: the "
@@ -150,8 +152,29 @@ JSON_KEYS = {
     "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
                                   "none and why", when="the chain"),
     "final.rejected": JsonKey("", "the step the held-out data refused: effects, score, error_after, stderr, "
-                                  "confounded, estimation_error, held_out (as chain[])",
+                                  "confounded, estimation_error, held_out (as chain[]); tolerance where it was "
+                                  "the config's drift within its tolerance (final.tolerance)",
                               when="a step did not earn its place"),
+    "final.tolerance": JsonKey("", "a step would have named a drift of the config's masses, stiffnesses or "
+                                   "dampings, and all of them fitted within plant.tolerance: no finding, the model "
+                                   "holds them; keys final.tolerance.*",
+                               when="a drift within the config's tolerance"),
+    "final.tolerance.tolerance": JsonKey("1", "plant.tolerance, relative"),
+    "final.tolerance.step": JsonKey("", "the chain's diagnosis whose verdict was the drift (the steps after it "
+                                        "name what is left, no drift of the config among the candidates)"),
+    "final.tolerance.within": JsonKey("", "every change within the tolerance (less two of its standard errors): "
+                                          "always true here"),
+    "final.tolerance.at_noise_floor": JsonKey("", "every channel at its noise floor with the values so fitted"),
+    "final.tolerance.error": JsonKey(CHANNEL_UNIT, "per channel, RMS error of the model so fitted"),
+    "final.tolerance.params": JsonKey("SI", "per config key: config, value, change (relative), stderr (null: none); "
+                                            "one key of a combination the record fixes (the tip's k2 / m3) has a "
+                                            "large one"),
+    "final.tolerance.nfev": JsonKey("", "evaluations of the fit"),
+    "final.tolerance.estimation_error": JsonKey(CHANNEL_UNIT, "per channel, RMS error on the data the held-out "
+                                                              "check fitted it on (as chain[])",
+                                                when="with a held-out part"),
+    "final.tolerance.held_out": JsonKey("", "the fit's held-out check, as chain[].held_out: it earns its place as "
+                                            "a step would", when="with a held-out part"),
     "report": JsonKey("", "path of the HTML report", when="with --report"),
     "torque_sampling": JsonKey("", "which torque (force) the record holds, where the config does not say "
                                    "(measurement.torque / measurement.force): keys torque_sampling.*",
@@ -325,6 +348,12 @@ def ranking_text(d) -> list[str]:
         else:
             lines.append(f"verdict: {verdict} (score {c.score:.1f})")
         lines.append(f"    {c.evidence}")
+    elif verdict == "none" and (d.get("final") or {}).get("tolerance"):
+        t = d["final"]["tolerance"]
+        lines.append(f"verdict: none (a drift of the config's masses, stiffnesses and dampings within their tolerance, "
+                     f"plant.tolerance {100 * t['tolerance']:.3g} %: the config's own plant"
+                     + ("" if d["final"]["at_noise_floor"] else "; the chain below says what stays above the floor")
+                     + ")")
     else:
         lines.append(f"verdict: {verdicts.get(verdict, verdict)}")
     if d.get("shown_together"):
@@ -376,7 +405,8 @@ def write_html_report(path, d, rp, cfg, args, record) -> None:
     refuse_inputs(path, (*data, args.config, *(getattr(args, "validate", None) or [])))
     first = getattr(rp, "parts", [rp])[0]          # several records: the residual analysis of the first
     a = analyse(first)
-    fitted = d.get("config") if d.get("chain") else None
+    # the model the chain ends with: its steps, or the config's drift within its tolerance
+    fitted = d.get("config") if d.get("chain") or (d.get("final") or {}).get("tolerance") else None
     b = analyse(first, fitted) if fitted is not None else None
     with tempfile.TemporaryDirectory(prefix="hil-diagnose-") as tmp:
         figs = comparison_figures(a, Path(tmp), after=b)
@@ -415,7 +445,11 @@ def chain_text(d, rp) -> list[str]:
     lines = ["chain (RMS error per channel; x floor = ratio to the noise floor):",
              "  start: " + ", ".join(f"{c} {fmt_si(d['error_before'][c], rp.unit(c), 3)} "
                                      f"({d['error_before'][c] / floor[c]:.1f} x floor)" for c in chans)]
+    tol = d["final"].get("tolerance")
     for s in d["chain"]:
+        if tol is not None and s["step"] > tol["step"]:
+            lines += [_tolerance_line(tol)] + _held_out_lines(tol, rp)
+            tol = None
         added = " + ".join(s["effects"])
         par = "; ".join(f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in s["params"].items()
                         if n in s["effects"])
@@ -437,6 +471,8 @@ def chain_text(d, rp) -> list[str]:
         r = f["rejected"]
         lines.append(f"  refused: + {' + '.join(r['effects'])} (BIC score {r['score']:.1f} on the whole record)")
         lines += _held_out_lines(r, rp)
+    if tol is not None:
+        lines += [_tolerance_line(tol)] + _held_out_lines(tol, rp)
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else
                                          "the residual stays above the noise floor:"))
     if "residual" in f:
@@ -447,6 +483,12 @@ def chain_text(d, rp) -> list[str]:
         from hil.ident.chain import floor_parts_text
         lines += floor_parts_text(f, rp.unit)
     return lines
+
+
+def _tolerance_line(t) -> str:
+    return (f"  step {t['step']}: a drift within the config's tolerance (plant.tolerance {100 * t['tolerance']:.3g} %), "
+            f"no finding; the config's values fitted within it: " +
+            ", ".join(f"{k.split('.')[-1]} {100 * p['change']:+.2f} %" for k, p in t["params"].items()))
 
 
 def run_to_run(d, rp) -> dict | None:

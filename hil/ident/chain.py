@@ -61,6 +61,16 @@ step takes the friction with a mass change, the inverse model's pair, that stand
 delay's share of the torque; once the delay is found the mass is refitted to almost nothing and
 dropped.)
 
+A step whose effects are all drifts of the config's masses, stiffnesses and dampings (``parameter:plant.m3``,
+``mass_change``) is first put to the config's tolerance (hil.ident.tolerance, ``plant.tolerance``):
+all of them fitted together, each held within the tolerance by a prior. Where every change lies
+within it, the drift is no finding: the model takes the fitted values, no step is named, the
+chain ends where that reaches the noise floor (``end`` "noise floor reached within the config's
+tolerance") and else diagnoses the rest with no drift of the config among the candidates
+(``final.tolerance``; the verdict is then what the chain names beyond it, else ``none``). A record
+fixes combinations of those parameters (the tip's k2 / m3): a step that names one of them names it
+off by the others' drifts.
+
 Each step reports its estimation error (the record's, or the estimation half's) and held-out
 error per channel, and the standard errors of everything found so far with the pairs of fitted
 parameters confounded in the step's last fit (hil.ident.fit: |correlation| above
@@ -85,8 +95,10 @@ import numpy as np
 
 from hil.ident.diagnosis import _close, candidate_names, diagnose, is_open_loop
 from hil.ident.fit import _fit_one, config_aliases, evaluate, fit_effects
+from hil.ident.objective import MaskedObjective
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
+from hil.ident.tolerance import TOLERANCE, is_drift, within_tolerance
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate, default_parameters, measurement_key, without_replaced
 
@@ -166,25 +178,6 @@ def split_moves(replay, min_samples: int = HOLDOUT_MIN):
     return est, held
 
 
-class _MaskedObjective:
-    """A replay's objective on some of its samples only (the estimation half): the whole record is
-    simulated (the state at a piece's start is the record's), the fit sees the masked samples."""
-
-    def __init__(self, obj, mask):
-        self.obj, self.weights = obj, obj.weights
-        self.sel = np.tile(mask, len(obj.weights))
-        self.n = int(self.sel.sum())
-
-    def residuals(self, cfg):
-        return self.obj.residuals(cfg)
-
-    def residuals_many(self, cfgs):
-        return self.obj.residuals_many(cfgs)
-
-    def vector(self, res):
-        return self.obj.vector(res)[self.sel]
-
-
 def held_out_fall(before: dict, after: dict, floor: dict) -> dict:
     """The held-out error before and after a step (the module's definition), from the held-out
     residuals ``before`` and ``after`` (per channel) and the noise floor: ``before`` and ``after``
@@ -227,14 +220,16 @@ def _holdout_parts(replay, holdout):
     return ("records", Records(parts, fitted)) if parts else None
 
 
-def _earned(cur, split, add, found, cfg1, fit_nfev) -> dict:
+def _earned(cur, split, add, found, cfg1, fit_nfev, refit=None) -> dict:
     """The step on the held-out data. With the record's moves: the step's effects refitted on the
     estimation moves alone from their values in ``cfg1`` (the whole record simulated, the held-out
     samples out of the objective), the held-out samples' residuals before (the model as it stands)
     and after (:func:`held_out_fall`); and what the model as it stands reaches on the held-out moves
     when the effects already ``found`` are refitted on them (``model_refit_fall``): the step earns
     its place when its fall stands beyond both. With validation records, ``cfg1`` on them. With
-    ``estimation``: the RMS error per channel after the step on the data it was fitted on."""
+    ``estimation``: the RMS error per channel after the step on the data it was fitted on. ``refit``
+    (a mask -> residuals callable): the step's own refit on the estimation moves, in place of its
+    effects' (the config's tolerance, hil.ident.tolerance)."""
     kind, what = split
     if kind != "moves":
         out = held_out_fall(what.residuals(cur.cfg), what.residuals(cfg1), what.noise)
@@ -242,7 +237,7 @@ def _earned(cur, split, add, found, cfg1, fit_nfev) -> dict:
         return out
     est, held = what
     res_b = cur.base_residuals
-    res_a = _refit_on(cur, est, add, cfg1, fit_nfev)
+    res_a = refit(est) if refit is not None else _refit_on(cur, est, add, cfg1, fit_nfev)
     out = held_out_fall({c: r[held] for c, r in res_b.items()}, {c: r[held] for c, r in res_a.items()}, cur.noise)
     model = 0.0
     if found:
@@ -261,7 +256,7 @@ def _refit_on(cur, mask, names, cfg, fit_nfev) -> dict:
     vals = effect_values(names[0], cfg) if len(names) == 1 else \
         {f"{n}.{k}": v for n in names for k, v in effect_values(n, cfg).items()}
     try:
-        return _fit_one(_MaskedObjective(cur.objective, mask), cur.cfg, eff, [vals],
+        return _fit_one(MaskedObjective(cur.objective, mask), cur.cfg, eff, [vals],
                         max_nfev=min(fit_nfev, HOLDOUT_NFEV))[2]
     except ValueError:
         return cur.residuals(cfg)
@@ -438,6 +433,17 @@ def _rival(d, verdict, add, have, cur):
     return None
 
 
+def _within_tolerance(cur, add, progress) -> dict | None:
+    """hil.ident.tolerance's test where every effect of the step ``add`` is a drift of the config's
+    masses, stiffnesses or dampings (else None)."""
+    if not is_drift([candidate(n, cur.cfg) for n in add], cur.plant, cur.cfg):
+        return None
+    if progress:
+        expect(progress, 1)
+        progress("plant.tolerance")
+    return within_tolerance(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)))
+
+
 def _weighted(replay, res) -> float:
     return float(np.sum(replay.objective.vector(res) ** 2))
 
@@ -490,7 +496,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     first = None
     end = f"max steps ({max_steps})"
     split = _holdout_parts(replay, holdout)
-    rejected = None
+    rejected = within = None
     gone: list[str] = []        # effects dropped by a later step (no candidates again)
     for i in range(max(1, max_steps)):
         err0 = rms(cur.base_residuals)
@@ -503,6 +509,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         pool = names or candidate_names(cur.cfg, cur.plant, open_loop=is_open_loop(cur))
         have = {_same(n, cur.cfg) for n in found + gone}
         cands = [n for n in pool if _same(n, cur.cfg) not in have]
+        if within is not None:      # the config's drifts are in the model, within their tolerance
+            cands = [n for n in cands if not is_drift([candidate(n, cur.cfg)], cur.plant, cur.cfg)]
         if not cands:
             end = "no candidate left"
             break
@@ -525,6 +533,34 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             break
         else:
             add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
+            test = _within_tolerance(cur, add, progress) if within is None else None
+            if test is not None and test["within"]:
+                # the step would name a drift of the config, and the config's masses, stiffnesses and
+                # dampings fit within their tolerance: no finding; where it earns its place as a step
+                # would, the model takes them, and what is left is diagnosed again (no drift of the
+                # config a candidate any more)
+                tol = test["tolerance"]
+                held = _earned(cur, split, [], found, test["_config"], fit_nfev, refit=lambda m: cur.residuals(
+                    within_tolerance(cur, tol, mask=m)["_config"])) if split else None
+                if held is not None and not held["earned"]:
+                    end = "no step earns its place on the held-out data"
+                    res_t = cur.residuals(test["_config"])
+                    rejected = {"effects": list(add), "tolerance": tol,
+                                "score": float(bic_score(cur.base_residuals, res_t, list(floor), len(test["params"]),
+                                                         floor)),
+                                "error_after": rms(res_t), "stderr": {}, "confounded": [],
+                                "estimation_error": held.pop("estimation"), "held_out": held}
+                    logger.info("chain step %d: the config's tolerance refused by the held-out data", i + 1)
+                    break
+                within = dict(test, step=i + 1)
+                if held is not None:
+                    within.update(estimation_error=held.pop("estimation"), held_out=held)
+                cur = cur.with_config(within["_config"])
+                logger.info("chain step %d: %s is a drift within the config's tolerance", i + 1, " + ".join(add))
+                if at_noise_floor(rms(cur.base_residuals), floor):
+                    end = "noise floor reached within the config's tolerance"
+                    break
+                continue
             cfg1, fits = _add_verdict(cur, d, verdict, add, fit_nfev, progress)
         cfg1, res1, joint, paid = _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress)
         rival = _rival(d, verdict, add, have, cur) if found and together is None else None
@@ -594,12 +630,18 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                              f"moves, or is open-loop)")
     if rejected is not None:
         final["rejected"] = rejected
+    if within is not None:
+        final["tolerance"] = {k: v for k, v in within.items() if not k.startswith("_")}
     final.update(floor_parts(replay, errf))
     if not final["at_noise_floor"]:
         last = diags[-1] if diags else None
         best = last["candidates"][0] if last and last["candidates"] else None
         final["residual"] = residual_evidence(cur, cur.base_residuals, best)
     out = dict(first)
+    if within is not None and (not steps or steps[0]["step"] > within["step"]):
+        # the first diagnosis named a drift of the config that its tolerance explains: the verdict is
+        # what the chain named beyond it, else nothing
+        out["verdict"] = steps[0]["effect"] if steps else "none"
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
     out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out

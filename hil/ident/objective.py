@@ -16,7 +16,7 @@ import os
 
 import numpy as np
 
-__all__ = ["Objective", "batched"]
+__all__ = ["Objective", "MaskedObjective", "batched"]
 
 
 def batched() -> bool:
@@ -41,3 +41,23 @@ class Objective:
 
     def vector(self, res: dict) -> np.ndarray:
         return np.concatenate([res[c] * self.weights[c] for c in self.weights])
+
+
+class MaskedObjective:
+    """An objective on some of its replay's samples only (the estimation half of a record): the whole
+    record is simulated (the state at a piece's start is the record's), the fit sees the masked
+    samples."""
+
+    def __init__(self, obj, mask):
+        self.obj, self.weights = obj, obj.weights
+        self.sel = np.tile(mask, len(obj.weights))
+        self.n = int(self.sel.sum())
+
+    def residuals(self, cfg):
+        return self.obj.residuals(cfg)
+
+    def residuals_many(self, cfgs):
+        return self.obj.residuals_many(cfgs)
+
+    def vector(self, res):
+        return self.obj.vector(res)[self.sel]

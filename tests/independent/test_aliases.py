@@ -51,8 +51,16 @@ def test_m3_fitted_where_k2_drifted_is_the_ratio_and_says_so(k2_factor):
 def test_diagnose_json_and_text_name_the_alias(tmp_path):
     from hil.cli import main
     path = write(tmp_path / "rec.csv", _record(1.03), {"sample_period": f"{BENCH.tp} s"})
+    # (k2 3 % up is within the config's default tolerance: no finding, nothing named; without a
+    # tolerance the chain names m3 and its alias)
     args = ["diagnose", str(path), "--config", str(CFG_PATH), "--jobs", "1", "--max-steps", "2",
             "--candidates", "parameter:plant.m3"]
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(args + ["--json"]) == 0
+    d = json.loads(out.getvalue())
+    assert d["chain"] == [] and d["verdict"] == "none" and d["final"]["tolerance"]["within"]
+    args += ["--set", "plant.tolerance=0"]
     out = io.StringIO()
     with redirect_stdout(out):
         assert main(args + ["--json"]) == 0

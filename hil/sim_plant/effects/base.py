@@ -139,6 +139,12 @@ class Effect(ABC):
         """The parameters a fit moves (the others are settings: where, not how strong)."""
         return tuple(p for p in self.params if p.fit)
 
+    def drifted_key(self, plant: Plant) -> str | None:
+        """The config key this effect is a change of (a mass on the table is the table mass), or
+        None: a physical effect of its own. A change within the config's tolerance is no finding
+        (hil.ident.tolerance)."""
+        return None
+
     def applicable(self, plant: Plant) -> bool:
         """Whether the effect can act on this plant (e.g. backlash needs a transmission link)."""
         return True

@@ -144,6 +144,9 @@ class MassChange(Effect):
     synth_strength = {"mass": 80.0}
     linear_param = "mass"
 
+    def drifted_key(self, plant):
+        return f"plant.m{plant.table + 1}"
+
     def evidence(self, ctx, values):
         return f"{ctx.chan} residual follows the acceleration: {values.get('mass', 0):+.3g} kg on the table; "
 

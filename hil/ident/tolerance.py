@@ -1,0 +1,138 @@
+"""Whether the record is the config's own plant, its parameters moved within their tolerance.
+
+A config's masses, stiffnesses and dampings are known to a tolerance (``plant.tolerance``, relative;
+the CAD's masses, the stiffnesses of a finite-element model or a test, the dampings of a fit), and
+they move night to night by about a percent with temperature and load. A record of a healthy axis
+differs from the config by such drifts, all at once, and a one-parameter step cannot name them:
+the record fixes combinations (the tool-tip mode's sqrt(k2 / m3) and c2 / m3, the moving mass
+m1 + m2 + m3 in the torque, the table's lag m2 / k1), so a step that names m3 names it off by k2's
+drift (hil.ident.fit.config_aliases says so), and the next step names c2 off by m3's. That is no
+missing effect.
+
+So before the chain names a drift of the config (a step whose effects are all changes of the
+plant's masses, stiffnesses and dampings: ``parameter:plant.m3``, ``mass_change``, the table mass
+by another name; :meth:`~hil.sim_plant.effects.Effect.drifted_key`) it asks whether all of them
+together, each within its tolerance, bring the record to its noise floor: bounded least squares of
+every such key of the config, z_k = value_k / config_k in [1 - tol, 1 + tol], on the model as it
+stands (the effects already found held), from z = 1; weighted as every fit (hil.ident.objective), and
+refitted up to :data:`ROUNDS` times weighted by the residual the last fit left (a channel the fit
+brought near its floor no longer drowns the one still far above it: the tool tip's ringing is
+thousands of times its floor before and a few times after). When every channel ends within
+:data:`~hil.ident.unexplained.AT_FLOOR` of its floor the record is explained by the config within
+its tolerance and the chain ends there (``final.tolerance``), naming nothing: a drift within the
+tolerance is not a finding, by the tolerance's definition. Else nothing changes: the chain goes on
+as without the test.
+
+The fitted values come with the linearised standard errors of the joint fit (hil.ident.fit); those
+the record cannot tell apart (the tip's mass and stiffness) have large ones or none (at a bound).
+``plant.tolerance = 0`` switches the test off.
+"""
+from __future__ import annotations
+
+import logging
+import re
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from hil.ident.fit import _with_jacobian, standard_errors
+from hil.ident.objective import MaskedObjective
+from hil.ident.unexplained import at_noise_floor, rms
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["tolerance_keys", "is_drift", "within_tolerance", "ROUNDS", "MAX_NFEV", "TOLERANCE"]
+
+TOLERANCE = 0.05    # plant.tolerance where the config does not say (its schema's default)
+ROUNDS = 3          # fits, each weighted by the residual the one before left
+MAX_NFEV = 40       # evaluations of each
+Z_WITHIN = 2.0      # a change is within the tolerance where it lies within this many standard errors of it
+SEARCH = 4          # the fit searches within this many tolerances of the config (the prior holds it near)
+
+
+def tolerance_keys(cfg) -> list[str]:
+    """The config's keys a tolerance applies to: the chain's masses, stiffnesses and dampings that
+    are set and not 0 (a damping of 0 is a statement, not a measured value)."""
+    return [k for k in cfg.keys() if re.fullmatch(r"plant\.[mkc][0-9]+", k) and isinstance(cfg.get(k), (int, float))
+            and cfg.get(k)]
+
+
+def is_drift(effects: list, plant, cfg) -> bool:
+    """Whether every effect of a step is a change of one of :func:`tolerance_keys` (the effect's
+    :meth:`~hil.sim_plant.effects.Effect.drifted_key`)."""
+    keys = set(tolerance_keys(cfg))
+    return bool(effects) and all(getattr(e, "drifted_key", lambda p: None)(plant) in keys for e in effects)
+
+
+def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = MAX_NFEV, mask=None) -> dict | None:
+    """The test of the module's definition on ``replay`` (the model as it stands): None where the
+    config has no such key or ``tol`` is not above 0; else {"tolerance", "within" (every change within
+    ``tol``, less :data:`Z_WITHIN` of its standard errors), "at_noise_floor" (every channel), "error"
+    (RMS per channel after the fit), "params" {key: {"config", "value", "change" (relative), "stderr"
+    (NaN: none)}}, "nfev"} and, with a leading underscore, the fitted config (``_config``). With
+    ``mask`` (a boolean array of the record's samples) the fit sees those samples alone (the whole
+    record simulated: the estimation half of hil.ident.chain's held-out check); the errors are the
+    whole record's."""
+    cfg = replay.cfg
+    keys = tolerance_keys(cfg)
+    if not keys or not tol > 0:
+        return None
+    x0 = np.array([float(cfg[k]) for k in keys])
+    # where the search may go (a mass stays a mass); the prior keeps it near the config
+    lo, hi = np.full(len(keys), max(0.1, 1.0 - SEARCH * tol)), np.full(len(keys), 1.0 + SEARCH * tol)
+    prior = np.eye(len(keys)) / tol
+
+    def config(z):
+        return cfg.with_values(dict(zip(keys, (z * x0).tolist())))
+
+    state = {"nfev": 0, "sol": None}
+
+    def fit(at, z, lo, hi):
+        """One bounded fit of z from ``z``, weighted by ``at``'s residuals: (z, its replay)."""
+        obj = at.objective if mask is None else MaskedObjective(at.objective, mask)
+
+        def data(z):
+            try:
+                return obj.vector(obj.residuals(config(z)))
+            except (ValueError, ZeroDivisionError, FloatingPointError):
+                return np.full(obj.n, 1e3)
+        f_data, j_data = _with_jacobian(obj, data, config, lo, hi, 1e-3)
+
+        def fun(z):
+            return np.concatenate([f_data(z), (z - 1.0) / tol])
+
+        def jac(z):
+            jd = j_data(z) if callable(j_data) else approx_fprime(z, f_data, lo, hi)
+            return np.vstack([jd, prior])
+        sol = least_squares(fun, np.clip(z, lo, hi), jac=jac, bounds=(lo, hi), diff_step=1e-3, max_nfev=max_nfev,
+                            x_scale=1.0, xtol=1e-6, ftol=1e-6)
+        state["nfev"] += sol.nfev
+        state["sol"] = sol
+        return sol.x, replay.with_config(config(sol.x))
+
+    floor = replay.noise
+    z, at = np.ones(len(keys)), replay
+    for _ in range(max(1, rounds)):
+        z, at = fit(at, z, lo, hi)
+        if at_noise_floor(rms(at.base_residuals), floor):
+            break
+    sol, nfev = state["sol"], state["nfev"]
+    err = rms(at.base_residuals)
+    se = standard_errors(sol, x0)
+    params = {k: {"config": float(x0[i]), "value": float(z[i] * x0[i]), "change": float(z[i] - 1.0),
+                  "stderr": float(se[i])} for i, k in enumerate(keys)}
+    # within the tolerance: each change, less Z_WITHIN of its standard errors (a drift at the edge
+    # that the fit puts a little beyond it), at most the tolerance
+    margin = Z_WITHIN * np.nan_to_num(se / x0, nan=0.0)
+    ok = bool(np.all(np.abs(z - 1.0) - margin <= tol * (1.0 + 1e-9)))
+    logger.info("tolerance %.3g: %s, %s (%s)", tol, "within" if ok else "beyond",
+                "at the noise floor" if at_noise_floor(err, floor) else "above the noise floor",
+                ", ".join(f"{k} {100 * p['change']:+.2f} %" for k, p in params.items()))
+    return {"tolerance": float(tol), "within": ok, "at_noise_floor": bool(at_noise_floor(err, floor)), "error": err,
+            "params": params, "nfev": int(nfev), "_config": at.cfg}
+
+
+def approx_fprime(z, f, lo, hi):
+    """scipy's '2-point' Jacobian of ``f`` (the one-by-one path, HIL_BATCH=0)."""
+    from scipy.optimize._numdiff import approx_derivative
+    return approx_derivative(f, z, method="2-point", rel_step=1e-3, bounds=(lo, hi))
