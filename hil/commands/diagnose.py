@@ -121,6 +121,9 @@ JSON_KEYS = {
                                      "multiple correlation), slope, what a relative drift of the key, left out of "
                                      "the model, moves each fitted parameter by (per unit of relative drift), "
                                      "confounded, |r| above 0.9: the record cannot tell the two apart"),
+    "chain[].swapped": JsonKey("", "the first step's verdict this step replaces (its runner-up, judged once the "
+                                   "later steps' effects are in the model; the verdict under dropped)",
+                               when="a swap"),
     "chain[].rival": JsonKey("", "the runner-up judged beside the verdict after the refit of everything found (a "
                                  "later step, when it removed at least 0.8 of the verdict's share): effect, score, "
                                  "verdict, verdict_score (BIC falls); the better is the step; null: none"),
@@ -460,8 +463,9 @@ def chain_text(d, rp) -> list[str]:
                          f"(the config's [measurement]; the model of the axis unchanged)")
         for e in s.get("dropped", []):
             par = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
-            lines.append(f"          - {e['effect']} [{par}]: no longer pays beside this step's effects "
-                         f"(BIC score {e['score']:.1f}): dropped from the model")
+            why = (f"replaced: {added} pays more in its place" if s.get("swapped") == e["effect"] else
+                   "no longer pays beside this step's effects")
+            lines.append(f"          - {e['effect']} [{par}]: {why} (BIC score {e['score']:.1f}): dropped from the model")
         lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
                                            f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))

@@ -61,6 +61,12 @@ step takes the friction with a mass change, the inverse model's pair, that stand
 delay's share of the torque; once the delay is found the mass is refitted to almost nothing and
 dropped.)
 
+The first step's single verdict keeps its look-alike (:func:`_look_alike`: a candidate of that
+diagnosis that corrects the residual as the verdict does); where the chain ends above the noise
+floor after more steps, the look-alike is fitted in the verdict's place with everything else
+refitted, and kept as a step of its own when it scores better (``chain[].swapped``; stepwise
+selection's swap): the first diagnosis ranked each candidate alone, beside effects still missing.
+
 A step whose effects are all drifts of the config's masses, stiffnesses and dampings (``parameter:plant.m3``,
 ``mass_change``) is first put to the config's tolerance (hil.ident.tolerance, ``plant.tolerance``):
 all of them fitted together, each held within the tolerance by a prior. Where every change lies
@@ -94,7 +100,7 @@ import math
 import numpy as np
 
 from hil.ident.diagnosis import _close, candidate_names, diagnose, is_open_loop
-from hil.ident.fit import _fit_one, config_aliases, evaluate, fit_effects
+from hil.ident.fit import CONFOUNDED, _fit_one, config_aliases, evaluate, fit_effects
 from hil.ident.objective import MaskedObjective
 from hil.ident.progress import expect
 from hil.ident.scores import MIN_SCORE, bic_score
@@ -444,6 +450,92 @@ def _within_tolerance(cur, add, progress) -> dict | None:
     return within_tolerance(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)))
 
 
+def _look_alike(d, verdict, add, have, cur):
+    """The candidate of a step's diagnosis that does what its single verdict does: a significant
+    single candidate, not in the model, whose gain is at least :data:`RIVAL_GAIN` of the verdict's
+    and whose correction of the weighted residual (before - after its fit) is the verdict's to a
+    cosine of :data:`~hil.ident.fit.CONFOUNDED` (the record tells the two apart no better than two
+    confounded parameters: a current loop's lag and an actuator delay both shift the torque's
+    phase), with no more fitted parameters than the verdict (a richer effect that holds the
+    verdict, a stiffness along the travel for k1, is a step of its own, not a look-alike); the
+    closest, or None."""
+    if len(add) != 1:
+        return None
+    lead = next((c for c in d["candidates"] if c.effect == verdict), None)
+    if lead is None or lead.res is None:
+        return None
+    k_lead = len(candidate(verdict, cur.cfg).fitted_params)
+    obj = cur.objective
+    base = obj.vector(cur.base_residuals)
+    v = base - obj.vector(lead.res)
+    nv = float(np.linalg.norm(v))
+    best, best_cos = None, CONFOUNDED
+    for c in d["candidates"]:
+        if (c is lead or "+" in c.effect or not c.significant or c.res is None or c.gain < RIVAL_GAIN * lead.gain
+                or _same(c.effect, cur.cfg) in have | {_same(verdict, cur.cfg)}
+                or (_close(c, lead, 0.02) and _close(lead, c, 0.02))
+                or len(candidate(c.effect, cur.cfg).fitted_params) > k_lead):
+            continue
+        w = base - obj.vector(c.res)
+        cos = float(v @ w) / max(nv * float(np.linalg.norm(w)), 1e-300)
+        if cos > best_cos:
+            best, best_cos = c, cos
+    return best
+
+
+def _swap(replay, cur, steps, found, gone, split, fit_nfev, progress) -> dict | None:
+    """The first step's runner-up in place of its verdict, once the later steps' effects are in the
+    model (stepwise selection's swap): the first step judged each candidate alone, beside effects
+    still missing (a current loop's lag scored above an actuator delay beside a torque ripple not
+    yet found). The verdict is set back (:func:`_without`), the runner-up fitted on top of the rest
+    and everything refitted together; kept as a step of its own (``swapped``, the verdict under
+    ``dropped``) when its BIC score beats the verdict's own in the model by :data:`MIN_SCORE` and it
+    earns its place on the held-out data. None: no swap."""
+    first = steps[0]
+    r = first.get("_runner_up")
+    if r is None or len(first["effects"]) != 1:
+        return None
+    name, verdict = r.effect, first["effects"][0]
+    have = {_same(n, cur.cfg) for n in found + gone}
+    if verdict not in found or _same(name, cur.cfg) in have:
+        return None
+    floor = replay.noise
+    rest = [n for n in found if n != verdict]
+    base = replay.with_config(_without(verdict, cur.cfg, replay.cfg))
+    k_v = len(candidate(verdict, cur.cfg).params)
+    own = bic_score(base.base_residuals, cur.base_residuals, list(floor), k_v, floor)   # the verdict's, in the model
+    if progress:
+        expect(progress, 1)
+        progress(name)
+    try:
+        c = evaluate(base, name, max_nfev=fit_nfev)
+    except ValueError:
+        return None
+    cfg1, res1, joint, paid = _refit_found(replay, base, rest, [name], c.cfg, fit_nfev, progress)
+    logger.info("chain: %s in place of %s scores %.1f against %.1f", name, verdict, paid, own)
+    if not paid > own + MIN_SCORE:
+        return None
+    held = _earned(base, split, [name], rest, cfg1, fit_nfev) if split else None
+    if held is not None and not held["earned"]:
+        return None
+    err0, err1 = rms(cur.base_residuals), rms(res1)
+    se, conf = _stderr_of(joint if joint is not None else c, rest + [name])
+    out = {"step": steps[-1]["step"] + 1, "effect": name, "effects": [name],
+           "params": {n: effect_values(n, cfg1) for n in rest + [name]},
+           "error_before": err0, "error_after": err1,
+           "gap_closed": {ch: gap_closed(err0[ch], err1[ch], floor[ch]) for ch in err0},
+           "score": float(paid), "evidence": f"in place of {verdict} (its score in the model {own:.1f}): {r.evidence}",
+           "refitted_together": joint is not None, "stderr": se, "confounded": conf,
+           "aliases": _aliases(replay, cfg1, [name]), "rival": None,
+           "recording_artefacts": [name] if measurement_key(candidate(name, cur.cfg)) is not None else [],
+           "swapped": verdict,
+           "dropped": [{"effect": verdict, "params": effect_values(verdict, cur.cfg), "score": float(own)}],
+           "_fits": [c], "_joint": joint, "_config": cfg1}
+    if held is not None:
+        out.update(estimation_error=held.pop("estimation"), held_out=held)
+    return out
+
+
 def _weighted(replay, res) -> float:
     return float(np.sum(replay.objective.vector(res) ** 2))
 
@@ -564,6 +656,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             cfg1, fits = _add_verdict(cur, d, verdict, add, fit_nfev, progress)
         cfg1, res1, joint, paid = _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress)
         rival = _rival(d, verdict, add, have, cur) if found and together is None else None
+        # the first step's look-alike: judged in its place once the later steps' effects are in the
+        # model (:func:`_swap`)
+        runner_up = _look_alike(d, verdict, add, have, cur) if not found and together is None else None
         if rival is not None:
             # a runner-up that removes about as much: the effects found before were fitted without
             # it and may hold part of it (a friction fitted before a delay takes part of its phase),
@@ -608,7 +703,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                       "refitted_together": joint is not None, "stderr": se, "confounded": conf,
                       "aliases": _aliases(replay, cfg1, add), "rival": rival,
                       "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
-                      "_fits": fits, "_joint": joint, "_config": cfg1})
+                      "_fits": fits, "_joint": joint, "_config": cfg1, "_runner_up": runner_up})
         if dropped:
             steps[-1]["dropped"] = dropped
         if held is not None:
@@ -618,6 +713,16 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             first = dict(first, verdict=verdict, shown_together=together["text"])
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         cur = cur.with_config(cfg1)
+    if len(steps) > 1 and not end.startswith("noise floor"):
+        swap = _swap(replay, cur, steps, found, gone, split, fit_nfev, progress)
+        if swap is not None:
+            if first.get("verdict") == swap["swapped"]:
+                first = dict(first, verdict=swap["effect"])      # the first diagnosis's verdict, set right
+            steps.append(swap)
+            found = list(swap["params"])
+            cur = cur.with_config(swap["_config"])
+            if at_noise_floor(rms(cur.base_residuals), floor):
+                end = "noise floor reached"
     errf = rms(cur.base_residuals)
     final = {"error": errf, "noise_floor": dict(floor),
              "above_floor": {c: errf[c] / max(floor[c], 1e-300) for c in errf},
