@@ -118,7 +118,7 @@ DRIFTS = [([("plant.m2", 1.03), ("plant.k2", 0.97)], 3),
 @pytest.mark.parametrize("drifts,seed", DRIFTS)
 def test_drifted_parameters_only(drifts, seed):
     # a clean record of a plant with two parameters 3 % off: within the config's default tolerance
-    # (plant.tolerance 3 %) it is the config's own plant, nothing named; without a tolerance the
+    # (plant.tolerance 5 %) it is the config's own plant, nothing named; without a tolerance the
     # chain (whole catalogue) names at most the drifted parameters, each within 1 % of its true
     # value, and stops
     rp = _record([(f"parameter:{k}", {"value": CFG[k] * f}) for k, f in drifts], seed)

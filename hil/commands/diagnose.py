@@ -155,8 +155,8 @@ JSON_KEYS = {
     "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
                                   "none and why", when="the chain"),
     "final.rejected": JsonKey("", "the step the held-out data refused: effects, score, error_after, stderr, "
-                                  "confounded, estimation_error, held_out (as chain[]); tolerance where it was "
-                                  "the config's drift within its tolerance (final.tolerance)",
+                                  "confounded, estimation_error, held_out (as chain[]); tolerance (plant.tolerance) where "
+                                  "it was the fit of the config's drift within its tolerance",
                               when="a step did not earn its place"),
     "final.tolerance": JsonKey("", "a step would have named a drift of the config's masses, stiffnesses or "
                                    "dampings, and all of them fitted within plant.tolerance: no finding, the model "
@@ -471,12 +471,14 @@ def chain_text(d, rp) -> list[str]:
                                            f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))
         lines += _held_out_lines(s, rp)
     f = d["final"]
-    if "rejected" in f:
-        r = f["rejected"]
-        lines.append(f"  refused: + {' + '.join(r['effects'])} (BIC score {r['score']:.1f} on the whole record)")
-        lines += _held_out_lines(r, rp)
     if tol is not None:
         lines += [_tolerance_line(tol)] + _held_out_lines(tol, rp)
+    if "rejected" in f:
+        r = f["rejected"]
+        what = (f"the config's drift within its tolerance ({', '.join(r['effects'])} and the other masses, stiffnesses "
+                f"and dampings)" if "tolerance" in r else " + ".join(r["effects"]))
+        lines.append(f"  refused: + {what} (BIC score {r['score']:.1f} on the whole record)")
+        lines += _held_out_lines(r, rp)
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else
                                          "the residual stays above the noise floor:"))
     if "residual" in f:

@@ -746,7 +746,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     if within is not None and (not steps or steps[0]["step"] > within["step"]):
         # the first diagnosis named a drift of the config that its tolerance explains: the verdict is
         # what the chain named beyond it, else nothing
-        out["verdict"] = steps[0]["effect"] if steps else "none"
+        named = steps[0]["effect"] if steps else "none"
+        swap = next((x for x in steps if x.get("swapped")), None)
+        out["verdict"] = swap["effect"] if swap is not None and swap["swapped"] == named else named
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
     out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out

@@ -12,16 +12,19 @@ missing effect.
 So before the chain names a drift of the config (a step whose effects are all changes of the
 plant's masses, stiffnesses and dampings: ``parameter:plant.m3``, ``mass_change``, the table mass
 by another name; :meth:`~hil.sim_plant.effects.Effect.drifted_key`) it asks whether all of them
-together, each within its tolerance, bring the record to its noise floor: bounded least squares of
-every such key of the config, z_k = value_k / config_k in [1 - tol, 1 + tol], on the model as it
-stands (the effects already found held), from z = 1; weighted as every fit (hil.ident.objective), and
-refitted up to :data:`ROUNDS` times weighted by the residual the last fit left (a channel the fit
-brought near its floor no longer drowns the one still far above it: the tool tip's ringing is
-thousands of times its floor before and a few times after). When every channel ends within
-:data:`~hil.ident.unexplained.AT_FLOOR` of its floor the record is explained by the config within
-its tolerance and the chain ends there (``final.tolerance``), naming nothing: a drift within the
-tolerance is not a finding, by the tolerance's definition. Else nothing changes: the chain goes on
-as without the test.
+together, each near its config value, fit the record within the tolerance: least squares of every
+such key of the config as z_k = value_k / config_k, searched within :data:`SEARCH` tolerances of 1
+with a prior residual (z_k - 1) / tol per key (small beside the record's thousands of samples: it
+decides only the directions the record does not see, the tip's mass beside its stiffness), on the
+model as it stands (the effects already found held), from z = 1; weighted as every fit
+(hil.ident.objective), and refitted up to :data:`ROUNDS` times weighted by the residual the last
+fit left (a channel the fit brought near its floor no longer drowns the one still far above it:
+the tool tip's ringing is thousands of times its floor before and a few times after). Where every
+change lies within the tolerance (less :data:`Z_WITHIN` of its standard errors) the drift is no
+finding (``within``): the chain (hil.ident.chain) then holds out part of the record as for a step,
+takes the values where the fit earns its place, names nothing, and ends at the noise floor or
+diagnoses what is left (``final.tolerance``). Else nothing changes: the chain goes on as without
+the test.
 
 The fitted values come with the linearised standard errors of the joint fit (hil.ident.fit); those
 the record cannot tell apart (the tip's mass and stiffness) have large ones or none (at a bound).
