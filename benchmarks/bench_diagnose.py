@@ -140,7 +140,7 @@ def chain_figures(cfg, jobs) -> None:
     diagnose(rp, ["coulomb_friction"], jobs=1)          # compile (or load the cached compiled loop)
     d, tc, cc = _timed(lambda: diagnose_chain(rp, jobs=jobs))
     one, t1, c1 = _timed(lambda: diagnose(rp, jobs=jobs))
-    steps = " then ".join(" + ".join(s["effects"]) for s in d["chain"])
+    steps = " then ".join(" + ".join(s.effects) for s in d["chain"])
     print(f"chain, 6 s paper bench record (coulomb_friction + compliant_mode hidden), {len(d['candidates'])} "
           f"candidates: {tc:.1f} s wall, {cc:.1f} CPU s ({steps}; end: {d['final']['end']})  [{load_avg()}]")
     print(f"  peer, one diagnosis of the same record: {t1:.1f} s wall, {c1:.1f} CPU s -> the chain costs "
@@ -157,7 +157,7 @@ def emps_figures(jobs) -> None:
     rp = Replay(read_mat(data, MAPPING), load(ROOT / "config" / "emps.toml"))
     d, tc, cc = _timed(lambda: diagnose_chain(rp, jobs=jobs))
     one, t1, c1 = _timed(lambda: diagnose(rp, jobs=jobs))
-    steps = " then ".join(" + ".join(s["effects"]) for s in d["chain"])
+    steps = " then ".join(" + ".join(s.effects) for s in d["chain"])
     print(f"chain, EMPS record (24.8 s at 1 ms), {len(d['candidates'])} candidates: {tc:.1f} s wall, {cc:.1f} CPU s "
           f"({steps}; end: {d['final']['end']})  [{load_avg()}]")
     print(f"  peer, one diagnosis of the EMPS record: {t1:.1f} s wall, {c1:.1f} CPU s -> the chain costs "

@@ -450,25 +450,25 @@ def chain_text(d, rp) -> list[str]:
                                      f"({d['error_before'][c] / floor[c]:.1f} x floor)" for c in chans)]
     tol = d["final"].get("tolerance")
     for s in d["chain"]:
-        if tol is not None and s["step"] > tol["step"]:
+        if tol is not None and s.step > tol["step"]:
             lines += [_tolerance_line(tol)] + _held_out_lines(tol, rp)
             tol = None
-        added = " + ".join(s["effects"])
-        par = "; ".join(f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in s["params"].items()
-                        if n in s["effects"])
-        lines.append(f"  step {s['step']}: + {added}{' (all refitted together)' if s['refitted_together'] else ''}"
+        added = " + ".join(s.effects)
+        par = "; ".join(f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in s.params.items()
+                        if n in s.effects)
+        lines.append(f"  step {s.step}: + {added}{' (all refitted together)' if s.refitted_together else ''}"
                      f" [{par}]")
-        if s.get("recording_artefacts"):
-            lines.append(f"          {', '.join(s['recording_artefacts'])}: a recording artefact, not physics "
+        if s.recording_artefacts:
+            lines.append(f"          {', '.join(s.recording_artefacts)}: a recording artefact, not physics "
                          f"(the config's [measurement]; the model of the axis unchanged)")
-        for e in s.get("dropped", []):
+        for e in s.dropped or []:
             par = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
-            why = (f"replaced: {added} pays more in its place" if s.get("swapped") == e["effect"] else
+            why = (f"replaced: {added} pays more in its place" if s.swapped == e["effect"] else
                    "no longer pays beside this step's effects")
             lines.append(f"          - {e['effect']} [{par}]: {why} (BIC score {e['score']:.1f}): dropped from the model")
-        lines.append("          " + ", ".join(f"{c} {fmt_si(s['error_before'][c], rp.unit(c), 3)} -> "
-                                           f"{fmt_si(s['error_after'][c], rp.unit(c), 3)} "
-                                           f"({s['error_after'][c] / floor[c]:.1f} x floor)" for c in chans))
+        lines.append("          " + ", ".join(f"{c} {fmt_si(s.error_before[c], rp.unit(c), 3)} -> "
+                                           f"{fmt_si(s.error_after[c], rp.unit(c), 3)} "
+                                           f"({s.error_after[c] / floor[c]:.1f} x floor)" for c in chans))
         lines += _held_out_lines(s, rp)
     f = d["final"]
     if tol is not None:
@@ -534,7 +534,8 @@ def run_to_run_text(r, rp) -> list[str]:
 
 
 def _held_out_lines(s, rp) -> list[str]:
-    """A chain step on its estimation and held-out data, and its confounded parameters."""
+    """A chain step on its estimation and held-out data, and its confounded parameters (``s`` a
+    :class:`~hil.ident.result.ChainStep`, or the refused step's or the tolerance's mapping)."""
     from hil.units import fmt_si
     lines = []
     if "held_out" in s:

@@ -155,13 +155,13 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
             d = diagnose_chain(rp, cands, max_steps=settings.max_steps, jobs=1, fit_nfev=settings.fit_nfev)
             named = []
             for s in d["chain"]:        # what the model holds: less what a later step dropped
-                gone = {x["effect"] for x in s.get("dropped", [])}
-                named = [e for e in named + s["effects"] if e not in gone]
+                gone = {x["effect"] for x in s.dropped or []}
+                named = [e for e in named + s.effects if e not in gone]
             fig.update(verdict=d["verdict"], named=named, end=d["final"]["end"],
                        final_error=d["final"]["error"], noise_floor=d["final"]["noise_floor"],
                        above_floor=d["final"]["above_floor"], at_noise_floor=bool(d["final"]["at_noise_floor"]),
-                       chain=[{"step": s["step"], "effects": s["effects"], "params": s["params"],
-                               "score": s["score"]} for s in d["chain"]])
+                       chain=[{"step": s.step, "effects": s.effects, "params": s.params, "score": s.score}
+                              for s in d["chain"]])
         vals, ses = _tracked(rp, settings.track, settings.fit_nfev)
         fig["values"] = {k: float(v) for k, v in vals.items()}
         fig["stderr"] = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in ses.items()}

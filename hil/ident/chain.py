@@ -103,6 +103,7 @@ from hil.ident.diagnosis import _close, candidate_names, diagnose, is_open_loop
 from hil.ident.fit import CONFOUNDED, _fit_one, config_aliases, evaluate, fit_effects
 from hil.ident.objective import MaskedObjective
 from hil.ident.progress import expect
+from hil.ident.result import ChainStep
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.tolerance import TOLERANCE, is_drift, within_tolerance
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
@@ -483,7 +484,7 @@ def _look_alike(d, verdict, add, have, cur):
     return best
 
 
-def _swap(replay, cur, steps, found, gone, split, fit_nfev, progress) -> dict | None:
+def _swap(replay, cur, steps, found, gone, split, fit_nfev, progress) -> ChainStep | None:
     """The first step's runner-up in place of its verdict, once the later steps' effects are in the
     model (stepwise selection's swap): the first step judged each candidate alone, beside effects
     still missing (a current loop's lag scored above an actuator delay beside a torque ripple not
@@ -492,10 +493,10 @@ def _swap(replay, cur, steps, found, gone, split, fit_nfev, progress) -> dict | 
     ``dropped``) when its BIC score beats the verdict's own in the model by :data:`MIN_SCORE` and it
     earns its place on the held-out data. None: no swap."""
     first = steps[0]
-    r = first.get("_runner_up")
-    if r is None or len(first["effects"]) != 1:
+    r = first.runner_up
+    if r is None or len(first.effects) != 1:
         return None
-    name, verdict = r.effect, first["effects"][0]
+    name, verdict = r.effect, first.effects[0]
     have = {_same(n, cur.cfg) for n in found + gone}
     if verdict not in found or _same(name, cur.cfg) in have:
         return None
@@ -520,19 +521,16 @@ def _swap(replay, cur, steps, found, gone, split, fit_nfev, progress) -> dict | 
         return None
     err0, err1 = rms(cur.base_residuals), rms(res1)
     se, conf = _stderr_of(joint if joint is not None else c, rest + [name])
-    out = {"step": steps[-1]["step"] + 1, "effect": name, "effects": [name],
-           "params": {n: effect_values(n, cfg1) for n in rest + [name]},
-           "error_before": err0, "error_after": err1,
-           "gap_closed": {ch: gap_closed(err0[ch], err1[ch], floor[ch]) for ch in err0},
-           "score": float(paid), "evidence": f"in place of {verdict} (its score in the model {own:.1f}): {r.evidence}",
-           "refitted_together": joint is not None, "stderr": se, "confounded": conf,
-           "aliases": _aliases(replay, cfg1, [name]), "rival": None,
-           "recording_artefacts": [name] if measurement_key(candidate(name, cur.cfg)) is not None else [],
-           "swapped": verdict,
-           "dropped": [{"effect": verdict, "params": effect_values(verdict, cur.cfg), "score": float(own)}],
-           "_fits": [c], "_joint": joint, "_config": cfg1}
+    out = ChainStep(
+        step=steps[-1].step + 1, effect=name, effects=[name], params={n: effect_values(n, cfg1) for n in rest + [name]},
+        error_before=err0, error_after=err1, gap_closed={ch: gap_closed(err0[ch], err1[ch], floor[ch]) for ch in err0},
+        score=float(paid), evidence=f"in place of {verdict} (its score in the model {own:.1f}): {r.evidence}",
+        refitted_together=joint is not None, stderr=se, confounded=conf, aliases=_aliases(replay, cfg1, [name]),
+        rival=None, recording_artefacts=[name] if measurement_key(candidate(name, cur.cfg)) is not None else [],
+        swapped=verdict, dropped=[{"effect": verdict, "params": effect_values(verdict, cur.cfg), "score": float(own)}],
+        fits=[c], joint=joint, config=cfg1)
     if held is not None:
-        out.update(estimation_error=held.pop("estimation"), held_out=held)
+        out.estimation_error, out.held_out = held.pop("estimation"), held
     return out
 
 
@@ -567,18 +565,12 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     -------
     dict
         The first diagnosis's keys (``verdict``, ``candidates``, ``also_missing``, ...), and
-        ``chain`` (one entry per added step: ``step``, ``effect`` (its verdict), ``effects`` (what
-        it added), ``params`` ({effect: {param: value}} of everything found so far, after the
-        step's refit), ``error_before`` and ``error_after`` (RMS per channel), ``gap_closed`` (per
-        channel), ``score`` (the step's BIC score), ``evidence``, ``refitted_together``, ``recording_artefacts`` (the step's effects
-        that are artefacts of the recording, written to the config's ``[measurement]``); and,
-        with a leading underscore, the fits and the config, left out of the JSON), ``stderr``
-        ({effect: {param: standard error}} of the step's last fit) and ``confounded`` (its pairs of
-        parameters correlated above :data:`~hil.ident.fit.CONFOUNDED`), ``aliases`` ({effect:
-        :func:`~hil.ident.fit.config_aliases`}: what the config's own parameters, drifted, show as
-        in the step's values); with a held-out part
-        ``estimation_error`` and ``held_out`` (:func:`held_out_fall`); ``final`` (the residual
-        against the noise floor and why it ended; ``rejected``: the step the held-out data refused),
+        ``chain`` (one :class:`~hil.ident.result.ChainStep` per kept step: what it added, the values
+        of everything found so far after its refit, its errors, score, standard errors, what they
+        are confounded with, its aliases, and with a held-out part its check on it
+        (:func:`held_out_fall`); the fits and the config stay on the object, out of its JSON);
+        ``final`` (the residual against the noise floor and why it ended; ``rejected``: the step the
+        held-out data refused; ``tolerance``: a drift of the config within its tolerance),
         ``diagnoses`` (every step's diagnosis) and ``config`` (the model with the whole chain).
     """
     floor = replay.noise
@@ -693,21 +685,16 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             found = [n for n in found if n not in {e["effect"] for e in dropped}]
             gone += [e["effect"] for e in dropped]
             err1 = rms(res1)
-        steps.append({"step": i + 1, "effect": verdict, "effects": list(add),
-                      "params": {n: effect_values(n, cfg1) for n in found},
-                      "error_before": err0, "error_after": err1,
-                      "gap_closed": {c: gap_closed(err0[c], err1[c], floor[c]) for c in err0},
-                      "score": float(paid),
-                      "evidence": (together["text"] if together is not None else
-                                   lead.evidence if lead is not None else ""),
-                      "refitted_together": joint is not None, "stderr": se, "confounded": conf,
-                      "aliases": _aliases(replay, cfg1, add), "rival": rival,
-                      "recording_artefacts": [n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
-                      "_fits": fits, "_joint": joint, "_config": cfg1, "_runner_up": runner_up})
-        if dropped:
-            steps[-1]["dropped"] = dropped
+        steps.append(ChainStep(
+            step=i + 1, effect=verdict, effects=list(add), params={n: effect_values(n, cfg1) for n in found},
+            error_before=err0, error_after=err1,
+            gap_closed={c: gap_closed(err0[c], err1[c], floor[c]) for c in err0}, score=float(paid),
+            evidence=(together["text"] if together is not None else lead.evidence if lead is not None else ""),
+            refitted_together=joint is not None, stderr=se, confounded=conf, aliases=_aliases(replay, cfg1, add),
+            rival=rival, recording_artefacts=[n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
+            dropped=dropped or None, fits=fits, joint=joint, config=cfg1, runner_up=runner_up))
         if held is not None:
-            steps[-1].update(estimation_error=held.pop("estimation"), held_out=held)
+            steps[-1].estimation_error, steps[-1].held_out = held.pop("estimation"), held
         if together is not None:
             # the first diagnosis names the pair once the step is kept (refused, it stays unexplained)
             first = dict(first, verdict=verdict, shown_together=together["text"])
@@ -716,11 +703,11 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     if len(steps) > 1 and not end.startswith("noise floor"):
         swap = _swap(replay, cur, steps, found, gone, split, fit_nfev, progress)
         if swap is not None:
-            if first.get("verdict") == swap["swapped"]:
-                first = dict(first, verdict=swap["effect"])      # the first diagnosis's verdict, set right
+            if first.get("verdict") == swap.swapped:
+                first = dict(first, verdict=swap.effect)      # the first diagnosis's verdict, set right
             steps.append(swap)
-            found = list(swap["params"])
-            cur = cur.with_config(swap["_config"])
+            found = list(swap.params)
+            cur = cur.with_config(swap.config)
             if at_noise_floor(rms(cur.base_residuals), floor):
                 end = "noise floor reached"
     errf = rms(cur.base_residuals)
@@ -743,12 +730,12 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         best = last["candidates"][0] if last and last["candidates"] else None
         final["residual"] = residual_evidence(cur, cur.base_residuals, best)
     out = dict(first)
-    if within is not None and (not steps or steps[0]["step"] > within["step"]):
+    if within is not None and (not steps or steps[0].step > within["step"]):
         # the first diagnosis named a drift of the config that its tolerance explains: the verdict is
         # what the chain named beyond it, else nothing
-        named = steps[0]["effect"] if steps else "none"
-        swap = next((x for x in steps if x.get("swapped")), None)
-        out["verdict"] = swap["effect"] if swap is not None and swap["swapped"] == named else named
+        named = steps[0].effect if steps else "none"
+        swap = next((x for x in steps if x.swapped), None)
+        out["verdict"] = swap.effect if swap is not None and swap.swapped == named else named
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
     out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out
@@ -797,5 +784,5 @@ def floor_parts_text(final: dict, unit) -> list[str]:
 
 
 def chain_json(steps: list) -> list:
-    """The chain's entries without their internal fits and configs."""
-    return [{k: v for k, v in s.items() if not k.startswith("_")} for s in steps]
+    """The chain's entries without their internal fits and configs (:meth:`ChainStep.as_json`)."""
+    return [s.as_json() for s in steps]

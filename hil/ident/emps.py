@@ -167,17 +167,16 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
                             holdout=holdout)
         cfg_chain = cfg0
         for i, step in enumerate(ch["chain"]):
-            rows += _step_rows(rp, cfg_chain, step, later=i > 0)
-            cfg_chain = step["_config"]
-        labels = ["start model"] + ["+ " + " + ".join(e for s in ch["chain"][:i + 1] for e in s["effects"])
+            rows += _step_rows(rp, cfg_chain, step.fits, step.joint, step.config, later=i > 0)
+            cfg_chain = step.config
+        labels = ["start model"] + ["+ " + " + ".join(e for s in ch["chain"][:i + 1] for e in s.effects)
                                     for i in range(len(ch["chain"]))]
         diags = [{"on": lab, **_summary(d)} for lab, d in zip(labels, ch["diagnoses"])]
         chain = ch
     else:
         # hil fit --add coulomb_friction --add constant_force: one after the other, then jointly
         cfg2, steps = fit_effects(rp, ["coulomb_friction", "constant_force"], max_nfev=nfev, progress=progress)
-        rows += _step_rows(rp, cfg0, {"effects": ["coulomb_friction", "constant_force"], "_fits": steps,
-                                      "_joint": None, "_config": cfg2})
+        rows += _step_rows(rp, cfg0, steps, None, cfg2)
         chain = None
     # the published method on the force channel (inverse model), then output error from there
     inv = idim_ls(meas.t, meas["x_motor"], meas["force"])
@@ -205,11 +204,12 @@ def run_emps(data, config, quick: bool = False, progress=None, diagnose_steps: b
     return EmpsResult(rp, rows, {"start": cfg0, "fitted": cfg3, "asymmetric": cfg4}, diags, chain)
 
 
-def _step_rows(rp, cfg_before, step, later: bool = False) -> list:
-    """The table's rows of one chain step: each effect as it was fitted on top of the model, the
-    effects of a combination refitted together, and everything found so far refitted together."""
+def _step_rows(rp, cfg_before, fits, joint, cfg_after, later: bool = False) -> list:
+    """The table's rows of one chain step (its ``fits``, ``joint`` refit and config after): each
+    effect as it was fitted on top of the model, the effects of a combination refitted together,
+    and everything found so far refitted together."""
     rows, cur = [], cfg_before
-    for st in step["_fits"]:
+    for st in fits:
         if "+" in st.effect:
             label = f"{' + '.join(st.effect.split('+'))} refitted together"
             rows.append({"step": label, "short": "joint refit", "params": params_of(st.cfg), **errors(rp, st.cfg)})
@@ -217,10 +217,9 @@ def _step_rows(rp, cfg_before, step, later: bool = False) -> list:
         cur = configure(candidate(st.effect, cur), cur, st.params)
         label = f"+ {st.effect}" + (" (the next verdict, fitted on top)" if later else "")
         rows.append({"step": label, "short": f"+ {st.effect}", "params": params_of(cur), **errors(rp, cur)})
-    if step["_joint"] is not None:
-        cfg = step["_config"]
+    if joint is not None:
         rows.append({"step": "everything found so far refitted together", "short": "chain refit",
-                     "params": params_of(cfg), **errors(rp, cfg)})
+                     "params": params_of(cfg_after), **errors(rp, cfg_after)})
     return rows
 
 
