@@ -24,6 +24,7 @@ and the summary as JSON.
     python benchmarks/bench_diagnose.py [--effect coulomb_friction] [--jobs N] [--emps] [--chain-only]
     python benchmarks/bench_diagnose.py --matrix [--n 4] [--seed 0] [--duration 4] [--jobs N] [--json]
                                             [--keep DIR] [--only N,N] [--records-at-once N] [--set KEY=VALUE]
+                                            [--drift 3%]
 
 ``--keep DIR`` keeps the records, their draws and the diagnoses' JSON to study them; a record kept
 there with the same draw is read back, not simulated again (the independent simulator takes tens
@@ -76,6 +77,10 @@ def main() -> None:
                     help="--matrix: passed on to every hil diagnose (--set plant.tolerance=0: the chain without the "
                          "config's tolerance, the peer); with --keep its diagnoses are kept apart "
                          "(recN.diagnose.KEY=VALUE.json)")
+    ap.add_argument("--drift", default="0", metavar="FRACTION",
+                    help="--matrix: the records with effects also have every mass, stiffness and damping drifted "
+                         "by up to +-FRACTION (3%%, 0.03; default 0: the nominal bench); a drift named within 1 %% "
+                         "of its true value is a finding, not an extra")
     ap.add_argument("--records-at-once", type=int, default=1, metavar="N",
                     help="--matrix: make and diagnose N records at the same time, each in its own process "
                          "(default 1; the diagnose times then share the CPUs)")
@@ -83,7 +88,7 @@ def main() -> None:
     if a.matrix:
         only = [int(i) for i in a.only.split(",")] if a.only else None
         run_matrix(a.n, a.seed, a.duration, a.jobs, a.json, keep=a.keep, only=only, at_once=a.records_at_once,
-                   sets=a.sets)
+                   sets=a.sets, drift=parse_fraction(a.drift))
         return
     cfg_path = ROOT / "config" / "paper_bench.toml"
     cfg = load(cfg_path)
@@ -231,8 +236,19 @@ def _draw_effect(name, rng, bench):
     raise KeyError(name)
 
 
-def draw_records(n: int, seed: int, bench):
-    """``n`` record specifications: two single effects, a pair, a clean record with drifts, again."""
+def parse_fraction(text: str) -> float:
+    """``3%`` or ``0.03``."""
+    t = str(text).strip()
+    try:
+        return float(t[:-1]) / 100.0 if t.endswith("%") else float(t)
+    except ValueError:
+        raise SystemExit(f"--drift: expected a fraction (3% or 0.03), got {text!r}") from None
+
+
+def draw_records(n: int, seed: int, bench, drift: float = 0.0):
+    """``n`` record specifications: two single effects, a pair, a clean record with drifts, again.
+    ``drift``: the records with effects also have every mass, stiffness and damping drifted by up to
+    +-drift (drawn apart: the effects are those of the draw without it)."""
     rng = np.random.default_rng(seed)
     names = sorted(ACCEPT)
     out = []
@@ -257,12 +273,28 @@ def draw_records(n: int, seed: int, bench):
             nominal = {}
             effects = list(rng.choice(names, size=1 if kind == "single" else 2, replace=False))
             b = bench
+            if drift > 0:
+                # a healthy axis's scatter under the effects (its own generator: the effects' draws
+                # stay those of the matrix without it)
+                rd = np.random.default_rng([seed, i, 1])
+                vals = {"m": list(bench.m), "k": list(bench.k), "c": list(bench.c)}
+                for key in DRIFTED:
+                    j = int(key[1]) - 1
+                    vals[key[0]][j] *= 1.0 + rd.uniform(-drift, drift)
+                    truth[f"parameter:plant.{key}"] = {"value": vals[key[0]][j]}
+                changes = {k: tuple(v) for k, v in vals.items()}
+                b = bench.changed(**changes)
             for e in effects:
                 h, ch, t = _draw_effect(e, rng, b)
                 hidden.update(h)
                 changes.update(ch)
                 b = b.changed(**ch)
                 truth[e] = t
+            for key in DRIFTED:
+                # a key an effect set anew is the effect's (a damping change), not a drift
+                q = f"parameter:plant.{key}"
+                if q in truth and getattr(b, key[0])[int(key[1]) - 1] != truth[q]["value"]:
+                    del truth[q]
         out.append({"kind": kind, "effects": [str(e) for e in effects], "truth": truth, "hidden": hidden,
                     "changes": changes, "seed": seed * 1000 + i, "nominal": nominal})
     return out
@@ -312,11 +344,18 @@ def score(spec: dict, d: dict) -> dict:
                 alarms.append(nm)
                 if _aliased(spec, d, nm):
                     aliased.append(nm)
+        elif _within_1pc(spec["truth"].get(nm, {}), params.get(nm) or {}) and nm not in spec["effects"]:
+            findings.append(nm)         # a drift of --drift named at its true value
         else:
             extra.append(nm)
     return {"named": names, "all_named": not missed, "missed": missed, "extra": extra, "false_alarms": alarms,
             "findings": findings, "aliased": aliased, "verdict": d.get("verdict"),
             "end": (d.get("final") or {}).get("end")}
+
+
+def _within_1pc(truth: dict, got: dict) -> bool:
+    true, value = truth.get("value"), got.get("value")
+    return true is not None and value is not None and abs(value - true) <= 0.01 * abs(true)
 
 
 def _aliased(spec: dict, d: dict, nm: str) -> bool:
@@ -439,7 +478,7 @@ def _print_row(row: dict, as_json: bool) -> None:
 
 
 def run_matrix(n: int, seed: int, duration: float, jobs, as_json: bool, keep: str | None = None,
-               only: list | None = None, at_once: int = 1, sets=()) -> dict:
+               only: list | None = None, at_once: int = 1, sets=(), drift: float = 0.0) -> dict:
     """Simulate the records, diagnose each in a fresh ``hil diagnose`` process, print the figures
     (``keep``: a folder that keeps the records and the diagnoses; ``only``: the records of the draw
     to run; ``at_once``: records made and diagnosed at the same time, each in its own process)."""
@@ -448,7 +487,7 @@ def run_matrix(n: int, seed: int, duration: float, jobs, as_json: bool, keep: st
     import plant_ivp as ivp
     cfg_path = ROOT / "config" / "paper_bench.toml"
     bench = ivp.bench_from_config(load(cfg_path))
-    specs = draw_records(n, seed, bench)
+    specs = draw_records(n, seed, bench, drift)
     load0 = load_avg()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:

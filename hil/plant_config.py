@@ -30,7 +30,7 @@ from hil.sim_plant.effects import ByActuator, Combination, Effect, Param, Record
 from hil.sim_plant.plant import Friction, Plant
 from hil.units import DIMENSIONS, fmt, parse
 
-__all__ = ["plant_from_config", "apply_effects", "record_effects", "measurement_key", "ParameterEffect", "candidate",
+__all__ = ["plant_from_config", "apply_effects", "record_effects", "measurement_key", "ParameterEffect", "candidate", "effect_values",
            "configure", "default_parameters", "control_bounds", "CONTROL_PARAMETERS", "load_components",
            "components_from_dict", "without_replaced"]
 
@@ -246,6 +246,22 @@ def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:
     params = {p.name: p for p in eff.params}
     return cfg.with_values({f"effects.{eff.name}.{k}": params[k].written(v) if k in params else float(v)
                             for k, v in values.items()})
+
+
+def effect_values(name: str, cfg) -> dict:
+    """The fitted values of an effect in a config: {param: value} (SI)."""
+    eff = candidate(name, cfg)
+    if name.startswith("parameter:"):
+        return {"value": float(cfg[eff.key])}
+    key = measurement_key(eff)
+    if key is not None and cfg.get(key) is not None:      # a recording artefact: [measurement]
+        return {eff.params[0].name: float(cfg[key])}
+    # an alias (time_delay) configures its effect's own section
+    out = {}
+    for p in eff.params:
+        v = cfg.get(f"effects.{eff.name}.{p.name}")
+        out[p.name] = p.number(v if v is not None else cfg[f"effects.{name}.{p.name}"])
+    return out
 
 
 def candidate(name: str, cfg: Config | None = None) -> Effect:

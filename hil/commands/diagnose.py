@@ -173,6 +173,9 @@ JSON_KEYS = {
                                             "one key of a combination the record fixes (the tip's k2 / m3) has a "
                                             "large one"),
     "final.tolerance.nfev": JsonKey("", "evaluations of the fit"),
+    "final.tolerance.refitted": JsonKey("SI", "`{effect: {param: value}}`: the effects the steps before had found, "
+                                              "refitted with the drift (their values were fitted without it)",
+                                        when="after a step"),
     "final.tolerance.estimation_error": JsonKey(CHANNEL_UNIT, "per channel, RMS error on the data the held-out "
                                                               "check fitted it on (as chain[])",
                                                 when="with a held-out part"),
@@ -492,9 +495,13 @@ def chain_text(d, rp) -> list[str]:
 
 
 def _tolerance_line(t) -> str:
-    return (f"  step {t['step']}: a drift within the config's tolerance (plant.tolerance {100 * t['tolerance']:.3g} %), "
+    line = (f"  step {t['step']}: a drift within the config's tolerance (plant.tolerance {100 * t['tolerance']:.3g} %), "
             f"no finding; the config's values fitted within it: " +
             ", ".join(f"{k.split('.')[-1]} {100 * p['change']:+.2f} %" for k, p in t["params"].items()))
+    if t.get("refitted"):
+        line += ("; refitted with them: " + "; ".join(
+            f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in t["refitted"].items()))
+    return line
 
 
 def run_to_run(d, rp) -> dict | None:

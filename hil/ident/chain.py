@@ -107,7 +107,7 @@ from hil.ident.result import ChainStep
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.tolerance import TOLERANCE, is_drift, within_tolerance
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
-from hil.plant_config import candidate, default_parameters, measurement_key, without_replaced
+from hil.plant_config import candidate, default_parameters, effect_values, measurement_key, without_replaced
 
 logger = logging.getLogger(__name__)
 
@@ -118,22 +118,6 @@ MAX_STEPS = 4
 HOLDOUT_MIN = 64        # samples each half needs at least
 HOLDOUT_Z = 2.0         # the held-out fall must stand this many standard errors above zero
 HOLDOUT_NFEV = 15       # evaluations of a step's refit on the estimation half
-
-
-def effect_values(name: str, cfg) -> dict:
-    """The fitted values of an effect in a config: {param: value} (SI)."""
-    eff = candidate(name, cfg)
-    if name.startswith("parameter:"):
-        return {"value": float(cfg[eff.key])}
-    key = measurement_key(eff)
-    if key is not None and cfg.get(key) is not None:      # a recording artefact: [measurement]
-        return {eff.params[0].name: float(cfg[key])}
-    # an alias (time_delay) configures its effect's own section
-    out = {}
-    for p in eff.params:
-        v = cfg.get(f"effects.{eff.name}.{p.name}")
-        out[p.name] = p.number(v if v is not None else cfg[f"effects.{name}.{p.name}"])
-    return out
 
 
 def _same(name: str, cfg) -> str:
@@ -440,15 +424,15 @@ def _rival(d, verdict, add, have, cur):
     return None
 
 
-def _within_tolerance(cur, add, progress) -> dict | None:
+def _within_tolerance(cur, add, found, progress) -> dict | None:
     """hil.ident.tolerance's test where every effect of the step ``add`` is a drift of the config's
-    masses, stiffnesses or dampings (else None)."""
+    masses, stiffnesses or dampings (else None), the effects ``found`` refitted with the drift."""
     if not is_drift([candidate(n, cur.cfg) for n in add], cur.plant, cur.cfg):
         return None
     if progress:
         expect(progress, 1)
         progress("plant.tolerance")
-    return within_tolerance(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)))
+    return within_tolerance(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)), found=found)
 
 
 def _look_alike(d, verdict, add, have, cur):
@@ -617,7 +601,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             break
         else:
             add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
-            test = _within_tolerance(cur, add, progress) if within is None else None
+            test = _within_tolerance(cur, add, found, progress) if within is None else None
             if test is not None and test["within"]:
                 # the step would name a drift of the config, and the config's masses, stiffnesses and
                 # dampings fit within their tolerance: no finding; where it earns its place as a step
@@ -625,7 +609,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 # config a candidate any more)
                 tol = test["tolerance"]
                 held = _earned(cur, split, [], found, test["_config"], fit_nfev, refit=lambda m: cur.residuals(
-                    within_tolerance(cur, tol, mask=m)["_config"])) if split else None
+                    within_tolerance(cur, tol, mask=m, found=found)["_config"])) if split else None
                 if held is not None and not held["earned"]:
                     end = "no step earns its place on the held-out data"
                     res_t = cur.residuals(test["_config"])

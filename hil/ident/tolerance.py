@@ -16,7 +16,9 @@ together, each near its config value, fit the record within the tolerance: least
 such key of the config as z_k = value_k / config_k, searched within :data:`SEARCH` tolerances of 1
 with a prior residual (z_k - 1) / tol per key (small beside the record's thousands of samples: it
 decides only the directions the record does not see, the tip's mass beside its stiffness), on the
-model as it stands (the effects already found held), from z = 1; weighted as every fit
+model as it stands, from z = 1, the effects already found refitted with it (their values were
+fitted before the drift was in the model and hold part of it: a weak friction's level 1.5 % high
+put the drift's fit beyond the tolerance); weighted as every fit
 (hil.ident.objective), and refitted up to :data:`ROUNDS` times weighted by the residual the last
 fit left (a channel the fit brought near its floor no longer drowns the one still far above it:
 the tool tip's ringing is thousands of times its floor before and a few times after). Where every
@@ -41,6 +43,7 @@ from scipy.optimize import least_squares
 from hil.ident.fit import _with_jacobian, standard_errors
 from hil.ident.objective import MaskedObjective
 from hil.ident.unexplained import at_noise_floor, rms
+from hil.plant_config import candidate, configure, effect_values
 
 logger = logging.getLogger(__name__)
 
@@ -67,7 +70,8 @@ def is_drift(effects: list, plant, cfg) -> bool:
     return bool(effects) and all(getattr(e, "drifted_key", lambda p: None)(plant) in keys for e in effects)
 
 
-def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = MAX_NFEV, mask=None) -> dict | None:
+def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = MAX_NFEV, mask=None,
+                     found=()) -> dict | None:
     """The test of the module's definition on ``replay`` (the model as it stands): None where the
     config has no such key or ``tol`` is not above 0; else {"tolerance", "within" (every change within
     ``tol``, less :data:`Z_WITHIN` of its standard errors), "at_noise_floor" (every channel), "error"
@@ -75,7 +79,9 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     (NaN: none)}}, "nfev"} and, with a leading underscore, the fitted config (``_config``). With
     ``mask`` (a boolean array of the record's samples) the fit sees those samples alone (the whole
     record simulated: the estimation half of hil.ident.chain's held-out check); the errors are the
-    whole record's."""
+    whole record's. ``found``: the effects the model holds (the chain's steps before), their fitted
+    parameters refitted with the drift, free within their catalogue bounds (they were fitted before
+    the drift was in the model and hold part of it): ``refitted`` {effect: {param: value}}."""
     cfg = replay.cfg
     keys = tolerance_keys(cfg)
     if not keys or not tol > 0:
@@ -83,10 +89,20 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     x0 = np.array([float(cfg[k]) for k in keys])
     # where the search may go (a mass stays a mass); the prior keeps it near the config
     lo, hi = np.full(len(keys), max(0.1, 1.0 - SEARCH * tol)), np.full(len(keys), 1.0 + SEARCH * tol)
-    prior = np.eye(len(keys)) / tol
+    free = _free_params(found, cfg, keys)
+    n = len(keys)
+    if free:
+        # the found effects' values as ratios of their scale, free within their bounds (no prior)
+        sc = np.array([f[3] for f in free])
+        lo = np.concatenate([lo, [f[2].lower / s for f, s in zip(free, sc)]])
+        hi = np.concatenate([hi, [f[2].upper / s for f, s in zip(free, sc)]])
+    prior = np.hstack([np.eye(n), np.zeros((n, len(free)))]) / tol
 
     def config(z):
-        return cfg.with_values(dict(zip(keys, (z * x0).tolist())))
+        c = cfg.with_values(dict(zip(keys, (z[:n] * x0).tolist())))
+        for name, eff, vals in _effect_values(free, z[n:], cfg):
+            c = configure(eff, c, vals)
+        return c
 
     state = {"nfev": 0, "sol": None}
 
@@ -102,7 +118,7 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
         f_data, j_data = _with_jacobian(obj, data, config, lo, hi, 1e-3)
 
         def fun(z):
-            return np.concatenate([f_data(z), (z - 1.0) / tol])
+            return np.concatenate([f_data(z), (z[:n] - 1.0) / tol])
 
         def jac(z):
             jd = j_data(z) if callable(j_data) else approx_fprime(z, f_data, lo, hi)
@@ -114,25 +130,58 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
         return sol.x, replay.with_config(config(sol.x))
 
     floor = replay.noise
-    z, at = np.ones(len(keys)), replay
+    z, at = np.ones(n + len(free)), replay
+    if free:
+        z[n:] = [f[4] / f[3] for f in free]
     for _ in range(max(1, rounds)):
         z, at = fit(at, z, lo, hi)
         if at_noise_floor(rms(at.base_residuals), floor):
             break
     sol, nfev = state["sol"], state["nfev"]
     err = rms(at.base_residuals)
-    se = standard_errors(sol, x0)
+    se = standard_errors(sol, np.concatenate([x0, [f[3] for f in free]]))[:n]
     params = {k: {"config": float(x0[i]), "value": float(z[i] * x0[i]), "change": float(z[i] - 1.0),
                   "stderr": float(se[i])} for i, k in enumerate(keys)}
     # within the tolerance: each change, less Z_WITHIN of its standard errors (a drift at the edge
     # that the fit puts a little beyond it), at most the tolerance
     margin = Z_WITHIN * np.nan_to_num(se / x0, nan=0.0)
-    ok = bool(np.all(np.abs(z - 1.0) - margin <= tol * (1.0 + 1e-9)))
+    ok = bool(np.all(np.abs(z[:n] - 1.0) - margin <= tol * (1.0 + 1e-9)))
     logger.info("tolerance %.3g: %s, %s (%s)", tol, "within" if ok else "beyond",
                 "at the noise floor" if at_noise_floor(err, floor) else "above the noise floor",
                 ", ".join(f"{k} {100 * p['change']:+.2f} %" for k, p in params.items()))
-    return {"tolerance": float(tol), "within": ok, "at_noise_floor": bool(at_noise_floor(err, floor)), "error": err,
-            "params": params, "nfev": int(nfev), "_config": at.cfg}
+    out = {"tolerance": float(tol), "within": ok, "at_noise_floor": bool(at_noise_floor(err, floor)), "error": err,
+           "params": params, "nfev": int(nfev), "_config": at.cfg}
+    if free:
+        out["refitted"] = {name: effect_values(name, at.cfg) for name in dict.fromkeys(f[0] for f in free)}
+    return out
+
+
+def _free_params(found, cfg, keys) -> list:
+    """The fitted parameters of the effects ``found`` (not a drift key itself: a mass the chain
+    named beyond the tolerance is among ``keys``): (effect name, effect, param, scale, value)."""
+    out = []
+    for name in found:
+        eff = candidate(name, cfg)
+        if getattr(eff, "key", None) in keys:
+            continue
+        vals = effect_values(name, cfg)
+        for p in eff.params:
+            if p.fit and isinstance(vals.get(p.name), (int, float)):
+                v = float(vals[p.name])
+                scale = abs(v) if v else max(abs(p.lower), abs(p.upper), 1e-12)
+                out.append((name, eff, p, scale, v))
+    return out
+
+
+def _effect_values(free, r, cfg):
+    """Per effect of ``free``: (name, effect, {param: value}) with its fitted parameters at ``r``
+    times their scale, the others as ``cfg`` holds them."""
+    by = {}
+    for (name, eff, p, scale, _), x in zip(free, r):
+        if name not in by:
+            by[name] = (eff, dict(effect_values(name, cfg)))
+        by[name][1][p.name] = float(x * scale)
+    return [(name, eff, vals) for name, (eff, vals) in by.items()]
 
 
 def approx_fprime(z, f, lo, hi):

@@ -63,3 +63,38 @@ def test_mass_change_on_a_clean_record_is_the_table_mass():
         out = bd.score(clean, {"verdict": "mass_change",
                                "chain": [{"effects": ["mass_change"], "params": {"mass_change": {"mass": dm}}}]})
         assert out["findings" if finding else "false_alarms"] == ["mass_change"], out
+
+
+def test_drift_under_the_effects_keeps_the_draws_and_counts_a_true_drift_as_a_finding():
+    # --drift: the same effects at the same strengths as without it, every mass, stiffness and
+    # damping of the effect records moved by up to the fraction; a drift named within 1 % of its
+    # true value is a finding, one further off an extra
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    sys.path.insert(0, str(ROOT / "tests" / "independent"))
+    import bench_diagnose as bd
+    import plant_ivp as ivp
+
+    from hil.config import load
+    bench = ivp.bench_from_config(load(ROOT / "config" / "paper_bench.toml"))
+    plain, drifted = bd.draw_records(8, 5, bench), bd.draw_records(8, 5, bench, drift=0.03)
+    for a, b in zip(plain, drifted):
+        assert a["effects"] == b["effects"] and a["hidden"] == b["hidden"]
+        if a["kind"] == "clean":
+            assert a == b
+            continue
+        true = {k: v["value"] for k, v in b["truth"].items()
+                if k.startswith("parameter:plant.") and k not in b["effects"]}
+        assert 5 <= len(true) <= 7          # less those an effect sets anew
+        for k, v in true.items():
+            nominal = {"m": bench.m, "k": bench.k, "c": bench.c}[k[-2]][int(k[-1]) - 1]
+            assert abs(v / nominal - 1.0) <= 0.03 + 1e-12
+    assert bd.parse_fraction("3%") == bd.parse_fraction("0.03") == 0.03
+    spec = next(s for s in drifted if s["kind"] == "single")
+    k1 = spec["truth"]["parameter:plant.k1"]["value"]
+    d = {"verdict": spec["effects"][0], "chain": [
+        {"effects": [spec["effects"][0]], "params": {}},
+        {"effects": ["parameter:plant.k1"], "params": {"parameter:plant.k1": {"value": 1.005 * k1}}},
+        {"effects": ["parameter:plant.m1"], "params": {"parameter:plant.k1": {"value": 1.005 * k1},
+                                                       "parameter:plant.m1": {"value": 5.0}}}]}
+    out = bd.score(spec, d)
+    assert out["findings"] == ["parameter:plant.k1"] and out["extra"] == ["parameter:plant.m1"]

@@ -143,3 +143,33 @@ def test_the_chain_takes_the_drift_without_naming_it_and_names_it_without_a_tole
     assert d["config"]["plant.k2"] == pytest.approx(t["params"]["plant.k2"]["value"], rel=1e-12)   # the model holds it
     d0 = diagnose_chain(rp.with_config(CFG.with_values({"plant.tolerance": 0.0})), names, jobs=1, holdout="moves")
     assert [s["effects"] for s in d0["chain"]][:1] == [["parameter:plant.m3"]] and "tolerance" not in d0["final"]
+
+
+@pytest.mark.parametrize("level,seed", [(0.3, 31), (1.0, 32)])
+def test_a_drift_after_an_effect_is_fitted_with_it_and_named_nothing(level, seed):
+    # Coulomb friction on a drifted bench: the chain names the friction first, then a drift; the
+    # friction's level was fitted without the drift and holds part of it (0.3 N m fitted 1.5 % high),
+    # which put the drift's fit beyond the tolerance and named the tip's mass (m3 unchanged). The
+    # friction refitted with the drift: nothing more named, the floor reached, the level true
+    from hil.ident.chain import diagnose_chain
+    m, k, c = list(BENCH.m), list(BENCH.k), list(BENCH.c)
+    m[0] *= 0.98
+    k[1] *= 1.025
+    c[1] *= 0.98
+    bench = BENCH.changed(m=tuple(m), k=tuple(k), c=tuple(c))
+    rec = _record(bench, 4.0, seed, ivp.Hidden(coulomb_pos=level, coulomb_neg=level))
+    rp = Replay(Measurement(rec, source="ivp"), CFG)
+    d = diagnose_chain(rp, ["parameter:plant.m3", "coulomb_friction"], jobs=1, holdout="moves")
+    assert d["verdict"] == "coulomb_friction" and [s.effects for s in d["chain"]] == [["coulomb_friction"]]
+    f = d["final"]
+    assert f["end"] == "noise floor reached within the config's tolerance" and f["at_noise_floor"]
+    t = f["tolerance"]
+    assert t["step"] == 2 and t["within"] and t["held_out"]["earned"]
+    assert t["refitted"]["coulomb_friction"]["level"] == pytest.approx(level, rel=0.01)
+    assert d["config"]["effects.coulomb_friction.level"] == t["refitted"]["coulomb_friction"]["level"]
+    from hil.commands.diagnose import JSON_KEYS
+    from hil.io.jsonout import dumps
+    assert {f"final.tolerance.{q}" for q in json.loads(dumps(t))} <= set(JSON_KEYS)
+    p = {q: v["value"] for q, v in t["params"].items()}
+    assert sum(p[f"plant.m{i}"] for i in (1, 2, 3)) == pytest.approx(sum(m), rel=2e-3)
+    assert math.sqrt(p["plant.k2"] / p["plant.m3"]) == pytest.approx(math.sqrt(k[1] / m[2]), rel=2e-3)
