@@ -132,7 +132,11 @@ JSON_KEYS = {
                                         when="a held-out part (the record has moves both ways, or --validate)"),
     "chain[].held_out": JsonKey("", "the step on the held-out data: before and after (RMS per channel), fall "
                                     "(relative fall of the weighted error), uncertainty (two standard errors of "
-                                    "it), earned (the fall beyond its uncertainty)",
+                                    "it), earned (the fall beyond its uncertainty); for a step of several effects, "
+                                    "members: per effect its own fall (the step without it against the step, "
+                                    "both refitted on the estimation moves), uncertainty, model_refit_fall (the "
+                                    "rest refitted on the held-out moves) and earned; an effect that does not earn "
+                                    "its own is taken out of the step",
                                 when="a held-out part (the record has moves both ways, or --validate)"),
     "final": JsonKey("", "the end of the chain (keys final.*)", when="the chain (not --no-chain or --max-steps 1)"),
     "final.error": JsonKey(CHANNEL_UNIT, "per channel, RMS error of the model with the chain"),
@@ -553,6 +557,13 @@ def _held_out_lines(s, rp) -> list[str]:
                                                f"{fmt_si(h['after'][c], rp.unit(c), 3)}" for c in h["before"]) +
                      f"; weighted error {100 * h['fall']:.1f} % less (+- {100 * h['uncertainty']:.1f} %): "
                      f"{'earned' if h['earned'] else 'not earned'}")
+        kept = s["effects"] if "effects" in s else []
+        for m, f in (h.get("members") or {}).items():
+            lines.append(f"          {m} on its own: {100 * f['fall']:.1f} % less than the step without it "
+                         f"(+- {100 * f['uncertainty']:.1f} %, the rest refitted on the held-out moves "
+                         f"{100 * f.get('model_refit_fall', 0.0):.1f} %): " +
+                         ("earned" if f["earned"] else "not earned, taken out of the step" if m not in kept
+                          else "not earned"))
     if s.get("confounded"):
         lines.append("          confounded: " + ", ".join(f"{a} and {b} (r = {r:+.3f})" for a, b, r in s["confounded"]))
     for eff, al in (s.get("aliases") or {}).items():
