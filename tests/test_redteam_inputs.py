@@ -372,6 +372,14 @@ def _map_expressions(expr, target):
             assert len(str(exc)) < 600, str(exc)[:300]
 
 
+def test_a_long_expression_not_allowed_is_one_short_line():
+    # found by the long fuzz run: the expression and its offending part, both ~250 characters, gave a
+    # message of 600
+    _map_expressions("-(t+t+t+t+t+t+t+t+t+t+t+t+t+t+t+x_cmd+data[:,1]+data(:,2)+data[0,:]+__header__+1.175494351e-38"
+                     "+-4.0454068980849224e+16+-3.0783188651777295e+218+-2.5321289377279046e+244)@((--1.3510798882109972"
+                     "e+16+1000000000000000000000000000000))", "x_table")
+
+
 test_fuzz_map_expressions, test_fuzz_map_expressions_long = fuzzed(dict(
     expr=map_expressions(),
     target=st.sampled_from(["x_table", "x_table[mm]", "torque", "zz", "x_cmd[kg]"])))(_map_expressions)

@@ -170,6 +170,8 @@ def evaluate(expr: str, data: dict, source: str = "<record>", factors: dict | No
     except MeasurementError as exc:
         msg = str(exc)
         label = entry or expr
+        if len(label) > 200:        # one line: the start of a long entry says which one it is
+            label = label[:200] + "..."
         if msg.startswith(f"--map {expr!r}: "):
             raise MeasurementError(f"--map {label}: " + msg[len(f"--map {expr!r}: "):]) from None
         if msg.startswith(f"{source}: ") and not msg.startswith(f"{source}: --map"):
@@ -246,7 +248,7 @@ def _evaluate(expr: str, data: dict, source: str, factors: dict) -> np.ndarray:
             raise MeasurementError(f"--map {expr!r}: expected a column NAME[:,k] or a row NAME[k,:] of a matrix "
                                    f"({node.value.id!r} is {' x '.join(map(str, v.shape))})")
         what = ast.unparse(node) if hasattr(ast, "unparse") else type(node).__name__
-        raise MeasurementError(f"--map {expr!r}: {what!r} is not allowed (use numbers, variables, + - * / **, "
+        raise MeasurementError(f"--map {expr!r}: {_shown(what, 80)} is not allowed (use numbers, variables, + - * / **, "
                                f"parentheses and NAME[:,k])")
 
     return np.asarray(ev(tree), float).reshape(-1)
