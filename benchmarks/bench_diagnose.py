@@ -301,8 +301,8 @@ def draw_records(n: int, seed: int, bench, drift: float = 0.0):
 
 
 def named_effects(d: dict) -> tuple[list, dict]:
-    """The effects ``hil diagnose --json`` names (its chain's steps, less those a later step
-    dropped from the model, else its verdict) and their fitted parameters."""
+    """The effects ``hil diagnose --json`` names (its chain's steps, less those a later step or the
+    config's drift dropped from the model, else its verdict) and their fitted parameters."""
     names, params = [], {}
     for step in d.get("chain") or []:
         for e in step.get("effects") or [step.get("effect")]:
@@ -311,6 +311,8 @@ def named_effects(d: dict) -> tuple[list, dict]:
                     names.append(part)
         names = [n for n in names if n not in {x["effect"] for x in step.get("dropped", [])}]
         params = step.get("params") or params
+    # an effect the config's drift left unpaid (final.tolerance.dropped) is out of the model
+    names = [n for n in names if n not in {x["effect"] for x in (d.get("final") or {}).get("tolerance", {}).get("dropped", [])}]
     if not names and d.get("verdict") not in (None, "none", "unexplained"):
         names = [p for p in str(d["verdict"]).split("+")]
         lead = next((c for c in d.get("candidates", []) if c.get("effect") == d["verdict"]), {})

@@ -163,8 +163,9 @@ JSON_KEYS = {
                                   "it was the fit of the config's drift within its tolerance",
                               when="a step did not earn its place"),
     "final.tolerance": JsonKey("", "a step would have named a drift of the config's masses, stiffnesses or "
-                                   "dampings, and all of them fitted within plant.tolerance: no finding, the model "
-                                   "holds them; keys final.tolerance.*",
+                                   "dampings (or, after a step, an effect that such a drift leaves nothing for), "
+                                   "and all of them fitted within plant.tolerance: no finding, the model holds them; "
+                                   "keys final.tolerance.*",
                                when="a drift within the config's tolerance"),
     "final.tolerance.tolerance": JsonKey("1", "plant.tolerance, relative"),
     "final.tolerance.step": JsonKey("", "the chain's diagnosis whose verdict was the drift (the steps after it "
@@ -180,6 +181,12 @@ JSON_KEYS = {
     "final.tolerance.refitted": JsonKey("SI", "`{effect: {param: value}}`: the effects the steps before had found, "
                                               "refitted with the drift (their values were fitted without it)",
                                         when="after a step"),
+    "final.tolerance.in_place_of": JsonKey("", "the effects a later step named that the drift within the tolerance "
+                                               "stands in for: with the effects found before refitted, every channel "
+                                               "at its noise floor", when="a later step's effect, not a drift"),
+    "final.tolerance.dropped": JsonKey("", "effects found before that no longer pay beside the drift (as "
+                                           "chain[].dropped: effect, params as it stood, score): out of the model",
+                                       when="such an effect"),
     "final.tolerance.estimation_error": JsonKey(CHANNEL_UNIT, "per channel, RMS error on the data the held-out "
                                                               "check fitted it on (as chain[])",
                                                 when="with a held-out part"),
@@ -502,6 +509,10 @@ def _tolerance_line(t) -> str:
     line = (f"  step {t['step']}: a drift within the config's tolerance (plant.tolerance {100 * t['tolerance']:.3g} %), "
             f"no finding; the config's values fitted within it: " +
             ", ".join(f"{k.split('.')[-1]} {100 * p['change']:+.2f} %" for k, p in t["params"].items()))
+    if t.get("in_place_of"):
+        line += " (in place of " + ", ".join(t["in_place_of"]) + ": it leaves nothing for them)"
+    if t.get("dropped"):
+        line += "; no longer pays beside it, dropped from the model: " + ", ".join(e["effect"] for e in t["dropped"])
     if t.get("refitted"):
         line += ("; refitted with them: " + "; ".join(
             f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in t["refitted"].items()))

@@ -85,7 +85,12 @@ chain ends where that reaches the noise floor (``end`` "noise floor reached with
 tolerance") and else diagnoses the rest with no drift of the config among the candidates
 (``final.tolerance``; the verdict is then what the chain names beyond it, else ``none``). A record
 fixes combinations of those parameters (the tip's k2 / m3): a step that names one of them names it
-off by the others' drifts.
+off by the others' drifts. A later step (after an effect was found) that names another effect is
+put to the same fit, the effects found refitted with the drift: where that brings every channel to
+its noise floor, the step's effect is no finding either (``final.tolerance.in_place_of``; a torque
+constant is every mass's drift in one parameter, a lightly damped mode a sliver of the tip's), and
+an effect found before that no longer pays beside the drift is dropped
+(``final.tolerance.dropped``, as a step's backward step).
 
 Each step reports its estimation error (the record's, or the estimation half's) and held-out
 error per channel, and the standard errors of everything found so far with the pairs of fitted
@@ -492,14 +497,21 @@ def _rival(d, verdict, add, have, cur):
 
 
 def _within_tolerance(cur, add, found, progress) -> dict | None:
-    """hil.ident.tolerance's test where every effect of the step ``add`` is a drift of the config's
-    masses, stiffnesses or dampings (else None), the effects ``found`` refitted with the drift."""
-    if not is_drift([candidate(n, cur.cfg) for n in add], cur.plant, cur.cfg):
+    """hil.ident.tolerance's test, the effects ``found`` refitted with the drift: where every
+    effect of the step ``add`` is a drift of the config's masses, stiffnesses or dampings; and where
+    a later step (``found`` not empty) names another effect, kept only where the drift within the
+    tolerance brings every channel to its noise floor (``in_place_of`` the step's effects: the
+    effects found, refitted with the config's drift, leave nothing for it). Else None."""
+    drift = is_drift([candidate(n, cur.cfg) for n in add], cur.plant, cur.cfg)
+    if not drift and not found:
         return None
     if progress:
         expect(progress, 1)
         progress("plant.tolerance")
-    return within_tolerance(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)), found=found)
+    test = within_tolerance(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)), found=found)
+    if drift or test is None:
+        return test
+    return dict(test, in_place_of=list(add)) if test["within"] and test["at_noise_floor"] else None
 
 
 def _look_alike(d, verdict, add, have, cur):
@@ -677,7 +689,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 tol = test["tolerance"]
                 held = _earned(cur, split, [], found, test["_config"], fit_nfev, refit=lambda m: cur.residuals(
                     within_tolerance(cur, tol, mask=m, found=found)["_config"])) if split else None
-                if held is not None and not held["earned"]:
+                if held is not None and not held["earned"] and "in_place_of" in test:
+                    test = None             # the step's own effect is judged as any step is
+                elif held is not None and not held["earned"]:
                     end = "no step earns its place on the held-out data"
                     res_t = cur.residuals(test["_config"])
                     rejected = {"effects": list(add), "tolerance": tol,
@@ -687,9 +701,21 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                                 "estimation_error": held.pop("estimation"), "held_out": held}
                     logger.info("chain step %d: the config's tolerance refused by the held-out data", i + 1)
                     break
+            if test is not None and test["within"]:
                 within = dict(test, step=i + 1)
                 if held is not None:
                     within.update(estimation_error=held.pop("estimation"), held_out=held)
+                if found:
+                    # an effect found before the drift was in the model may have held a part of it
+                    # alone: one that no longer pays beside the drift is dropped, as after a step
+                    cfg_t = within["_config"]
+                    cfg_t, _, dropped = _unpaid(replay, found, [], cfg_t, replay.residuals(cfg_t))
+                    if dropped:
+                        out = {e["effect"] for e in dropped}
+                        found = [n for n in found if n not in out]
+                        gone += list(out)
+                        within.update(_config=cfg_t, dropped=dropped,
+                                      refitted={n: v for n, v in within.get("refitted", {}).items() if n not in out})
                 cur = cur.with_config(within["_config"])
                 logger.info("chain step %d: %s is a drift within the config's tolerance", i + 1, " + ".join(add))
                 if at_noise_floor(rms(cur.base_residuals), floor):

@@ -29,6 +29,13 @@ def test_scoring_counts_named_extra_and_alarms():
     out = bd.score(clean, d)
     assert out["findings"] == ["parameter:plant.k1"] and out["false_alarms"] == ["parameter:plant.c2"]
     assert out["all_named"] and out["extra"] == []
+    # an effect the config's drift left unpaid is out of the model: not named
+    spec = {"kind": "single", "effects": ["coulomb_friction"], "truth": {}}
+    d = {"verdict": "coulomb_friction", "chain": [{"effects": ["coulomb_friction"], "params": {}},
+                                                  {"effects": ["compliant_mode"], "params": {}}],
+         "final": {"tolerance": {"dropped": [{"effect": "compliant_mode", "params": {}, "score": 1.0}]}}}
+    out = bd.score(spec, d)
+    assert out["all_named"] and out["extra"] == []
 
 
 @pytest.mark.slow

@@ -173,3 +173,35 @@ def test_a_drift_after_an_effect_is_fitted_with_it_and_named_nothing(level, seed
     p = {q: v["value"] for q, v in t["params"].items()}
     assert sum(p[f"plant.m{i}"] for i in (1, 2, 3)) == pytest.approx(sum(m), rel=2e-3)
     assert math.sqrt(p["plant.k2"] / p["plant.m3"]) == pytest.approx(math.sqrt(k[1] / m[2]), rel=2e-3)
+
+
+@pytest.mark.parametrize("level,seed", [(0.3, 31), (1.0, 32)])
+def test_a_later_effect_that_the_drift_leaves_nothing_for_is_no_finding(level, seed):
+    # the same drifted bench with Coulomb friction, the candidates the friction and a torque
+    # constant (every mass's drift in one parameter, its evidence says): after the friction, the
+    # chain's next verdict is the torque constant; the drift within the tolerance, the friction
+    # refitted with it, reaches the floor, so the constant is no finding (final.tolerance.in_place_of).
+    # Without the tolerance the chain names it
+    from hil.commands.diagnose import JSON_KEYS, _tolerance_line
+    from hil.ident.chain import diagnose_chain
+    from hil.io.jsonout import dumps
+    m, k, c = list(BENCH.m), list(BENCH.k), list(BENCH.c)
+    m[0] *= 0.98
+    k[1] *= 1.025
+    c[1] *= 0.98
+    bench = BENCH.changed(m=tuple(m), k=tuple(k), c=tuple(c))
+    rp = Replay(Measurement(_record(bench, 4.0, seed, ivp.Hidden(coulomb_pos=level, coulomb_neg=level)),
+                            source="ivp"), CFG)
+    names = ["coulomb_friction", "torque_constant"]
+    d = diagnose_chain(rp, names, jobs=1, holdout="moves")
+    assert [s.effects for s in d["chain"]] == [["coulomb_friction"]]
+    f = d["final"]
+    assert f["end"] == "noise floor reached within the config's tolerance" and f["at_noise_floor"]
+    t = f["tolerance"]
+    assert t["step"] == 2 and t["in_place_of"] == ["torque_constant"] and t["held_out"]["earned"]
+    assert t["refitted"]["coulomb_friction"]["level"] == pytest.approx(level, rel=0.01)
+    assert "effects.torque_constant.factor" not in d["config"]
+    assert {f"final.tolerance.{q}" for q in json.loads(dumps(t))} <= set(JSON_KEYS)
+    assert "(in place of torque_constant: it leaves nothing for them)" in _tolerance_line(t)
+    d0 = diagnose_chain(rp.with_config(CFG.with_values({"plant.tolerance": 0.0})), names, jobs=1, holdout="moves")
+    assert [s.effects for s in d0["chain"]] == [["coulomb_friction"], ["torque_constant"]]
