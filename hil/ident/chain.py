@@ -255,6 +255,14 @@ def _earned(cur, split, add, found, cfg1, fit_nfev, refit=None) -> dict:
     return out
 
 
+def _start(names, cfg) -> dict:
+    """The values of the effects ``names`` in ``cfg`` as a fit's start: the effect's own {param:
+    value}, or {"effect.param": value} for several (a Combination's names)."""
+    if len(names) == 1:
+        return effect_values(names[0], cfg)
+    return {f"{n}.{k}": v for n in names for k, v in effect_values(n, cfg).items()}
+
+
 def _members_earned(cur, split, add, cfg1, fits, fit_nfev, progress):
     """A step of several effects member by member on the held-out data: each member's fall there,
     the rest refitted on the estimation data without it (``before``) against the whole step
@@ -300,8 +308,7 @@ def _members_earned(cur, split, add, cfg1, fits, fit_nfev, progress):
         if progress:
             expect(progress, 1)
             progress("+".join(add))
-        start = effect_values(add[0], cfg1) if len(add) == 1 else \
-            {f"{n}.{k}": v for n in add for k, v in effect_values(n, cfg1).items()}
+        start = _start(add, cfg1)
         try:
             at = cur.with_config(cfg1)
             c = evaluate(at, "+".join(add), max_nfev=fit_nfev, start=start)
@@ -316,8 +323,7 @@ def _refit_on(cur, mask, names, cfg, fit_nfev) -> dict:
     """The residuals of the whole record with the effects ``names`` refitted on the ``mask``
     samples alone, from their values in ``cfg``, on top of ``cur``'s model."""
     eff = candidate("+".join(names), cur.cfg)
-    vals = effect_values(names[0], cfg) if len(names) == 1 else \
-        {f"{n}.{k}": v for n in names for k, v in effect_values(n, cfg).items()}
+    vals = _start(names, cfg)
     try:
         return _fit_one(MaskedObjective(cur.objective, mask), cur.cfg, eff, [vals],
                         max_nfev=min(fit_nfev, HOLDOUT_NFEV))[2]
@@ -382,7 +388,7 @@ def _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw) -> 
     c2 = next(c for c in d2["candidates"] if c.effect == second)
     pair = [lead.effect, second]
     name = "+".join(pair)
-    start = {f"{n}.{k}": v for n in pair for k, v in effect_values(n, c2.cfg).items()}
+    start = _start(pair, c2.cfg)
     if progress:
         expect(progress, 1)
         progress(name)
@@ -420,7 +426,7 @@ def _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress):
     joint = None
     if found:
         name = "+".join(found + add)
-        start = {f"{n}.{k}": v for n in found + add for k, v in effect_values(n, cfg1).items()}
+        start = _start(found + add, cfg1)
         if progress:
             expect(progress, 1)
             progress(name)
@@ -711,11 +717,11 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                     cfg_t = within["_config"]
                     cfg_t, _, dropped = _unpaid(replay, found, [], cfg_t, replay.residuals(cfg_t))
                     if dropped:
-                        out = {e["effect"] for e in dropped}
-                        found = [n for n in found if n not in out]
-                        gone += list(out)
+                        unpaid = {e["effect"] for e in dropped}
+                        found = [n for n in found if n not in unpaid]
+                        gone += list(unpaid)
                         within.update(_config=cfg_t, dropped=dropped,
-                                      refitted={n: v for n, v in within.get("refitted", {}).items() if n not in out})
+                                      refitted={n: v for n, v in within.get("refitted", {}).items() if n not in unpaid})
                 cur = cur.with_config(within["_config"])
                 logger.info("chain step %d: %s is a drift within the config's tolerance", i + 1, " + ".join(add))
                 if at_noise_floor(rms(cur.base_residuals), floor):

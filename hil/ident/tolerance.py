@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import logging
 import re
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -93,9 +94,8 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     n = len(keys)
     if free:
         # the found effects' values as ratios of their scale, free within their bounds (no prior)
-        sc = np.array([f[3] for f in free])
-        lo = np.concatenate([lo, [f[2].lower / s for f, s in zip(free, sc)]])
-        hi = np.concatenate([hi, [f[2].upper / s for f, s in zip(free, sc)]])
+        lo = np.concatenate([lo, [f.param.lower / f.scale for f in free]])
+        hi = np.concatenate([hi, [f.param.upper / f.scale for f in free]])
     prior = np.hstack([np.eye(n), np.zeros((n, len(free)))]) / tol
 
     def config(z):
@@ -132,14 +132,14 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     floor = replay.noise
     z, at = np.ones(n + len(free)), replay
     if free:
-        z[n:] = [f[4] / f[3] for f in free]
+        z[n:] = [f.value / f.scale for f in free]
     for _ in range(max(1, rounds)):
         z, at = fit(at, z, lo, hi)
         if at_noise_floor(rms(at.base_residuals), floor):
             break
     sol, nfev = state["sol"], state["nfev"]
     err = rms(at.base_residuals)
-    se = standard_errors(sol, np.concatenate([x0, [f[3] for f in free]]))[:n]
+    se = standard_errors(sol, np.concatenate([x0, [f.scale for f in free]]))[:n]
     params = {k: {"config": float(x0[i]), "value": float(z[i] * x0[i]), "change": float(z[i] - 1.0),
                   "stderr": float(se[i])} for i, k in enumerate(keys)}
     # within the tolerance: each change, less Z_WITHIN of its standard errors (a drift at the edge
@@ -152,13 +152,22 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     out = {"tolerance": float(tol), "within": ok, "at_noise_floor": bool(at_noise_floor(err, floor)), "error": err,
            "params": params, "nfev": int(nfev), "_config": at.cfg}
     if free:
-        out["refitted"] = {name: effect_values(name, at.cfg) for name in dict.fromkeys(f[0] for f in free)}
+        out["refitted"] = {name: effect_values(name, at.cfg) for name in dict.fromkeys(f.name for f in free)}
     return out
 
 
-def _free_params(found, cfg, keys) -> list:
+class FreeParam(NamedTuple):
+    """A fitted parameter of an effect found before the drift, refitted with it."""
+    name: str           # the effect's name in the chain
+    effect: object      # its catalogue effect
+    param: object       # the parameter (its bounds)
+    scale: float        # the fit's unit for it (its value, else its widest bound)
+    value: float        # its value as found
+
+
+def _free_params(found, cfg, keys) -> list[FreeParam]:
     """The fitted parameters of the effects ``found`` (not a drift key itself: a mass the chain
-    named beyond the tolerance is among ``keys``): (effect name, effect, param, scale, value)."""
+    named beyond the tolerance is among ``keys``)."""
     out = []
     for name in found:
         eff = candidate(name, cfg)
@@ -169,7 +178,7 @@ def _free_params(found, cfg, keys) -> list:
             if p.fit and isinstance(vals.get(p.name), (int, float)):
                 v = float(vals[p.name])
                 scale = abs(v) if v else max(abs(p.lower), abs(p.upper), 1e-12)
-                out.append((name, eff, p, scale, v))
+                out.append(FreeParam(name, eff, p, scale, v))
     return out
 
 
@@ -177,10 +186,10 @@ def _effect_values(free, r, cfg):
     """Per effect of ``free``: (name, effect, {param: value}) with its fitted parameters at ``r``
     times their scale, the others as ``cfg`` holds them."""
     by = {}
-    for (name, eff, p, scale, _), x in zip(free, r):
-        if name not in by:
-            by[name] = (eff, dict(effect_values(name, cfg)))
-        by[name][1][p.name] = float(x * scale)
+    for f, x in zip(free, r):
+        if f.name not in by:
+            by[f.name] = (f.effect, dict(effect_values(f.name, cfg)))
+        by[f.name][1][f.param.name] = float(x * f.scale)
     return [(name, eff, vals) for name, (eff, vals) in by.items()]
 
 

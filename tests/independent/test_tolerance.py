@@ -124,16 +124,21 @@ def test_a_clean_record_names_nothing_and_a_mass_beyond_the_tolerance_is_named(t
     assert (got["mass"] if "mass" in got else got["value"] - CFG["plant.m2"]) == pytest.approx(40.0, rel=0.01)
 
 
+def _drifted_bench():
+    """The bench with m1 -2 %, k2 +2.5 % and c2 -2 %: (bench, its masses, its stiffnesses)."""
+    m, k, c = list(BENCH.m), list(BENCH.k), list(BENCH.c)
+    m[0] *= 0.98
+    k[1] *= 1.025
+    c[1] *= 0.98
+    return BENCH.changed(m=tuple(m), k=tuple(k), c=tuple(c)), m, k
+
+
 def test_the_chain_takes_the_drift_without_naming_it_and_names_it_without_a_tolerance():
     # two candidates only (a drift and a friction), 4 s: the chain's first verdict is the tip's mass;
     # within the tolerance it names nothing and ends at the floor, the fit earned on the held-out
     # moves; with plant.tolerance = 0 it names the mass as before
     from hil.ident.chain import diagnose_chain
-    m, k, c = list(BENCH.m), list(BENCH.k), list(BENCH.c)
-    m[0] *= 0.98
-    k[1] *= 1.025
-    c[1] *= 0.98
-    bench = BENCH.changed(m=tuple(m), k=tuple(k), c=tuple(c))
+    bench = _drifted_bench()[0]
     rp = Replay(Measurement(_record(bench, 4.0, 31), source="ivp"), CFG)
     names = ["parameter:plant.m3", "coulomb_friction"]
     d = diagnose_chain(rp, names, jobs=1, holdout="moves")
@@ -152,11 +157,7 @@ def test_a_drift_after_an_effect_is_fitted_with_it_and_named_nothing(level, seed
     # which put the drift's fit beyond the tolerance and named the tip's mass (m3 unchanged). The
     # friction refitted with the drift: nothing more named, the floor reached, the level true
     from hil.ident.chain import diagnose_chain
-    m, k, c = list(BENCH.m), list(BENCH.k), list(BENCH.c)
-    m[0] *= 0.98
-    k[1] *= 1.025
-    c[1] *= 0.98
-    bench = BENCH.changed(m=tuple(m), k=tuple(k), c=tuple(c))
+    bench, m, k = _drifted_bench()
     rec = _record(bench, 4.0, seed, ivp.Hidden(coulomb_pos=level, coulomb_neg=level))
     rp = Replay(Measurement(rec, source="ivp"), CFG)
     d = diagnose_chain(rp, ["parameter:plant.m3", "coulomb_friction"], jobs=1, holdout="moves")
@@ -185,11 +186,7 @@ def test_a_later_effect_that_the_drift_leaves_nothing_for_is_no_finding(level, s
     from hil.commands.diagnose import JSON_KEYS, _tolerance_line
     from hil.ident.chain import diagnose_chain
     from hil.io.jsonout import dumps
-    m, k, c = list(BENCH.m), list(BENCH.k), list(BENCH.c)
-    m[0] *= 0.98
-    k[1] *= 1.025
-    c[1] *= 0.98
-    bench = BENCH.changed(m=tuple(m), k=tuple(k), c=tuple(c))
+    bench = _drifted_bench()[0]
     rp = Replay(Measurement(_record(bench, 4.0, seed, ivp.Hidden(coulomb_pos=level, coulomb_neg=level)),
                             source="ivp"), CFG)
     names = ["coulomb_friction", "torque_constant"]
