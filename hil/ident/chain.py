@@ -90,7 +90,9 @@ put to the same fit, the effects found refitted with the drift: where that bring
 its noise floor, the step's effect is no finding either (``final.tolerance.in_place_of``; a torque
 constant is every mass's drift in one parameter, a lightly damped mode a sliver of the tip's), and
 an effect found before that no longer pays beside the drift is dropped
-(``final.tolerance.dropped``, as a step's backward step).
+(``final.tolerance.dropped``, as a step's backward step): set back alone, or with the drift fitted
+again without it (:func:`_unpaid_beside_drift`: a mode fitted far above the record's Nyquist
+frequency is a rigid mass on the tip, the tip's drift by another name).
 
 Each step reports its estimation error (the record's, or the estimation half's) and held-out
 error per channel, and the standard errors of everything found so far with the pairs of fitted
@@ -483,6 +485,44 @@ def _unpaid(replay, found, add, cfg1, res1) -> list[dict]:
         found = [n for n in found if n != name]
 
 
+def _unpaid_beside_drift(replay, cur, found, tol, cfg_t) -> tuple[dict | None, list[dict]]:
+    """The effects of earlier steps that a drift within the tolerance holds in their place: each
+    set back to the start model's values alone and the drift fitted again without it, the others
+    refitted with it (:func:`~hil.ident.tolerance.within_tolerance` from ``cur``, the model before the
+    drift). An effect and the drift can be one fit by two names, which setting the effect back
+    alone (:func:`_unpaid`) does not see: a mode fitted above the record's bandwidth is a rigid
+    mass on its side, a torque constant every mass's drift in one parameter. The weakest whose
+    drift so refitted stays within the tolerance and whose BIC score against the drift with it
+    (``cfg_t``) is at most :data:`~hil.ident.scores.MIN_SCORE` is dropped, the others judged again
+    without it. Returns the last such tolerance test (None: nothing dropped) and one entry per
+    dropped effect, as :func:`_unpaid`."""
+    floor = replay.noise
+    res_t = replay.residuals(cfg_t)
+    dropped, last = [], None
+    while True:
+        earlier = [n for n in found if "+" not in n]
+        best = None
+        for name in earlier:
+            rest = [n for n in found if n != name]
+            test = within_tolerance(cur.with_config(_without(name, cur.cfg, replay.cfg)), tol, found=rest)
+            if test is None or not test["within"]:
+                continue
+            k = len(candidate(name, replay.cfg).params)
+            score = bic_score(replay.residuals(test["_config"]), res_t, list(floor), k, floor)
+            if score <= MIN_SCORE and (best is None or score < best[1]):
+                best = (name, score, test)
+        if best is None:
+            return last, dropped
+        name, score, last = best
+        logger.info("chain: %s no longer pays beside the config's drift refitted without it (BIC score %.1f): "
+                    "dropped", name, score)
+        dropped.append({"effect": name, "params": effect_values(name, cfg_t), "score": float(score)})
+        found = [n for n in found if n != name]
+        cfg_t = last["_config"]
+        res_t = replay.residuals(cfg_t)
+        cur = cur.with_config(_without(name, cur.cfg, replay.cfg))
+
+
 def _rival(d, verdict, add, have, cur):
     """The runner-up of a later step's single verdict: the next significant single candidate of the
     ranking (its own fit, not one already in the model) whose gain is at least :data:`RIVAL_GAIN`
@@ -716,6 +756,17 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                     # alone: one that no longer pays beside the drift is dropped, as after a step
                     cfg_t = within["_config"]
                     cfg_t, _, dropped = _unpaid(replay, found, [], cfg_t, replay.residuals(cfg_t))
+                    rest = [n for n in found if n not in {e["effect"] for e in dropped}]
+                    before = cur
+                    for e in dropped:
+                        before = before.with_config(_without(e["effect"], before.cfg, replay.cfg))
+                    refit, more = _unpaid_beside_drift(replay, before, rest, tol, cfg_t) if rest else (None, [])
+                    if refit is not None:
+                        # the drift as fitted without the dropped effects
+                        cfg_t = refit["_config"]
+                        within.update({k: refit[k] for k in ("within", "at_noise_floor", "error", "params")},
+                                      nfev=within["nfev"] + refit["nfev"], refitted=refit.get("refitted", {}))
+                        dropped += more
                     if dropped:
                         unpaid = {e["effect"] for e in dropped}
                         found = [n for n in found if n not in unpaid]

@@ -202,3 +202,35 @@ def test_a_later_effect_that_the_drift_leaves_nothing_for_is_no_finding(level, s
     assert "(in place of torque_constant: it leaves nothing for them)" in _tolerance_line(t)
     d0 = diagnose_chain(rp.with_config(CFG.with_values({"plant.tolerance": 0.0})), names, jobs=1, holdout="moves")
     assert [s.effects for s in d0["chain"]] == [["coulomb_friction"], ["torque_constant"]]
+
+
+def test_an_effect_the_drift_holds_in_its_place_is_dropped_once_the_drift_is_refitted_without_it():
+    # the tip 3 % heavier with Coulomb friction, the model holding the friction and a mode fitted at
+    # 990 Hz, far above the record's Nyquist frequency (125 Hz): a rigid 0.13 kg on the tip, the
+    # tip's drift under another name (seed 1's record 10 of the drifted matrix ended so). Set back
+    # alone beside the drift fitted with it (_unpaid) the mode still pays: that drift left the tip's
+    # mass to it. The drift fitted again without it explains as much: dropped; the friction, which
+    # no drift holds, stays, and the drift is the record's (the tip mode sqrt(k2 / m3))
+    from hil.ident.chain import _unpaid, _unpaid_beside_drift
+    from hil.plant_config import configure
+    m, k = list(BENCH.m), list(BENCH.k)
+    m[2] *= 1.03
+    rec = _record(BENCH.changed(m=tuple(m)), 4.0, 41, ivp.Hidden(coulomb_pos=1.0, coulomb_neg=1.0))
+    rp = Replay(Measurement(rec, source="ivp"), CFG)
+    cfg = configure(candidate("coulomb_friction", CFG), CFG, {"level": 1.0})
+    cfg = configure(candidate("compliant_mode", cfg), cfg, {"mass": 0.13, "frequency": 990.0, "damping_ratio": 0.003})
+    cur = rp.with_config(cfg)
+    found = ["coulomb_friction", "compliant_mode"]
+    test = within_tolerance(cur, 0.05, found=found)
+    assert test["within"]
+    cfg_t = test["_config"]
+    _, _, alone = _unpaid(rp, found, [], cfg_t, rp.residuals(cfg_t))
+    assert alone == []
+    refit, dropped = _unpaid_beside_drift(rp, cur, found, 0.05, cfg_t)
+    assert [e["effect"] for e in dropped] == ["compliant_mode"] and dropped[0]["score"] <= 6.0
+    assert refit["within"] and refit["at_noise_floor"] and set(refit["refitted"]) == {"coulomb_friction"}
+    assert refit["refitted"]["coulomb_friction"]["level"] == pytest.approx(1.0, rel=0.01)
+    assert "effects.compliant_mode.mass" not in refit["_config"] or refit["_config"].get(
+        "effects.compliant_mode.mass") is None
+    p = {q: v["value"] for q, v in refit["params"].items()}
+    assert math.sqrt(p["plant.k2"] / p["plant.m3"]) == pytest.approx(math.sqrt(k[1] / m[2]), rel=2e-3)
