@@ -50,7 +50,8 @@ as ``--validate``'s), every step must earn its place on data it was not fitted o
   than the model's own retuning is not earned. A step that does not earn its place ends the chain
   (``end`` "no step earns its place on the held-out data", the step under ``final.rejected``);
 * a step of several effects (the verdict and the effects ``also_missing`` beside it) is judged
-  member by member first (:func:`_members_earned`, ``chain[].held_out.members``): each member's
+  member by member first (:func:`_members_earned`, ``chain[].held_out.members``; a pair shown
+  together as well, whose single member left is then the step): each member's
   own fall, the step without it against the step, both refitted on the estimation moves, must
   stand beyond its uncertainty and beyond what the rest reaches refitted on the held-out moves; the
   weakest member that does not earn its own is taken out, the rest refitted on the record and
@@ -713,13 +714,21 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if first is None:
             first = d
         verdict = d["verdict"]
-        together, members = None, {}
+        together, members, alone = None, {}, False
         if verdict == "unexplained" and i == 0 and max_steps > 1:
             # two effects that show only together (a table leaning on one flank of a backlash only
             # under a force on it): the best fit on top of the model, the next verdict on top of that
             together = _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw)
         if together is not None:
             verdict, add, cfg1, fits = together["verdict"], together["effects"], together["_config"], together["_fits"]
+            if split:
+                # each member of the pair earns its own place too: a drift of the config (c2) taken
+                # first beside a mode whose first fit missed its basin is no member once the mode
+                # is refitted
+                add, cfg1, fits, members = _members_earned(cur, split, add, cfg1, fits, fit_nfev, progress)
+                if len(add) == 1:
+                    # one member left: the step is that effect's, as a single verdict's would be
+                    verdict, together, alone = add[0], None, True
         elif verdict in ("none", "unexplained"):
             end = ("noise floor reached" if verdict == "none" else
                    "unexplained" if i == 0 else "no effect pays for its parameters")
@@ -841,6 +850,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if together is not None:
             # the first diagnosis names the pair once the step is kept (refused, it stays unexplained)
             first = dict(first, verdict=verdict, shown_together=together["text"])
+        elif alone:
+            first = dict(first, verdict=verdict)
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         cur = cur.with_config(cfg1)
     if len(steps) > 1 and not end.startswith("noise floor"):
