@@ -46,6 +46,22 @@ def test_held_out_fall_against_its_closed_form():
     assert h["uncertainty"] == pytest.approx(4 * math.sqrt(2 / n), rel=0.05)
 
 
+def test_a_channel_the_step_makes_worse_weighs_by_its_error_after():
+    # channel a falls to a tenth, channel b triples (a drift the step's effect uncovers: the table
+    # right, the tip's drifted mode shows). Each channel weighs by the larger of its RMS before and
+    # after: a contributes 1 -> 0.01, b 1/9 -> 1; the fall (1 + 1/9 - 1.01) / (1 + 1/9) = 0.091. By
+    # the RMS before alone b would weigh 9 after and drown a's fall (-3.5)
+    rng = np.random.default_rng(1)
+    a, b = (rng.normal(0, 1, 2000) for _ in range(2))
+    a /= np.sqrt(np.mean(a ** 2))
+    b /= np.sqrt(np.mean(b ** 2))
+    h = held_out_fall({"a": a, "b": b}, {"a": 0.1 * a, "b": 3.0 * b}, {"a": 1e-3, "b": 1e-3})
+    assert h["fall"] == pytest.approx((1 + 1 / 9 - 1.01) / (1 + 1 / 9), rel=1e-12) and h["earned"]
+    # a step that makes every channel worse falls below nothing, whatever the weights
+    h = held_out_fall({"a": a, "b": b}, {"a": 2.0 * a, "b": 3.0 * b}, {"a": 1e-3, "b": 1e-3})
+    assert h["fall"] == pytest.approx((1 / 4 + 1 / 9 - 2) / (1 / 4 + 1 / 9), rel=1e-12) and not h["earned"]
+
+
 def test_split_moves_in_pairs():
     # four moves, there and back twice, 0.2 s apart: the first pair estimation, the second held out
     t = np.arange(0, 4.0, 4e-3)

@@ -41,8 +41,12 @@ as ``--validate``'s), every step must earn its place on data it was not fitted o
   (:data:`HOLDOUT_NFEV` evaluations: the held-out samples' errors never enter them);
   with validation records the step's fit on the record is the estimation fit;
 * the held-out error before and after the step, per sample the weighted squared residual summed
-  over the channels, e_n = sum_c (r_c[n] / s_c)^2 with s_c = max(RMS before, noise floor); its
-  fall must stand above :data:`HOLDOUT_Z` standard errors of the held-out sample's noise
+  over the channels, e_n = sum_c (r_c[n] / s_c)^2 with s_c = max(RMS before, RMS after, noise
+  floor): each channel's mean share is at most one, before and after, so a channel the step makes
+  worse does not drown the others' falls by (after / before)^2 (a force and a backlash that bring
+  the motor, table and torque from 13 to 88 x their floor to it uncover the tip's drifted mode, which
+  the table's error had hidden: the tip 3 x worse); for a small change the weights are those of
+  before. Its fall must stand above :data:`HOLDOUT_Z` standard errors of the held-out sample's noise
   (:func:`held_out_fall`) and above the fall the model as it stands reaches on the held-out moves
   when the effects already found are refitted on them (``model_refit_fall``): the uncertainty of
   what is already in the model. A record whose residual is chaotic after an effect (a table
@@ -193,6 +197,7 @@ def held_out_fall(before: dict, after: dict, floor: dict) -> dict:
     (RMS per channel), ``fall`` (the relative fall of the weighted error), ``uncertainty``
     (:data:`HOLDOUT_Z` standard errors of it) and ``earned`` (the fall beyond its uncertainty).
 
+    Each channel weighs by s_c = max(RMS before, RMS after, its floor) (the module's definition).
     The uncertainty is the held-out sample's: with r = m + n (the model error and white noise at the
     floor f_c) and the step's change delta = r_before - r_after, the fall's noise part is
     2 sum delta n / N, of standard error 2 sqrt(sum_c sum_n (delta_cn / s_c)^2 (f_c / s_c)^2) / N."""
@@ -201,7 +206,8 @@ def held_out_fall(before: dict, after: dict, floor: dict) -> dict:
     ea = np.zeros_like(eb)
     var = 0.0
     for c in before:
-        sc = max(float(np.sqrt(np.mean(before[c] ** 2))), float(floor.get(c, 0.0)), 1e-300)
+        sc = max(float(np.sqrt(np.mean(before[c] ** 2))), float(np.sqrt(np.mean(after[c] ** 2))),
+                 float(floor.get(c, 0.0)), 1e-300)
         eb += (before[c] / sc) ** 2
         ea += (after[c] / sc) ** 2
         var += 4.0 * float(np.sum(((before[c] - after[c]) / sc) ** 2)) * (float(floor.get(c, 0.0)) / sc) ** 2
