@@ -44,11 +44,12 @@ from hil.control import (
 )
 from hil.drivers.base import LOOPS, Backend, Feedback, Setpoint
 from hil.plant_config import plant_from_config
+from hil.sim_plant.kernel import njit_cycle
 
 __all__ = ["SimulatedPlant"]
 
 
-@njit(cache=True)
+@njit_cycle
 def drive_cycle(Ad, Bd, fric, codes, eparams, terms, p, s, speed_filter, x, f, x_new, ubuf, hbuf, w_ref,
                 u_act, enc=None):
     """One position period of a drive that closes the velocity loop itself (the simulated plant
@@ -64,7 +65,7 @@ def drive_cycle(Ad, Bd, fric, codes, eparams, terms, p, s, speed_filter, x, f, x
     return u_act
 
 
-@njit(cache=True)
+@njit_cycle
 def coast_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, hbuf, u_act, steps, enc=None):
     """``steps`` plant periods with no torque commanded (a disabled drive; real-time): the current
     decays through the current loop's lag, the plant coasts (the feedback history goes on).
@@ -76,7 +77,7 @@ def coast_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, hbuf, u_act, s
     return u_act
 
 
-@njit(cache=True)
+@njit_cycle
 def torque_cycle(Ad, Bd, fric, codes, eparams, terms, x, f, x_new, ubuf, hbuf, u, u_act, enc=None):
     """One velocity period under the output ``u`` (a drive in torque mode; real-time):
     hil.control's :func:`~hil.control.plant_cycle`. Returns the current loop's output."""

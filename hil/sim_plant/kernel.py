@@ -25,6 +25,13 @@ error, hil.sim_plant.effects.encoder) changes what an encoder reads, :func:`read
 motor's speed derived from it, :func:`reading_speed`), which hil.control's feedback stages call
 with the table's encoder rows alone (:func:`encoder_rows`); a plant without them passes None,
 which the compiled loops leave out: it reads the true positions, bit for bit and at no cost.
+
+The stages here are inlined into the loops that call them (numba's ``inline="always"``), and those
+loops are compiled with :func:`njit_cycle`: a cycle allocates nothing, so it needs no reference
+counting, and with it each inlined stage took a reference to every array it was given and gave it
+back, each velocity step (atomic operations that numba could not pair across the loop over the
+effect table: some 14 arrays, taken and given back, in 60 % of the time of a torque ripple's run
+under perf).
 """
 from __future__ import annotations
 
@@ -40,9 +47,29 @@ __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQ
            "ENCODER_ERROR", "MOTOR_ENCODER", "TABLE_ENCODER", "encoder_error", "encoder_rows", "reading",
            "reading_speed", "LOAD_FRICTION", "dry_friction",
            "empty_effects", "effect_table", "time_delay", "feedback_delay", "link_compliance", "effect_forces",
-           "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token"]
+           "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token", "njit_cycle"]
 
 N_EFFECT_PARAMS = 8
+
+
+def _without_refcount() -> dict:
+    """numba's option that compiles a function without its reference counting (NRT), where this
+    numba has it (``_nrt``, numba.core.cpu.CPUTargetOptions); none otherwise: the same numbers, slower."""
+    try:
+        from numba.core.cpu import CPUTargetOptions
+    except ImportError:         # pragma: no cover - a numba that moved its options
+        return {}
+    return {"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}
+
+
+_CYCLE_OPTIONS = _without_refcount()
+
+
+def njit_cycle(fn):
+    """Compile ``fn``, a loop of cycles that allocates nothing (its state and work arrays passed in),
+    without reference counting (the module's note): ``njit(cache=True)`` where numba has no such
+    option. An allocation in ``fn`` fails to compile."""
+    return njit(cache=True, **_CYCLE_OPTIONS)(fn)
 
 # effect term codes
 CONSTANT_FORCE = 1       # [mass, force N]
@@ -142,7 +169,8 @@ def backlash_correction(q, x, xo, v, vo):
 
 
 # inlined into the plant step: the call with its array arguments cost about as much per step as the forces
-# (issue 26: a backlash run 97 -> 70 ns per velocity step); a plant without effects compiles it away
+# (issue 26: a backlash run 97 -> 70 ns per velocity step; the rest was reference counting, njit_cycle:
+# 194 -> 32 ns); a plant without effects compiles it away
 @njit(cache=True, inline="always")
 def effect_forces_at(codes, params, x, xo, v, vo, f):
     """Add the forces of the effect terms at state (x, v) to ``f`` (one entry per mass), the
