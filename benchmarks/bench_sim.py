@@ -6,7 +6,12 @@ a back-and-forth 100 mm move at 7 m/min. The peer is the same closed loop as pyt
 objects (benchmarks/peer.py), run on a shorter stretch (it is slow) with friction off, where the
 two must agree to 1e-9 m.
 
-    python benchmarks/bench_sim.py [--json]
+``--effects`` adds, per effect of the catalogue (its synth strength on the paper bench, the same
+move), the compiled loop's time per velocity step against its peer in the same run: the same cycle
+(hil.simulate's ``_cycles``) compiled with numba's reference counting, as it was before
+hil.sim_plant.kernel.njit_cycle; the two records must be equal bit for bit.
+
+    python benchmarks/bench_sim.py [--effects] [--json]
 """
 from __future__ import annotations
 
@@ -44,6 +49,8 @@ def main(argv=None):
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--peer-seconds", type=float, default=0.3, help="simulated seconds for the peer (slow)")
+    ap.add_argument("--effects", action="store_true",
+                    help="per catalogue effect: ns per velocity step, against the cycle compiled with reference counting")
     args = ap.parse_args(argv)
     cfg = config.load(ROOT / "config" / "paper_bench_friction.toml")
     plant = plant_from_config(cfg)
@@ -79,6 +86,8 @@ def main(argv=None):
            "peer": "python-control interconnect (friction off)", "peer_realtime_factor": peer_rt,
            "speedup_vs_peer": rt_factor / peer_rt, "max_trajectory_difference_m": diff, "target_realtime_factor": 1000,
            "cpu": os.cpu_count()}
+    if args.effects:
+        out["effects"] = effect_figures(x_cmd, args.repeat)
     if args.json:
         print(json.dumps(out, indent=2))
     else:
@@ -86,7 +95,60 @@ def main(argv=None):
               f"({out['ns_per_velocity_step']:.0f} ns per velocity step; target >= 1000 x)")
         print(f"peer ({out['peer']}): {peer_rt:.3f} x real time -> ours is {out['speedup_vs_peer']:,.0f} x faster")
         print(f"largest difference between the two trajectories: {diff:.2e} m (must be < 1e-9 m)")
+        if args.effects:
+            print(f"\n{'effect':36s} {'ns/step':>8s} {'peer':>8s} {'ratio':>6s}  records equal")
+            for e in out["effects"]:
+                print(f"{e['effect']:36s} {e['ns_per_step']:8.1f} {e['peer_ns_per_step']:8.1f} {e['ratio']:6.2f}  "
+                      f"{e['identical']}")
+            tot = sum(e["ns_per_step"] for e in out["effects"]), sum(e["peer_ns_per_step"] for e in out["effects"])
+            print(f"{'all':36s} {tot[0]:8.1f} {tot[1]:8.1f} {tot[1] / tot[0]:6.2f}")
     return 0
+
+
+def effect_figures(x_cmd, repeat) -> list[dict]:
+    """Per catalogue effect (not a recording's artefact, not a parameter): the compiled loop's CPU
+    time per velocity step (best of ``repeat``), its peer's (the cycle compiled with reference
+    counting, the work arrays allocated as closed_loop_kernel does), their ratio, and whether the
+    two records are equal bit for bit."""
+    from numba import njit
+
+    import hil.simulate as sim
+    from hil.control import new_velocity_state
+    from hil.ident.diagnosis import candidate_names
+    from hil.plant_config import candidate, configure
+    from hil.sim_plant.effects.base import RecordEffect
+    from hil.sim_plant.kernel import mass_token
+    peer = njit(sim._cycles.py_func)
+    cfg = config.load(ROOT / "config" / "paper_bench.toml")
+    plant = plant_from_config(cfg)
+    out = []
+    for name in candidate_names(cfg, plant, include_parameters=False):
+        eff = candidate(name, cfg)
+        if isinstance(eff, RecordEffect):        # acts on the record, not in the loop
+            continue
+        c = configure(eff, cfg, dict(getattr(eff, "synth_strength", None) or eff.guess(plant, {})))
+        pl = plant_from_config(c)
+        ct = controller_from_config(c, pl)
+        runs = [sim._prepared(pl, ct, x_cmd, None, None, None, None, False, "actual") for _ in range(2)]
+        masses = mass_token(runs[0].state0.size // 2)
+
+        def ours(r=runs[0]):
+            sim.closed_loop_kernel(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, r.state0, r.cmd, r.ubuf,
+                                   r.hbuf, r.rec, r.record_every, speed_filter=r.speed_filter,
+                                   log_command=r.log_command, masses=masses, enc=r.enc)
+
+        def theirs(r=runs[1]):
+            n = r.state0.size // 2
+            peer(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, r.state0.copy(), np.zeros(2 * n), np.zeros(n),
+                 new_velocity_state(), r.cmd, r.ubuf, r.hbuf, r.rec, r.record_every, None, False, None, None, None,
+                 None, None, False, r.speed_filter, r.log_command, masses, r.enc)
+        ours()
+        theirs()
+        same = all(np.array_equal(a, b) for a, b in zip(runs[0].rec, runs[1].rec))
+        steps = x_cmd.size * ct.substeps
+        a, b = best_of(ours, repeat) / steps * 1e9, best_of(theirs, repeat) / steps * 1e9
+        out.append({"effect": name, "ns_per_step": a, "peer_ns_per_step": b, "ratio": b / a, "identical": same})
+    return out
 
 
 if __name__ == "__main__":
