@@ -7,7 +7,10 @@ replaces, bit for bit.
 * a config changed by a few keys (hil.config.Config.with_values, the validated values kept)
   against the same raw values validated from scratch: the same values, types and key order;
 * the replays' cache of simulations (hil.ident.replay.SimulationCache): a hit is the fresh
-  simulation's arrays, a changed parameter misses, the replays of one record share it.
+  simulation's arrays, a changed parameter misses, the replays of one record share it;
+* the cycles compiled without reference counting (hil.sim_plant.kernel.njit_cycle) against the same
+  cycle compiled with it, for every structure above and every effect of the catalogue that acts in
+  the loop.
 """
 import numpy as np
 import pytest
@@ -19,8 +22,8 @@ from hil.ident import Replay, synthesize
 from hil.ident.replay import SimulationCache, _loop_key
 from hil.io.measurement import Measurement
 from hil.plant_config import candidate, configure, plant_from_config
-from hil.sim_plant.kernel import mass_token
-from hil.simulate import Record, _prepared, closed_loop_kernel, simulate
+from hil.sim_plant.kernel import _CYCLE_OPTIONS, mass_token
+from hil.simulate import Record, _cycles, _prepared, closed_loop_kernel, simulate
 
 CFG = load(CONFIG / "paper_bench.toml")
 
@@ -82,6 +85,59 @@ def test_the_loop_compiled_for_the_chains_size_is_the_same_bits(case):
     ref, got = _kernel(cfg, None, x), _kernel(cfg, True, x)
     for name, a, b in zip(Record._fields, ref, got):
         assert np.array_equal(a, b), (case, name)
+
+
+def _counted_cycles():
+    """hil.simulate's cycle compiled as plain njit: with numba's reference counting."""
+    from numba import njit
+    if not hasattr(_counted_cycles, "fn"):
+        _counted_cycles.fn = njit(_cycles.py_func)
+    return _counted_cycles.fn
+
+
+def _in_loop_effects() -> dict:
+    from hil.ident.diagnosis import candidate_names
+    from hil.sim_plant.effects.base import RecordEffect
+    plant = plant_from_config(CFG)
+    out = {}
+    for name in candidate_names(CFG, plant, include_parameters=False):
+        eff = candidate(name, CFG)
+        if not isinstance(eff, RecordEffect):
+            out[name] = configure(eff, CFG, dict(getattr(eff, "synth_strength", None) or eff.guess(plant, {})))
+    return out
+
+
+def test_the_cycles_are_compiled_without_reference_counting():
+    """The option is numba's (the installed numba has it), and the loops take it."""
+    assert _CYCLE_OPTIONS == {"_nrt": False}
+    assert _cycles.targetoptions.get("_nrt") is False
+    from hil.drivers.sim import coast_cycle, drive_cycle, torque_cycle
+    assert all(f.targetoptions.get("_nrt") is False for f in (drive_cycle, torque_cycle, coast_cycle))
+
+
+@pytest.mark.parametrize("case", list(CASES) + [f"effect {n}" for n in _in_loop_effects()])
+def test_the_cycle_without_reference_counting_is_the_same_bits(case):
+    """No reference counting changes no arithmetic: every recorded channel equal to the same cycle
+    compiled with it (the work arrays allocated as closed_loop_kernel does), and the state left the
+    same."""
+    from hil.control import new_velocity_state
+    cfg = CASES[case] if case in CASES else _in_loop_effects()[case.split(" ", 1)[1]]
+    x = _command()
+    plant = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant)
+    runs = [_prepared(plant, ctrl, x, None, None, None, None, False, "actual") for _ in range(2)]
+    ends = []
+    for r, fn in zip(runs, (_cycles, _counted_cycles())):
+        n = plant.n
+        state = r.state0.copy()
+        fn(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, state, np.zeros(2 * n), np.zeros(n),
+           new_velocity_state(), r.cmd, r.ubuf, r.hbuf, r.rec, r.record_every, None, False, None, None, None, None,
+           None, False, r.speed_filter, r.log_command, mass_token(n), r.enc)
+        ends.append(state)
+    for name, a, b in zip(Record._fields, runs[0].rec, runs[1].rec):
+        assert np.array_equal(a, b), (case, name)
+    assert np.array_equal(ends[0], ends[1])
+    assert np.any(runs[0].rec.x != 0.0)          # the loop ran
 
 
 def test_the_size_specialised_loop_with_measured_inputs():
