@@ -12,6 +12,8 @@ replaces, bit for bit.
   cycle compiled with it, for every structure above and every effect of the catalogue that acts in
   the loop.
 """
+import functools
+
 import numpy as np
 import pytest
 from conftest import CONFIG
@@ -95,6 +97,7 @@ def _counted_cycles():
     return _counted_cycles.fn
 
 
+@functools.cache
 def _in_loop_effects() -> dict:
     from hil.ident.diagnosis import candidate_names
     from hil.sim_plant.effects.base import RecordEffect
@@ -108,36 +111,70 @@ def _in_loop_effects() -> dict:
 
 
 def test_the_cycles_are_compiled_without_reference_counting():
-    """The option is numba's (the installed numba has it), and the loops take it."""
+    """The option is numba's, and the loops take it (a numba without it would run them with
+    reference counting, slower: this fails first, as the sign of it)."""
     assert _CYCLE_OPTIONS == {"_nrt": False}
     assert _cycles.targetoptions.get("_nrt") is False
     from hil.drivers.sim import coast_cycle, drive_cycle, torque_cycle
     assert all(f.targetoptions.get("_nrt") is False for f in (drive_cycle, torque_cycle, coast_cycle))
 
 
+def _both_cycles(cfg, x, experiment=False, **kw):
+    """The cycle without and with reference counting on the same inputs: per run (the value it
+    returns, its record, and the state, loop state and buffers it leaves)."""
+    from hil.control import new_velocity_state
+    plant = plant_from_config(cfg)
+    ctrl = controller_from_config(cfg, plant)
+    out = []
+    for fn in (_cycles, _counted_cycles()):
+        r = _prepared(plant, ctrl, x, None, None, kw.get("u_add"), kw.get("f_ext"), False, kw.get("torque", "actual"))
+        n, steps = plant.n, x.size * ctrl.substeps
+        rng = np.random.default_rng(5)
+        exc = {"exc": 0.5 * np.sin(np.arange(steps) * 0.01), "noise_w": 1e-4 * rng.standard_normal(steps),
+               "noise_x": 1e-7 * rng.standard_normal((steps, 3)), "out": np.zeros((steps, 10))} if experiment else {}
+        state, s = r.state0.copy(), new_velocity_state()
+        sat = fn(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, state, np.zeros(2 * n), np.zeros(n), s, r.cmd,
+                 r.ubuf, r.hbuf, r.rec, r.record_every, exc.get("exc"), False, exc.get("noise_w"),
+                 exc.get("noise_x"), exc.get("out"), r.inputs.get("u_add"), r.inputs.get("f_ext"), False,
+                 r.speed_filter, r.log_command, mass_token(n), r.enc)
+        out.append((sat, r.rec, [state, s, r.ubuf, r.hbuf, exc.get("out")]))
+    return out
+
+
+def _assert_same(case, runs):
+    (sat_a, rec_a, left_a), (sat_b, rec_b, left_b) = runs
+    assert sat_a == sat_b, case
+    for name, a, b in zip(Record._fields, rec_a, rec_b):
+        assert np.array_equal(a, b), (case, name)
+    for a, b in zip(left_a, left_b):
+        assert (a is None and b is None) or np.array_equal(a, b), case
+    assert np.any(rec_a.x != 0.0)          # the loop ran
+    assert left_a[4] is None or np.any(left_a[4] != 0.0)       # and the experiment's record with it
+
+
 @pytest.mark.parametrize("case", list(CASES) + [f"effect {n}" for n in _in_loop_effects()])
 def test_the_cycle_without_reference_counting_is_the_same_bits(case):
     """No reference counting changes no arithmetic: every recorded channel equal to the same cycle
-    compiled with it (the work arrays allocated as closed_loop_kernel does), and the state left the
-    same."""
-    from hil.control import new_velocity_state
+    compiled with it (the work arrays allocated as closed_loop_kernel does), and the state, the
+    loop's state and the delay and feedback buffers it leaves the same."""
     cfg = CASES[case] if case in CASES else _in_loop_effects()[case.split(" ", 1)[1]]
+    _assert_same(case, _both_cycles(cfg, _command()))
+
+
+def test_the_cycle_without_reference_counting_with_measured_inputs_and_an_experiment():
+    """The measured inputs (a command after the controller, a row of external forces per period,
+    the torque command recorded) and the frequency-response experiment's inputs (an excitation,
+    the speed's and positions' noise, its per-period record ``out`` and the count of saturated
+    periods it returns), with delays and a backlash: the same bits."""
+    cfg = configure(candidate("actuator_delay", CFG), CASES["backlash"], {"delay": 150e-6})
     x = _command()
     plant = plant_from_config(cfg)
-    ctrl = controller_from_config(cfg, plant)
-    runs = [_prepared(plant, ctrl, x, None, None, None, None, False, "actual") for _ in range(2)]
-    ends = []
-    for r, fn in zip(runs, (_cycles, _counted_cycles())):
-        n = plant.n
-        state = r.state0.copy()
-        fn(r.Ad, r.Bd, r.fric, r.codes, r.params, r.terms, r.p, state, np.zeros(2 * n), np.zeros(n),
-           new_velocity_state(), r.cmd, r.ubuf, r.hbuf, r.rec, r.record_every, None, False, None, None, None, None,
-           None, False, r.speed_filter, r.log_command, mass_token(n), r.enc)
-        ends.append(state)
-    for name, a, b in zip(Record._fields, runs[0].rec, runs[1].rec):
-        assert np.array_equal(a, b), (case, name)
-    assert np.array_equal(ends[0], ends[1])
-    assert np.any(runs[0].rec.x != 0.0)          # the loop ran
+    steps = (x.size + 1) * controller_from_config(cfg, plant).substeps
+    u_add = np.where(np.arange(steps) % 3000 < 300, 0.4, 0.0)
+    f_ext = np.zeros((steps, plant.n))
+    f_ext[:, plant.table] = 40.0 * np.sin(np.arange(steps) * 1e-3)
+    _assert_same("measured inputs", _both_cycles(cfg, x, u_add=u_add, f_ext=f_ext, torque="command"))
+    _assert_same("experiment", _both_cycles(CASES["delays"], x, experiment=True))
 
 
 def test_the_size_specialised_loop_with_measured_inputs():

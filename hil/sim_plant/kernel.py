@@ -68,7 +68,7 @@ _CYCLE_OPTIONS = _without_refcount()
 def njit_cycle(fn):
     """Compile ``fn``, a loop of cycles that allocates nothing (its state and work arrays passed in),
     without reference counting (the module's note): ``njit(cache=True)`` where numba has no such
-    option. An allocation in ``fn`` fails to compile."""
+    option. Where it has, an allocation in ``fn`` fails to compile."""
     return njit(cache=True, **_CYCLE_OPTIONS)(fn)
 
 # effect term codes
