@@ -141,6 +141,16 @@ def _both_cycles(cfg, x, experiment=False, **kw):
     return out
 
 
+def _measured_inputs(cfg, x) -> dict:
+    """A record's measured inputs for the command ``x``: a pulsed command after the controller, a
+    force on the table every velocity period, the torque command recorded."""
+    plant = plant_from_config(cfg)
+    steps = (x.size + 1) * controller_from_config(cfg, plant).substeps
+    f_ext = np.zeros((steps, plant.n))
+    f_ext[:, plant.table] = 40.0 * np.sin(np.arange(steps) * 1e-3)
+    return {"u_add": np.where(np.arange(steps) % 3000 < 300, 0.4, 0.0), "f_ext": f_ext, "torque": "command"}
+
+
 def _assert_same(case, runs):
     (sat_a, rec_a, left_a), (sat_b, rec_b, left_b) = runs
     assert sat_a == sat_b, case
@@ -168,12 +178,7 @@ def test_the_cycle_without_reference_counting_with_measured_inputs_and_an_experi
     periods it returns), with delays and a backlash: the same bits."""
     cfg = configure(candidate("actuator_delay", CFG), CASES["backlash"], {"delay": 150e-6})
     x = _command()
-    plant = plant_from_config(cfg)
-    steps = (x.size + 1) * controller_from_config(cfg, plant).substeps
-    u_add = np.where(np.arange(steps) % 3000 < 300, 0.4, 0.0)
-    f_ext = np.zeros((steps, plant.n))
-    f_ext[:, plant.table] = 40.0 * np.sin(np.arange(steps) * 1e-3)
-    _assert_same("measured inputs", _both_cycles(cfg, x, u_add=u_add, f_ext=f_ext, torque="command"))
+    _assert_same("measured inputs", _both_cycles(cfg, x, **_measured_inputs(cfg, x)))
     _assert_same("experiment", _both_cycles(CASES["delays"], x, experiment=True))
 
 
@@ -182,12 +187,7 @@ def test_the_size_specialised_loop_with_measured_inputs():
     command take the same path: the same bits."""
     cfg = CASES["backlash"]
     x = _command()
-    plant = plant_from_config(cfg)
-    steps = (x.size + 1) * controller_from_config(cfg, plant).substeps
-    u_add = np.where(np.arange(steps) % 3000 < 300, 0.4, 0.0)
-    f_ext = np.zeros((steps, plant.n))
-    f_ext[:, plant.table] = 40.0 * np.sin(np.arange(steps) * 1e-3)
-    kw = {"u_add": u_add, "f_ext": f_ext, "torque": "command"}
+    kw = _measured_inputs(cfg, x)
     for a, b in zip(_kernel(cfg, None, x, **kw), _kernel(cfg, True, x, **kw)):
         assert np.array_equal(a, b)
 
