@@ -329,3 +329,53 @@ def test_the_discretization_on_one_blas_thread_is_the_same_bits():
         with one_blas_thread():
             single = scipy.linalg.expm(block * dt)
         assert np.array_equal(threaded, single)
+
+
+def _blas_threads_now() -> list[int]:
+    """This thread's OpenBLAS thread count of each loaded library (the setter returns the old one)."""
+    from hil.sim_plant.blas_threads import blas_thread_setters
+    out = []
+    for fn in blas_thread_setters():
+        n = fn(1)
+        fn(n)
+        out.append(n)
+    return out
+
+
+def test_the_chain_and_the_diagnosis_run_on_one_blas_thread():
+    """hil.ident's diagnosis and chain (and hil fleet's record) hold the fits' BLAS to one thread,
+    and give the caller's setting back on return."""
+    from hil.ident.chain import diagnose_chain
+    from hil.ident.diagnosis import diagnose
+    from hil.sim_plant.blas_threads import blas_thread_setters, one_blas_thread
+    if not blas_thread_setters():
+        pytest.skip("no OpenBLAS with a thread-local setting in this process")
+    for fn in (diagnose, diagnose_chain):
+        assert getattr(fn, "__wrapped__", None) is not None, fn
+    before = _blas_threads_now()
+    seen = one_blas_thread()(_blas_threads_now)()
+    assert seen == [1] * len(before) and _blas_threads_now() == before
+
+
+def test_the_fits_linear_algebra_on_one_blas_thread_is_the_same_bits():
+    """The fits' BLAS work on one thread against the library's default threads: least squares on a
+    tall matrix (a Jacobian's columns) and its products the same bits; the position periodogram
+    (Lomb-Scargle: 1500-long dot products, which two threads sum in another order, so its values
+    may differ in the last bit) the same periods, amplitudes and phases."""
+    from hil.ident.residual import periodic_in_position
+    from hil.sim_plant.blas_threads import one_blas_thread
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 6.0, 2400)
+    x = 0.1 * np.sin(2 * np.pi * 0.4 * t) ** 2
+    r = 1e-6 * np.sin(2 * np.pi * x / 0.004) + 1e-7 * rng.standard_normal(t.size)
+    J = rng.standard_normal((6000, 7))
+    e = rng.standard_normal(6000)
+
+    def work():
+        return (periodic_in_position(x, r, t, n=3), np.linalg.lstsq(J, e, rcond=None)[0], J.T @ J, J.T @ e, e @ e)
+    threaded = work()
+    with one_blas_thread():
+        single = work()
+    assert threaded[0] == single[0] and len(single[0]) == 3
+    for a, b in zip(threaded[1:], single[1:]):
+        assert np.array_equal(a, b)

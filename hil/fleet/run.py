@@ -147,6 +147,7 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
     try:
         from hil.ident.chain import diagnose_chain
         from hil.ident.replay import Replay
+        from hil.sim_plant.blas_threads import one_blas_thread
         meas = _read(data, task.record, cfg, settings.mapping)
         rp = Replay(meas, cfg)
         fig = {"samples": int(meas.channels["t"].size) if hasattr(meas, "channels") else None}
@@ -162,7 +163,8 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
                        above_floor=d["final"]["above_floor"], at_noise_floor=bool(d["final"]["at_noise_floor"]),
                        chain=[{"step": s.step, "effects": s.effects, "params": s.params, "score": s.score}
                               for s in d["chain"]])
-        vals, ses = _tracked(rp, settings.track, settings.fit_nfev)
+        with one_blas_thread():
+            vals, ses = _tracked(rp, settings.track, settings.fit_nfev)
         fig["values"] = {k: float(v) for k, v in vals.items()}
         fig["stderr"] = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in ses.items()}
         return key, fig

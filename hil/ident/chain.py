@@ -130,6 +130,7 @@ from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.tolerance import TOLERANCE, is_drift, within_tolerance
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate, default_parameters, effect_values, measurement_key, without_replaced
+from hil.sim_plant.blas_threads import one_blas_thread
 
 logger = logging.getLogger(__name__)
 
@@ -654,6 +655,7 @@ def _weighted(replay, res) -> float:
     return float(np.sum(replay.objective.vector(res) ** 2))
 
 
+@one_blas_thread()
 def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_STEPS, progress=None,
                    jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, holdout=None, **kw) -> dict:
     """The chain on a record (see the module's definition).

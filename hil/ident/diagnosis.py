@@ -47,6 +47,7 @@ from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import at_noise_floor, gap_closed, residual_evidence
 from hil.plant_config import candidate, default_parameters
+from hil.sim_plant.blas_threads import one_blas_thread
 from hil.sim_plant.effects import CATALOGUE
 
 logger = logging.getLogger(__name__)
@@ -72,6 +73,7 @@ def is_open_loop(replay) -> bool:
     return all(getattr(p, "open_loop", False) for p in getattr(replay, "parts", [replay]))
 
 
+@one_blas_thread()
 def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_nfev: int = 30,
              jobs: int | None = None, screen_nfev: int = 6, refine: int = 3, min_gap: float = 0.0) -> dict:
     """Try every candidate; returns {"candidates": [...ranked Candidate], "verdict": name | "none" |
