@@ -13,6 +13,7 @@ replaces, bit for bit.
   the loop.
 """
 import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -379,3 +380,31 @@ def test_the_fits_linear_algebra_on_one_blas_thread_is_the_same_bits():
     assert threaded[0] == single[0] and len(single[0]) == 3
     for a, b in zip(threaded[1:], single[1:]):
         assert np.array_equal(a, b)
+
+
+def test_cached_loops_are_dropped_when_the_stages_they_inline_change(tmp_path):
+    """numba checks a cached loop against its own file alone: where hil.control's or the kernel's
+    sources change, the loops that inline them (control, simulate, drivers/sim) are removed from the
+    cache, once; other modules' caches and the sources' own stay."""
+    from hil.sim_plant.kernel import INLINED_SOURCES, SOURCES_STAMP, drop_stale_compiled_loops
+    for f in INLINED_SOURCES:
+        (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / f).write_text("def stage(): return 1\n")
+
+    def cached():
+        names = ["__pycache__/simulate._cycles-151.py311.nbi", "__pycache__/simulate._cycles-151.py311.3.nbc",
+                 "__pycache__/control.position_stage-90.py311.nbi", "drivers/__pycache__/sim.drive_cycle-60.py311.nbi",
+                 "sim_plant/__pycache__/kernel.plant_step-200.py311.nbi", "sweep/__pycache__/transmission.f-1.py311.nbi"]
+        for n in names:
+            (tmp_path / n).parent.mkdir(parents=True, exist_ok=True)
+            (tmp_path / n).write_text("")
+        return names
+    names = cached()
+    assert sorted(Path(p).relative_to(tmp_path).as_posix() for p in drop_stale_compiled_loops(tmp_path)) == sorted(names[:4])
+    assert (tmp_path / SOURCES_STAMP).is_file()
+    assert all((tmp_path / n).exists() for n in names[4:])
+    cached()
+    assert drop_stale_compiled_loops(tmp_path) == []          # the same sources: the cache stands
+    (tmp_path / "control.py").write_text("def stage(): return 2\n")
+    assert len(drop_stale_compiled_loops(tmp_path)) == 4
+    assert drop_stale_compiled_loops(tmp_path) == []

@@ -9,7 +9,7 @@ block with OpenBLAS's thread-local count set to 1 and puts it back after; the ar
 
 The diagnosis (hil.ident's ``diagnose`` and ``diagnose_chain``, hil fleet's records) runs on one
 thread too: OpenBLAS's threads spun on its thin products (a Jacobian's columns, the position
-periodogram's 1500 x 1500 product) for a fifth of its CPU time and gave no wall time back, and in a
+periodogram's 1500 x 1500 product) for a quarter of its CPU time and gave no wall time back, and in a
 pool that fills the cores (hil fleet, hil diagnose --jobs) that CPU is the other workers'. One
 thread also makes the periodogram's long dot products the same sums on every machine, whatever
 its cores (two threads add the halves of each in another order: the last bit, never its peaks).

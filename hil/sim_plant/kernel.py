@@ -32,10 +32,21 @@ counting, and with it each inlined stage took a reference to every array it was 
 back, each velocity step (atomic operations that numba could not pair across the loop over the
 effect table: some 14 arrays, taken and given back, in 60 % of the time of a torque ripple's run
 under perf).
+
+numba keys a cached compiled function by the stamp of its own source file alone (numba issue 1833):
+the loops of hil.control, hil.simulate and hil.drivers.sim inline the stages of this module and
+of hil.control, so a checkout where those changed and the callers did not (a branch switched, a
+stage edited) would load the loops compiled with the old stages, and give other numbers, silently.
+:func:`drop_stale_compiled_loops` keeps a hash of the inlined sources beside the package's cache
+and, where it differs, removes the callers' cached loops before numba looks (they compile anew).
 """
 from __future__ import annotations
 
+import glob
+import hashlib
 import math
+import os
+from pathlib import Path
 
 import numpy as np
 from numba import njit
@@ -47,9 +58,43 @@ __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQ
            "ENCODER_ERROR", "MOTOR_ENCODER", "TABLE_ENCODER", "encoder_error", "encoder_rows", "reading",
            "reading_speed", "LOAD_FRICTION", "dry_friction",
            "empty_effects", "effect_table", "time_delay", "feedback_delay", "link_compliance", "effect_forces",
-           "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token", "njit_cycle"]
+           "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token", "njit_cycle",
+           "drop_stale_compiled_loops"]
 
 N_EFFECT_PARAMS = 8
+
+# the sources whose stages other files' compiled loops inline, and those loops' cache files (numba's
+# in-tree cache: <folder>/__pycache__/<module>.<function>-<line>.py<ver>.nbi / .nbc), from hil/
+INLINED_SOURCES = ("sim_plant/kernel.py", "control.py")
+INLINING_CACHES = ("__pycache__/control.", "__pycache__/simulate.", "drivers/__pycache__/sim.")
+SOURCES_STAMP = "__pycache__/numba-inlined-sources.sha256"
+
+
+def drop_stale_compiled_loops(root: Path | None = None) -> list[str]:
+    """Remove the cached compiled loops of :data:`INLINING_CACHES` where the sources they inline
+    (:data:`INLINED_SOURCES`) are not those they were compiled from (the module's definitions): a
+    hash of the sources is kept in ``SOURCES_STAMP``. ``root``: the package's folder (hil/). Returns
+    the files removed. Nothing where the package's folder cannot be written (an installed package:
+    numba caches elsewhere, and an install writes every source anew, which numba sees)."""
+    root = Path(__file__).resolve().parents[1] if root is None else Path(root)
+    try:
+        digest = hashlib.sha256(b"".join((root / f).read_bytes() for f in INLINED_SOURCES)).hexdigest()
+        stamp = root / SOURCES_STAMP
+        if stamp.is_file() and stamp.read_text().strip() == digest:
+            return []
+        gone = []
+        for prefix in INLINING_CACHES:
+            for f in sorted(glob.glob(glob.escape(str(root / prefix)) + "*.nb[ic]")):
+                os.remove(f)
+                gone.append(f)
+        stamp.parent.mkdir(exist_ok=True)
+        stamp.write_text(digest + "\n")
+        return gone
+    except OSError:
+        return []
+
+
+drop_stale_compiled_loops()
 
 
 def _without_refcount() -> dict:
