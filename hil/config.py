@@ -110,6 +110,7 @@ _NUMBERED = {"m": ("mass", "mass {i} of the chain (1: motor reflected to the loa
              "k": ("stiffness", "stiffness between mass {i} and mass {j}"),
              "c": ("damping", "damping between mass {i} and mass {j}")}
 _NUMBERED_RE = re.compile(r"^plant\.([mkc])([1-9][0-9]*)$")
+_CHAIN_KEYS = ("plant.table_mass", "plant.tip_mass")     # the chain's checks read these beside the numbered keys
 
 SCHEMA: dict[str, Field] = {
     # --- plant: the lumped chain ---------------------------------------------------------
@@ -616,7 +617,9 @@ class Config:
         # the values it keeps are validated already: only the changed ones are converted again (the
         # same values: a validated value converts to itself; a kind depends on actuator.type alone)
         known = None if "actuator.type" in changes else self.values
-        return _validate(raw, source or self.source, known)
+        # the chain's keys unchanged: the chain this config passed is the same
+        chain = any(k in _CHAIN_KEYS or _NUMBERED_RE.match(k) for k in changes) or known is None
+        return _validate(raw, source or self.source, known, check_chain=chain)
 
     def without(self, prefix: str) -> "Config":
         raw = {k: v for k, v in self.values.items() if not k.startswith(prefix) and v is not None}
@@ -658,11 +661,13 @@ def _toml_value(value, f: Field | None, values: dict) -> str:
     return repr(value)
 
 
-def _validate(raw: dict[str, Any], where: str, known: dict[str, Any] | None = None) -> Config:
+def _validate(raw: dict[str, Any], where: str, known: dict[str, Any] | None = None,
+              check_chain: bool = True) -> Config:
     """The config of the raw values ``raw`` (units as written), converted to SI and checked; ``known``:
     the values of a validated config with the same ``actuator.type``, whose entries that ``raw``
     holds unchanged (the same object) are taken as they are (:meth:`Config.with_values`: a fit
-    changes a few keys of a config thousands of times)."""
+    changes a few keys of a config thousands of times); ``check_chain`` False: the chain's keys are
+    those of ``known``'s config, which passed its checks."""
     values: dict[str, Any] = {}
     # actuator.type first: other kinds depend on it
     if "actuator.type" in raw:
@@ -692,7 +697,8 @@ def _validate(raw: dict[str, Any], where: str, known: dict[str, Any] | None = No
                 unit = SI_UNIT.get(kind, kind)
                 raise ConfigError(f"{where}: missing required key {key!r} ({f.doc}; a {kind.replace('_', ' ')} in {unit})")
             values[key] = copy.deepcopy(f.default)
-    _check_chain(values, where)
+    if check_chain:
+        _check_chain(values, where)
     _check_consistency(values, where)
     return Config(values, where)
 

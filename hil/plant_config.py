@@ -80,16 +80,17 @@ _NOISE_KINDS = NOISE_KINDS
 def _configured_effects(cfg: Config):
     """(section name, effect, values) of every ``[effects.<name>]`` section of the config, checked
     against the parameters' ranges (an old name, e.g. ``time_delay``, gives its catalogue effect)."""
-    names = []
-    for key in cfg.keys():
-        if key.startswith("effects.") and cfg.values[key] is not None:
-            name = key.split(".")[1]
-            if name not in names:
+    names, sections = [], {}
+    for key, v in cfg.values.items():     # one pass: each [effects.<name>] section, as Config.section
+        if key.startswith("effects."):
+            name, _, rest = key[8:].partition(".")
+            sections.setdefault(name, {})[rest] = v
+            if v is not None and name not in names:
                 names.append(name)
     out = []
     for name in names:
         eff = effect(name)
-        sect = cfg.section(f"effects.{name}")
+        sect = sections[name]
         values = {p.name: p.number(sect.get(p.name, p.guess)) for p in eff.params}
         for p in eff.params:
             v = values[p.name]

@@ -225,6 +225,15 @@ def test_a_changed_config_is_checked_as_before():
         CFG.with_values({"plant.k2": -1.0})
     with pytest.raises(ConfigError, match="plant.c3"):
         CFG.with_values({"plant.m4": 2.0, "plant.k3": 2e4})
+    # the chain's checks run where a change touches the chain's keys (else the chain is the one
+    # the config passed): a mass taken away, a tip or table mass beyond the chain
+    with pytest.raises(ConfigError, match="unknown key 'plant.k2'"):
+        CFG.with_values({"plant.m3": None})
+    with pytest.raises(ConfigError, match="plant.tip_mass"):
+        CFG.with_values({"plant.tip_mass": CFG.n_masses + 1})
+    with pytest.raises(ConfigError, match="plant.table_mass"):
+        CFG.with_values({"plant.k2": 3e4}).with_values({"plant.table_mass": 7})
+    assert CFG.with_values({"plant.k2": 3e4}).n_masses == CFG.n_masses
     linear = CFG.with_values({"actuator.type": "linear", "actuator.gain": 100.0, "plant.pitch": None})
     assert linear.values["friction.viscous"] == CFG.values["friction.viscous"] and not linear.rotary
 
