@@ -369,9 +369,8 @@ def test_the_chain_and_the_diagnosis_run_on_one_blas_thread():
 
 def test_the_fits_linear_algebra_on_one_blas_thread_is_the_same_bits():
     """The fits' BLAS work on one thread against the library's default threads: least squares on a
-    tall matrix (a Jacobian's columns) and its products the same bits; the position periodogram
-    (Lomb-Scargle: 1500-long dot products, which two threads sum in another order, so its values
-    may differ in the last bit) the same periods, amplitudes and phases."""
+    tall matrix (a Jacobian's columns) and its products the same bits; the periods the position
+    periodogram finds, with their amplitudes and phases (least squares), the same."""
     from hil.ident.residual import periodic_in_position
     from hil.sim_plant.blas_threads import one_blas_thread
     rng = np.random.default_rng(3)

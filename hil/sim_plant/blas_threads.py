@@ -8,11 +8,11 @@ block with OpenBLAS's thread-local count set to 1 and puts it back after; the ar
 10 x 10 product or solve is the one thread's either way (the same bits: tests/test_speed_identity.py).
 
 The diagnosis (hil.ident's ``diagnose`` and ``diagnose_chain``, hil fleet's records) runs on one
-thread too: OpenBLAS's threads spun on its thin products (a Jacobian's columns, the position
-periodogram's 1500 x 1500 product) for a quarter of its CPU time and gave no wall time back, and in a
-pool that fills the cores (hil fleet, hil diagnose --jobs) that CPU is the other workers'. One
-thread also makes the periodogram's long dot products the same sums on every machine, whatever
-its cores (two threads add the halves of each in another order: the last bit, never its peaks).
+thread too: OpenBLAS's threads spun on its thin products (a Jacobian's columns, and then scipy's
+position periodogram, a 1500 x 1500 product, since compiled: hil.ident.residual) for a quarter of
+its CPU time and gave no wall time back, and in a pool that fills the cores (hil fleet, hil
+diagnose --jobs) that CPU is the other workers'. One thread also makes long dot products the same
+sums on every machine, whatever its cores (two threads add the halves of each in another order).
 
 The OpenBLAS libraries are the ones loaded in this process (numpy's and scipy's wheels bundle
 their own; their symbols carry a prefix, ``scipy_openblas_...``), found once from

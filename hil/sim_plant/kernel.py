@@ -74,11 +74,14 @@ def drop_stale_compiled_loops(root: Path | None = None) -> list[str]:
     """Remove the cached compiled loops of :data:`INLINING_CACHES` where the sources they inline
     (:data:`INLINED_SOURCES`) are not those they were compiled from (the module's definitions): a
     hash of the sources is kept in ``SOURCES_STAMP``. ``root``: the package's folder (hil/). Returns
-    the files removed. Nothing where the package's folder cannot be written (an installed package:
-    numba caches elsewhere, and an install writes every source anew, which numba sees)."""
+    the files removed. Nothing where the package's folder cannot be written: numba then caches in
+    the user's cache folder (or ``NUMBA_CACHE_DIR``, always, where it is set), which this does not
+    look into. Nor does it stop a process started before the edit from saving loops compiled with
+    the old stages after this has run (numba's index of the caller's unchanged file accepts them)."""
     root = Path(__file__).resolve().parents[1] if root is None else Path(root)
     try:
-        digest = hashlib.sha256(b"".join((root / f).read_bytes() for f in INLINED_SOURCES)).hexdigest()
+        digest = hashlib.sha256(b"".join(f.encode() + b"\0" + (root / f).read_bytes() + b"\0"
+                                         for f in INLINED_SOURCES)).hexdigest()
         stamp = root / SOURCES_STAMP
         if stamp.is_file() and stamp.read_text().strip() == digest:
             return []
