@@ -12,6 +12,9 @@ with its excitation, measurement noise and per-period record, which the simulati
 from __future__ import annotations
 
 import os
+import threading
+import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -102,7 +105,7 @@ class Record(NamedTuple):
     x_cmd: np.ndarray
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
                        exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None, u_add=None, f_ext=None,
                        open_loop=False, speed_filter=None, log_command=False, masses=None, enc=None):
@@ -440,12 +443,93 @@ def closed_loop_batch(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, h
                                speed_filter, log_command, masses)
 
 
+# per thread: whether its batches run on it alone (batches_on_this_thread)
+_THIS_THREAD = threading.local()
+
+
+@contextmanager
+def batches_on_this_thread():
+    """Within the block, the calling thread runs its batches alone (:func:`batch_threads` is 1 there):
+    a thread of a pool that already shares the cores (hil.ident.parallel: candidates fitted at once)."""
+    before = getattr(_THIS_THREAD, "alone", False)
+    _THIS_THREAD.alone = True
+    try:
+        yield
+    finally:
+        _THIS_THREAD.alone = before
+
+
+class _OthersLoad:
+    """The cores the other processes kept busy lately: the busy time of every CPU (``/proc/stat``)
+    less this process's CPU time (all its threads), over a span of at least ``SPAN`` s since the
+    last reading (the first from the module's import; anew in a forked child, whose CPU time starts
+    again, and after ``STALE`` s without a reading); None where ``/proc/stat`` cannot be read or no
+    span has passed yet. The load
+    average says the same a minute late: a process that had just used two cores, or a diagnosis
+    started after one, saw it as another's load and ran on one thread (a second ``hil diagnose``
+    after the benchmark's chains: 8.9 s against 4.5 s)."""
+
+    SPAN = 0.5          # s, the shortest span read (the clock's ticks are 10 ms)
+    RENEW = 2.0         # s, after which a span starts again from the last reading
+    STALE = 10.0        # s, a span this long is dropped (a process that waited for its workers)
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        try:
+            self._hz = float(os.sysconf("SC_CLK_TCK"))
+        except (AttributeError, ValueError, OSError):      # pragma: no cover - not POSIX
+            self._hz = 0.0
+        self._start()
+
+    @staticmethod
+    def _busy(hz: float) -> float | None:
+        """Seconds of every CPU's busy time (user, nice, system, irq, softirq, steal) since boot."""
+        try:
+            with open("/proc/stat") as f:
+                v = [int(x) for x in f.readline().split()[1:9]]
+        except (OSError, ValueError):
+            return None
+        if len(v) < 8 or not hz:
+            return None
+        return (v[0] + v[1] + v[2] + v[5] + v[6] + v[7]) / hz
+
+    def _start(self) -> None:
+        self.pid, self.t, self.cpu, self.busy = os.getpid(), time.monotonic(), time.process_time(), self._busy(self._hz)
+        self.value = None
+
+    def __call__(self) -> float | None:
+        with self._lock:
+            if os.getpid() != self.pid:
+                self._start()
+            if self.busy is None:
+                return None
+            now = time.monotonic()
+            if now - self.t > self.STALE:      # no reading for long: what it says is not recent
+                self._start()
+                return None
+            if now - self.t >= self.SPAN:
+                cpu, busy = time.process_time(), self._busy(self._hz)
+                if busy is None:
+                    return None
+                self.value = max(0.0, (busy - self.busy) - (cpu - self.cpu)) / (now - self.t)
+                if now - self.t >= self.RENEW:
+                    self.t, self.cpu, self.busy = now, cpu, busy
+            return self.value
+
+
+_others_load = _OthersLoad()
+
+
 def batch_threads() -> int:
-    """Threads that share a batch (:func:`simulate_many`): ``HIL_THREADS`` when set, else the cores
-    that are idle: the CPUs this process may use less the others' load (the 1-minute load average
-    less this process), at least 1. On a busy machine, or in a worker of a pool that fills the cores
-    (hil fleet, hil diagnose --jobs), threads would only wait for each other: a batch is as slow as
-    its last range (bench_fleet at load 8: 34 s for the 6 s chain with 2 threads, 27 s with 1)."""
+    """Threads that share a batch (:func:`simulate_many`): 1 within :func:`batches_on_this_thread`;
+    ``HIL_THREADS`` when set, else the cores that are idle: the CPUs this process may use less the
+    others' load, rounded (:class:`_OthersLoad`; where it cannot say, the 1-minute load average
+    less this process), at least 1. On a busy machine, or in a worker of a pool that fills the
+    cores (hil fleet, hil diagnose --jobs), threads would only wait for each other: a batch is as
+    slow as its last range (bench_fleet at load 8: 34 s for the 6 s chain with 2 threads, 27 s
+    with 1)."""
+    if getattr(_THIS_THREAD, "alone", False):
+        return 1
     env = os.environ.get("HIL_THREADS", "").strip()
     if env:
         try:
@@ -456,8 +540,9 @@ def batch_threads() -> int:
         cpus = len(os.sched_getaffinity(0))
     except AttributeError:          # pragma: no cover - platforms without affinity
         cpus = os.cpu_count() or 1
+    others = _others_load()
     try:
-        busy = int(os.getloadavg()[0] + 0.5) - 1
+        busy = int(others + 0.5) if others is not None else int(os.getloadavg()[0] + 0.5) - 1
     except OSError:                 # pragma: no cover - platforms without a load average
         busy = 0
     return max(1, min(cpus, cpus - busy))

@@ -87,8 +87,10 @@ def test_batched_fit_takes_the_one_by_one_path(replay, name, monkeypatch):
     """The fit (its grid of starts and its Jacobians batched) ends where scipy's own scheme does,
     evaluation for evaluation: the same parameters, standard errors, residuals and count."""
     monkeypatch.setenv("HIL_BATCH", "1")
+    replay.objective.known_costs.clear()        # each path costs its grid itself
     batched = evaluate(replay, name, max_nfev=8)
     monkeypatch.setenv("HIL_BATCH", "0")
+    replay.objective.known_costs.clear()
     _same_candidate(batched, evaluate(replay, name, max_nfev=8))
 
 
@@ -109,8 +111,10 @@ def test_a_failing_start_costs_infinity_the_others_theirs(replay, monkeypatch):
     eff = candidate("parameter:plant.k2", CFG)
     starts = [{"value": CFG["plant.k2"]}, {"value": -1.0}, {"value": 1.2 * CFG["plant.k2"]}]
     monkeypatch.setenv("HIL_BATCH", "1")
+    replay.objective.known_costs.clear()
     got = _costs(eff, replay, starts, CFG)
     monkeypatch.setenv("HIL_BATCH", "0")
+    replay.objective.known_costs.clear()
     assert got == _costs(eff, replay, starts, CFG)
     assert got[1] == np.inf and np.isfinite(got[0]) and np.isfinite(got[2])
 
@@ -133,7 +137,9 @@ def test_a_worker_forked_after_a_batch_runs_batches(monkeypatch):
 
 
 def test_batch_threads_from_the_environment_or_the_idle_cores(monkeypatch):
+    import hil.simulate as sim
     from hil.simulate import batch_threads
+    monkeypatch.setattr(sim, "_others_load", lambda: None)     # the load average's rule
     monkeypatch.setenv("HIL_THREADS", "3")
     assert batch_threads() == 3
     monkeypatch.setenv("HIL_THREADS", "two")

@@ -210,7 +210,7 @@ JSON_KEYS = {
 def add_arguments(parser) -> None:
     add_common(parser, records=True)
     parser.add_argument("--candidates", metavar="EFFECTS", default=None, help="comma-separated candidates (default: the whole catalogue)")
-    parser.add_argument("--jobs", metavar="N", type=int, default=None, help="processes (default: the CPUs)")
+    parser.add_argument("--jobs", metavar="N", type=int, default=None, help="worker processes (default: this process, the fits on the idle cores' threads)")
     parser.add_argument("--max-steps", "--steps", dest="max_steps", type=int, default=4, metavar="N",
                         help="at most N steps in the chain, each a diagnosis that adds its verdict (default 4; "
                              "1: the single diagnosis, as --no-chain)")

@@ -121,6 +121,7 @@ def _tracked(rp, track, fit_nfev):
     """The tracked effects fitted together on the start model: ({effect.param: value},
     {effect.param: standard error})."""
     from hil.ident.fit import evaluate, fit_effects
+    from hil.ident.parallel import in_threads
     if not track:
         return {}, {}
     # the greedy order by what each effect explains alone, largest first: fitted first on a record
@@ -128,7 +129,7 @@ def _tracked(rp, track, fit_nfev):
     # that effect's residual, not its own, and a backlash collapsed to no gap
     order = list(track)
     if len(order) > 1:
-        gains = {e: evaluate(rp, e, max_nfev=fit_nfev).gain for e in order}
+        gains = dict(zip(order, (c.gain for c in in_threads(lambda e: evaluate(rp, e, max_nfev=fit_nfev), order))))
         order.sort(key=lambda e: -gains[e])
     _, steps = fit_effects(rp, order, max_nfev=fit_nfev)
     last = steps[-1]
@@ -145,26 +146,19 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
     """The figures of one record (see the module's conventions): ``(key, figures)``."""
     import math
     try:
-        from hil.ident.chain import diagnose_chain
+        from hil.ident.parallel import Beside
         from hil.ident.replay import Replay
-        from hil.sim_plant.blas_threads import one_blas_thread
         meas = _read(data, task.record, cfg, settings.mapping)
         rp = Replay(meas, cfg)
         fig = {"samples": int(meas.channels["t"].size) if hasattr(meas, "channels") else None}
-        if settings.max_steps >= 1:
-            cands = list(settings.candidates) if settings.candidates else None
-            d = diagnose_chain(rp, cands, max_steps=settings.max_steps, jobs=1, fit_nfev=settings.fit_nfev)
-            named = []
-            for s in d["chain"]:        # what the model holds: less what a later step dropped
-                gone = {x["effect"] for x in s.dropped or []}
-                named = [e for e in named + s.effects if e not in gone]
-            fig.update(verdict=d["verdict"], named=named, end=d["final"]["end"],
-                       final_error=d["final"]["error"], noise_floor=d["final"]["noise_floor"],
-                       above_floor=d["final"]["above_floor"], at_noise_floor=bool(d["final"]["at_noise_floor"]),
-                       chain=[{"step": s.step, "effects": s.effects, "params": s.params, "score": s.score}
-                              for s in d["chain"]])
-        with one_blas_thread():
-            vals, ses = _tracked(rp, settings.track, settings.fit_nfev)
+        # the tracked fit does not depend on the chain: on a core the chain leaves idle
+        tracked = Beside(lambda: _tracked(rp, settings.track, settings.fit_nfev))
+        try:
+            _chain_figures(fig, rp, settings)
+        except BaseException:
+            tracked.wait()
+            raise
+        vals, ses = tracked.result()
         fig["values"] = {k: float(v) for k, v in vals.items()}
         fig["stderr"] = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in ses.items()}
         return key, fig
@@ -173,8 +167,32 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
         return key, {"error": f"{task.record}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"}
 
 
-def _chunk(items):
-    return [diagnose_record(*it) for it in items]
+def _chain_figures(fig: dict, rp, settings: Settings) -> None:
+    """The chain's figures of a record into ``fig`` (none where ``max_steps`` is 0)."""
+    from hil.ident.chain import diagnose_chain
+    if settings.max_steps >= 1:
+        cands = list(settings.candidates) if settings.candidates else None
+        d = diagnose_chain(rp, cands, max_steps=settings.max_steps, jobs=1, fit_nfev=settings.fit_nfev)
+        named = []
+        for s in d["chain"]:        # what the model holds: less what a later step dropped
+            gone = {x["effect"] for x in s.dropped or []}
+            named = [e for e in named + s.effects if e not in gone]
+        fig.update(verdict=d["verdict"], named=named, end=d["final"]["end"],
+                   final_error=d["final"]["error"], noise_floor=d["final"]["noise_floor"],
+                   above_floor=d["final"]["above_floor"], at_noise_floor=bool(d["final"]["at_noise_floor"]),
+                   chain=[{"step": s.step, "effects": s.effects, "params": s.params, "score": s.score}
+                          for s in d["chain"]])
+
+
+def _chunk(items, alone: bool = False):
+    """The records ``items`` in a worker of the pool; ``alone``: the pool's workers fill the cores,
+    so each runs its fits and batches on its own thread (hil.simulate.batches_on_this_thread)
+    rather than by the load average, which lags the pool's start by a minute."""
+    from hil.simulate import batches_on_this_thread
+    if not alone:
+        return [diagnose_record(*it) for it in items]
+    with batches_on_this_thread():
+        return [diagnose_record(*it) for it in items]
 
 
 class LocalExecutor:
@@ -195,7 +213,8 @@ class LocalExecutor:
         except ValueError:          # pragma: no cover - platforms without fork
             ctx = None
         self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx)
-        futs = [self.pool.submit(_chunk, [it]) for it in items]
+        alone = self.jobs >= (os.cpu_count() or 1)
+        futs = [self.pool.submit(_chunk, [it], alone) for it in items]
         try:
             for fut in as_completed(futs):
                 yield from fut.result()

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -80,7 +79,8 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     "unexplained", "noise_floor": {...}, "error_before": {...}, "gap_closed": share, ...}.
 
     Every candidate is first fitted briefly (``screen_nfev`` evaluations), then the ``refine``
-    best are fitted fully (``max_nfev``); ``jobs`` processes share the work (default: the CPUs).
+    best are fitted fully (``max_nfev``); ``jobs`` processes share the work (default: this process,
+    the candidates fitted on the idle cores' threads, hil.ident.parallel.in_threads).
     The verdict is ``"none"`` when every channel is at its noise floor (hil.ident.unexplained);
     ``"unexplained"`` when it is not and no candidate is significant or the leading one closes
     less than ``min_gap`` of the gap between the error and the floor (then ``residual`` holds the
@@ -90,7 +90,7 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
     cfg = replay.cfg
     res0 = replay.residuals(cfg)
     names = names or candidate_names(cfg, replay.plant, open_loop=is_open_loop(replay))
-    jobs = jobs or os.cpu_count() or 1
+    jobs = jobs or 1
     # the costly candidates first, so that the processes finish together
     names = sorted(names, key=lambda n: -_cost_hint(n, cfg))
     # an added mode starts from the residual's peaks and from a grid, two basins apart: both screened

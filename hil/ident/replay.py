@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from collections import OrderedDict
 
 import numpy as np
@@ -388,24 +389,29 @@ class SimulationCache:
     def __init__(self, size: int | None = None):
         self.size = SIM_CACHE_SIZE if size is None else int(size)
         self._items: OrderedDict = OrderedDict()
+        # candidates fitted on threads share it (hil.ident.parallel): a lookup and its move to the
+        # end, an insertion and its evictions, each whole
+        self._lock = threading.Lock()
         self.hits = 0
         self.misses = 0
 
     def get(self, key):
         """The channels of ``key``, or None."""
-        ch = self._items.get(key)
-        if ch is None:
-            self.misses += 1
-            return None
-        self.hits += 1
-        self._items.move_to_end(key)
-        return ch
+        with self._lock:
+            ch = self._items.get(key)
+            if ch is None:
+                self.misses += 1
+                return None
+            self.hits += 1
+            self._items.move_to_end(key)
+            return ch
 
     def put(self, key, channels: dict) -> None:
-        self._items[key] = channels
-        self._items.move_to_end(key)
-        while len(self._items) > self.size:
-            self._items.popitem(last=False)
+        with self._lock:
+            self._items[key] = channels
+            self._items.move_to_end(key)
+            while len(self._items) > self.size:
+                self._items.popitem(last=False)
 
     def __len__(self) -> int:
         return len(self._items)
@@ -451,6 +457,12 @@ def _open_loop_view(meas, cfg):
     view.channels["x_cmd"] = np.asarray(meas[pos], float).copy()
     view.open_loop_source = meas
     return view
+
+
+def config_key(cfg):
+    """Every value of the config (the loop's and the recording's artefacts): equal keys, equal
+    residuals."""
+    return tuple(sorted((k, repr(v)) for k, v in cfg.values.items()))
 
 
 def _loop_key(cfg):

@@ -67,7 +67,7 @@ import numpy as np
 
 from hil.ident.context import EffectContext
 from hil.ident.objective import batched
-from hil.ident.replay import Replay
+from hil.ident.replay import Replay, config_key
 from hil.ident.residual import periodic_in_position, spectrum_peaks
 from hil.plant_config import configure
 from hil.sim_plant.effects import Backlash, CompliantMode, Effect
@@ -305,9 +305,33 @@ def mode_targets(replay, res0: dict, chan: str | None = None, n: int = 6) -> lis
 
 
 def _costs(eff, replay, starts, cfg) -> list[float]:
+    """The weighted squared error of each start (one simulation each; inf where its model cannot be
+    configured or fails); those the objective knows already (Objective.known_costs) are not
+    simulated again."""
     obj = replay.objective
+    known = getattr(obj, "known_costs", None)
+    if known is None:
+        return _simulated_costs(eff, obj, starts, cfg)
+    cfgs = _configured(eff, cfg, starts)
+    keys = [None if c is None else config_key(c) for c in cfgs]
+    todo = [i for i, k in enumerate(keys) if k is None or k not in known]
+    got = iter(_simulated_costs(eff, obj, [starts[i] for i in todo], cfg, [cfgs[i] for i in todo]))
+    costs = [math.inf] * len(starts)
+    todo_set = set(todo)
+    for i, k in enumerate(keys):
+        if i in todo_set:
+            costs[i] = next(got)
+            if k is not None:
+                known[k] = costs[i]
+        else:
+            costs[i] = known[k]
+    return costs
+
+
+def _simulated_costs(eff, obj, starts, cfg, cfgs=None) -> list[float]:
+    """:func:`_costs` without what the objective knows; ``cfgs``: the starts' configs, where made."""
     if batched():       # the starts' loops in one compiled call (hil.ident.objective), the same numbers
-        return _costs_batched(eff, obj, starts, cfg)
+        return _costs_batched(eff, obj, starts, cfg, cfgs)
     costs = []
     for s in starts:
         try:
@@ -324,10 +348,10 @@ def _cost(obj, res) -> float:
     return math.inf if math.isnan(c) else c
 
 
-def _costs_batched(eff, obj, starts, cfg) -> list[float]:
+def _costs_batched(eff, obj, starts, cfg, cfgs=None) -> list[float]:
     """:func:`_costs` with the simulations in one batched call: a start whose model raises a
     ValueError costs infinity (any other error is raised, as one by one)."""
-    cfgs = _configured(eff, cfg, starts)
+    cfgs = _configured(eff, cfg, starts) if cfgs is None else cfgs
     got = iter(obj.residuals_many([c for c in cfgs if c is not None]))
     costs = []
     for c in cfgs:
