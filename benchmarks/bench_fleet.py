@@ -121,6 +121,9 @@ def main(argv=None) -> int:
             diagnose_record(record_key(data, cfg, settings), Task(entries[0].record, "w", "0", ""), data, cfg,
                             settings)
         os.environ["HIL_BATCH"] = "1"
+    # the threads of the timings that follow, as the idle cores are after the warm-up (the count at
+    # the end would see the --against processes' load)
+    out["batch_threads"] = batch_threads()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         if not args.chain_only:
@@ -217,7 +220,7 @@ def _against(args, tmp):
 def _print(args, out):
     fleet = "" if args.chain_only else f"{out['records']} records of {args.duration}, "
     print(f"load {out['load'][0]:.2f} {out['load'][1]:.2f} {out['load'][2]:.2f} on {out['cpus']} CPUs, "
-          f"{batch_threads()} batch threads; {fleet}candidates {args.candidates}, max steps {args.max_steps}")
+          f"{out['batch_threads']} batch threads at the start; {fleet}candidates {args.candidates}, max steps {args.max_steps}")
     for c in out["chain_vs_length"]:
         print(f"one record of {c['duration']} ({c['samples']} samples): {c['seconds']:.2f} s "
               f"({c['cpu_seconds']:.2f} s CPU)")
