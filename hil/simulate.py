@@ -460,8 +460,8 @@ def batches_on_this_thread():
 
 
 class _OthersLoad:
-    """The cores the other processes kept busy lately: the busy time of every CPU (``/proc/stat``)
-    less this process's CPU time (all its threads), over a span of at least ``SPAN`` s since the
+    """The cores the other processes kept busy lately: the busy time of the CPUs this process may
+    run on (``/proc/stat``) less this process's CPU time (all its threads), over a span of at least ``SPAN`` s since the
     last reading (the first from the module's import; anew in a forked child, whose CPU time starts
     again, and after ``STALE`` s without a reading); None where ``/proc/stat`` cannot be read or no
     span has passed yet. The load
@@ -479,22 +479,38 @@ class _OthersLoad:
             self._hz = float(os.sysconf("SC_CLK_TCK"))
         except (AttributeError, ValueError, OSError):      # pragma: no cover - not POSIX
             self._hz = 0.0
+        try:
+            self._cpus = frozenset(os.sched_getaffinity(0))     # the CPUs this process may run on
+        except AttributeError:          # pragma: no cover - platforms without affinity
+            self._cpus = None
         self._start()
 
     @staticmethod
-    def _busy(hz: float) -> float | None:
-        """Seconds of every CPU's busy time (user, nice, system, irq, softirq, steal) since boot."""
+    def _busy(hz: float, cpus=None) -> float | None:
+        """Seconds of busy time (user, nice, system, irq, softirq, steal) since boot of the CPUs
+        ``cpus`` (their ``cpuN`` lines; None: every CPU)."""
+        if not hz:
+            return None
+        total, seen = 0.0, False
         try:
             with open("/proc/stat") as f:
-                v = [int(x) for x in f.readline().split()[1:9]]
+                for line in f:
+                    if not line.startswith("cpu") or not line[3:4].isdigit():
+                        continue
+                    name, *fields = line.split()
+                    if cpus is not None and int(name[3:]) not in cpus:
+                        continue
+                    v = [int(x) for x in fields[:8]]
+                    if len(v) < 8:
+                        return None
+                    total += v[0] + v[1] + v[2] + v[5] + v[6] + v[7]
+                    seen = True
         except (OSError, ValueError):
             return None
-        if len(v) < 8 or not hz:
-            return None
-        return (v[0] + v[1] + v[2] + v[5] + v[6] + v[7]) / hz
+        return total / hz if seen else None
 
     def _start(self) -> None:
-        self.pid, self.t, self.cpu, self.busy = os.getpid(), time.monotonic(), time.process_time(), self._busy(self._hz)
+        self.pid, self.t, self.cpu, self.busy = os.getpid(), time.monotonic(), time.process_time(), self._busy(self._hz, self._cpus)
         self.value = None
 
     def __call__(self) -> float | None:
@@ -508,7 +524,7 @@ class _OthersLoad:
                 self._start()
                 return None
             if now - self.t >= self.SPAN:
-                cpu, busy = time.process_time(), self._busy(self._hz)
+                cpu, busy = time.process_time(), self._busy(self._hz, self._cpus)
                 if busy is None:
                     return None
                 self.value = max(0.0, (busy - self.busy) - (cpu - self.cpu)) / (now - self.t)

@@ -359,12 +359,37 @@ def test_the_chain_and_the_diagnosis_run_on_one_blas_thread():
     from hil.ident.diagnosis import diagnose
     from hil.sim_plant.blas_threads import blas_thread_setters, one_blas_thread
     if not blas_thread_setters():
-        pytest.skip("no OpenBLAS with a thread-local setting in this process")
+        pytest.skip("no OpenBLAS with openblas_set_num_threads_local in this process")
     for fn in (diagnose, diagnose_chain):
         assert getattr(fn, "__wrapped__", None) is not None, fn
     before = _blas_threads_now()
     seen = one_blas_thread()(_blas_threads_now)()
     assert seen == [1] * len(before) and _blas_threads_now() == before
+
+
+def test_one_blas_thread_holds_while_any_thread_is_inside():
+    """The setting is the process's (OpenBLAS's pthreads builds): a thread whose block ends while
+    another's goes on must not give the process its BLAS threads back; the last block restores."""
+    import threading
+
+    from hil.sim_plant.blas_threads import blas_thread_setters, one_blas_thread
+    if not blas_thread_setters():
+        pytest.skip("no OpenBLAS with openblas_set_num_threads_local in this process")
+    before = _blas_threads_now()
+    inside, leave = threading.Event(), threading.Event()
+
+    def other():
+        with one_blas_thread():
+            inside.set()
+            leave.wait(10)
+    t = threading.Thread(target=other)
+    with one_blas_thread():
+        t.start()
+        assert inside.wait(10)
+    assert _blas_threads_now() == [1] * len(before)      # this block ended, the other's goes on
+    leave.set()
+    t.join()
+    assert _blas_threads_now() == before
 
 
 def test_the_fits_linear_algebra_on_one_blas_thread_is_the_same_bits():

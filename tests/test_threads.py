@@ -140,7 +140,7 @@ def test_others_load_is_the_busy_cpus_less_this_process(monkeypatch):
     monkeypatch.setattr(sim.time, "monotonic", lambda: clock["t"])
     monkeypatch.setattr(sim.time, "process_time", lambda: clock["cpu"])
     monkeypatch.setattr(sim.os, "getpid", lambda: clock["pid"])
-    monkeypatch.setattr(sim._OthersLoad, "_busy", staticmethod(lambda hz: clock["busy"]))
+    monkeypatch.setattr(sim._OthersLoad, "_busy", staticmethod(lambda hz, cpus=None: clock["busy"]))
     others = sim._OthersLoad()
     assert others() is None                         # no span yet
     clock.update(t=100.3)
@@ -159,8 +159,27 @@ def test_others_load_is_the_busy_cpus_less_this_process(monkeypatch):
     assert others() == pytest.approx(0.1 / 0.6)
     clock.update(pid=4243)                          # a forked child starts a span of its own
     assert others() is None
-    monkeypatch.setattr(sim._OthersLoad, "_busy", staticmethod(lambda hz: None))
+    monkeypatch.setattr(sim._OthersLoad, "_busy", staticmethod(lambda hz, cpus=None: None))
     assert sim._OthersLoad()() is None              # no /proc/stat
+
+
+def test_busy_time_of_the_cpus_this_process_may_use(tmp_path, monkeypatch):
+    """The cpuN lines of /proc/stat of the allowed CPUs alone (a container's, a taskset's): user,
+    nice, system, irq, softirq and steal; not idle nor iowait."""
+    import builtins
+
+    import hil.simulate as sim
+    stat = tmp_path / "stat"
+    stat.write_text("cpu  900 0 300 5000 10 0 0 0 0 0\n"
+                    "cpu0 100 0 50 2000 5 1 2 3 0 0\n"
+                    "cpu1 800 0 250 3000 5 0 0 0 0 0\n"
+                    "intr 12345\n")
+    real_open = builtins.open
+    monkeypatch.setattr(builtins, "open", lambda f, *a, **k: real_open(stat if f == "/proc/stat" else f, *a, **k))
+    assert sim._OthersLoad._busy(100.0, {0}) == pytest.approx(1.56)
+    assert sim._OthersLoad._busy(100.0, None) == pytest.approx(12.06)
+    assert sim._OthersLoad._busy(100.0, {5}) is None
+    assert sim._OthersLoad._busy(0.0, None) is None
 
 
 @pytest.mark.parametrize("load, others, threads", [

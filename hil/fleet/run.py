@@ -213,7 +213,11 @@ class LocalExecutor:
         except ValueError:          # pragma: no cover - platforms without fork
             ctx = None
         self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx)
-        alone = self.jobs >= (os.cpu_count() or 1)
+        try:
+            cpus = len(os.sched_getaffinity(0))
+        except AttributeError:      # pragma: no cover - platforms without affinity
+            cpus = os.cpu_count() or 1
+        alone = self.jobs >= cpus
         futs = [self.pool.submit(_chunk, [it], alone) for it in items]
         try:
             for fut in as_completed(futs):

@@ -4,8 +4,8 @@ scipy's ``expm`` of the chain's 10 x 10 Van Loan block costs about 12 us on one 
 and 8 ms of CPU (18 ms wall) with OpenBLAS's default of one thread per core on a loaded two-core
 machine (issue 26: 389 discretizations, 3 s of CPU in one ``hil diagnose``): the threads are woken
 and waited for, and a matrix that small gives them nothing to share. :func:`one_blas_thread` runs a
-block with OpenBLAS's thread-local count set to 1 and puts it back after; the arithmetic of a
-10 x 10 product or solve is the one thread's either way (the same bits: tests/test_speed_identity.py).
+block with OpenBLAS's count set to 1 and puts it back after; the arithmetic of a 10 x 10 product or
+solve is the one thread's either way (the same bits: tests/test_speed_identity.py).
 
 The diagnosis (hil.ident's ``diagnose`` and ``diagnose_chain``, hil fleet's records) runs on one
 thread too: OpenBLAS's threads spun on its thin products (a Jacobian's columns, and then scipy's
@@ -19,12 +19,20 @@ their own; their symbols carry a prefix, ``scipy_openblas_...``), found once fro
 ``/proc/self/maps`` (Linux) or scipy's bundled library folder, and used through ``ctypes`` where
 they export ``openblas_set_num_threads_local`` (OpenBLAS 0.3.27 and later). Anywhere else (MKL,
 Accelerate, an older OpenBLAS) the block runs as it is.
+
+Despite its name, that setting is the whole process's in OpenBLAS's pthreads builds (the wheels'):
+set in one thread, every thread sees it. The diagnosis fits on several threads at once
+(hil.ident.parallel), so one thread's block ending must not give the others their BLAS threads
+back in the middle of a fit (a long dot product summed in halves: other bits). The blocks are
+therefore counted, process-wide: the first to enter sets 1, the last to leave restores the count
+it found. A thread outside any block while another is inside runs on one BLAS thread too.
 """
 from __future__ import annotations
 
 import ctypes
 import glob
 import os
+import threading
 from contextlib import contextmanager
 
 __all__ = ["one_blas_thread", "blas_thread_setters"]
@@ -70,13 +78,35 @@ def blas_thread_setters() -> list:
     return _SETTERS
 
 
+# the blocks inside one_blas_thread now (every thread's), and the counts the first one found
+_BLOCKS = {"depth": 0, "saved": []}
+_LOCK = threading.Lock()
+
+
+def _new_lock_in_child() -> None:
+    # a fork while another thread held the lock would leave it held in the child forever
+    global _LOCK
+    _LOCK = threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_new_lock_in_child)
+
+
 @contextmanager
 def one_blas_thread():
-    """Run the block on one OpenBLAS thread (this thread's setting), then restore it."""
+    """Run the block on one OpenBLAS thread; the count is restored when the last block of any
+    thread ends (the module's note: the setting is the process's)."""
     setters = blas_thread_setters()
-    old = [fn(1) for fn in setters]
+    with _LOCK:
+        if _BLOCKS["depth"] == 0:
+            _BLOCKS["saved"] = [fn(1) for fn in setters]
+        _BLOCKS["depth"] += 1
     try:
         yield
     finally:
-        for fn, n in zip(setters, old):
-            fn(n)
+        with _LOCK:
+            _BLOCKS["depth"] -= 1
+            if _BLOCKS["depth"] == 0:
+                for fn, n in zip(setters, _BLOCKS["saved"]):
+                    fn(n)
