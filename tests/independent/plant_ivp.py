@@ -51,6 +51,7 @@ __all__ = ["Bench", "Hidden", "bench_from_config", "simulate", "sine_square_move
 RTOL = 1e-9
 ATOL_X = 1e-12        # m
 ATOL_V = 1e-10        # m/s
+CHATTER_V = 1e-8      # m/s: a speed this small, changing direction 50 times in one interval, is a chatter
 
 
 @dataclass(frozen=True)
@@ -282,6 +283,18 @@ def _advance(pl: _Plant, y, mode, t0, t1, u_cmd):
     guard = 0
     while t < t1 - 1e-15:
         guard += 1
+        if guard > 50 and abs(y[n]) <= CHATTER_V:
+            # the motor at rest on a force discontinuity (the backlash's edge with the drive force
+            # at the friction level: a step either way sticks it again); Filippov's limit of the
+            # chatter is the motor held, here for the rest of the interval (at most one velocity
+            # period, a force within the level's tolerance of the events)
+            y = y.copy()
+            y[n] = 0.0
+            sol = solve_ivp(pl.rhs(0, u_cmd), (t, t1), y, method="RK45", rtol=RTOL, atol=atol, first_step=t1 - t)
+            if sol.status < 0:
+                raise RuntimeError(sol.message)
+            y, t, mode = sol.y[:, -1].copy(), t1, 0
+            break
         if guard > 50:
             raise RuntimeError("stick-slip: too many mode changes in one interval")
         if mode == 0:            # the torque jumps at the period's start: it may break away at once
