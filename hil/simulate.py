@@ -459,15 +459,23 @@ def batches_on_this_thread():
         _THIS_THREAD.alone = before
 
 
+def usable_cpus() -> frozenset | None:
+    """The CPUs this process may run on (its affinity), None where the platform cannot say."""
+    try:
+        return frozenset(os.sched_getaffinity(0))
+    except AttributeError:          # pragma: no cover - platforms without affinity
+        return None
+
+
 class _OthersLoad:
     """The cores the other processes kept busy lately: the busy time of the CPUs this process may
-    run on (``/proc/stat``) less this process's CPU time (all its threads), over a span of at least ``SPAN`` s since the
-    last reading (the first from the module's import; anew in a forked child, whose CPU time starts
-    again, and after ``STALE`` s without a reading); None where ``/proc/stat`` cannot be read or no
-    span has passed yet. The load
-    average says the same a minute late: a process that had just used two cores, or a diagnosis
-    started after one, saw it as another's load and ran on one thread (a second ``hil diagnose``
-    after the benchmark's chains: 8.9 s against 4.5 s)."""
+    run on (``/proc/stat``) less this process's CPU time (all its threads), over a span of at least
+    ``SPAN`` s since the last reading (the first from the module's import; anew in a forked child,
+    whose CPU time starts again, and after ``STALE`` s without a reading); None where
+    ``/proc/stat`` cannot be read or no span has passed yet. The load average says the same a
+    minute late: a process that had just used two cores, or a diagnosis started after one, saw it
+    as another's load and ran on one thread (a second ``hil diagnose`` after the benchmark's
+    chains: 8.9 s against 4.5 s)."""
 
     SPAN = 0.5          # s, the shortest span read (the clock's ticks are 10 ms)
     RENEW = 2.0         # s, after which a span starts again from the last reading
@@ -479,10 +487,7 @@ class _OthersLoad:
             self._hz = float(os.sysconf("SC_CLK_TCK"))
         except (AttributeError, ValueError, OSError):      # pragma: no cover - not POSIX
             self._hz = 0.0
-        try:
-            self._cpus = frozenset(os.sched_getaffinity(0))     # the CPUs this process may run on
-        except AttributeError:          # pragma: no cover - platforms without affinity
-            self._cpus = None
+        self._cpus = usable_cpus()
         self._start()
 
     @staticmethod
@@ -510,7 +515,8 @@ class _OthersLoad:
         return total / hz if seen else None
 
     def _start(self) -> None:
-        self.pid, self.t, self.cpu, self.busy = os.getpid(), time.monotonic(), time.process_time(), self._busy(self._hz, self._cpus)
+        self.pid, self.t, self.cpu = os.getpid(), time.monotonic(), time.process_time()
+        self.busy = self._busy(self._hz, self._cpus)
         self.value = None
 
     def __call__(self) -> float | None:
@@ -552,10 +558,8 @@ def batch_threads() -> int:
             return max(1, int(env))
         except ValueError:
             raise ValueError(f"HIL_THREADS: expected a whole number of threads, got {env!r}") from None
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:          # pragma: no cover - platforms without affinity
-        cpus = os.cpu_count() or 1
+    allowed = usable_cpus()
+    cpus = len(allowed) if allowed else (os.cpu_count() or 1)
     others = _others_load()
     try:
         busy = int(others + 0.5) if others is not None else int(os.getloadavg()[0] + 0.5) - 1

@@ -188,10 +188,10 @@ def _chunk(items, alone: bool = False):
     """The records ``items`` in a worker of the pool; ``alone``: the pool's workers fill the cores,
     so each runs its fits and batches on its own thread (hil.simulate.batches_on_this_thread)
     rather than by the load average, which lags the pool's start by a minute."""
+    from contextlib import nullcontext
+
     from hil.simulate import batches_on_this_thread
-    if not alone:
-        return [diagnose_record(*it) for it in items]
-    with batches_on_this_thread():
+    with batches_on_this_thread() if alone else nullcontext():
         return [diagnose_record(*it) for it in items]
 
 
@@ -213,11 +213,9 @@ class LocalExecutor:
         except ValueError:          # pragma: no cover - platforms without fork
             ctx = None
         self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx)
-        try:
-            cpus = len(os.sched_getaffinity(0))
-        except AttributeError:      # pragma: no cover - platforms without affinity
-            cpus = os.cpu_count() or 1
-        alone = self.jobs >= cpus
+        from hil.simulate import usable_cpus
+        allowed = usable_cpus()
+        alone = self.jobs >= (len(allowed) if allowed else (os.cpu_count() or 1))
         futs = [self.pool.submit(_chunk, [it], alone) for it in items]
         try:
             for fut in as_completed(futs):

@@ -459,23 +459,21 @@ def _open_loop_view(meas, cfg):
     return view
 
 
-def config_key(cfg):
-    """Every value of the config (the loop's and the recording's artefacts): equal keys, equal
-    residuals."""
-    return tuple(sorted((k, repr(v)) for k, v in cfg.values.items()))
+def config_key(cfg, keep=None):
+    """Every value of the config (the loop's and the recording's artefacts), or those whose key
+    ``keep(key)`` accepts: equal keys, equal residuals."""
+    return tuple(sorted((k, repr(v)) for k, v in cfg.values.items() if keep is None or keep(k)))
 
 
 def _loop_key(cfg):
     """What the simulation depends on: the config's values less the recording's artefacts."""
     from hil.sim_plant.effects import CATALOGUE, RecordEffect
-    items = []
-    for k, v in cfg.values.items():
+
+    def physics(k):
         parts = k.split(".")
-        if len(parts) >= 2 and parts[0] in ("effects", "measurement") and \
-                isinstance(CATALOGUE.get(parts[1]), RecordEffect):
-            continue
-        items.append((k, repr(v)))
-    return tuple(sorted(items))
+        return not (len(parts) >= 2 and parts[0] in ("effects", "measurement")
+                    and isinstance(CATALOGUE.get(parts[1]), RecordEffect))
+    return config_key(cfg, physics)
 
 
 def _first(res, n: int):

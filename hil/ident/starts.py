@@ -315,17 +315,9 @@ def _costs(eff, replay, starts, cfg) -> list[float]:
     cfgs = _configured(eff, cfg, starts)
     keys = [None if c is None else config_key(c) for c in cfgs]
     todo = [i for i, k in enumerate(keys) if k is None or k not in known]
-    got = iter(_simulated_costs(eff, obj, [starts[i] for i in todo], cfg, [cfgs[i] for i in todo]))
-    costs = [math.inf] * len(starts)
-    todo_set = set(todo)
-    for i, k in enumerate(keys):
-        if i in todo_set:
-            costs[i] = next(got)
-            if k is not None:
-                known[k] = costs[i]
-        else:
-            costs[i] = known[k]
-    return costs
+    fresh = dict(zip(todo, _simulated_costs(eff, obj, [starts[i] for i in todo], cfg, [cfgs[i] for i in todo])))
+    known.update((keys[i], c) for i, c in fresh.items() if keys[i] is not None)
+    return [fresh[i] if i in fresh else known[k] for i, k in enumerate(keys)]
 
 
 def _simulated_costs(eff, obj, starts, cfg, cfgs=None) -> list[float]:
