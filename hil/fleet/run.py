@@ -2,8 +2,8 @@
 
 :func:`diagnose_record` reads one record (its bytes travel with the task, so a worker on another
 machine needs no shared folder), replays it through its axis's config, runs the diagnosis chain
-(hil.ident.chain) and the fit of the axis's tracked effects together on the start model
-(hil.ident.fit.fit_effects), and returns plain figures (SI): the tracked values and their
+(hil.ident.chain) and the fit of the axis's tracked effects together on the night's plant
+(hil.ident.tracking.fit_tracked), and returns plain figures (SI): the tracked values and their
 standard errors (``effect.param`` keys), the chain's verdict, the effects it named and its end.
 A record that cannot be read or replayed gives ``{"error": one line}``: the others go on.
 
@@ -38,7 +38,7 @@ def _code_version() -> str:
     root = Path(__file__).resolve().parents[1]
     h = hashlib.sha1(str(getattr(hil, "__version__", "")).encode())
     for rel in ("fleet/run.py", "ident/chain.py", "ident/diagnosis.py", "ident/fit.py", "ident/replay.py",
-                "ident/starts.py", "ident/noise.py", "sim_plant/kernel.py", *sorted(
+                "ident/starts.py", "ident/noise.py", "ident/tracking.py", "ident/tolerance.py", "sim_plant/kernel.py", *sorted(
                     f"sim_plant/effects/{f.name}" for f in (root / "sim_plant" / "effects").glob("*.py")),
                 "plant_config.py", "simulate.py"):
         try:
@@ -118,28 +118,10 @@ def _read(data: bytes, name: str, cfg, mapping):
 
 
 def _tracked(rp, track, fit_nfev):
-    """The tracked effects fitted together on the start model: ({effect.param: value},
+    """The tracked effects fitted on the night's plant (hil.ident.tracking): ({effect.param: value},
     {effect.param: standard error})."""
-    from hil.ident.fit import evaluate, fit_effects
-    from hil.ident.parallel import in_threads
-    if not track:
-        return {}, {}
-    # the greedy order by what each effect explains alone, largest first: fitted first on a record
-    # whose error another effect dominates (a friction that rose), an effect's global start sees
-    # that effect's residual, not its own, and a backlash collapsed to no gap
-    order = list(track)
-    if len(order) > 1:
-        gains = dict(zip(order, (c.gain for c in in_threads(lambda e: evaluate(rp, e, max_nfev=fit_nfev), order))))
-        order.sort(key=lambda e: -gains[e])
-    _, steps = fit_effects(rp, order, max_nfev=fit_nfev)
-    last = steps[-1]
-    if "+" in last.effect:          # the joint fit: its parameters are named effect.param already
-        return dict(last.params), dict(last.stderr)
-    vals, ses = {}, {}
-    for s in steps:
-        vals.update({f"{s.effect}.{k}": v for k, v in s.params.items()})
-        ses.update({f"{s.effect}.{k}": v for k, v in s.stderr.items()})
-    return vals, ses
+    from hil.ident.tracking import fit_tracked
+    return fit_tracked(rp, track, max_nfev=fit_nfev)
 
 
 def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) -> tuple[str, dict]:

@@ -20,6 +20,7 @@ Modules, each importing only those above it:
 - ``diagnosis``: every candidate fitted, ranked, the verdict (:func:`diagnose`);
 - ``tolerance``: whether the config's masses, stiffnesses and dampings, drifted within their
   tolerance, explain the record (:func:`within_tolerance`: no finding);
+- ``tracking``: an axis's tracked effects fitted on the night's plant (:func:`fit_tracked`, hil fleet);
 - ``result``: the chain's results as typed objects (:class:`ChainStep`, its JSON);
 - ``chain``: diagnose, add the verdict, refit all, diagnose again (:func:`diagnose_chain`);
 - ``emps``: the EMPS benchmark end to end;
@@ -40,10 +41,11 @@ from hil.ident.result import ChainStep
 from hil.ident.scores import MIN_SCORE, bic_score, effective_samples, noise_floor, nrmse_fit, relative_error
 from hil.ident.synth import HIDDEN_DEFAULTS, synthesize
 from hil.ident.tolerance import within_tolerance
+from hil.ident.tracking import fit_tracked
 
 __all__ = ["Replay", "POSITION_CHANNELS", "analyse", "metrics", "relative_error", "nrmse_fit", "noise_floor",
            "effective_samples", "bic_score", "MIN_SCORE", "spectrum_peaks", "periodic_in_position",
            "motion_phases", "Candidate", "evaluate", "fit_effects", "joint_refit", "diagnose", "diagnose_chain", "candidate_names",
            "Combo", "pair_score", "idim_ls", "run_emps", "EmpsResult", "fit_frf", "load_frf", "is_frf_file",
            "FrfData", "FrfFit", "synthesize", "HIDDEN_DEFAULTS", "record_noise", "within_tolerance",
-           "ChainStep"]
+           "fit_tracked", "ChainStep"]

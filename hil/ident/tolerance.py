@@ -82,7 +82,8 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     record simulated: the estimation half of hil.ident.chain's held-out check); the errors are the
     whole record's. ``found``: the effects the model holds (the chain's steps before), their fitted
     parameters refitted with the drift, free within their catalogue bounds (they were fitted before
-    the drift was in the model and hold part of it): ``refitted`` {effect: {param: value}}."""
+    the drift was in the model and hold part of it): ``refitted`` {effect: {param: value}} and
+    ``_refitted_stderr`` {effect.param: standard error (NaN: none)}."""
     cfg = replay.cfg
     keys = tolerance_keys(cfg)
     if not keys or not tol > 0:
@@ -139,7 +140,8 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
             break
     sol, nfev = state["sol"], state["nfev"]
     err = rms(at.base_residuals)
-    se = standard_errors(sol, np.concatenate([x0, [f.scale for f in free]]))[:n]
+    se_all = standard_errors(sol, np.concatenate([x0, [f.scale for f in free]]))
+    se = se_all[:n]
     params = {k: {"config": float(x0[i]), "value": float(z[i] * x0[i]), "change": float(z[i] - 1.0),
                   "stderr": float(se[i])} for i, k in enumerate(keys)}
     # within the tolerance: each change, less Z_WITHIN of its standard errors (a drift at the edge
@@ -153,6 +155,7 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
            "params": params, "nfev": int(nfev), "_config": at.cfg}
     if free:
         out["refitted"] = {name: effect_values(name, at.cfg) for name in dict.fromkeys(f.name for f in free)}
+        out["_refitted_stderr"] = {f"{f.name}.{f.param.name}": float(x) for f, x in zip(free, se_all[n:])}
     return out
 
 

@@ -109,10 +109,6 @@ def test_the_rising_friction_is_flagged_on_its_axis_alone_on_its_date(fleet):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the tracked backlash (4 um) scatters 0 to 7 um from night to night and 10 "
-                   "um reads about 5: the 1 % scatter of the lightly damped tip mode (k2, m3) rules the cost through "
-                   "x_tip, and the gap's fit follows it (docs/benchmarks.md; issue 24's tip-mode basin), so a steady "
-                   "axis's gap leaves its limits and the worn nut's stays within them (issue 26)")
 def test_the_growing_backlash_is_flagged_on_its_axis_alone_on_its_date(fleet):
     drifts, axes = fleet
     assert _flags(axes, "backlash") == {"X2": [drifts["X2"][1]]}

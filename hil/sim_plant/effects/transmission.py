@@ -50,6 +50,9 @@ class Backlash(Effect):
     def evidence(self, ctx, values):
         return f"x_motor - x_table jumps by about {values.get('gap', 0) * 1e6:.3g} um at reversals; "
 
+    def grid(self, plant, ctrl, scale):
+        return [{"gap": g} for g in self.GAP_GRID]
+
     def starts(self, ctx, guess):
         gaps = sorted(set(self.GAP_GRID) | {self.gap_from_residual(ctx, self.param("gap").upper)} - {None})
         return ctx.grid_starts(self, [dict(guess, gap=gp) for gp in gaps])

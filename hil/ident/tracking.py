@@ -1,0 +1,291 @@
+"""An axis's tracked effects fitted on the night's plant (hil fleet: one record of an axis's history).
+
+A healthy axis's masses, stiffnesses and dampings move by about a percent from night to night
+(temperature, load). Beside most effects that is invisible, but not beside a lightly damped mode
+or the moving mass: at the paper bench's tool tip (k2 over m3: 15 Hz, damping ratio 1.5 %) 1 % on
+k2 shifts the ringing's phase within its decay and the tip's residual rules the cost; an effect
+fitted on the config's plant then follows the plant's mismatch rather than its own strength. On
+the independent fleet (tests/independent/test_fleet_ivp.py, 1 % scatter) a 4 um backlash fitted
+alone read 0 to 7 um, a worn nut's 10 um 4 to 5; the cost against the gap, with the plant right,
+has a basin about 10 % wide (a 12.4 um gap costs 13 times the true 11.3 um's).
+
+So the tracked effects ``names`` are fitted in four stages:
+
+1. each alone and then together from its global starts (hil.ident.fit.fit_effects), the effect that
+   explains most alone first (fitted first on a record that another effect dominates, a friction
+   that rose, an effect's global start sees that effect's residual);
+2. for each tracked effect with a grid over a parameter in which the error is not convex
+   (:meth:`~hil.sim_plant.effects.base.Effect.grid`: a backlash's gaps, a delay), the profile of
+   the cost over that grid: each point screened by one simulation (those within :data:`SCREEN`
+   times the cheapest, at least :data:`KEEP`, go on), then at each the night's plant refitted,
+   the chain's masses by one common scale, the spring that sets each lightly damped mode
+   (:func:`light_mode_keys`) and the other tracked parameters (:func:`_refit`), and between the best
+   point and its neighbours :data:`FINE` more; the cheapest point is kept. One scale for the masses
+   and one spring per mode are what a record fixes best (the moving mass in the torque, the tip's
+   frequency); each mass and spring free, the refit wanders along the directions the record does
+   not see (the tip's mass beside its stiffness) within its few evaluations;
+3. the chain's masses, stiffnesses and dampings within their tolerance (``plant.tolerance``), the
+   tracked effects refitted with them (hil.ident.tolerance.within_tolerance, ``found``), kept
+   where it costs less than its start;
+4. the gridded parameter scanned by :data:`SCAN_STEP` steps about its value, all else held (one
+   simulation a point, in one batch; a local fit does not cross the gap's non-smooth cost), and
+   stage 3 again from the scan's point where it was cheaper.
+
+The standard errors are stage 3's (its linearised joint fit), else stage 1's. Measured on records
+of the independent simulator with every mass, stiffness and damping scattered by 1.5 %
+(``benchmarks/bench_tracked.py``; docs/benchmarks.md): the gap within 6 % and the Coulomb level
+within 2.5 % of the truth, where the greedy fit alone is off by up to 85 %.
+
+A lightly damped mode (damping ratio below :data:`LIGHT_ZETA`) is set by the link whose spring
+holds most of the mode's strain energy: k_i (phi_i+1 - phi_i)^2 of the mass-normalised mode shape
+phi (hil.sim_plant.chain).
+"""
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from hil.ident.tolerance import tolerance_keys
+from hil.plant_config import ParameterEffect, candidate, configure, effect_values, measurement_key
+from hil.sim_plant.effects import Combination
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["light_mode_keys", "fit_tracked", "LIGHT_ZETA"]
+
+LIGHT_ZETA = 0.05       # a mode damped below this rings through the record's moves
+SCREEN, KEEP = 4.0, 8   # the profile refits the grid's points within SCREEN times the cheapest, at least KEEP
+PROFILE_NFEV = 12       # evaluations of each profile point's refit
+PROFILE_SPAN = 0.1      # the profile's plant moves within +-10 % of the config
+FINE = 4                # profile points between the best and each neighbour
+SCAN, SCAN_STEP = 25, 0.01      # the scan about the fitted value: +-25 steps of 1 %
+
+
+def light_mode_keys(plant, zeta_max: float = LIGHT_ZETA) -> list[str]:
+    """The config keys (``plant.k<i>``) of the springs that set the chain's lightly damped modes
+    (damping ratio below ``zeta_max``): per such mode, the link holding most of its strain energy."""
+    ch = plant.chain
+    if ch.n < 2:
+        return []
+    w, phi = ch.modes()
+    zeta = ch.modal_damping_ratios()
+    keys = []
+    for j in range(1, ch.n):
+        if w[j] > 0 and zeta[j - 1] < zeta_max:
+            energy = [ch.k[i] * (phi[i + 1, j] - phi[i, j]) ** 2 for i in range(ch.n - 1)]
+            key = f"plant.k{int(np.argmax(energy)) + 1}"
+            if key not in keys:
+                keys.append(key)
+    return keys
+
+
+def _param_keys(name: str, cfg) -> dict[str, str]:
+    """{param: config key} of the fitted numeric parameters of the effect ``name`` as
+    hil.plant_config.configure writes them; {} for a combination (no profile of its own)."""
+    eff = candidate(name, cfg)
+    if isinstance(eff, Combination):
+        return {}
+    if isinstance(eff, ParameterEffect):
+        return {"value": eff.key}
+    key = measurement_key(eff)
+    if key is not None:
+        return {eff.params[0].name: key}
+    return {p.name: f"effects.{eff.name}.{p.name}" for p in eff.fitted_params if not p.choices}
+
+
+def _configured(cfg, values: dict):
+    """``cfg`` with the effects of ``values`` ({effect.param: value}) switched on."""
+    by: dict[str, dict] = {}
+    for k, v in values.items():
+        name, param = k.rsplit(".", 1)
+        by.setdefault(name, {})[param] = v
+    for name, vals in by.items():
+        cfg = configure(candidate(name, cfg), cfg, vals)
+    return cfg
+
+
+def _values(cfg, names, like: dict) -> dict:
+    """The values of ``cfg`` under the keys of ``like`` ({effect.param: value})."""
+    out = {}
+    for name in names:
+        vals = effect_values(name, cfg)
+        out.update({f"{name}.{p}": float(v) for p, v in vals.items() if f"{name}.{p}" in like})
+    return out
+
+
+def _greedy(replay, names, max_nfev):
+    """Stage 1: ({effect.param: value}, {effect.param: standard error})."""
+    from hil.ident.fit import evaluate, fit_effects
+    from hil.ident.parallel import in_threads
+    order = list(names)
+    if len(order) > 1:
+        gains = dict(zip(order, (c.gain for c in in_threads(lambda e: evaluate(replay, e, max_nfev=max_nfev), order))))
+        order.sort(key=lambda e: -gains[e])
+    _, steps = fit_effects(replay, order, max_nfev=max_nfev)
+    last = steps[-1]
+    if "+" in last.effect:          # the joint fit: its parameters are named effect.param already
+        return dict(last.params), dict(last.stderr)
+    vals, ses = {}, {}
+    for s in steps:
+        vals.update({f"{s.effect}.{k}": v for k, v in s.params.items()})
+        ses.update({f"{s.effect}.{k}": v for k, v in s.stderr.items()})
+    return vals, ses
+
+
+def _profile_points(grid: list[dict]):
+    """The points of ``grid`` (a one-parameter grid sorted) and a function of the best one giving
+    :data:`FINE` points between it and each neighbour; a grid of several parameters: none finer."""
+    params = {k for pt in grid for k in pt}
+    if len(params) != 1:
+        return grid, lambda best: []
+    (p,) = params
+    xs = sorted({float(pt[p]) for pt in grid})
+
+    def fine(best):
+        i = xs.index(best[p])
+        out = []
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(xs):
+                out += np.linspace(best[p], xs[j], FINE + 2)[1:-1].tolist()
+        return [{p: x} for x in out]
+    return [{p: x} for x in xs], fine
+
+
+def _grid(replay, name: str, cfg) -> list[dict]:
+    """The effect's grid over its parameters in which the error is not convex (Effect.grid)."""
+    from hil.control import controller_from_config
+    from hil.ident.starts import record_scales
+    return candidate(name, cfg).grid(replay.plant, controller_from_config(replay.cfg, replay.plant),
+                                     record_scales(replay, replay.base_residuals))
+
+
+def _refit(replay, cfg, modes: list[str], keys: list[str], max_nfev: int):
+    """The night's plant at a profile point: least squares of the chain's masses' common scale, the
+    springs ``modes`` and the config ``keys`` (the other tracked parameters), each as a ratio of its
+    value in ``cfg`` within +-:data:`PROFILE_SPAN` (a tracked parameter within 0 to twice its value):
+    the config at the fit's end."""
+    from scipy.optimize import least_squares
+
+    from hil.ident.fit import _with_jacobian
+    masses = [k for k in tolerance_keys(cfg) if k.startswith("plant.m")]
+    keys = [k for k in keys if k not in masses and k not in modes]     # a tracked parameter:plant.k2 is a mode's
+    x0 = {k: float(cfg[k]) for k in masses + modes + keys}
+    n = 1 + len(modes)
+    lo = np.r_[np.full(n, 1.0 - PROFILE_SPAN), np.zeros(len(keys))]
+    hi = np.r_[np.full(n, 1.0 + PROFILE_SPAN), np.full(len(keys), 2.0)]
+
+    def config(z):
+        vals = {k: x0[k] * z[0] for k in masses}
+        vals.update({k: x0[k] * r for k, r in zip(modes + keys, z[1:])})
+        return cfg.with_values(vals)
+    obj = replay.objective
+
+    def fun(z):
+        try:
+            return obj.vector(obj.residuals(config(z)))
+        except (ValueError, ArithmeticError):
+            return np.full(obj.n, 1e3)
+    fun, jac = _with_jacobian(obj, fun, config, lo, hi, 1e-2, failed=(ValueError, ArithmeticError))
+    sol = least_squares(fun, np.ones(n + len(keys)), jac=jac, bounds=(lo, hi), diff_step=1e-2, max_nfev=max_nfev,
+                        x_scale=1.0)
+    return config(sol.x), float(2.0 * sol.cost)
+
+
+def _profile(replay, cfg, name: str, names, values: dict, modes: list[str]):
+    """Stage 2 for the tracked effect ``name`` from ``cfg`` (the model with the tracked effects at
+    ``values``): the config at the profile's cheapest point (None: ``name`` has no grid)."""
+    grid = _grid(replay, name, cfg)
+    if not grid or not _param_keys(name, cfg):
+        return None
+    gridded = {k for pt in grid for k in pt}
+    # refitted at each point besides the plant: every other tracked parameter that is not 0
+    keys = [key for n in names for p, key in _param_keys(n, cfg).items()
+            if f"{n}.{p}" in values and not (n == name and p in gridded) and values[f"{n}.{p}"]]
+
+    def point(pt):
+        c = configure(candidate(name, cfg), cfg, dict(effect_values(name, cfg), **pt))
+        try:
+            c, cost = _refit(replay, c, modes, keys, PROFILE_NFEV)
+        except (ValueError, ArithmeticError):
+            c, cost = None, np.inf
+        return cost, pt, c
+
+    # the grid screened by one simulation per point (the plant as it stands): the points that may hold
+    # the basin (within SCREEN times the cheapest, at least KEEP), each then refitted
+    points, fine = _profile_points(grid)
+    eff, obj = candidate(name, cfg), replay.objective
+    screen = np.array([np.inf if isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2)) for r in
+                       obj.residuals_many([configure(eff, cfg, dict(effect_values(name, cfg), **pt)) for pt in points])])
+    order = np.argsort(screen, kind="stable")
+    keep = sorted({int(i) for i in order if screen[i] <= SCREEN * screen[order[0]]} | set(order[:KEEP].tolist()))
+    tried = [point(points[i]) for i in keep]
+    tried += [point(pt) for pt in fine(min(tried, key=lambda r: r[0])[1])]
+    cost, pt, best = min(tried, key=lambda r: r[0])
+    if not np.isfinite(cost):
+        return None
+    logger.info("profile of %s: %s, cost %.4g; %s", name, pt, cost,
+                ", ".join(f"{k} {best[k] / replay.cfg[k] - 1:+.2%}" for k in modes + ["plant.m1"]))
+    return best
+
+
+def _cost(replay, cfg) -> float:
+    obj = replay.objective
+    return float(np.sum(obj.vector(obj.residuals(cfg)) ** 2))
+
+
+def _scan(replay, cfg, names):
+    """Stage 4: each tracked effect's one gridded parameter (a gap) on a dense scan about its value
+    (:data:`SCAN` steps of :data:`SCAN_STEP` either way), everything else held (one simulation per
+    point, in one batch): (cost, config) at the cheapest point."""
+    obj = replay.objective
+    best = (_cost(replay, cfg), cfg)
+    for name in names:
+        eff = candidate(name, cfg)
+        params = {k for pt in _grid(replay, name, cfg) for k in pt}
+        if len(params) != 1:
+            continue
+        (p,) = params
+        vals = effect_values(name, best[1])
+        v = float(vals[p])
+        if not v > 0:
+            continue
+        pts = [v * (1.0 + SCAN_STEP * k) for k in range(-SCAN, SCAN + 1) if k]
+        cfgs = [configure(eff, best[1], dict(vals, **{p: x})) for x in pts]
+        costs = [np.inf if isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2))
+                 for r in obj.residuals_many(cfgs)]
+        i = int(np.argmin(costs))
+        if costs[i] < best[0]:
+            best = (costs[i], cfgs[i])
+    return best
+
+
+def fit_tracked(replay, names, max_nfev: int = 40) -> tuple[dict, dict]:
+    """The tracked effects ``names`` fitted on the night's plant (the module's stages):
+    ({effect.param: value}, {effect.param: standard error}), SI; a standard error is NaN where the
+    fit gives none."""
+    from hil.ident.tolerance import TOLERANCE, within_tolerance
+    names = list(names)
+    if not names:
+        return {}, {}
+    values, stderr = _greedy(replay, names, max_nfev)
+    modes = light_mode_keys(replay.plant)
+    cfg = _configured(replay.cfg, values)
+    for name in names:
+        best = _profile(replay, cfg, name, names, values, modes)
+        if best is not None:
+            cfg = best
+    tol = float(replay.cfg.get("plant.tolerance", TOLERANCE))
+    cost = _cost(replay, cfg)
+    for rnd in range(2):
+        if rnd:
+            scanned, cfg_s = _scan(replay, cfg, names)
+            if not scanned < cost:
+                break
+            cost, cfg = scanned, cfg_s
+        test = within_tolerance(replay.with_config(cfg), tol, found=names)
+        # the joint fit from where the profile (the scan) left; kept where it costs less than its start
+        if test is not None and (c := _cost(replay, test["_config"])) <= cost:
+            cost, cfg = c, test["_config"]
+            stderr = {k: test["_refitted_stderr"].get(k, stderr.get(k, float("nan"))) for k in values}
+    return dict(values, **_values(cfg, names, values)), stderr
