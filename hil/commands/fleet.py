@@ -8,8 +8,8 @@ HELP = "many records of many axes: diagnose each, track the effects' strengths, 
 DESCRIPTION = """\
 A plant runs the same test move on every axis each night; hil fleet diagnoses every record (the
 chain of hil diagnose) and fits the axis's tracked effects (fleet.track in the config, or --track)
-on the night's plant (the masses, stiffnesses and dampings refitted with them within
-plant.tolerance), keeps the strengths with their standard errors, and judges each record against the axis's own
+on the night's plant (the masses, stiffnesses and dampings refitted with them near the config's
+values, plant.tolerance setting how far), keeps the strengths with their standard errors, and judges each record against the axis's own
 history: control limits from its baseline records (the first --baseline, or those the manifest
 marks) that include the night-to-night scatter of a healthy axis, a CUSUM for slow drifts, and the
 config's physical thresholds (fleet.thresholds, or --threshold "backlash.gap > 10um"). A parameter

@@ -16,29 +16,34 @@ So the tracked effects ``names`` are fitted in four stages:
    that rose, an effect's global start sees that effect's residual);
 2. for each tracked effect with a grid over a parameter in which the error is not convex
    (:meth:`~hil.sim_plant.effects.base.Effect.grid`: a backlash's gaps, a delay), the profile of
-   the cost over that grid: each point screened by one simulation (those within :data:`SCREEN`
-   times the cheapest, at least :data:`KEEP`, go on), then at each the night's plant refitted,
-   the chain's masses by one common scale, the spring that sets each lightly damped mode
-   (:func:`light_mode_keys`) and the other tracked parameters (:func:`_refit`), and between the best
-   point and its neighbours :data:`FINE` more; the cheapest point is kept. One scale for the masses
-   and one spring per mode are what a record fixes best (the moving mass in the torque, the tip's
-   frequency); each mass and spring free, the refit wanders along the directions the record does
-   not see (the tip's mass beside its stiffness) within its few evaluations;
-3. the chain's masses, stiffnesses and dampings within their tolerance (``plant.tolerance``), the
-   tracked effects refitted with them (hil.ident.tolerance.within_tolerance, ``found``), kept
-   where it costs less than its start;
+   the cost over that grid and the stage before's value: each point screened by one simulation
+   (those within :data:`SCREEN` times the cheapest, at least :data:`KEEP`, go on), then at each the
+   night's plant refitted, the chain's masses by one common scale and the spring that sets each
+   lightly damped mode (:func:`light_mode_keys`), within +-:data:`PROFILE_SPAN` and at most
+   ``SEARCH`` (hil.ident.tolerance) times ``plant.tolerance`` (0: the config's plant held), with
+   the other tracked parameters (:func:`_refit`), and between the best point and its neighbours
+   :data:`FINE` more; the cheapest point is kept where it is cheaper than the stage before. One
+   scale for the masses and one spring per mode are what a record fixes best (the moving mass in
+   the torque, the tip's frequency); each mass and spring free, the refit wanders along the
+   directions the record does not see (the tip's mass beside its stiffness) within its few
+   evaluations;
+3. the chain's masses, stiffnesses and dampings about stage 2's plant (its prior and search
+   range set by ``plant.tolerance``), the tracked effects refitted with them
+   (hil.ident.tolerance.within_tolerance, ``found``), kept where it costs less than its start;
 4. the gridded parameter scanned by :data:`SCAN_STEP` steps about its value, all else held (one
    simulation a point, in one batch; a local fit does not cross the gap's non-smooth cost), and
    stage 3 again from the scan's point where it was cheaper.
 
-The standard errors are stage 3's (its linearised joint fit), else stage 1's. Measured on records
+The standard errors are stage 3's (its linearised joint fit), else stage 1's; where a later stage
+moved the values, the linearised ones at the values reported, the plant held. A combination (``a+b``) is fitted by stage 1 alone. Measured on records
 of the independent simulator with every mass, stiffness and damping scattered by 1.5 %
 (``benchmarks/bench_tracked.py``; docs/benchmarks.md): the gap within 6 % and the Coulomb level
-within 2.5 % of the truth, where the greedy fit alone is off by up to 85 %.
+within 2.5 % of the truth, where the greedy fit alone is off by up to 106 %.
 
 A lightly damped mode (damping ratio below :data:`LIGHT_ZETA`) is set by the link whose spring
 holds most of the mode's strain energy: k_i (phi_i+1 - phi_i)^2 of the mass-normalised mode shape
-phi (hil.sim_plant.chain).
+phi of the chain the config's ``plant.m<i>``, ``plant.k<i>`` and ``plant.c<i>`` make
+(hil.sim_plant.chain).
 """
 from __future__ import annotations
 
@@ -62,12 +67,26 @@ FINE = 4                # profile points between the best and each neighbour
 SCAN, SCAN_STEP = 25, 0.01      # the scan about the fitted value: +-25 steps of 1 %
 
 
-def light_mode_keys(plant, zeta_max: float = LIGHT_ZETA) -> list[str]:
-    """The config keys (``plant.k<i>``) of the springs that set the chain's lightly damped modes
-    (damping ratio below ``zeta_max``): per such mode, the link holding most of its strain energy."""
-    ch = plant.chain
-    if ch.n < 2:
+def _number(cfg, key) -> float | None:
+    v = cfg.get(key)
+    return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) else None
+
+
+def light_mode_keys(cfg, zeta_max: float = LIGHT_ZETA) -> list[str]:
+    """The config keys (``plant.k<i>``) of the springs that set the lightly damped modes (damping
+    ratio below ``zeta_max``) of the chain the config's ``plant.m<i>``, ``plant.k<i>`` and
+    ``plant.c<i>`` make (its effects aside: one that adds a mass would shift the links' numbers):
+    per such mode, the link holding most of its strain energy. [] where the config does not give
+    the chain by those keys."""
+    from hil.sim_plant.chain import Chain
+    m = []
+    while (x := _number(cfg, f"plant.m{len(m) + 1}")) is not None:
+        m.append(x)
+    k = [_number(cfg, f"plant.k{i}") for i in range(1, len(m))]
+    c = [_number(cfg, f"plant.c{i}") or 0.0 for i in range(1, len(m))]
+    if len(m) < 2 or any(x is None or not x > 0 for x in k) or not all(x > 0 for x in m):
         return []
+    ch = Chain(tuple(m), tuple(k), tuple(c))
     w, phi = ch.modes()
     zeta = ch.modal_damping_ratios()
     keys = []
@@ -160,24 +179,27 @@ def _grid(replay, name: str, cfg) -> list[dict]:
                                      record_scales(replay, replay.base_residuals))
 
 
-def _refit(replay, cfg, modes: list[str], keys: list[str], max_nfev: int):
-    """The night's plant at a profile point: least squares of the chain's masses' common scale, the
-    springs ``modes`` and the config ``keys`` (the other tracked parameters), each as a ratio of its
-    value in ``cfg`` within +-:data:`PROFILE_SPAN` (a tracked parameter within 0 to twice its value):
-    the config at the fit's end."""
+def _refit(replay, cfg, plant: bool, modes: list[str], keys: list[str], span: float, max_nfev: int):
+    """The night's plant at a profile point: least squares of the chain's masses' common scale and
+    the springs ``modes`` (``plant``: else neither), each as a ratio of its value in ``cfg`` within
+    +-``span``, and the config ``keys`` (the other tracked parameters) within 0 to twice their value:
+    (the config at the fit's end, its weighted squared error)."""
     from scipy.optimize import least_squares
 
     from hil.ident.fit import _with_jacobian
-    masses = [k for k in tolerance_keys(cfg) if k.startswith("plant.m")]
+    masses = [k for k in tolerance_keys(cfg) if k.startswith("plant.m")] if plant else []
+    modes = modes if plant else []
     keys = [k for k in keys if k not in masses and k not in modes]     # a tracked parameter:plant.k2 is a mode's
     x0 = {k: float(cfg[k]) for k in masses + modes + keys}
-    n = 1 + len(modes)
-    lo = np.r_[np.full(n, 1.0 - PROFILE_SPAN), np.zeros(len(keys))]
-    hi = np.r_[np.full(n, 1.0 + PROFILE_SPAN), np.full(len(keys), 2.0)]
+    n = int(bool(masses)) + len(modes)
+    if not n + len(keys):
+        return cfg, _cost(replay, cfg)
+    lo = np.r_[np.full(n, 1.0 - span), np.zeros(len(keys))]
+    hi = np.r_[np.full(n, 1.0 + span), np.full(len(keys), 2.0)]
 
     def config(z):
         vals = {k: x0[k] * z[0] for k in masses}
-        vals.update({k: x0[k] * r for k, r in zip(modes + keys, z[1:])})
+        vals.update({k: x0[k] * r for k, r in zip(modes + keys, z[int(bool(masses)):])})
         return cfg.with_values(vals)
     obj = replay.objective
 
@@ -192,9 +214,10 @@ def _refit(replay, cfg, modes: list[str], keys: list[str], max_nfev: int):
     return config(sol.x), float(2.0 * sol.cost)
 
 
-def _profile(replay, cfg, name: str, names, values: dict, modes: list[str]):
+def _profile(replay, cfg, name: str, names, values: dict, modes: list[str], span: float):
     """Stage 2 for the tracked effect ``name`` from ``cfg`` (the model with the tracked effects at
-    ``values``): the config at the profile's cheapest point (None: ``name`` has no grid)."""
+    ``values``; the plant refitted within +-``span``, not at all where it is 0): the config at the
+    profile's cheapest point, None where ``name`` has no grid or no point is cheaper than ``cfg``."""
     grid = _grid(replay, name, cfg)
     if not grid or not _param_keys(name, cfg):
         return None
@@ -202,30 +225,31 @@ def _profile(replay, cfg, name: str, names, values: dict, modes: list[str]):
     # refitted at each point besides the plant: every other tracked parameter that is not 0
     keys = [key for n in names for p, key in _param_keys(n, cfg).items()
             if f"{n}.{p}" in values and not (n == name and p in gridded) and values[f"{n}.{p}"]]
+    eff, obj = candidate(name, cfg), replay.objective
+    now = effect_values(name, cfg)
 
     def point(pt):
-        c = configure(candidate(name, cfg), cfg, dict(effect_values(name, cfg), **pt))
         try:
-            c, cost = _refit(replay, c, modes, keys, PROFILE_NFEV)
+            return (*_refit(replay, configure(eff, cfg, dict(now, **pt)), span > 0, modes, keys, span, PROFILE_NFEV),
+                    pt)
         except (ValueError, ArithmeticError):
-            c, cost = None, np.inf
-        return cost, pt, c
+            return None, np.inf, pt
 
-    # the grid screened by one simulation per point (the plant as it stands): the points that may hold
-    # the basin (within SCREEN times the cheapest, at least KEEP), each then refitted
-    points, fine = _profile_points(grid)
-    eff, obj = candidate(name, cfg), replay.objective
+    # the grid and the stage before's value, screened by one simulation each (the plant as it
+    # stands): the points that may hold the basin (within SCREEN times the cheapest, at least KEEP),
+    # each then refitted
+    points, fine = _profile_points(grid + [{p: now[p] for p in gridded if p in now}])
     screen = np.array([np.inf if isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2)) for r in
-                       obj.residuals_many([configure(eff, cfg, dict(effect_values(name, cfg), **pt)) for pt in points])])
+                       obj.residuals_many([configure(eff, cfg, dict(now, **pt)) for pt in points])])
     order = np.argsort(screen, kind="stable")
     keep = sorted({int(i) for i in order if screen[i] <= SCREEN * screen[order[0]]} | set(order[:KEEP].tolist()))
     tried = [point(points[i]) for i in keep]
-    tried += [point(pt) for pt in fine(min(tried, key=lambda r: r[0])[1])]
-    cost, pt, best = min(tried, key=lambda r: r[0])
-    if not np.isfinite(cost):
+    tried += [point(pt) for pt in fine(min(tried, key=lambda r: r[1])[2])]
+    best, cost, pt = min(tried, key=lambda r: r[1])
+    if best is None or not cost < _cost(replay, cfg):
         return None
     logger.info("profile of %s: %s, cost %.4g; %s", name, pt, cost,
-                ", ".join(f"{k} {best[k] / replay.cfg[k] - 1:+.2%}" for k in modes + ["plant.m1"]))
+                ", ".join(f"{k} {best[k] / replay.cfg[k] - 1:+.2%}" for k in modes if k in best.values))
     return best
 
 
@@ -248,7 +272,7 @@ def _scan(replay, cfg, names):
         (p,) = params
         vals = effect_values(name, best[1])
         v = float(vals[p])
-        if not v > 0:
+        if not v:
             continue
         pts = [v * (1.0 + SCAN_STEP * k) for k in range(-SCAN, SCAN + 1) if k]
         cfgs = [configure(eff, best[1], dict(vals, **{p: x})) for x in pts]
@@ -260,22 +284,64 @@ def _scan(replay, cfg, names):
     return best
 
 
+def _stderr_at(replay, cfg, names, like: dict) -> dict:
+    """The linearised standard errors (hil.ident.fit.standard_errors) of the tracked parameters
+    under the keys of ``like`` at ``cfg``, the plant held: one Jacobian, in one batch."""
+    from types import SimpleNamespace
+
+    from hil.ident.fit import _with_jacobian, standard_errors
+    from hil.ident.tolerance import approx_fprime
+    items = []      # (effect.param, config key, scale)
+    for n in names:
+        eff, vals = candidate(n, cfg), effect_values(n, cfg)
+        bounds = {p.name: p for p in eff.params}
+        for p, key in _param_keys(n, cfg).items():
+            if f"{n}.{p}" in like and isinstance(vals.get(p), (int, float)):
+                v = float(vals[p])
+                prm = bounds.get(p)
+                items.append((f"{n}.{p}", key, abs(v) if v else max(abs(prm.lower), abs(prm.upper), 1e-12) if prm
+                              else 1.0))
+    if not items:
+        return {}
+    obj = replay.objective
+    scale = np.array([x[2] for x in items])
+    z0 = np.array([float(cfg[x[1]]) for x in items]) / scale
+
+    def config(z):
+        return cfg.with_values({x[1]: float(v) for x, v in zip(items, z * scale)})
+
+    def fun(z):
+        try:
+            return obj.vector(obj.residuals(config(z)))
+        except (ValueError, ArithmeticError):
+            return np.full(obj.n, 1e3)
+    f, jac = _with_jacobian(obj, fun, config, -np.inf, np.inf, 1e-3, failed=(ValueError, ArithmeticError))
+    f0 = f(z0)
+    J = jac(z0) if callable(jac) else approx_fprime(z0, f, -np.inf, np.inf)
+    se = standard_errors(SimpleNamespace(jac=J, cost=0.5 * float(f0 @ f0)), scale)
+    return {x[0]: float(e) for x, e in zip(items, se)}
+
+
 def fit_tracked(replay, names, max_nfev: int = 40) -> tuple[dict, dict]:
     """The tracked effects ``names`` fitted on the night's plant (the module's stages):
-    ({effect.param: value}, {effect.param: standard error}), SI; a standard error is NaN where the
-    fit gives none."""
-    from hil.ident.tolerance import TOLERANCE, within_tolerance
+    ({effect.param: value}, {effect.param: standard error}), SI. A standard error is NaN where the
+    fit gives none; where a later stage moved the values and the joint fit was not kept, it is the
+    linearised one at the values reported, the plant held. A combination (``a+b``) is fitted by
+    stage 1 alone."""
+    from hil.ident.tolerance import SEARCH, TOLERANCE, within_tolerance
     names = list(names)
     if not names:
         return {}, {}
     values, stderr = _greedy(replay, names, max_nfev)
-    modes = light_mode_keys(replay.plant)
-    cfg = _configured(replay.cfg, values)
+    if any(isinstance(candidate(n, replay.cfg), Combination) for n in names):
+        return values, stderr
+    tol = float(replay.cfg.get("plant.tolerance", TOLERANCE))
+    modes = light_mode_keys(replay.cfg)
+    start = cfg = _configured(replay.cfg, values)
     for name in names:
-        best = _profile(replay, cfg, name, names, values, modes)
+        best = _profile(replay, cfg, name, names, values, modes, min(PROFILE_SPAN, SEARCH * max(tol, 0.0)))
         if best is not None:
             cfg = best
-    tol = float(replay.cfg.get("plant.tolerance", TOLERANCE))
     cost = _cost(replay, cfg)
     for rnd in range(2):
         if rnd:
@@ -287,5 +353,13 @@ def fit_tracked(replay, names, max_nfev: int = 40) -> tuple[dict, dict]:
         # the joint fit from where the profile (the scan) left; kept where it costs less than its start
         if test is not None and (c := _cost(replay, test["_config"])) <= cost:
             cost, cfg = c, test["_config"]
-            stderr = {k: test["_refitted_stderr"].get(k, stderr.get(k, float("nan"))) for k in values}
-    return dict(values, **_values(cfg, names, values)), stderr
+            start = cfg
+            se = dict(test.get("_refitted_stderr", {}))
+            # a tracked parameter:<plant key> is among the test's own keys
+            se.update({f"{n}.value": test["params"][k]["stderr"] for n in names
+                       for k in [getattr(candidate(n, cfg), "key", None)] if k in test["params"]})
+            stderr = {k: se.get(k, float("nan")) for k in values}
+    got = dict(values, **_values(cfg, names, values))
+    if cfg is not start:        # moved after the standard errors were had: those at the values reported
+        stderr = dict(stderr, **_stderr_at(replay, cfg, names, got))
+    return got, stderr

@@ -34,13 +34,19 @@ def _zeta_tip(cfg) -> float:
 def test_the_springs_of_the_lightly_damped_modes():
     # the paper bench: the tool tip rings at 1.5 % (k2), the transmission's mode is damped at 8.5 % (k1)
     assert _zeta_tip(CFG) == pytest.approx(0.0149, abs=2e-4)
-    assert light_mode_keys(plant_from_config(CFG)) == ["plant.k2"]
+    assert light_mode_keys(CFG) == ["plant.k2"]
     # the tip damped beyond the limit: no light mode; the transmission's damping cut tenfold: both
     damped = CFG.with_values({"plant.c2": 2.0 * LIGHT_ZETA * 2.0 * math.sqrt(CFG["plant.k2"] * CFG["plant.m3"])})
     assert _zeta_tip(damped) == pytest.approx(2.0 * LIGHT_ZETA)
-    assert light_mode_keys(plant_from_config(damped)) == []
+    assert light_mode_keys(damped) == []
     light = CFG.with_values({"plant.c1": CFG["plant.c1"] / 10.0})
-    assert sorted(light_mode_keys(plant_from_config(light))) == ["plant.k1", "plant.k2"]
+    assert sorted(light_mode_keys(light)) == ["plant.k1", "plant.k2"]
+    # the config's own chain, not the plant an effect makes of it (a flexible transmission adds a mass
+    # and would shift the links' numbers to a k3 the config does not have)
+    flexible = CFG.with_values({"effects.flexible_transmission.load_share": 0.5,
+                                "effects.flexible_transmission.frequency": 60.0,
+                                "effects.flexible_transmission.damping_ratio": 0.02})
+    assert plant_from_config(flexible).chain.n == 4 and light_mode_keys(flexible) == ["plant.k2"]
 
 
 def test_the_profile_refines_between_the_best_point_and_its_neighbours():
@@ -68,3 +74,27 @@ def test_backlash_and_friction_on_a_scattered_night(seed):
     assert values["backlash.gap"] == pytest.approx(gap, rel=0.06)
     assert values["coulomb_friction.level"] == pytest.approx(level, rel=0.025)
     assert set(stderr) == set(values) and all(s >= 0 for s in stderr.values() if math.isfinite(s))
+
+
+def _short_record():
+    x = ivp.command_sequence(0.6, BENCH.tp, seed=1)
+    return Measurement(ivp.measure(ivp.simulate(BENCH, x, ivp.Hidden(coulomb_pos=1.5, coulomb_neg=1.5, gap=5e-6)), 1),
+                       source="ivp")
+
+
+@pytest.mark.parametrize("track", [["backlash+coulomb_friction"], ["parameter:plant.k2", "backlash"],
+                                   ["coulomb_friction"]])
+def test_combinations_plant_keys_and_effects_without_a_grid_are_tracked(track):
+    """A combination is fitted by stage 1 alone; a tracked plant key is one of the tolerance test's
+    own (its standard error from there); an effect without a grid skips the profile. Every value
+    finite, every standard error a number or NaN."""
+    values, stderr = fit_tracked(Replay(_short_record(), CFG), track)
+    assert values and set(stderr) == set(values)
+    assert all(math.isfinite(v) for v in values.values())
+    assert all(isinstance(s, float) for s in stderr.values())
+
+
+def test_without_a_tolerance_the_plant_stays_the_configs():
+    rp = Replay(_short_record(), CFG.with_values({"plant.tolerance": 0.0}))
+    values, _ = fit_tracked(rp, ["backlash"])
+    assert 0.0 <= values["backlash.gap"] < 2e-3
