@@ -48,9 +48,11 @@ phi of the chain the config's ``plant.m<i>``, ``plant.k<i>`` and ``plant.c<i>`` 
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
+from hil.ident.starts import _cost as cost_of
 from hil.ident.tolerance import tolerance_keys
 from hil.plant_config import ParameterEffect, candidate, configure, effect_values, measurement_key
 from hil.sim_plant.effects import Combination
@@ -239,8 +241,7 @@ def _profile(replay, cfg, name: str, names, values: dict, modes: list[str], span
     # stands): the points that may hold the basin (within SCREEN times the cheapest, at least KEEP),
     # each then refitted
     points, fine = _profile_points(grid + [{p: now[p] for p in gridded if p in now}])
-    screen = np.array([np.inf if isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2)) for r in
-                       obj.residuals_many([configure(eff, cfg, dict(now, **pt)) for pt in points])])
+    screen = np.array(_costs(obj, [configure(eff, cfg, dict(now, **pt)) for pt in points]))
     order = np.argsort(screen, kind="stable")
     keep = sorted({int(i) for i in order if screen[i] <= SCREEN * screen[order[0]]} | set(order[:KEEP].tolist()))
     tried = [point(points[i]) for i in keep]
@@ -254,8 +255,13 @@ def _profile(replay, cfg, name: str, names, values: dict, modes: list[str], span
 
 
 def _cost(replay, cfg) -> float:
-    obj = replay.objective
-    return float(np.sum(obj.vector(obj.residuals(cfg)) ** 2))
+    """The weighted squared error of ``cfg`` (hil.ident.starts: inf where it is not a number)."""
+    return cost_of(replay.objective, replay.objective.residuals(cfg))
+
+
+def _costs(obj, cfgs) -> list[float]:
+    """The weighted squared errors of ``cfgs`` in one batch; inf for one that cannot be simulated."""
+    return [math.inf if isinstance(r, Exception) else cost_of(obj, r) for r in obj.residuals_many(cfgs)]
 
 
 def _scan(replay, cfg, names):
@@ -276,8 +282,7 @@ def _scan(replay, cfg, names):
             continue
         pts = [v * (1.0 + SCAN_STEP * k) for k in range(-SCAN, SCAN + 1) if k]
         cfgs = [configure(eff, best[1], dict(vals, **{p: x})) for x in pts]
-        costs = [np.inf if isinstance(r, Exception) else float(np.sum(obj.vector(r) ** 2))
-                 for r in obj.residuals_many(cfgs)]
+        costs = _costs(obj, cfgs)
         i = int(np.argmin(costs))
         if costs[i] < best[0]:
             best = (costs[i], cfgs[i])
