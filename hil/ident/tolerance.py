@@ -72,7 +72,7 @@ def is_drift(effects: list, plant, cfg) -> bool:
 
 
 def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = MAX_NFEV, mask=None,
-                     found=()) -> dict | None:
+                     found=(), start=None) -> dict | None:
     """The test of the module's definition on ``replay`` (the model as it stands): None where the
     config has no such key or ``tol`` is not above 0; else {"tolerance", "within" (every change within
     ``tol``, less :data:`Z_WITHIN` of its standard errors), "at_noise_floor" (every channel), "error"
@@ -83,7 +83,10 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     whole record's. ``found``: the effects the model holds (the chain's steps before), their fitted
     parameters refitted with the drift, free within their catalogue bounds (they were fitted before
     the drift was in the model and hold part of it): ``refitted`` {effect: {param: value}} and
-    ``_refitted_stderr`` {effect.param: standard error (NaN: none)}."""
+    ``_refitted_stderr`` {effect.param: standard error (NaN: none)}. ``start``: a config the fit starts
+    from (its masses, stiffnesses, dampings and the found effects' values, within the search's
+    range), the prior and the changes still about ``replay``'s config (a basin a local fit from the
+    config does not reach: hil.ident.tracking's profile)."""
     cfg = replay.cfg
     keys = tolerance_keys(cfg)
     if not keys or not tol > 0:
@@ -134,6 +137,12 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     z, at = np.ones(n + len(free)), replay
     if free:
         z[n:] = [f.value / f.scale for f in free]
+    if start is not None:
+        z[:n] = [float(start[k]) / x for k, x in zip(keys, x0)]
+        if free:
+            z[n:] = [float(effect_values(f.name, start)[f.param.name]) / f.scale for f in free]
+        z = np.clip(z, lo, hi)
+        at = replay.with_config(config(z))
     for _ in range(max(1, rounds)):
         z, at = fit(at, z, lo, hi)
         if at_noise_floor(rms(at.base_residuals), floor):

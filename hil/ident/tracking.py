@@ -59,7 +59,7 @@ from hil.sim_plant.effects import Combination
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["light_mode_keys", "fit_tracked", "LIGHT_ZETA"]
+__all__ = ["light_mode_keys", "fit_tracked", "on_nights_plant", "LIGHT_ZETA"]
 
 LIGHT_ZETA = 0.05       # a mode damped below this rings through the record's moves
 SCREEN, KEEP = 4.0, 8   # the profile refits the grid's points within SCREEN times the cheapest, at least KEEP
@@ -327,43 +327,61 @@ def _stderr_at(replay, cfg, names, like: dict) -> dict:
     return {x[0]: float(e) for x, e in zip(items, se)}
 
 
-def fit_tracked(replay, names, max_nfev: int = 40) -> tuple[dict, dict]:
-    """The tracked effects ``names`` fitted on the night's plant (the module's stages):
-    ({effect.param: value}, {effect.param: standard error}), SI. A standard error is NaN where the
-    fit gives none; where a later stage moved the values and the joint fit was not kept, it is the
-    linearised one at the values reported, the plant held. A combination (``a+b``) is fitted by
-    stage 1 alone."""
+def on_nights_plant(replay, cfg, names, profiled=None, anchored: bool = False, values: dict | None = None):
+    """Stages 2 to 4 of the module's definition from ``cfg`` (the model with the tracked effects
+    ``names`` at their stage-1 values), the profile for the effects ``profiled`` (default: all of
+    ``names``): (the config, its weighted squared error, the last tolerance test kept or None).
+    ``anchored``: ``replay``'s config holds the effects (the model as it stands) and the tolerance
+    tests start from the stage before's config, their prior and changes about ``replay``'s config
+    (hil.ident.chain: within the config's tolerance or not); else each test is about the stage
+    before's config itself (the fleet's fit: a fit, not a test). ``values``: the tracked parameters
+    ({effect.param: value}) the profile refits beside the plant where not 0 (default: ``cfg``'s)."""
     from hil.ident.tolerance import SEARCH, TOLERANCE, within_tolerance
-    names = list(names)
-    if not names:
-        return {}, {}
-    values, stderr = _greedy(replay, names, max_nfev)
-    if any(isinstance(candidate(n, replay.cfg), Combination) for n in names):
-        return values, stderr
     tol = float(replay.cfg.get("plant.tolerance", TOLERANCE))
     modes = light_mode_keys(replay.cfg)
-    start = cfg = _configured(replay.cfg, values)
-    for name in names:
+    if values is None:
+        values = {f"{n}.{p}": float(v) for n in names for p, v in effect_values(n, cfg).items()
+                  if isinstance(v, (int, float)) and not isinstance(v, bool)}
+    for name in names if profiled is None else profiled:
         best = _profile(replay, cfg, name, names, values, modes, min(PROFILE_SPAN, SEARCH * max(tol, 0.0)))
         if best is not None:
             cfg = best
-    cost = _cost(replay, cfg)
+    cost, kept = _cost(replay, cfg), None
     for rnd in range(2):
         if rnd:
             scanned, cfg_s = _scan(replay, cfg, names)
             if not scanned < cost:
                 break
             cost, cfg = scanned, cfg_s
-        test = within_tolerance(replay.with_config(cfg), tol, found=names)
+        test = (within_tolerance(replay, tol, found=names, start=cfg) if anchored
+                else within_tolerance(replay.with_config(cfg), tol, found=names))
         # the joint fit from where the profile (the scan) left; kept where it costs less than its start
         if test is not None and (c := _cost(replay, test["_config"])) <= cost:
-            cost, cfg = c, test["_config"]
-            start = cfg
-            se = dict(test.get("_refitted_stderr", {}))
-            # a tracked parameter:<plant key> is among the test's own keys
-            se.update({f"{n}.value": test["params"][k]["stderr"] for n in names
-                       for k in [getattr(candidate(n, cfg), "key", None)] if k in test["params"]})
-            stderr = {k: se.get(k, float("nan")) for k in values}
+            cost, cfg, kept = c, test["_config"], test
+    return cfg, cost, kept
+
+
+def fit_tracked(replay, names, max_nfev: int = 40) -> tuple[dict, dict]:
+    """The tracked effects ``names`` fitted on the night's plant (the module's stages):
+    ({effect.param: value}, {effect.param: standard error}), SI. A standard error is NaN where the
+    fit gives none; where a later stage moved the values and the joint fit was not kept, it is the
+    linearised one at the values reported, the plant held. A combination (``a+b``) is fitted by
+    stage 1 alone."""
+    names = list(names)
+    if not names:
+        return {}, {}
+    values, stderr = _greedy(replay, names, max_nfev)
+    if any(isinstance(candidate(n, replay.cfg), Combination) for n in names):
+        return values, stderr
+    start = _configured(replay.cfg, values)
+    cfg, _, test = on_nights_plant(replay, start, names, values=values)
+    if test is not None:
+        start = test["_config"]
+        se = dict(test.get("_refitted_stderr", {}))
+        # a tracked parameter:<plant key> is among the test's own keys
+        se.update({f"{n}.value": test["params"][k]["stderr"] for n in names
+                   for k in [getattr(candidate(n, cfg), "key", None)] if k in test["params"]})
+        stderr = {k: se.get(k, float("nan")) for k in values}
     got = dict(values, **_values(cfg, names, values))
     if cfg is not start:        # moved after the standard errors were had: those at the values reported
         stderr = dict(stderr, **_stderr_at(replay, cfg, names, got))
