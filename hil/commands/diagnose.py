@@ -113,6 +113,14 @@ JSON_KEYS = {
                                      "step's effects, dropped from the model: effect, params (as it stood), score "
                                      "(its BIC score with the step's effects)",
                                when="a step made an earlier effect unnecessary"),
+    "chain[].nights_plant": JsonKey("SI", "the step's effect whose error jumps with its parameter (a backlash's "
+                                          "gap) refitted on the night's plant, the config's masses, stiffnesses and "
+                                          "dampings within plant.tolerance: effects, tolerance, params (per key: "
+                                          "config, value, change, stderr), stderr (effect.param), "
+                                          "error_on_config_plant (the step's error before), estimation_error, "
+                                          "held_out; the step's params and error_after are then the night's",
+                                    when="a step with such an effect, refitted there, within the tolerance and "
+                                         "earned on the held-out data"),
     "chain[].stderr": JsonKey("SI", "`{effect: {parameter: standard error}}` of the step's last fit (null: none)"),
     "chain[].confounded": JsonKey("", "pairs of that fit's parameters correlated above 0.9: [name, name, r]"),
     "chain[].aliases": JsonKey("SI", "`{effect: [{key, params, r, slope, confounded}]}`: the config's own "
@@ -475,6 +483,15 @@ def chain_text(d, rp) -> list[str]:
         if s.recording_artefacts:
             lines.append(f"          {', '.join(s.recording_artefacts)}: a recording artefact, not physics "
                          f"(the config's [measurement]; the model of the axis unchanged)")
+        if s.nights_plant:
+            n = s.nights_plant
+            lines.append(f"          on the night's plant (within plant.tolerance {100 * n['tolerance']:.3g} %, no "
+                         f"finding): " + ", ".join(f"{k.split('.')[-1]} {100 * p['change']:+.2f} %"
+                                                   for k, p in n["params"].items())
+                         + "; on the config's plant " + ", ".join(
+                             f"{c} {fmt_si(n['error_on_config_plant'][c], rp.unit(c), 3)}" for c in chans))
+            lines += [x.replace("          estimation", "          on the night's plant: estimation", 1)
+                      for x in _held_out_lines(n, rp)]
         for e in s.dropped or []:
             par = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
             why = (f"replaced: {added} pays more in its place" if s.swapped == e["effect"] else

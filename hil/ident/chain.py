@@ -99,6 +99,22 @@ an effect found before that no longer pays beside the drift is dropped
 again without it (:func:`_unpaid_beside_drift`: a mode fitted far above the record's Nyquist
 frequency is a rigid mass on the tip, the tip's drift by another name).
 
+An effect whose error jumps with its parameter (:attr:`~hil.sim_plant.effects.Effect.non_smooth`:
+a backlash, whose table rattles in its gap) fitted on the config's plant follows the plant's drift
+rather than its own strength: at the paper bench's tool tip (a mode at 15 Hz damped at 1.5 %) a
+percent on k2 moves the ringing's phase, and a 34.7 um gap read 26.7 um. A step that adds one,
+above the noise floor, refits it on the night's plant (``chain[].nights_plant``;
+hil.ident.tracking.on_nights_plant: the profile over its grid with the masses' common scale and
+the lightly damped modes' springs, then the tolerance's fit of every key and everything found, then
+a scan of the gap), kept where every change lies within ``plant.tolerance``, it lowers the weighted
+error and it earns its place on the held-out moves (the fit on the estimation moves from the
+profile's point) as a drift within the tolerance does: no finding, the step's values and errors
+then those on the night's plant. Later tolerance tests stay about the config's values (their fits
+start from the night's). A first diagnosis ``unexplained`` tries its best such candidate so before
+the pair shown together: a 31.1 um gap fitted as 7.1 um on the config's plant (x_motor 16 % less,
+the tip no better), refitted on the night's plant, reads 31.1 um and brings the tip from 705 to 10
+times its floor (``tests/independent/test_tracking.py``, seed 6).
+
 Each step reports its estimation error (the record's, or the estimation half's) and held-out
 error per channel, and the standard errors of everything found so far with the pairs of fitted
 parameters confounded in the step's last fit (hil.ident.fit: |correlation| above
@@ -127,7 +143,7 @@ from hil.ident.objective import MaskedObjective
 from hil.ident.progress import expect
 from hil.ident.result import ChainStep
 from hil.ident.scores import MIN_SCORE, bic_score
-from hil.ident.tolerance import TOLERANCE, is_drift, within_tolerance
+from hil.ident.tolerance import TOLERANCE, is_drift, tolerance_keys, within_tolerance
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate, default_parameters, effect_values, measurement_key, without_replaced
 from hil.sim_plant.blas_threads import one_blas_thread
@@ -493,7 +509,7 @@ def _unpaid(replay, found, add, cfg1, res1) -> list[dict]:
         found = [n for n in found if n != name]
 
 
-def _unpaid_beside_drift(replay, cur, found, tol, cfg_t) -> tuple[dict | None, list[dict]]:
+def _unpaid_beside_drift(replay, cur, found, tol, cfg_t, ref=None) -> tuple[dict | None, list[dict]]:
     """The effects of earlier steps that a drift within the tolerance holds in their place: each
     set back to the start model's values alone and the drift fitted again without it, the others
     refitted with it (:func:`~hil.ident.tolerance.within_tolerance` from ``cur``, the model before the
@@ -512,7 +528,7 @@ def _unpaid_beside_drift(replay, cur, found, tol, cfg_t) -> tuple[dict | None, l
         best = None
         for name in earlier:
             rest = [n for n in found if n != name]
-            test = within_tolerance(cur.with_config(_without(name, cur.cfg, replay.cfg)), tol, found=rest)
+            test = _tolerance_test(cur.with_config(_without(name, cur.cfg, replay.cfg)), tol, rest, ref)
             if test is None or not test["within"]:
                 continue
             k = len(candidate(name, replay.cfg).params)
@@ -550,8 +566,20 @@ def _rival(d, verdict, add, have, cur):
     return None
 
 
-def _within_tolerance(cur, add, found, progress) -> dict | None:
-    """hil.ident.tolerance's test, the effects ``found`` refitted with the drift: where every
+def _tolerance_test(cur, tol, found, ref, mask=None, **kw) -> dict | None:
+    """hil.ident.tolerance.within_tolerance on the model as it stands (``cur``) about the config's
+    plant: ``ref`` ({key: the start model's value}) holds the keys a refit on the night's plant
+    moved (:func:`_on_nights_plant`), set back for the test's prior and changes, its fit starting
+    from ``cur``'s values; empty or None: about ``cur``'s own."""
+    if not ref:
+        return within_tolerance(cur, tol, mask=mask, found=found, **kw)
+    return within_tolerance(cur.with_config(cur.cfg.with_values(ref)), tol, mask=mask, found=found, start=cur.cfg,
+                            **kw)
+
+
+def _within_tolerance(cur, add, found, progress, ref=None) -> dict | None:
+    """hil.ident.tolerance's test, the effects ``found`` refitted with the drift (about the config's
+    plant: :func:`_tolerance_test`): where every
     effect of the step ``add`` is a drift of the config's masses, stiffnesses or dampings; and where
     a later step (``found`` not empty) names another effect, kept only where the drift within the
     tolerance brings every channel to its noise floor (``in_place_of`` the step's effects: the
@@ -562,10 +590,92 @@ def _within_tolerance(cur, add, found, progress) -> dict | None:
     if progress:
         expect(progress, 1)
         progress("plant.tolerance")
-    test = within_tolerance(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)), found=found)
+    test = _tolerance_test(cur, float(cur.cfg.get("plant.tolerance", TOLERANCE)), found, ref)
     if drift or test is None:
         return test
     return dict(test, in_place_of=list(add)) if test["within"] and test["at_noise_floor"] else None
+
+
+def _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref=None) -> dict | None:
+    """The step's effects with a grid (a backlash's gap, a delay: an error that is not convex in
+    them) refitted on the night's plant (the module's definition; hil.ident.tracking.on_nights_plant
+    from the model as it stands, ``cur``, which holds the step, about the config's plant as
+    :func:`_tolerance_test`): the tolerance test of everything ``found`` from the profile's point,
+    with ``profiled`` (the step's effects so refitted) and, with a held-out part, its check there;
+    where the drift lies within the tolerance, lowers the weighted error and earns its place. Else
+    None."""
+    from hil.ident.tracking import _cost, _grid, on_nights_plant
+    tol = float(cur.cfg.get("plant.tolerance", TOLERANCE))
+    gridded = [n for n in add if "+" not in n and candidate(n, cur.cfg).non_smooth and _grid(cur, n, cur.cfg)]
+    if not tol > 0 or not gridded or not tolerance_keys(cur.cfg):
+        return None
+    names = [n for n in found if "+" not in n]
+    if progress:
+        expect(progress, 1)
+        progress("plant.tolerance")
+    base = cur.with_config(cur.cfg.with_values(ref)) if ref else cur
+    cfg_p, cost, test = on_nights_plant(base, cur.cfg, names, profiled=gridded, anchored=True)
+    if test is None or not test["within"] or not cost < _cost(base, cur.cfg):
+        return None
+    held = _earned(cur, split, [], names, cfg_p, fit_nfev, refit=lambda m: cur.residuals(
+        within_tolerance(base, tol, mask=m, found=names, start=cfg_p)["_config"])) if split else None
+    if held is not None and not held["earned"]:
+        logger.info("chain: %s on the night's plant refused by the held-out data", " + ".join(gridded))
+        return None
+    logger.info("chain: %s on the night's plant (%s)", ", ".join(f"{n} {effect_values(n, cfg_p)}" for n in gridded),
+                ", ".join(f"{k} {100 * p['change']:+.2f} %" for k, p in test["params"].items()))
+    out = {"effects": gridded, "tolerance": tol, "params": test["params"],
+           "stderr": dict(test.get("_refitted_stderr", {})), "_config": cfg_p}
+    if held is not None:
+        out.update(estimation_error=held.pop("estimation"), held_out=held)
+    return out
+
+
+def _unexplained_on_nights_plant(cur, d, split, fit_nfev, progress) -> dict | None:
+    """The first diagnosis ``unexplained``: its best candidate whose error jumps with its parameter
+    (a backlash: its fit on the config's plant follows the plant's drift and may close little)
+    refitted on the night's plant (hil.ident.tracking.on_nights_plant, about the config's plant),
+    kept as the first step where the plant's changes lie within the tolerance, it closes
+    :data:`~hil.ident.unexplained.HALF_GAP` of the gap on some channel and earns its place on the
+    held-out data (refitted there with the plant). Returns the step's ``effect``, ``fit`` (the
+    candidate), ``text``, ``nights_plant`` (as :func:`_on_nights_plant`'s, without its own held-out
+    check: the step's is that check), ``held`` and ``_config``; else None."""
+    from hil.ident.tracking import _grid, on_nights_plant
+    tol = float(cur.cfg.get("plant.tolerance", TOLERANCE))
+    if not tol > 0 or not tolerance_keys(cur.cfg):
+        return None
+    lead = next((c for c in d["candidates"] if "+" not in c.effect and c.res is not None
+                 and candidate(c.effect, cur.cfg).non_smooth and _grid(cur, c.effect, cur.cfg)), None)
+    if lead is None:
+        return None
+    if progress:
+        expect(progress, 1)
+        progress("plant.tolerance")
+    at = cur.with_config(lead.cfg)
+    cfg_p, _, test = on_nights_plant(at, lead.cfg, [lead.effect], anchored=True)
+    if test is None or not test["within"]:
+        return None
+    floor = cur.noise
+    e0, e1, e_lead = rms(cur.base_residuals), rms(cur.residuals(cfg_p)), rms(lead.res)
+    # on the channels above their floor (one below it has no gap to close)
+    closed = {c: gap_closed(e0[c], e1[c], floor[c]) for c in e0 if e0[c] > AT_FLOOR * floor[c]}
+    if not closed:
+        return None
+    chan = max(closed, key=closed.get)
+    logger.info("chain: %s on the night's plant closes %.2f of the gap in %s", lead.effect, closed[chan], chan)
+    if closed[chan] < HALF_GAP:
+        return None
+    held = _earned(cur, split, [lead.effect], [], cfg_p, fit_nfev, refit=lambda m: cur.residuals(
+        within_tolerance(at, tol, mask=m, found=[lead.effect], start=cfg_p)["_config"])) if split else None
+    if held is not None and not held["earned"]:
+        return None
+    alone = gap_closed(e0[chan], e_lead[chan], floor[chan])
+    text = (f"{lead.effect} on the night's plant (the config's masses, stiffnesses and dampings within their "
+            f"tolerance) closes {100 * closed[chan]:.0f} % of the gap in {chan}, on the config's plant "
+            f"{100 * alone:.0f} %; there: {lead.evidence}")
+    nights = {"effects": [lead.effect], "tolerance": tol, "params": test["params"],
+              "stderr": dict(test.get("_refitted_stderr", {})), "error_on_config_plant": e_lead}
+    return {"effect": lead.effect, "fit": lead, "text": text, "nights_plant": nights, "held": held, "_config": cfg_p}
 
 
 def _look_alike(d, verdict, add, have, cur):
@@ -700,6 +810,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     split = _holdout_parts(replay, holdout)
     rejected = within = None
     gone: list[str] = []        # effects dropped by a later step (no candidates again)
+    ref: dict = {}              # the plant's keys a refit on the night's plant moved: their start values
     for i in range(max(1, max_steps)):
         err0 = rms(cur.base_residuals)
         if at_noise_floor(err0, floor):
@@ -722,12 +833,20 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if first is None:
             first = d
         verdict = d["verdict"]
-        together, members, alone = None, {}, False
-        if verdict == "unexplained" and i == 0 and max_steps > 1:
+        together, members, alone, first_nights = None, {}, False, None
+        if verdict == "unexplained" and i == 0:
+            # a backlash fitted on the config's plant may close little where the night's plant differs
+            first_nights = _unexplained_on_nights_plant(cur, d, split, fit_nfev, progress)
+        if first_nights is not None:
+            verdict, alone = first_nights["effect"], True
+            add, cfg1, fits = [verdict], first_nights["_config"], [first_nights["fit"]]
+        elif verdict == "unexplained" and i == 0 and max_steps > 1:
             # two effects that show only together (a table leaning on one flank of a backlash only
             # under a force on it): the best fit on top of the model, the next verdict on top of that
             together = _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw)
-        if together is not None:
+        if first_nights is not None:
+            pass                            # the step is the night's plant's (its held-out check done)
+        elif together is not None:
             verdict, add, cfg1, fits = together["verdict"], together["effects"], together["_config"], together["_fits"]
             if split:
                 # each member of the pair earns its own place too: a drift of the config (c2) taken
@@ -743,7 +862,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             break
         else:
             add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
-            test = _within_tolerance(cur, add, found, progress) if within is None else None
+            test = _within_tolerance(cur, add, found, progress, ref) if within is None else None
             if test is not None and test["within"]:
                 # the step would name a drift of the config, and the config's masses, stiffnesses and
                 # dampings fit within their tolerance: no finding; where it earns its place as a step
@@ -751,7 +870,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 # config a candidate any more)
                 tol = test["tolerance"]
                 held = _earned(cur, split, [], found, test["_config"], fit_nfev, refit=lambda m: cur.residuals(
-                    within_tolerance(cur, tol, mask=m, found=found)["_config"])) if split else None
+                    _tolerance_test(cur, tol, found, ref, mask=m)["_config"])) if split else None
                 if held is not None and not held["earned"] and "in_place_of" in test:
                     test = None             # the step's own effect is judged as any step is
                 elif held is not None and not held["earned"]:
@@ -777,7 +896,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                     before = cur
                     for e in dropped:
                         before = before.with_config(_without(e["effect"], before.cfg, replay.cfg))
-                    refit, more = _unpaid_beside_drift(replay, before, rest, tol, cfg_t) if rest else (None, [])
+                    refit, more = _unpaid_beside_drift(replay, before, rest, tol, cfg_t, ref) if rest else (None, [])
                     if refit is not None:
                         # the drift as fitted without the dropped effects
                         cfg_t = refit["_config"]
@@ -824,7 +943,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if i > 0 and paid <= MIN_SCORE:
             end = "no effect pays for its parameters"
             break
-        held = _earned(cur, split, add, found, cfg1, fit_nfev) if split else None
+        held = (first_nights["held"] if first_nights is not None else
+                _earned(cur, split, add, found, cfg1, fit_nfev) if split else None)
         if held is not None and members:
             held["members"] = members
         lead = next((c for c in d["candidates"] if c.effect == verdict), None)
@@ -849,7 +969,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             step=i + 1, effect=verdict, effects=list(add), params={n: effect_values(n, cfg1) for n in found},
             error_before=err0, error_after=err1,
             gap_closed={c: gap_closed(err0[c], err1[c], floor[c]) for c in err0}, score=float(paid),
-            evidence=(together["text"] if together is not None else lead.evidence if lead is not None else ""),
+            evidence=(together["text"] if together is not None else first_nights["text"] if first_nights is not None
+                      else lead.evidence if lead is not None else ""),
             refitted_together=joint is not None, stderr=se, confounded=conf, aliases=_aliases(replay, cfg1, add),
             rival=rival, recording_artefacts=[n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
             dropped=dropped or None, fits=fits, joint=joint, config=cfg1, runner_up=runner_up))
@@ -862,6 +983,30 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             first = dict(first, verdict=verdict)
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         cur = cur.with_config(cfg1)
+        if first_nights is not None:
+            steps[-1].nights_plant = first_nights["nights_plant"]
+            held_keys = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
+            ref = {k: float(replay.cfg[k]) for k in first_nights["nights_plant"]["params"] if k not in held_keys}
+            if at_noise_floor(err1, floor):
+                end = "noise floor reached within the config's tolerance"
+                break
+        elif within is None and not at_noise_floor(err1, floor):
+            # an effect whose error is not convex, fitted on the config's plant, follows the plant's
+            # own drift (a lightly damped mode's phase) rather than its strength
+            nights = _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref)
+            if nights is not None:
+                cfg_n = nights.pop("_config")
+                st, err_n = steps[-1], rms(cur.residuals(cfg_n))
+                st.nights_plant = dict(nights, error_on_config_plant=st.error_after)
+                st.params, st.error_after, st.config = {n: effect_values(n, cfg_n) for n in found}, err_n, cfg_n
+                st.gap_closed = {c: gap_closed(err0[c], err_n[c], floor[c]) for c in err0}
+                # the plant's keys it moved, their start values: later tolerance tests are about those
+                held_keys = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
+                ref = {k: float(replay.cfg[k]) for k in nights["params"] if k not in held_keys}
+                cur = cur.with_config(cfg_n)
+                if at_noise_floor(err_n, floor):
+                    end = "noise floor reached within the config's tolerance"
+                    break
     if len(steps) > 1 and not end.startswith("noise floor"):
         swap = _swap(replay, cur, steps, found, gone, split, fit_nfev, progress)
         if swap is not None:

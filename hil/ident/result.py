@@ -23,7 +23,7 @@ from typing import Any
 __all__ = ["ChainStep"]
 
 # the keys a step has only where it did that: a swap, an effect dropped, a held-out check
-_OPTIONAL = ("swapped", "dropped", "estimation_error", "held_out")
+_OPTIONAL = ("swapped", "dropped", "nights_plant", "estimation_error", "held_out")
 
 
 @dataclass
@@ -64,6 +64,12 @@ class ChainStep:
         The first step's verdict this step replaced (its look-alike fitted in its place).
     dropped : list of dict, optional
         Effects found before that no longer paid for their parameters, with values and scores.
+    nights_plant : dict, optional
+        The step's effects with a grid refitted on the night's plant (hil.ident.chain
+        ``_on_nights_plant``): ``effects``, ``tolerance``, the plant's ``params`` (config, value,
+        change, standard error), the effects' ``stderr`` there, ``error_on_config_plant`` (the
+        step's error before) and its ``held_out`` check; ``params`` and ``error_after`` are then the
+        values and errors on the night's plant.
     estimation_error, held_out : dict, optional
         The errors on the data the step was fitted on and its check on the held-out data.
     fits, joint, config, runner_up
@@ -87,6 +93,7 @@ class ChainStep:
     recording_artefacts: list
     swapped: str | None = None
     dropped: list | None = None
+    nights_plant: dict | None = None
     estimation_error: dict | None = None
     held_out: dict | None = None
     fits: list = field(default_factory=list, repr=False)

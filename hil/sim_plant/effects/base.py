@@ -38,6 +38,8 @@ A new effect is one module (and its test): a subclass of :class:`Effect` decorat
   pairs (hil.ident.joint);
 * :attr:`Effect.lags_the_torque`: the effect delays or lags the torque after the controller, so
   that a record's torque command and its current differ (hil.ident.sampling);
+* :attr:`Effect.non_smooth`: the error jumps with the effect's gridded parameter (a contact's
+  timing): the diagnosis chain refits it on the night's plant (hil.ident.chain);
 * :attr:`Effect.screen_starts`: starts of the brief screening fit (2 where two basins lie apart);
   :attr:`Effect.cost_factor`: how costly its fit is, for the scheduling of the candidates.
 
@@ -177,6 +179,7 @@ class Effect(ABC):
     linear_param: str | None = None         # the parameter linear through the inverse model (hil.ident.joint)
     screen_starts: int = 1                  # starts of the brief screening fit
     lags_the_torque: bool = False           # makes the torque command and the current differ at the sample
+    non_smooth: bool = False                # the error jumps with its gridded parameter (a contact's timing)
 
     @property
     def cost_factor(self) -> int:
