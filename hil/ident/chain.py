@@ -106,11 +106,14 @@ percent on k2 moves the ringing's phase, and a 34.7 um gap read 26.7 um. A step 
 above the noise floor, refits it on the night's plant (``chain[].nights_plant``;
 hil.ident.tracking.on_nights_plant: the profile over its grid with the masses' common scale and
 the lightly damped modes' springs, then the tolerance's fit of every key and everything found, then
-a scan of the gap), kept where every change lies within ``plant.tolerance``, it lowers the weighted
-error and it earns its place on the held-out moves (the fit on the estimation moves from the
-profile's point) as a drift within the tolerance does: no finding, the step's values and errors
-then those on the night's plant. Later tolerance tests stay about the config's values (their fits
-start from the night's). A first diagnosis ``unexplained`` tries its best such candidate so before
+a scan of the gridded parameters found), kept where every change lies within ``plant.tolerance``,
+it lowers the weighted error and, where the record has a held-out part, it earns its place there
+(the tolerance's fit on the estimation moves from the refit's point, whose gap the whole record
+chose) as a drift within the tolerance does: no finding; the step's values, standard errors, errors
+and config are then those on the night's plant (its score and held-out check stay the step's own).
+Later tolerance tests stay about the config's values (their fits start from the night's); a
+backlash found after the model took a drift within the tolerance is not refitted so again. A first
+diagnosis ``unexplained`` (``max_steps`` 1 included) tries its best such candidate so before
 the pair shown together: a 31.1 um gap fitted as 7.1 um on the config's plant (x_motor 16 % less,
 the tip no better), refitted on the night's plant, reads 31.1 um and brings the tip from 705 to 10
 times its floor (``tests/independent/test_tracking.py``, seed 6).
@@ -357,6 +360,15 @@ def _refit_on(cur, mask, names, cfg, fit_nfev) -> dict:
         return cur.residuals(cfg)
 
 
+def _nested(stderr: dict) -> dict:
+    """{effect.param: value} as {effect: {param: value}} (a step's ``stderr``); NaN as None."""
+    out: dict = {}
+    for k, v in stderr.items():
+        name, param = k.rsplit(".", 1)
+        out.setdefault(name, {})[param] = float(v) if math.isfinite(v) else None
+    return out
+
+
 def _stderr_of(fit, names) -> tuple[dict, list]:
     """A step's last fit's standard errors as {effect: {param: value}} and its confounded pairs."""
     if fit is None:
@@ -571,6 +583,9 @@ def _tolerance_test(cur, tol, found, ref, mask=None, **kw) -> dict | None:
     plant: ``ref`` ({key: the start model's value}) holds the keys a refit on the night's plant
     moved (:func:`_on_nights_plant`), set back for the test's prior and changes, its fit starting
     from ``cur``'s values; empty or None: about ``cur``'s own."""
+    # a key a step has named since (parameter:plant.k2 beyond the tolerance) is the model's own
+    held = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
+    ref = {k: v for k, v in (ref or {}).items() if k not in held}
     if not ref:
         return within_tolerance(cur, tol, mask=mask, found=found, **kw)
     return within_tolerance(cur.with_config(cur.cfg.with_values(ref)), tol, mask=mask, found=found, start=cur.cfg,
@@ -597,13 +612,12 @@ def _within_tolerance(cur, add, found, progress, ref=None) -> dict | None:
 
 
 def _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref=None) -> dict | None:
-    """The step's effects with a grid (a backlash's gap, a delay: an error that is not convex in
-    them) refitted on the night's plant (the module's definition; hil.ident.tracking.on_nights_plant
-    from the model as it stands, ``cur``, which holds the step, about the config's plant as
-    :func:`_tolerance_test`): the tolerance test of everything ``found`` from the profile's point,
-    with ``profiled`` (the step's effects so refitted) and, with a held-out part, its check there;
-    where the drift lies within the tolerance, lowers the weighted error and earns its place. Else
-    None."""
+    """The step's effects whose error jumps with their gridded parameter (``non_smooth``: a
+    backlash's gap) refitted on the night's plant (the module's definition;
+    hil.ident.tracking.on_nights_plant from the model as it stands, ``cur``, which holds the step,
+    about the config's plant as :func:`_tolerance_test`): ``effects``, ``tolerance``, the plant's
+    ``params`` and the effects' ``stderr`` there, and with a held-out part its check there; where
+    the drift lies within the tolerance, lowers the weighted error and earns its place. Else None."""
     from hil.ident.tracking import _cost, _grid, on_nights_plant
     tol = float(cur.cfg.get("plant.tolerance", TOLERANCE))
     gridded = [n for n in add if "+" not in n and candidate(n, cur.cfg).non_smooth and _grid(cur, n, cur.cfg)]
@@ -613,6 +627,8 @@ def _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref=Non
     if progress:
         expect(progress, 1)
         progress("plant.tolerance")
+    held_keys = {getattr(candidate(n, cur.cfg), "key", None) for n in names}
+    ref = {k: v for k, v in (ref or {}).items() if k not in held_keys}
     base = cur.with_config(cur.cfg.with_values(ref)) if ref else cur
     cfg_p, cost, test = on_nights_plant(base, cur.cfg, names, profiled=gridded, anchored=True)
     if test is None or not test["within"] or not cost < _cost(base, cur.cfg):
@@ -927,7 +943,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         rival = _rival(d, verdict, add, have, cur) if found and together is None else None
         # the first step's look-alike: judged in its place once the later steps' effects are in the
         # model (:func:`_swap`)
-        runner_up = _look_alike(d, verdict, add, have, cur) if not found and together is None else None
+        runner_up = (_look_alike(d, verdict, add, have, cur) if not found and together is None and first_nights is None
+                     else None)
         if rival is not None:
             # a runner-up that removes about as much: the effects found before were fitted without
             # it and may hold part of it (a friction fitted before a delay takes part of its phase),
@@ -952,6 +969,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             lead = None
         err1 = rms(res1)
         se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
+        if first_nights is not None:        # the fit on the config's plant is not the step's values
+            se, conf = _nested(first_nights["nights_plant"]["stderr"]), []
         if held is not None and not held["earned"]:
             end = "no step earns its place on the held-out data"
             rejected = {"effects": list(add), "score": float(paid), "error_after": err1, "stderr": se,
@@ -999,6 +1018,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 st, err_n = steps[-1], rms(cur.residuals(cfg_n))
                 st.nights_plant = dict(nights, error_on_config_plant=st.error_after)
                 st.params, st.error_after, st.config = {n: effect_values(n, cfg_n) for n in found}, err_n, cfg_n
+                st.stderr, st.confounded, st.runner_up = _nested(nights["stderr"]), [], None
                 st.gap_closed = {c: gap_closed(err0[c], err_n[c], floor[c]) for c in err0}
                 # the plant's keys it moved, their start values: later tolerance tests are about those
                 held_keys = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
