@@ -154,7 +154,9 @@ def _chain_figures(fig: dict, rp, settings: Settings) -> None:
     from hil.ident.chain import diagnose_chain
     if settings.max_steps >= 1:
         cands = list(settings.candidates) if settings.candidates else None
-        d = diagnose_chain(rp, cands, max_steps=settings.max_steps, jobs=1, fit_nfev=settings.fit_nfev)
+        # the tracked effects are fitted on the night's plant apart (_tracked): the chain names them
+        d = diagnose_chain(rp, cands, max_steps=settings.max_steps, jobs=1, fit_nfev=settings.fit_nfev,
+                           nights_plant=False)
         named = []
         for s in d["chain"]:        # what the model holds: less what a later step dropped
             gone = {x["effect"] for x in s.dropped or []}

@@ -633,6 +633,10 @@ def _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref=Non
     cfg_p, cost, test = on_nights_plant(base, cur.cfg, names, profiled=gridded, anchored=True)
     if test is None or not test["within"] or not cost < _cost(base, cur.cfg):
         return None
+    # the plant's keys it moved pay for themselves, as any step's parameters
+    if not bic_score(cur.base_residuals, cur.residuals(cfg_p), list(cur.noise), len(test["params"]),
+                     cur.noise) > MIN_SCORE:
+        return None
     held = _earned(cur, split, [], names, cfg_p, fit_nfev, refit=lambda m: cur.residuals(
         within_tolerance(base, tol, mask=m, found=names, start=cfg_p)["_config"])) if split else None
     if held is not None and not held["earned"]:
@@ -783,7 +787,8 @@ def _weighted(replay, res) -> float:
 
 @one_blas_thread()
 def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_STEPS, progress=None,
-                   jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, holdout=None, **kw) -> dict:
+                   jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, holdout=None,
+                   nights_plant: bool = True, **kw) -> dict:
     """The chain on a record (see the module's definition).
 
     Parameters
@@ -804,6 +809,10 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         What every step must earn its place on (the module's definition): the record's moves split
         into estimation and held-out halves, the replays of validation records, or nothing (None:
         the BIC score on the record alone).
+    nights_plant : bool
+        Whether a backlash is refitted on the night's plant (the module's definition; False: the
+        config's plant only, as ``hil fleet``, which fits its tracked effects so on its own,
+        hil.ident.tracking).
 
     Returns
     -------
@@ -850,7 +859,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             first = d
         verdict = d["verdict"]
         together, members, alone, first_nights = None, {}, False, None
-        if verdict == "unexplained" and i == 0:
+        if verdict == "unexplained" and i == 0 and nights_plant:
             # a backlash fitted on the config's plant may close little where the night's plant differs
             first_nights = _unexplained_on_nights_plant(cur, d, split, fit_nfev, progress)
         if first_nights is not None:
@@ -1009,7 +1018,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             if at_noise_floor(err1, floor):
                 end = "noise floor reached within the config's tolerance"
                 break
-        elif within is None and not at_noise_floor(err1, floor):
+        elif nights_plant and within is None and not at_noise_floor(err1, floor):
             # an effect whose error is not convex, fitted on the config's plant, follows the plant's
             # own drift (a lightly damped mode's phase) rather than its strength
             nights = _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref)
