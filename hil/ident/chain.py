@@ -1019,7 +1019,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 end = "noise floor reached within the config's tolerance"
                 break
         elif nights_plant and within is None and not at_noise_floor(err1, floor):
-            # an effect whose error is not convex, fitted on the config's plant, follows the plant's
+            # an effect whose error jumps with its parameter, fitted on the config's plant, follows the plant's
             # own drift (a lightly damped mode's phase) rather than its strength
             nights = _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref)
             if nights is not None:
