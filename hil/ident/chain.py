@@ -583,13 +583,19 @@ def _tolerance_test(cur, tol, found, ref, mask=None, **kw) -> dict | None:
     plant: ``ref`` ({key: the start model's value}) holds the keys a refit on the night's plant
     moved (:func:`_on_nights_plant`), set back for the test's prior and changes, its fit starting
     from ``cur``'s values; empty or None: about ``cur``'s own."""
-    # a key a step has named since (parameter:plant.k2 beyond the tolerance) is the model's own
-    held = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
-    ref = {k: v for k, v in (ref or {}).items() if k not in held}
-    if not ref:
+    base = _config_plant(cur, found, ref)
+    if base is cur:
         return within_tolerance(cur, tol, mask=mask, found=found, **kw)
-    return within_tolerance(cur.with_config(cur.cfg.with_values(ref)), tol, mask=mask, found=found, start=cur.cfg,
-                            **kw)
+    return within_tolerance(base, tol, mask=mask, found=found, start=cur.cfg, **kw)
+
+
+def _config_plant(cur, found, ref):
+    """``cur`` with the keys of ``ref`` ({key: the start model's value}) set back, but for those the
+    effects ``found`` name (a parameter:plant.k2 beyond the tolerance is the model's own); ``cur``
+    itself where none is left."""
+    named = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
+    ref = {k: v for k, v in (ref or {}).items() if k not in named}
+    return cur.with_config(cur.cfg.with_values(ref)) if ref else cur
 
 
 def _within_tolerance(cur, add, found, progress, ref=None) -> dict | None:
@@ -611,6 +617,13 @@ def _within_tolerance(cur, add, found, progress, ref=None) -> dict | None:
     return dict(test, in_place_of=list(add)) if test["within"] and test["at_noise_floor"] else None
 
 
+def _non_smooth(cur, name: str) -> bool:
+    """Whether the effect ``name`` (not a combination) is refitted on the night's plant: its error
+    jumps with its one gridded parameter (:attr:`~hil.sim_plant.effects.Effect.non_smooth`)."""
+    from hil.ident.tracking import _grid
+    return "+" not in name and candidate(name, cur.cfg).non_smooth and bool(_grid(cur, name, cur.cfg))
+
+
 def _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref=None) -> dict | None:
     """The step's effects whose error jumps with their gridded parameter (``non_smooth``: a
     backlash's gap) refitted on the night's plant (the module's definition;
@@ -618,24 +631,22 @@ def _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref=Non
     about the config's plant as :func:`_tolerance_test`): ``effects``, ``tolerance``, the plant's
     ``params`` and the effects' ``stderr`` there, and with a held-out part its check there; where
     the drift lies within the tolerance, lowers the weighted error and earns its place. Else None."""
-    from hil.ident.tracking import _cost, _grid, on_nights_plant
+    from hil.ident.tracking import _cost, on_nights_plant
     tol = float(cur.cfg.get("plant.tolerance", TOLERANCE))
-    gridded = [n for n in add if "+" not in n and candidate(n, cur.cfg).non_smooth and _grid(cur, n, cur.cfg)]
+    gridded = [n for n in add if _non_smooth(cur, n)]
     if not tol > 0 or not gridded or not tolerance_keys(cur.cfg):
         return None
     names = [n for n in found if "+" not in n]
     if progress:
         expect(progress, 1)
         progress("plant.tolerance")
-    held_keys = {getattr(candidate(n, cur.cfg), "key", None) for n in names}
-    ref = {k: v for k, v in (ref or {}).items() if k not in held_keys}
-    base = cur.with_config(cur.cfg.with_values(ref)) if ref else cur
+    base = _config_plant(cur, names, ref)
     cfg_p, cost, test = on_nights_plant(base, cur.cfg, names, profiled=gridded, anchored=True)
     if test is None or not test["within"] or not cost < _cost(base, cur.cfg):
         return None
     # the plant's keys it moved pay for themselves, as any step's parameters
-    if not bic_score(cur.base_residuals, cur.residuals(cfg_p), list(cur.noise), len(test["params"]),
-                     cur.noise) > MIN_SCORE:
+    res_p = cur.residuals(cfg_p)
+    if not bic_score(cur.base_residuals, res_p, list(cur.noise), len(test["params"]), cur.noise) > MIN_SCORE:
         return None
     held = _earned(cur, split, [], names, cfg_p, fit_nfev, refit=lambda m: cur.residuals(
         within_tolerance(base, tol, mask=m, found=names, start=cfg_p)["_config"])) if split else None
@@ -645,7 +656,7 @@ def _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref=Non
     logger.info("chain: %s on the night's plant (%s)", ", ".join(f"{n} {effect_values(n, cfg_p)}" for n in gridded),
                 ", ".join(f"{k} {100 * p['change']:+.2f} %" for k, p in test["params"].items()))
     out = {"effects": gridded, "tolerance": tol, "params": test["params"],
-           "stderr": dict(test.get("_refitted_stderr", {})), "_config": cfg_p}
+           "stderr": dict(test.get("_refitted_stderr", {})), "_config": cfg_p, "_error": rms(res_p)}
     if held is not None:
         out.update(estimation_error=held.pop("estimation"), held_out=held)
     return out
@@ -660,12 +671,11 @@ def _unexplained_on_nights_plant(cur, d, split, fit_nfev, progress) -> dict | No
     held-out data (refitted there with the plant). Returns the step's ``effect``, ``fit`` (the
     candidate), ``text``, ``nights_plant`` (as :func:`_on_nights_plant`'s, without its own held-out
     check: the step's is that check), ``held`` and ``_config``; else None."""
-    from hil.ident.tracking import _grid, on_nights_plant
+    from hil.ident.tracking import on_nights_plant
     tol = float(cur.cfg.get("plant.tolerance", TOLERANCE))
     if not tol > 0 or not tolerance_keys(cur.cfg):
         return None
-    lead = next((c for c in d["candidates"] if "+" not in c.effect and c.res is not None
-                 and candidate(c.effect, cur.cfg).non_smooth and _grid(cur, c.effect, cur.cfg)), None)
+    lead = next((c for c in d["candidates"] if c.res is not None and _non_smooth(cur, c.effect)), None)
     if lead is None:
         return None
     if progress:
@@ -1013,8 +1023,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         cur = cur.with_config(cfg1)
         if first_nights is not None:
             steps[-1].nights_plant = first_nights["nights_plant"]
-            held_keys = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
-            ref = {k: float(replay.cfg[k]) for k in first_nights["nights_plant"]["params"] if k not in held_keys}
+            ref = {k: float(replay.cfg[k]) for k in first_nights["nights_plant"]["params"]}
             if at_noise_floor(err1, floor):
                 end = "noise floor reached within the config's tolerance"
                 break
@@ -1023,15 +1032,14 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             # own drift (a lightly damped mode's phase) rather than its strength
             nights = _on_nights_plant(replay, cur, found, add, split, fit_nfev, progress, ref)
             if nights is not None:
-                cfg_n = nights.pop("_config")
-                st, err_n = steps[-1], rms(cur.residuals(cfg_n))
+                cfg_n, err_n = nights.pop("_config"), nights.pop("_error")
+                st = steps[-1]
                 st.nights_plant = dict(nights, error_on_config_plant=st.error_after)
                 st.params, st.error_after, st.config = {n: effect_values(n, cfg_n) for n in found}, err_n, cfg_n
                 st.stderr, st.confounded, st.runner_up = _nested(nights["stderr"]), [], None
                 st.gap_closed = {c: gap_closed(err0[c], err_n[c], floor[c]) for c in err0}
                 # the plant's keys it moved, their start values: later tolerance tests are about those
-                held_keys = {getattr(candidate(n, cur.cfg), "key", None) for n in found}
-                ref = {k: float(replay.cfg[k]) for k in nights["params"] if k not in held_keys}
+                ref = {k: float(replay.cfg[k]) for k in nights["params"]}
                 cur = cur.with_config(cfg_n)
                 if at_noise_floor(err_n, floor):
                     end = "noise floor reached within the config's tolerance"
