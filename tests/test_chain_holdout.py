@@ -77,9 +77,34 @@ def test_split_moves_in_pairs():
     est, held = split_moves(rp)
     assert est[t < 1.9].all() and not est[(t > 2.1) & (t < 3.9)].any()
     assert held.sum() + est.sum() == t.size and not (est & held).any()
-    # one move only: nothing to hold out
+    # one move only: its acceleration (the first half of its travel) estimates, the rest is held out
     one = SimpleNamespace(meas=Measurement({"t": t, "x_cmd": np.where(t < 1, 0.05 * t, 0.05)}, source="one"))
-    assert split_moves(one) is None
+    est, held = split_moves(one)
+    assert est[t < 0.49].all() and held[t > 0.51].all() and not (est & held).any()
+    # standing still throughout: nothing to hold out
+    still = SimpleNamespace(meas=Measurement({"t": t, "x_cmd": np.zeros_like(t)}, source="still"))
+    assert split_moves(still) is None
+
+
+def test_there_back_and_there_again_puts_both_directions_in_each_half():
+    """Three moves (+x, -x, +x): single moves alternating would estimate on +x alone and hold out
+    -x (a friction that differs with the direction fitted on one and judged on the other); each
+    move is cut at the middle of its travel instead and its halves alternate, the next move's the
+    other way round, so both halves hold motion in both directions."""
+    t = np.arange(0, 3.0, 4e-3)
+    x = np.zeros_like(t)
+    for i, (a, d) in enumerate([(0.0, 0.04), (1.0, -0.04), (2.0, 0.04)]):
+        x += d * (0.5 - 0.5 * np.cos(np.pi * np.clip((t - a) / 0.8, 0, 1)))
+    rp = SimpleNamespace(meas=Measurement({"t": t, "x_cmd": x}, source="there and back"))
+    est, held = split_moves(rp)
+    v = np.gradient(x, t)
+    for half in (est, held):
+        assert (v[half] > 1e-3).sum() > 50 and (v[half] < -1e-3).sum() > 50
+    # the cuts at the middle of each move's travel (0.4 s after each start): the first move's
+    # acceleration, the second's deceleration and the third's acceleration estimate
+    assert est[(t < 0.39) | ((t > 1.41) & (t < 2.0)) | ((t > 2.0) & (t < 2.39))].all()
+    assert held[((t > 0.41) & (t < 0.99)) | ((t > 1.01) & (t < 1.39)) | (t > 2.41)].all()
+    assert held.sum() + est.sum() == t.size
 
 
 def test_moves_in_one_direction_have_halves_too():
@@ -153,3 +178,39 @@ def test_drifted_parameters_only(drifts, seed):
         assert got == pytest.approx(true[name], rel=0.01), (name, got, true[name])
     assert all(s["held_out"]["earned"] for s in d["chain"])
     assert not d["final"]["end"].startswith("max steps")
+
+
+def test_a_refused_step_leaves_the_next_verdict_to_be_tried(monkeypatch):
+    """The chain stops when no step earns its place, not at the first that does not: a refused
+    step's effects are no candidates any more and the next verdict is tried (a drive engineer's
+    next suspect). The mechanics, with the held-out check made to refuse the first verdict
+    whatever it is: the next verdict is kept, the refused one sits under ``final.rejected``, and
+    the first diagnosis's verdict becomes the kept step's; with ``refusals=1`` the first refusal
+    ends the chain as before."""
+    import hil.ident.chain as chain
+
+    rp = _record([("coulomb_friction", {"level": 0.6})], seed=2, duration=3.0)
+    names = ["coulomb_friction", "asymmetric_friction", "viscous_friction"]
+    real, first = chain._earned, []
+
+    def refuse_the_first(cur, split, add, *a, **k):
+        out = real(cur, split, add, *a, **k)
+        if not first or add == first[0]:
+            first.append(list(add))
+            out = dict(out, earned=False)
+        return out
+
+    monkeypatch.setattr(chain, "_earned", refuse_the_first)
+    d = diagnose_chain(rp, names, jobs=1, holdout="moves")
+    refused = first[0]
+    assert d["final"]["rejected"]["effects"] == refused and not d["final"]["rejected"]["held_out"]["earned"]
+    kept = [e for s in d["chain"] for e in s["effects"]]
+    assert kept and not set(kept) & set(refused), (kept, refused)
+    assert d["verdict"] == d["chain"][0]["effect"] and "also_refused" not in d["final"]
+    out = json.loads(dumps({"chain": chain_json(d["chain"]), "final": d["final"]}))
+    assert out["final"]["rejected"]["effects"] == refused
+
+    first.clear()
+    d1 = diagnose_chain(rp, names, jobs=1, holdout="moves", refusals=1)
+    assert d1["chain"] == [] and d1["final"]["end"] == "no step earns its place on the held-out data"
+    assert d1["final"]["rejected"]["effects"] == first[0]

@@ -166,10 +166,13 @@ JSON_KEYS = {
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
     "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
                                   "none and why", when="the chain"),
-    "final.rejected": JsonKey("", "the step the held-out data refused: effects, score, error_after, stderr, "
-                                  "confounded, estimation_error, held_out (as chain[]); tolerance (plant.tolerance) where "
-                                  "it was the fit of the config's drift within its tolerance",
+    "final.rejected": JsonKey("", "the step the held-out data refused last (the chain's end): effects, score, "
+                                  "error_after, stderr, confounded, estimation_error, held_out (as chain[]); tolerance "
+                                  "(plant.tolerance) where it was the fit of the config's drift within its tolerance",
                               when="a step did not earn its place"),
+    "final.also_refused": JsonKey("", "the steps refused before it (each as final.rejected), after each of which the "
+                                      "next verdict, without the refused effects, was tried",
+                                  when="more than one step did not earn its place"),
     "final.tolerance": JsonKey("", "a step would have named a drift of the config's masses, stiffnesses or "
                                    "dampings (or, after a step, an effect that such a drift leaves nothing for), "
                                    "and all of them fitted within plant.tolerance: no finding, the model holds them; "
@@ -504,11 +507,11 @@ def chain_text(d, rp) -> list[str]:
     f = d["final"]
     if tol is not None:
         lines += [_tolerance_line(tol)] + _held_out_lines(tol, rp)
-    if "rejected" in f:
-        r = f["rejected"]
+    for r in f.get("also_refused", []) + ([f["rejected"]] if "rejected" in f else []):
         what = (f"the config's drift within its tolerance ({', '.join(r['effects'])} and the other masses, stiffnesses "
                 f"and dampings)" if "tolerance" in r else " + ".join(r["effects"]))
-        lines.append(f"  refused: + {what} (BIC score {r['score']:.1f} on the whole record)")
+        then = "; the next verdict tried without it" if r is not f["rejected"] else ""
+        lines.append(f"  refused: + {what} (BIC score {r['score']:.1f} on the whole record{then})")
         lines += _held_out_lines(r, rp)
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else
                                          "the residual stays above the noise floor:"))

@@ -51,8 +51,13 @@ as ``--validate``'s), every step must earn its place on data it was not fitted o
   when the effects already found are refitted on them (``model_refit_fall``): the uncertainty of
   what is already in the model. A record whose residual is chaotic after an effect (a table
   rattling in a backlash) changes with any small retuning; a step that does no better there
-  than the model's own retuning is not earned. A step that does not earn its place ends the chain
-  (``end`` "no step earns its place on the held-out data", the step under ``final.rejected``);
+  than the model's own retuning is not earned. A step that does not earn its place is refused: its
+  effects are no candidates any more and the next verdict is tried, as a drive engineer tries the
+  next suspect (a friction that differs with the direction refused, the plain viscous friction
+  beside it is the next); the chain stops when none earns its place: at its :data:`REFUSALS`-th
+  refused step, or where the next verdict is nothing (``end`` "no step earns its place on the
+  held-out data", the last refused step under ``final.rejected``, those before it under
+  ``final.also_refused``);
 * a step of several effects (the verdict and the effects ``also_missing`` beside it) is judged
   member by member first (:func:`_members_earned`, ``chain[].held_out.members``; a pair shown
   together as well, whose single member left is then the step): each member's
@@ -157,6 +162,7 @@ __all__ = ["diagnose_chain", "chain_json", "floor_parts", "floor_parts_text", "M
            "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV"]
 
 MAX_STEPS = 4
+REFUSALS = 2            # a chain ends at its second refused step (the next candidate tried after the first)
 HOLDOUT_MIN = 64        # samples each half needs at least
 HOLDOUT_Z = 2.0         # the held-out fall must stand this many standard errors above zero
 HOLDOUT_NFEV = 15       # evaluations of a step's refit on the estimation half
@@ -192,19 +198,42 @@ def _moves(t, x_cmd) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(ends[:-1], ends[1:]) if b > a]
 
 
+def _half_of_travel(x, a: int, b: int) -> int:
+    """The sample where the move ``a:b`` has covered half of its travel (its acceleration before,
+    its deceleration and the standstill after it from there); ``a`` for a move without travel."""
+    seg = np.abs(x[a:b] - x[a])
+    half = 0.5 * float(seg[-1])
+    return a + int(np.argmax(seg >= half)) if half > 0 else a
+
+
 def split_moves(replay, min_samples: int = HOLDOUT_MIN):
     """The record's moves (the module's definition) in pairs, the pairs alternately in an
-    estimation half and a held-out half (single moves when there are fewer than two pairs):
-    (estimation, held_out), boolean masks of the record's samples (of the records joined, for
-    several); None for an open-loop record, or when either half has fewer than ``min_samples``."""
+    estimation half and a held-out half; single moves when there are fewer than two pairs.
+    Where single moves would leave a direction of motion to one half alone (there and back, or
+    there, back and there again: an effect that differs with the direction, a friction, would be
+    fitted on one direction and judged on the other), and where the record is one move, each move
+    is cut at the middle of its travel (:func:`_half_of_travel`) and its halves go to the two
+    halves in turn, the next move's the other way round: the first move's acceleration estimates
+    and its deceleration is held out, the second's deceleration estimates, and so on.
+
+    Returns (estimation, held_out), boolean masks of the record's samples (of the records joined,
+    for several); None for an open-loop record, or when either half has fewer than ``min_samples``."""
     if any(getattr(p, "open_loop", False) for p in getattr(replay, "parts", [replay])):
         return None
     m = replay.meas
-    moves = _moves(m.t, m["x_cmd"])
+    x = np.asarray(m["x_cmd"], float)
+    moves = _moves(m.t, x)
     per = 2 if len(moves) >= 4 else 1
+    sign = [float(np.sign(x[b - 1] - x[a])) for a, b in moves]
+    halved = per == 1 and (len(moves) == 1 or set(sign[0::2]) != set(sign[1::2]))
     est = np.zeros(m.t.size, bool)
     for i, (a, b) in enumerate(moves):
-        est[a:b] = (i // per) % 2 == 0
+        first = (i // per) % 2 == 0
+        if halved:
+            c = _half_of_travel(x, a, b)
+            est[a:c], est[c:b] = first, not first
+        else:
+            est[a:b] = first
     held = ~est
     if est.sum() < min_samples or held.sum() < min_samples:
         return None
@@ -798,7 +827,7 @@ def _weighted(replay, res) -> float:
 @one_blas_thread()
 def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_STEPS, progress=None,
                    jobs: int | None = None, max_nfev: int = 30, fit_nfev: int = 40, holdout=None,
-                   nights_plant: bool = True, **kw) -> dict:
+                   nights_plant: bool = True, refusals: int = REFUSALS, **kw) -> dict:
     """The chain on a record (see the module's definition).
 
     Parameters
@@ -823,6 +852,10 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         Whether a backlash is refitted on the night's plant (the module's definition; False: the
         config's plant only, as ``hil fleet``, which fits its tracked effects so on its own,
         hil.ident.tracking).
+    refusals : int
+        The chain ends at this many steps refused by the held-out data; before, a refused step's
+        effects are no candidates any more and the next verdict is tried (1: the first refusal
+        ends it).
 
     Returns
     -------
@@ -833,7 +866,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         are confounded with, its aliases, and with a held-out part its check on it
         (:func:`held_out_fall`); the fits and the config stay on the object, out of its JSON);
         ``final`` (the residual against the noise floor and why it ended; ``rejected``: the step the
-        held-out data refused; ``tolerance``: a drift of the config within its tolerance),
+        held-out data refused, the one that ended the chain; ``also_refused``: those refused before
+        it, after each of which the next verdict was tried; ``tolerance``: a drift of the config
+        within its tolerance),
         ``diagnoses`` (every step's diagnosis) and ``config`` (the model with the whole chain).
     """
     floor = replay.noise
@@ -846,7 +881,18 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     rejected = within = None
     gone: list[str] = []        # effects dropped by a later step (no candidates again)
     ref: dict = {}              # the plant's keys a refit on the night's plant moved: their start values
-    for i in range(max(1, max_steps)):
+    refused: list[dict] = []    # the steps the held-out data refused (their effects no candidates again)
+    barred: set[str] = set()
+    no_drift = False            # a drift within the config's tolerance refused: no drift a candidate again
+    i = 0                       # the steps kept so far (a drift within the tolerance counts as one)
+    while i < max(1, max_steps):
+        retry = rejected is not None
+        if retry:
+            # the step before was refused: the next verdict without its effects, while refusals are
+            # left; where it ends the chain with nothing kept, the refusal stays why it ended
+            if len(refused) >= max(1, refusals) or max_steps <= 1:
+                break
+            rejected = None
         err0 = rms(cur.base_residuals)
         if at_noise_floor(err0, floor):
             end = "noise floor reached"
@@ -855,12 +901,12 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 diags.append(first)
             break
         pool = names or candidate_names(cur.cfg, cur.plant, open_loop=is_open_loop(cur))
-        have = {_same(n, cur.cfg) for n in found + gone}
+        have = {_same(n, cur.cfg) for n in found + gone} | barred
         cands = [n for n in pool if _same(n, cur.cfg) not in have]
-        if within is not None:      # the config's drifts are in the model, within their tolerance
+        if within is not None or no_drift:      # the config's drifts are in the model, or were refused
             cands = [n for n in cands if not is_drift([candidate(n, cur.cfg)], cur.plant, cur.cfg)]
         if not cands:
-            end = "no candidate left"
+            end = end if retry else "no candidate left"
             break
         d = diagnose(cur, cands, progress=progress, jobs=jobs, max_nfev=max_nfev,
                      min_gap=HALF_GAP if i == 0 else 0.0, **kw)
@@ -869,13 +915,13 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             first = d
         verdict = d["verdict"]
         together, members, alone, first_nights = None, {}, False, None
-        if verdict == "unexplained" and i == 0 and nights_plant:
+        if verdict == "unexplained" and i == 0 and not retry and nights_plant:
             # a backlash fitted on the config's plant may close little where the night's plant differs
             first_nights = _unexplained_on_nights_plant(cur, d, split, fit_nfev, progress)
         if first_nights is not None:
             verdict, alone = first_nights["effect"], True
             add, cfg1, fits = [verdict], first_nights["_config"], [first_nights["fit"]]
-        elif verdict == "unexplained" and i == 0 and max_steps > 1:
+        elif verdict == "unexplained" and i == 0 and not retry and max_steps > 1:
             # two effects that show only together (a table leaning on one flank of a backlash only
             # under a force on it): the best fit on top of the model, the next verdict on top of that
             together = _shown_together(cur, d, cands, progress, jobs, max_nfev, fit_nfev, **kw)
@@ -892,7 +938,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                     # one member left: the step is that effect's, as a single verdict's would be
                     verdict, together, alone = add[0], None, True
         elif verdict in ("none", "unexplained"):
-            end = ("noise floor reached" if verdict == "none" else
+            end = (end if retry else "noise floor reached" if verdict == "none" else
                    "unexplained" if i == 0 else "no effect pays for its parameters")
             break
         else:
@@ -917,7 +963,10 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                                 "error_after": rms(res_t), "stderr": {}, "confounded": [],
                                 "estimation_error": held.pop("estimation"), "held_out": held}
                     logger.info("chain step %d: the config's tolerance refused by the held-out data", i + 1)
-                    break
+                    refused.append(rejected)
+                    barred |= {_same(n, cur.cfg) for n in add}
+                    no_drift = True
+                    continue
             if test is not None and test["within"]:
                 within = dict(test, step=i + 1)
                 if held is not None:
@@ -946,6 +995,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                                       refitted={n: v for n, v in within.get("refitted", {}).items() if n not in unpaid})
                 cur = cur.with_config(within["_config"])
                 logger.info("chain step %d: %s is a drift within the config's tolerance", i + 1, " + ".join(add))
+                i, end = i + 1, f"max steps ({max_steps})"
                 if at_noise_floor(rms(cur.base_residuals), floor):
                     end = "noise floor reached within the config's tolerance"
                     break
@@ -976,8 +1026,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             if r[3] > paid + MIN_SCORE:     # it pays beyond the scores' own noise
                 verdict, add, fits, members = rival["effect"], [rival["effect"]], rfits, {}
                 cfg1, res1, joint, paid = r
-        if i > 0 and paid <= MIN_SCORE:
-            end = "no effect pays for its parameters"
+        if (i > 0 or retry) and paid <= MIN_SCORE:
+            end = end if retry else "no effect pays for its parameters"
             break
         held = (first_nights["held"] if first_nights is not None else
                 _earned(cur, split, add, found, cfg1, fit_nfev) if split else None)
@@ -996,7 +1046,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                         "confounded": conf, "estimation_error": held.pop("estimation"), "held_out": held}
             logger.info("chain step %d: %s refused by the held-out data (fall %.3g, uncertainty %.3g)", i + 1,
                         " + ".join(add), held["fall"], held["uncertainty"])
-            break
+            refused.append(rejected)
+            barred |= {_same(n, cur.cfg) for n in add}
+            continue
         found += add
         cfg1, res1, dropped = _unpaid(replay, found, add, cfg1, res1)
         if dropped:
@@ -1020,6 +1072,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         elif alone:
             first = dict(first, verdict=verdict)
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
+        i, end = i + 1, f"max steps ({max_steps})"
         cur = cur.with_config(cfg1)
         if first_nights is not None:
             steps[-1].nights_plant = first_nights["nights_plant"]
@@ -1064,8 +1117,10 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     elif holdout is not None:
         final["held_out"] = (f"none (the record has fewer than {HOLDOUT_MIN} samples in its estimation or held-out "
                              f"moves, or is open-loop)")
-    if rejected is not None:
-        final["rejected"] = rejected
+    if refused:
+        final["rejected"] = refused[-1]
+        if len(refused) > 1:
+            final["also_refused"] = refused[:-1]
     if within is not None:
         final["tolerance"] = {k: v for k, v in within.items() if not k.startswith("_")}
     final.update(floor_parts(replay, errf))
@@ -1079,6 +1134,11 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         # what the chain named beyond it, else nothing
         named = steps[0].effect if steps else "none"
         swap = next((x for x in steps if x.swapped), None)
+        out["verdict"] = swap.effect if swap is not None and swap.swapped == named else named
+    elif steps and any(out.get("verdict") in r["effects"] for r in refused):
+        # the first diagnosis's verdict was refused and the next one kept: the verdict is the chain's first
+        swap = next((x for x in steps if x.swapped), None)
+        named = steps[0].effect
         out["verdict"] = swap.effect if swap is not None and swap.swapped == named else named
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
     out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
