@@ -159,7 +159,7 @@ from hil.sim_plant.blas_threads import one_blas_thread
 logger = logging.getLogger(__name__)
 
 __all__ = ["diagnose_chain", "chain_json", "floor_parts", "floor_parts_text", "MAX_STEPS", "effect_values", "split_moves", "held_out_fall",
-           "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV"]
+           "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV", "REFUSALS"]
 
 MAX_STEPS = 4
 REFUSALS = 2            # a chain ends at its second refused step (the next candidate tried after the first)
