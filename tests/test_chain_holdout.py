@@ -209,8 +209,12 @@ def test_a_refused_step_leaves_the_next_verdict_to_be_tried(monkeypatch):
     assert d["verdict"] == d["chain"][0]["effect"] and "also_refused" not in d["final"]
     out = json.loads(dumps({"chain": chain_json(d["chain"]), "final": d["final"]}))
     assert out["final"]["rejected"]["effects"] == refused
+    from hil.commands.diagnose import chain_text
+    text = "\n".join(chain_text(d, rp))
+    assert f"refused: + {' + '.join(refused)} (" in text and "the next verdict tried without it" in text
 
     first.clear()
     d1 = diagnose_chain(rp, names, jobs=1, holdout="moves", refusals=1)
     assert d1["chain"] == [] and d1["final"]["end"] == "no step earns its place on the held-out data"
     assert d1["final"]["rejected"]["effects"] == first[0]
+    assert "the next verdict tried without it" not in "\n".join(chain_text(d1, rp))

@@ -166,7 +166,7 @@ JSON_KEYS = {
     "final.residual": JsonKey("", "where the residual lives (as residual)", when="the end is above the noise floor"),
     "final.held_out": JsonKey("", "what the steps were checked on: the record's moves, the validation records, or "
                                   "none and why", when="the chain"),
-    "final.rejected": JsonKey("", "the step the held-out data refused last (the chain's end): effects, score, "
+    "final.rejected": JsonKey("", "the last step the held-out data refused: effects, score, "
                                   "error_after, stderr, confounded, estimation_error, held_out (as chain[]); tolerance "
                                   "(plant.tolerance) where it was the fit of the config's drift within its tolerance",
                               when="a step did not earn its place"),
@@ -510,7 +510,9 @@ def chain_text(d, rp) -> list[str]:
     for r in f.get("also_refused", []) + ([f["rejected"]] if "rejected" in f else []):
         what = (f"the config's drift within its tolerance ({', '.join(r['effects'])} and the other masses, stiffnesses "
                 f"and dampings)" if "tolerance" in r else " + ".join(r["effects"]))
-        then = "; the next verdict tried without it" if r is not f["rejected"] else ""
+        # (a refusal the chain went on from: the next verdict was tried without its effects)
+        ended = r is f["rejected"] and f["end"] == "no step earns its place on the held-out data"
+        then = "" if ended else "; the next verdict tried without it"
         lines.append(f"  refused: + {what} (BIC score {r['score']:.1f} on the whole record{then})")
         lines += _held_out_lines(r, rp)
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else

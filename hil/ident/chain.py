@@ -865,10 +865,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         of everything found so far after its refit, its errors, score, standard errors, what they
         are confounded with, its aliases, and with a held-out part its check on it
         (:func:`held_out_fall`); the fits and the config stay on the object, out of its JSON);
-        ``final`` (the residual against the noise floor and why it ended; ``rejected``: the step the
-        held-out data refused, the one that ended the chain; ``also_refused``: those refused before
-        it, after each of which the next verdict was tried; ``tolerance``: a drift of the config
-        within its tolerance),
+        ``final`` (the residual against the noise floor and why it ended; ``rejected``: the last step
+        the held-out data refused; ``also_refused``: those refused before it, after each of which the
+        next verdict was tried; ``tolerance``: a drift of the config within its tolerance),
         ``diagnoses`` (every step's diagnosis) and ``config`` (the model with the whole chain).
     """
     floor = replay.noise
