@@ -81,6 +81,9 @@ def test_split_moves_in_pairs():
     one = SimpleNamespace(meas=Measurement({"t": t, "x_cmd": np.where(t < 1, 0.05 * t, 0.05)}, source="one"))
     est, held = split_moves(one)
     assert est[t < 0.49].all() and held[t > 0.51].all() and not (est & held).any()
+    # (final.held_out says which: the moves' halves of travel here, the pairs above)
+    from hil.ident.chain import _split
+    assert _split(one)[2] and not _split(rp)[2]
     # standing still throughout: nothing to hold out
     still = SimpleNamespace(meas=Measurement({"t": t, "x_cmd": np.zeros_like(t)}, source="still"))
     assert split_moves(still) is None

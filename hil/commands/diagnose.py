@@ -168,7 +168,8 @@ JSON_KEYS = {
                                   "none and why", when="the chain"),
     "final.rejected": JsonKey("", "the last step the held-out data refused: effects, score, "
                                   "error_after, stderr, confounded, estimation_error, held_out (as chain[]); tolerance "
-                                  "(plant.tolerance) where it was the fit of the config's drift within its tolerance",
+                                  "(plant.tolerance) where it was the fit of the config's drift within its tolerance; "
+                                  "next_tried (true) where the next verdict was tried after it",
                               when="a step did not earn its place"),
     "final.also_refused": JsonKey("", "the steps refused before it (each as final.rejected), after each of which the "
                                       "next verdict, without the refused effects, was tried",
@@ -510,9 +511,7 @@ def chain_text(d, rp) -> list[str]:
     for r in f.get("also_refused", []) + ([f["rejected"]] if "rejected" in f else []):
         what = (f"the config's drift within its tolerance ({', '.join(r['effects'])} and the other masses, stiffnesses "
                 f"and dampings)" if "tolerance" in r else " + ".join(r["effects"]))
-        # (a refusal the chain went on from: the next verdict was tried without its effects)
-        ended = r is f["rejected"] and f["end"] == "no step earns its place on the held-out data"
-        then = "" if ended else "; the next verdict tried without it"
+        then = "; the next verdict tried without it" if r.get("next_tried") else ""
         lines.append(f"  refused: + {what} (BIC score {r['score']:.1f} on the whole record{then})")
         lines += _held_out_lines(r, rp)
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else

@@ -218,6 +218,13 @@ def split_moves(replay, min_samples: int = HOLDOUT_MIN):
 
     Returns (estimation, held_out), boolean masks of the record's samples (of the records joined,
     for several); None for an open-loop record, or when either half has fewer than ``min_samples``."""
+    out = _split(replay, min_samples)
+    return out[:2] if out is not None else None
+
+
+def _split(replay, min_samples: int = HOLDOUT_MIN):
+    """:func:`split_moves`'s (estimation, held_out) and whether the moves were cut at the middle of
+    their travel; None as there."""
     if any(getattr(p, "open_loop", False) for p in getattr(replay, "parts", [replay])):
         return None
     m = replay.meas
@@ -237,7 +244,7 @@ def split_moves(replay, min_samples: int = HOLDOUT_MIN):
     held = ~est
     if est.sum() < min_samples or held.sum() < min_samples:
         return None
-    return est, held
+    return est, held, halved
 
 
 def held_out_fall(before: dict, after: dict, floor: dict) -> dict:
@@ -891,7 +898,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             # left; where it ends the chain with nothing kept, the refusal stays why it ended
             if len(refused) >= max(1, refusals) or max_steps <= 1:
                 break
-            rejected = None
+            refused[-1]["next_tried"], rejected = True, None
         err0 = rms(cur.base_residuals)
         if at_noise_floor(err0, floor):
             end = "noise floor reached"
@@ -942,7 +949,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             break
         else:
             add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
-            test = _within_tolerance(cur, add, found, progress, ref) if within is None else None
+            test = _within_tolerance(cur, add, found, progress, ref) if within is None and not no_drift else None
             if test is not None and test["within"]:
                 # the step would name a drift of the config, and the config's masses, stiffnesses and
                 # dampings fit within their tolerance: no finding; where it earns its place as a step
@@ -1111,8 +1118,10 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
              "above_floor": {c: errf[c] / max(floor[c], 1e-300) for c in errf},
              "at_noise_floor": at_noise_floor(errf, floor), "end": end, "steps": len(steps)}
     if split is not None:
-        final["held_out"] = ("the record's moves in pairs, alternately estimation and held out"
-                             if split[0] == "moves" else "the validation records")
+        final["held_out"] = ("the validation records" if split[0] != "moves" else
+                             "the record's moves cut at the middle of their travel, the halves alternately estimation "
+                             "and held out" if _split(replay)[2] else
+                             "the record's moves in pairs, alternately estimation and held out")
     elif holdout is not None:
         final["held_out"] = (f"none (the record has fewer than {HOLDOUT_MIN} samples in its estimation or held-out "
                              f"moves, or is open-loop)")
@@ -1139,6 +1148,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         swap = next((x for x in steps if x.swapped), None)
         named = steps[0].effect
         out["verdict"] = swap.effect if swap is not None and swap.swapped == named else named
+        out["also_missing"] = [m for m in out.get("also_missing", [])
+                               if _same(m["effect"], replay.cfg) not in barred and m["effect"] != out["verdict"]]
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
     out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out
