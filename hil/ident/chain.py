@@ -1137,17 +1137,19 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         best = last["candidates"][0] if last and last["candidates"] else None
         final["residual"] = residual_evidence(cur, cur.base_residuals, best)
     out = dict(first)
+    swap = next((x for x in steps if x.swapped), None)
+
+    def chain_first(named):
+        # the chain's first finding, as the look-alike swap set it right
+        return swap.effect if swap is not None and swap.swapped == named else named
+
     if within is not None and (not steps or steps[0].step > within["step"]):
         # the first diagnosis named a drift of the config that its tolerance explains: the verdict is
         # what the chain named beyond it, else nothing
-        named = steps[0].effect if steps else "none"
-        swap = next((x for x in steps if x.swapped), None)
-        out["verdict"] = swap.effect if swap is not None and swap.swapped == named else named
+        out["verdict"] = chain_first(steps[0].effect if steps else "none")
     elif steps and any(out.get("verdict") in r["effects"] for r in refused):
         # the first diagnosis's verdict was refused and the next one kept: the verdict is the chain's first
-        swap = next((x for x in steps if x.swapped), None)
-        named = steps[0].effect
-        out["verdict"] = swap.effect if swap is not None and swap.swapped == named else named
+        out["verdict"] = chain_first(steps[0].effect)
         out["also_missing"] = [m for m in out.get("also_missing", [])
                                if _same(m["effect"], replay.cfg) not in barred and m["effect"] != out["verdict"]]
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
