@@ -221,3 +221,37 @@ def test_a_refused_step_leaves_the_next_verdict_to_be_tried(monkeypatch):
     assert d1["chain"] == [] and d1["final"]["end"] == "no step earns its place on the held-out data"
     assert d1["final"]["rejected"]["effects"] == first[0]
     assert "the next verdict tried without it" not in "\n".join(chain_text(d1, rp))
+
+
+def test_the_one_key_beyond_the_tolerance_is_the_step():
+    # the diagnosis names the tip's mass; the fit of every key leaves k1 alone beyond 5 % (its
+    # change less two standard errors): the step is the best-ranked significant candidate of k1
+    from hil.ident.chain import _beyond_tolerance
+    rp = _record([], 1, duration=1.0)
+    def cand(name, significant=True):
+        return SimpleNamespace(effect=name, significant=significant)
+    d = {"candidates": [cand("parameter:plant.m3"), cand("compliant_mode"), cand("parameter:plant.k1", False),
+                        cand("parameter:plant.k1"), cand("coulomb_friction")]}
+    def fitted(**changes):
+        params = {}
+        for k in ("m1", "m2", "m3", "k1", "k2", "c1", "c2"):
+            x = float(CFG[f"plant.{k}"])
+            ch, se = changes.get(k, (0.01, 0.002))
+            params[f"plant.{k}"] = {"config": x, "value": x * (1 + ch), "change": ch, "stderr": se * x}
+        return {"tolerance": 0.05, "within": False, "params": params}
+    got = _beyond_tolerance(rp, d, fitted(k1=(-0.178, 0.01)), ["parameter:plant.m3"], set())
+    assert got["effect"] == "parameter:plant.k1" and got["key"] == "plant.k1" and got["verdict"] == "parameter:plant.m3"
+    assert got["change"] == pytest.approx(-0.178) and got["tolerance"] == 0.05
+    # beyond by less than two standard errors: within; two keys beyond: no one key; the key the
+    # step's own; k1 already in the model: none
+    assert _beyond_tolerance(rp, d, fitted(k1=(-0.07, 0.011)), ["parameter:plant.m3"], set()) is None
+    assert _beyond_tolerance(rp, d, fitted(k1=(-0.178, 0.01), m2=(0.09, 0.001)), ["parameter:plant.m3"], set()) is None
+    assert _beyond_tolerance(rp, d, fitted(m3=(0.09, 0.001)), ["parameter:plant.m3"], set()) is None
+    assert _beyond_tolerance(rp, d, fitted(k1=(-0.178, 0.01)), ["parameter:plant.m3"], {"parameter:plant.k1"}) is None
+    # a key the model names already (free in the fit, its change about the value found) is not counted
+    d2 = {"candidates": [cand("parameter:plant.m1"), cand("mass_change"), cand("parameter:plant.m2")]}
+    two = fitted(k1=(0.17, 0.01), m2=(0.124, 0.004))
+    assert _beyond_tolerance(rp, d2, two, ["parameter:plant.m1"], set()) is None
+    got = _beyond_tolerance(rp, d2, two, ["parameter:plant.m1"], {"parameter:plant.k1"}, found=["parameter:plant.k1"])
+    # (the table mass by its physical name, where the ranking puts it first)
+    assert got["effect"] == "mass_change" and got["key"] == "plant.m2"

@@ -10,7 +10,7 @@ from hil.ident.result import ChainStep
 from hil.io.jsonout import dumps
 
 DOCUMENTED = {k.split(".", 1)[1].split(".")[0] for k in JSON_KEYS if k.startswith("chain[].")}
-OPTIONAL = {"swapped", "dropped", "nights_plant", "estimation_error", "held_out"}
+OPTIONAL = {"swapped", "beyond_tolerance", "dropped", "nights_plant", "estimation_error", "held_out"}
 
 
 def _step(**kw):
@@ -24,7 +24,10 @@ def _step(**kw):
 def test_the_json_keys_are_the_documented_ones():
     bare = _step()
     assert set(bare.keys()) == DOCUMENTED - OPTIONAL
-    full = _step(swapped="current_loop", dropped=[{"effect": "current_loop", "params": {}, "score": 3.0}],
+    full = _step(swapped="current_loop", beyond_tolerance={"verdict": "parameter:plant.m3", "effect": "parameter:plant.k1",
+                                                           "key": "plant.k1", "change": -0.18, "tolerance": 0.05,
+                                                           "params": {"plant.k1": -0.18}},
+                 dropped=[{"effect": "current_loop", "params": {}, "score": 3.0}],
                  nights_plant={"effects": ["backlash"], "tolerance": 0.05, "params": {}, "stderr": {},
                                "error_on_config_plant": {"x_motor": 1e-6}},
                  estimation_error={"x_motor": 1e-7}, held_out={"earned": True})

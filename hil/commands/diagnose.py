@@ -113,14 +113,22 @@ JSON_KEYS = {
                                      "step's effects, dropped from the model: effect, params (as it stood), score "
                                      "(its BIC score with the step's effects)",
                                when="a step made an earlier effect unnecessary"),
+    "chain[].beyond_tolerance": JsonKey("", "the step's diagnosis named a drift of the config (verdict) that the "
+                                            "config's tolerance does not explain, and the fit of every key left one "
+                                            "key alone beyond it: the step is that key's candidate (effect): verdict, "
+                                            "effect, key, change (relative), tolerance, params (per key, the fit's "
+                                            "relative change)",
+                                        when="such a step"),
     "chain[].nights_plant": JsonKey("SI", "the step's effect whose error jumps with its parameter (a backlash's "
-                                          "gap) refitted on the night's plant, the config's masses, stiffnesses and "
+                                          "gap) refitted on the night's plant, or, where the model took a drift of "
+                                          "the config at an earlier step, that drift fitted again beside the step's "
+                                          "effects (final.tolerance.again_after), the config's masses, stiffnesses and "
                                           "dampings within plant.tolerance: effects, tolerance, params (per key: "
                                           "config, value, change, stderr), stderr (effect.param), "
                                           "error_on_config_plant (the step's error before), estimation_error, "
                                           "held_out; the step's params and error_after are then the night's",
-                                    when="a step with such an effect, refitted there, within the tolerance and "
-                                         "earned on the held-out data"),
+                                    when="a step with such an effect or after such a drift, refitted there, "
+                                         "within the tolerance and earned on the held-out data"),
     "chain[].stderr": JsonKey("SI", "`{effect: {parameter: standard error}}` of the step's last fit (null: none)"),
     "chain[].confounded": JsonKey("", "pairs of that fit's parameters correlated above 0.9: [name, name, r]"),
     "chain[].aliases": JsonKey("SI", "`{effect: [{key, params, r, slope, confounded}]}`: the config's own "
@@ -193,6 +201,11 @@ JSON_KEYS = {
     "final.tolerance.refitted": JsonKey("SI", "`{effect: {param: value}}`: the effects the steps before had found, "
                                               "refitted with the drift (their values were fitted without it)",
                                         when="after a step"),
+    "final.tolerance.again_after": JsonKey("", "the steps after which the drift was fitted again beside their "
+                                               "effects, everything found refitted with it (chain[].nights_plant); "
+                                               "params, error and at_noise_floor are then the last such fit's",
+                                           when="a step after the drift, refitted so within the tolerance and earned "
+                                                "on the held-out data"),
     "final.tolerance.in_place_of": JsonKey("", "the effects a later step named that the drift within the tolerance "
                                                "stands in for: with the effects found before refitted, every channel "
                                                "at its noise floor", when="a later step's effect, not a drift"),
@@ -487,6 +500,11 @@ def chain_text(d, rp) -> list[str]:
         if s.recording_artefacts:
             lines.append(f"          {', '.join(s.recording_artefacts)}: a recording artefact, not physics "
                          f"(the config's [measurement]; the model of the axis unchanged)")
+        if s.beyond_tolerance:
+            b = s.beyond_tolerance
+            lines.append(f"          the diagnosis named {b['verdict']}; the config's drift fitted within plant.tolerance "
+                         f"{100 * b['tolerance']:.3g} % leaves {b['key'].split('.')[-1]} alone beyond it "
+                         f"({100 * b['change']:+.1f} %)")
         if s.nights_plant:
             n = s.nights_plant
             lines.append(f"          on the night's plant (within plant.tolerance {100 * n['tolerance']:.3g} %, no "

@@ -23,7 +23,7 @@ from typing import Any
 __all__ = ["ChainStep"]
 
 # the keys a step has only where it did that: a swap, an effect dropped, a held-out check
-_OPTIONAL = ("swapped", "dropped", "nights_plant", "estimation_error", "held_out")
+_OPTIONAL = ("swapped", "beyond_tolerance", "dropped", "nights_plant", "estimation_error", "held_out")
 
 
 @dataclass
@@ -62,6 +62,11 @@ class ChainStep:
         The effects added that belong to the recording, not to the physics.
     swapped : str, optional
         The first step's verdict this step replaced (its look-alike fitted in its place).
+    beyond_tolerance : dict, optional
+        The step's diagnosis named a drift of the config that its tolerance does not explain, and
+        the config's drift fitted within it left one key alone beyond it: the step is that key's
+        (hil.ident.chain ``_beyond_tolerance``): ``verdict`` (the diagnosis's), ``key``, ``change``
+        (relative), ``tolerance`` and the fit's ``params``.
     dropped : list of dict, optional
         Effects found before that no longer paid for their parameters, with values and scores.
     nights_plant : dict, optional
@@ -92,6 +97,7 @@ class ChainStep:
     rival: dict | None
     recording_artefacts: list
     swapped: str | None = None
+    beyond_tolerance: dict | None = None
     dropped: list | None = None
     nights_plant: dict | None = None
     estimation_error: dict | None = None
