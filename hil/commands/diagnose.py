@@ -43,7 +43,8 @@ JSON_KEYS = {
     "verdict": JsonKey("", "the effect the model misses (a catalogue name or `parameter:<key>`), `none` (the "
                            "model matches down to the noise floor, or the chain found a drift of the config within "
                            "its tolerance and nothing beyond it: final.tolerance) or `unexplained` (above it, and no "
-                           "candidate explains it)"),
+                           "candidate explains it); the chain's first finding still in the model where a later step "
+                           "or the config's drift took the first diagnosis's verdict out of it"),
     "candidates": JsonKey("", "every candidate fitted, best score first (entries candidates[].*)"),
     "candidates[].effect": JsonKey("", "catalogue effect, `a+b` combination or `parameter:<key>`"),
     "candidates[].params": JsonKey("SI", "fitted parameters by name (units: reference/effects.md)"),

@@ -963,7 +963,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     Returns
     -------
     dict
-        The first diagnosis's keys (``verdict``, ``candidates``, ``also_missing``, ...), and
+        The first diagnosis's keys (``verdict``, ``candidates``, ``also_missing``, ...; the verdict
+        the chain's first finding still in the model where a later step, the config's drift or a
+        refusal took the first diagnosis's out of it), and
         ``chain`` (one :class:`~hil.ident.result.ChainStep` per kept step: what it added, the values
         of everything found so far after its refit, its errors, score, standard errors, what they
         are confounded with, its aliases, and with a held-out part its check on it
@@ -1264,6 +1266,14 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         out["verdict"] = chain_first(steps[0].effect)
         out["also_missing"] = [m for m in out.get("also_missing", [])
                                if _same(m["effect"], replay.cfg) not in barred and m["effect"] != out["verdict"]]
+    if steps and out.get("verdict") in gone and out["verdict"] not in found:
+        # the verdict left the model at a later step (a drift within the tolerance took its place, or
+        # it no longer paid beside a later step's effects): the verdict is the chain's first finding
+        # still in the model
+        kept = next((e for s in steps for e in s.effects if e in found), None)
+        if kept is not None:
+            out["verdict"] = kept
+            out["also_missing"] = [m for m in out.get("also_missing", []) if m["effect"] in found and m["effect"] != kept]
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
     out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out
