@@ -250,6 +250,13 @@ def test_the_one_key_beyond_the_tolerance_is_the_step():
     assert _beyond_tolerance(rp, d, fitted(k1=(-0.178, 0.01)), ["parameter:plant.m3"], {"parameter:plant.k1"}) is None
     # a key the model names already (free in the fit, its change about the value found) is not counted
     d2 = {"candidates": [cand("parameter:plant.m1"), cand("mass_change"), cand("parameter:plant.m2")]}
+    # a key's candidate that is not significant is passed over; a standard error of NaN (at a bound)
+    # leaves no margin; a later step's effect that is no drift (a torque constant) is judged so too
+    d3 = {"candidates": [cand("mass_change", False), cand("parameter:plant.m2"), cand("torque_constant")]}
+    assert _beyond_tolerance(rp, d3, fitted(m2=(0.124, 0.004)), ["parameter:plant.m1"], set())["effect"] == \
+        "parameter:plant.m2"
+    assert _beyond_tolerance(rp, d3, fitted(m2=(0.06, float("nan"))), ["torque_constant"], set())["key"] == "plant.m2"
+    assert _beyond_tolerance(rp, d3, fitted(m2=(0.06, 0.01)), ["torque_constant"], set()) is None
     two = fitted(k1=(0.17, 0.01), m2=(0.124, 0.004))
     assert _beyond_tolerance(rp, d2, two, ["parameter:plant.m1"], set()) is None
     got = _beyond_tolerance(rp, d2, two, ["parameter:plant.m1"], {"parameter:plant.k1"}, found=["parameter:plant.k1"])

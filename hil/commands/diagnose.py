@@ -115,8 +115,10 @@ JSON_KEYS = {
                                      "(its BIC score with the step's effects)",
                                when="a step made an earlier effect unnecessary"),
     "chain[].beyond_tolerance": JsonKey("", "the step's diagnosis named a drift of the config (verdict) that the "
-                                            "config's tolerance does not explain, and the fit of every key left one "
-                                            "key alone beyond it: the step is that key's candidate (effect): verdict, "
+                                            "config's tolerance does not explain, or an effect that the config's drift "
+                                            "with the effects found refitted brings to the noise floor, and the fit of "
+                                            "every key left one key alone beyond the tolerance: the step is that key's "
+                                            "candidate (effect): verdict, "
                                             "effect, key, change (relative), tolerance, params (per key, the fit's "
                                             "relative change)",
                                         when="such a step"),
@@ -204,7 +206,9 @@ JSON_KEYS = {
                                         when="after a step"),
     "final.tolerance.again_after": JsonKey("", "the steps after which the drift was fitted again beside their "
                                                "effects, everything found refitted with it (chain[].nights_plant); "
-                                               "params, error and at_noise_floor are then the last such fit's",
+                                               "params, error, at_noise_floor and refitted are then the last such "
+                                               "fit's (estimation_error and held_out stay the first fit's: the later "
+                                               "checks are the steps' nights_plant.held_out)",
                                            when="a step after the drift, refitted so within the tolerance and earned "
                                                 "on the held-out data"),
     "final.tolerance.in_place_of": JsonKey("", "the effects a later step named that the drift within the tolerance "
@@ -508,12 +512,15 @@ def chain_text(d, rp) -> list[str]:
                          f"({100 * b['change']:+.1f} %)")
         if s.nights_plant:
             n = s.nights_plant
-            lines.append(f"          on the night's plant (within plant.tolerance {100 * n['tolerance']:.3g} %, no "
-                         f"finding): " + ", ".join(f"{k.split('.')[-1]} {100 * p['change']:+.2f} %"
-                                                   for k, p in n["params"].items())
-                         + "; on the config's plant " + ", ".join(
+            # after a drift the model took at an earlier step, the drift fitted again beside the step
+            again = s.step in ((d.get("final") or {}).get("tolerance") or {}).get("again_after", [])
+            where, before = (("the drift fitted again beside it", "with the drift as it stood") if again else
+                             ("on the night's plant", "on the config's plant"))
+            lines.append(f"          {where} (within plant.tolerance {100 * n['tolerance']:.3g} %, no finding): "
+                         + ", ".join(f"{k.split('.')[-1]} {100 * p['change']:+.2f} %" for k, p in n["params"].items())
+                         + f"; {before} " + ", ".join(
                              f"{c} {fmt_si(n['error_on_config_plant'][c], rp.unit(c), 3)}" for c in chans))
-            lines += [x.replace("          estimation", "          on the night's plant: estimation", 1)
+            lines += [x.replace("          estimation", f"          {where.split(' beside')[0]}: estimation", 1)
                       for x in _held_out_lines(n, rp)]
         for e in s.dropped or []:
             par = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
@@ -553,6 +560,8 @@ def _tolerance_line(t) -> str:
         line += " (in place of " + ", ".join(t["in_place_of"]) + ": it leaves nothing for them)"
     if t.get("dropped"):
         line += "; no longer pays beside it, dropped from the model: " + ", ".join(e["effect"] for e in t["dropped"])
+    if t.get("again_after"):
+        line += " (fitted again after step " + ", ".join(str(n) for n in t["again_after"]) + ")"
     if t.get("refitted"):
         line += ("; refitted with them: " + "; ".join(
             f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in t["refitted"].items()))

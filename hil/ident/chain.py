@@ -119,7 +119,8 @@ a torque constant, its rival the motor's mass m1; the key beyond is the table's 
 A drift within the tolerance that the model took at an earlier step was fitted beside the effects
 still missing: after each later step that leaves the record above its floor it is fitted again
 beside the step's effects, everything found refitted with it (:func:`_drift_again`; reported as a
-refit on the night's plant is, below: ``chain[].nights_plant``, ``final.tolerance.again_after``).
+refit on the night's plant is, below, and as that one only with ``nights_plant``:
+``chain[].nights_plant``, ``final.tolerance.again_after``).
 On a drifted bench with a ripple of 0.17 N m the drift fitted first split the moving mass wrongly
 between motor and table (m1 4 % light, m2 3.5 % heavy), and the steps after the ripple named a
 stiffness along the travel and a pitch error for slivers of what that left; fitted again beside
@@ -764,9 +765,11 @@ def _drift_again(replay, cur, found, add, within, split, fit_nfev, progress, ref
     (:func:`_tolerance_test` about the config's plant, from ``cur``'s values): the drift was fitted
     beside the effects still missing, and where one of them moves the tip (a ripple's torque rings
     the tool's mode) the drift took a share of it, the tip's k2 and m3 off in the same ratio, which
-    the next step's effect then closes a sliver of. Kept, as :func:`_on_nights_plant`'s, where
-    every change lies within the tolerance, it lowers the weighted error and, with a held-out part,
-    it earns its place there; the same keys as :func:`_on_nights_plant`'s (``effects`` the step's)."""
+    the next step's effect then closes a sliver of. Kept where every change lies within the
+    tolerance, it lowers the weighted error and, with a held-out part, it earns its place there (no
+    BIC score: the drift's parameters paid at its own step); the same keys as
+    :func:`_on_nights_plant`'s (``effects`` the step's), and ``_refitted``, the effects found as
+    refitted with it. As the refit on the night's plant, only where the chain's ``nights_plant``."""
     tol = within["tolerance"]
     names = [n for n in found if "+" not in n]
     about = {k: float(replay.cfg[k]) for k in tolerance_keys(replay.cfg)} | dict(ref or {})
@@ -788,7 +791,8 @@ def _drift_again(replay, cur, found, add, within, split, fit_nfev, progress, ref
     logger.info("chain: the config's drift refitted beside %s (%s)", " + ".join(add),
                 ", ".join(f"{k} {100 * p['change']:+.2f} %" for k, p in test["params"].items()))
     out = {"effects": list(add), "tolerance": tol, "params": test["params"],
-           "stderr": dict(test.get("_refitted_stderr", {})), "_config": cfg_p, "_error": rms(res_p)}
+           "stderr": dict(test.get("_refitted_stderr", {})), "_config": cfg_p, "_error": rms(res_p),
+           "_refitted": test.get("refitted")}
     if held is not None:
         out.update(estimation_error=held.pop("estimation"), held_out=held)
     return out
@@ -1018,7 +1022,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if first is None:
             first = d
         verdict = d["verdict"]
-        together, members, alone, first_nights, beyond = None, {}, False, None, None
+        together, members, alone, first_nights, beyond, beyond_first = None, {}, False, None, None, False
         if verdict == "unexplained" and i == 0 and not retry and nights_plant:
             # a backlash fitted on the config's plant may close little where the night's plant differs
             first_nights = _unexplained_on_nights_plant(cur, d, split, fit_nfev, progress)
@@ -1111,8 +1115,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                             "(%+.1f %%): the step is %s", i + 1, " + ".join(add), beyond["key"],
                             100 * beyond["change"], beyond["effect"])
                 verdict, add = beyond["effect"], [beyond["effect"]]
-                if d is first:
-                    first = dict(first, verdict=verdict, also_missing=[])
+                beyond_first = d is first
             cfg1, fits = _add_verdict(cur, d, verdict, add, fit_nfev, progress)
             if split and len(add) > 1:
                 add, cfg1, fits, members = _members_earned(cur, split, add, cfg1, fits, fit_nfev, progress)
@@ -1185,6 +1188,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             first = dict(first, verdict=verdict, shown_together=together["text"])
         elif alone:
             first = dict(first, verdict=verdict)
+        elif beyond_first and steps[-1].beyond_tolerance:
+            # the first diagnosis names the key beyond the tolerance once its step is kept
+            first = dict(first, verdict=verdict, also_missing=[])
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
         i, end = i + 1, f"max steps ({max_steps})"
         cur = cur.with_config(cfg1)
@@ -1203,13 +1209,18 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             if nights is not None:
                 cfg_n, err_n = nights.pop("_config"), nights.pop("_error")
                 st = steps[-1]
+                refitted = nights.pop("_refitted", None)
                 if within is not None:
-                    # final.tolerance: the drift the model holds
+                    # final.tolerance: the drift the model holds, and the effects refitted with it
                     within.update(params=nights["params"], error=err_n, at_noise_floor=at_noise_floor(err_n, floor),
                                   again_after=within.get("again_after", []) + [st.step])
+                    if refitted:
+                        within["refitted"] = refitted
                 st.nights_plant = dict(nights, error_on_config_plant=st.error_after)
                 st.params, st.error_after, st.config = {n: effect_values(n, cfg_n) for n in found}, err_n, cfg_n
-                st.stderr, st.confounded, st.runner_up = _nested(nights["stderr"]), [], None
+                # (the first step's look-alike is fitted afresh in its place: kept after a drift fitted again)
+                st.stderr, st.confounded = _nested(nights["stderr"]), []
+                st.runner_up = st.runner_up if within is not None else None
                 st.gap_closed = {c: gap_closed(err0[c], err_n[c], floor[c]) for c in err0}
                 # the plant's keys it moved, their start values: later tolerance tests are about those
                 ref = {k: float(replay.cfg[k]) for k in nights["params"]}
@@ -1274,6 +1285,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if kept is not None:
             out["verdict"] = kept
             out["also_missing"] = [m for m in out.get("also_missing", []) if m["effect"] in found and m["effect"] != kept]
+        elif within is not None:
+            # the drift within the tolerance left nothing of what was found: no finding
+            out["verdict"], out["also_missing"] = "none", []
     # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
     out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out

@@ -63,10 +63,12 @@ class ChainStep:
     swapped : str, optional
         The first step's verdict this step replaced (its look-alike fitted in its place).
     beyond_tolerance : dict, optional
-        The step's diagnosis named a drift of the config that its tolerance does not explain, and
-        the config's drift fitted within it left one key alone beyond it: the step is that key's
-        (hil.ident.chain ``_beyond_tolerance``): ``verdict`` (the diagnosis's), ``key``, ``change``
-        (relative), ``tolerance`` and the fit's ``params``.
+        The step's diagnosis named a drift of the config that its tolerance does not explain (or an
+        effect that the config's drift, the effects found refitted with it, brings to the noise
+        floor), and the fit of every key left one key alone beyond the tolerance: the step is that
+        key's candidate (hil.ident.chain ``_beyond_tolerance``): ``verdict`` (the diagnosis's),
+        ``effect`` (the step's), ``key``, ``change`` (relative), ``tolerance`` and the fit's
+        ``params`` (relative changes).
     dropped : list of dict, optional
         Effects found before that no longer paid for their parameters, with values and scores.
     nights_plant : dict, optional

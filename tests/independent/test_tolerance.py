@@ -330,3 +330,28 @@ def test_the_verdict_is_the_first_finding_still_in_the_model():
     assert first in gone and d["verdict"] == "parameter:plant.k1" != first
     assert d["chain"][-1].params["parameter:plant.k1"]["value"] == pytest.approx(
         spec["truth"]["parameter:plant.k1"]["value"], rel=0.02)
+
+
+@pytest.mark.slow
+def test_the_chain_fits_the_drift_again_and_says_so():
+    """The same record through the chain: the drift at its first step, the ripple at its next, the
+    drift fitted again beside it (final.tolerance.again_after, the step's nights_plant, a line under
+    the step): the ripple alone named, every channel at its floor."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import bench_diagnose as bd
+    spec = bd.draw_records(1, 0, BENCH, drift=0.03)[0]
+    cfg = CFG.with_values({"measurement.torque": "actual"})
+    rp = Replay(Measurement(bd._simulate_record(spec, BENCH, 4.0), source="ivp"), cfg)
+    d = diagnose_chain(rp, jobs=1, holdout="moves")
+    named, _ = bd.named_effects({"chain": [s.as_json() for s in d["chain"]], "final": d["final"], "verdict": d["verdict"]})
+    assert named == ["torque_ripple"] and d["verdict"] == "torque_ripple"
+    tol = d["final"]["tolerance"]
+    (step,) = d["chain"]
+    assert tol["again_after"] == [step.step] and step.nights_plant["held_out"]["earned"]
+    assert tol["params"] == step.nights_plant["params"] and d["final"]["at_noise_floor"]
+    assert step.params["torque_ripple"]["amplitude"] == pytest.approx(spec["truth"]["torque_ripple"]["amplitude"], rel=0.02)
+    from hil.commands.diagnose import chain_text
+    text = "\n".join(chain_text(d, rp))
+    assert "the drift fitted again beside it (within plant.tolerance 5 %, no finding)" in text
+    assert f"(fitted again after step {step.step})" in text
+    json.loads(dumps({"chain": [s.as_json() for s in d["chain"]], "final": d["final"]}))
