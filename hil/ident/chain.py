@@ -1277,10 +1277,12 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         out["verdict"] = chain_first(steps[0].effect)
         out["also_missing"] = [m for m in out.get("also_missing", [])
                                if _same(m["effect"], replay.cfg) not in barred and m["effect"] != out["verdict"]]
-    if steps and out.get("verdict") in gone and out["verdict"] not in found:
+    refined = any(out.get("verdict") in getattr(candidate(n, replay.cfg), "replaces", ()) for n in found)
+    if steps and out.get("verdict") in gone and out["verdict"] not in found and not refined:
         # the verdict left the model at a later step (a drift within the tolerance took its place, or
         # it no longer paid beside a later step's effects): the verdict is the chain's first finding
-        # still in the model
+        # still in the model; not where an effect found sets it anew (EMPS's Coulomb friction under
+        # the asymmetric friction named after it: the same friction, its levels told apart)
         kept = next((e for s in steps for e in s.effects if e in found), None)
         if kept is not None:
             out["verdict"] = kept
