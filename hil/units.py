@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import re
+import unicodedata
 from functools import lru_cache
 
 from hil.errors import UnitError
@@ -83,8 +84,69 @@ _DIGIT_GROUPS = re.compile(r"[0-9]_[0-9]")
 _NM = re.compile(r"(?<![A-Za-z])Nm(?![A-Za-z])")
 
 
+# Text copied from a datasheet, a PDF or a web page writes its signs and spaces with other
+# characters than the keyboard's: the minus sign (U+2212) and the dashes, the non-breaking and thin
+# spaces. pint drops a character it does not know, so "−10mm" read +10 mm: a sign lost is motion the
+# wrong way. Every one is mapped to its ASCII meaning once, here, for the CLI, the config and --set.
+_SIGNS = {"\u2212": "-", "\u2796": "-", "\ufe63": "-", "\uff0d": "-", "\u02d7": "-",
+          "\ufe62": "+", "\uff0b": "+", "\u2795": "+"}
+_INVISIBLE = {"\u200b", "\u200c", "\u200d", "\u2060", "\ufeff", "\u00ad"}
+# what pint reads beyond ASCII: the micro sign, the degree, a dot or cross as a product, the ohm,
+# superscript exponents (m², s⁻¹); any other character is refused, never dropped
+_KNOWN = set("µμ°·⋅×Ω⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺")
+# "1 000 mm": a group of three digits after a space, not the 1 of a unit "1/s" ("50 1/s")
+_DIGITS_SPACED = re.compile(r"[0-9]\s+[0-9]{3}(?![0-9])(?!\s*/)")
+_DECIMAL_COMMA = re.compile(r"[0-9],[0-9]")
+
+
+def _plain_character(ch: str) -> str:
+    """The ASCII meaning of one character of a quantity text: a dash or a minus sign is ``-``, every
+    space is ``' '``, an invisible character is nothing; any other character as it is."""
+    if ch.isascii():
+        return ch
+    if ch in _SIGNS:
+        return _SIGNS[ch]
+    if ch in _INVISIBLE:
+        return ""
+    category = unicodedata.category(ch)
+    if category == "Pd":                     # hyphen, figure dash, en dash, em dash, ...
+        return "-"
+    if category == "Zs":                     # no-break, thin, narrow no-break, figure space, ...
+        return " "
+    return ch
+
+
+def plain_text(text: str) -> str:
+    """``text`` with its Unicode signs and spaces written in ASCII (:func:`_plain_character`):
+    ``"−10 mm"`` (a minus sign, a thin space) is ``"-10 mm"``."""
+    if text.isascii():
+        return text
+    return "".join(_plain_character(ch) for ch in text)
+
+
+def _check_characters(text: str, original: str, what: str) -> None:
+    """Refuse, in one line, what pint would read wrongly rather than not at all: a character it
+    does not know (it drops it), digits apart (``1 000 mm`` is 1 x 000 mm to it) and a decimal
+    comma (``1,5mm``)."""
+    for ch in text:
+        if not ch.isascii() and ch not in _KNOWN:
+            name = unicodedata.name(ch, "unnamed")
+            raise UnitError(f"{what}: cannot read {original!r}: the character {ch!r} (U+{ord(ch):04X} {name}) "
+                            f"is not part of a quantity, expected {_QUANTITY_EXAMPLE}")
+    if _DECIMAL_COMMA.search(text):
+        hint = _DECIMAL_COMMA.sub(lambda m: m.group(0).replace(",", "."), text)
+        raise UnitError(f"{what}: cannot read {original!r}: a decimal comma; write a point ({hint!r}), "
+                        f"and no separator between the thousands")
+    if "," in text:
+        raise UnitError(f"{what}: cannot read {original!r}: a comma inside one quantity, expected "
+                        f"{_QUANTITY_EXAMPLE}")
+    if _DIGITS_SPACED.search(text):
+        raise UnitError(f"{what}: cannot read {original!r}: digits separated by a space (a thousands "
+                        f"separator?); write the number whole, e.g. 1000 mm")
+
+
 def _normalise(text: str) -> str:
-    text = text.strip().replace("µ", "u").replace("μ", "u")
+    text = plain_text(text).strip().replace("µ", "u").replace("μ", "u")
     text = _NM.sub("N*m", text)
     text = text.replace("N m", "N*m")
     return text
@@ -154,6 +216,7 @@ def parse(value, kind: str, what: str = "value") -> float:
         text = _normalise(value)
         if not text:
             raise UnitError(f"{what}: empty string, expected a {kind} ({SI_UNIT[kind]})")
+        _check_characters(text, value, what)
         if text.lower() in ("inf", "+inf", "infinity"):
             return math.inf
         if _DIGIT_GROUPS.search(text):
@@ -230,7 +293,7 @@ def parse_list(text: str, kind: str, what: str = "value", *, option: bool = Fals
     """Comma-separated quantities, e.g. ``"60ms,80ms,90ms"``; a unit on the last one applies to
     the bare numbers before it (``"60,80,90ms"``). ``option``: a command-line option's list, whose
     numbers need a unit (:func:`parse_option`): on the last one at least."""
-    parts = [p.strip() for p in str(text).split(",") if p.strip()]
+    parts = [p.strip() for p in plain_text(str(text)).split(",") if p.strip()]
     if not parts:
         raise UnitError(f"{what}: empty list")
     unit = re.sub(r"^[\s+\-0-9.eE]*", "", parts[-1])
@@ -299,7 +362,7 @@ _DB = re.compile(r"^\s*([+\-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+\-]?[0-9]+)?)
 def parse_gain_db(value, what: str = "value") -> float:
     """A gain in decibels, for the options that are read in dB (a gain margin): ``"6dB"``,
     ``"6 dB"``; a bare number is taken in dB. One clear line (a UnitError) for anything else."""
-    m = _DB.match(str(value))
+    m = _DB.match(plain_text(str(value)))
     if m is None:
         raise UnitError(f"{what}: expected a gain in dB (e.g. 6dB), got {value!r}")
     return float(m.group(1))
