@@ -65,11 +65,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from drivers.base import Setpoint  # noqa: E402
+from drivers.canopen.backend import CanopenBackend  # noqa: E402
 from hil import config  # noqa: E402
-from hil.drivers.base import Setpoint  # noqa: E402
-from hil.drivers.canopen.backend import CanopenBackend  # noqa: E402
 from hil.errors import ConfigError  # noqa: E402
 from hil.loop import LoopCpu, RealTimeClock, check_loop_cpu  # noqa: E402
+from hil.plant_config import plant_from_config
 from hil.scope.server import SERVER_NICE, server_cpus  # noqa: E402
 
 CONFIG = ROOT / "config/paper_bench_canopen.toml"
@@ -389,10 +390,10 @@ def run_one(transport, rate, seconds, burner, spin, priority, cpu_latency="0us",
         if transport == "virtual":
             import can
 
-            from hil.drivers.canopen.drive_sim import DriveSim
+            from drivers.canopen.drive_sim import DriveSim
             over.update({"canopen.interface": "virtual", "canopen.channel": f"bench{os.getpid()}"})
             cfg = config.load(CONFIG, over)
-            sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=over["canopen.channel"]), lockstep=False)
+            sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=over["canopen.channel"]), lockstep=False)
             res = _looped(cfg, seconds, spin, scope, nice, points)
             from hil.commands.drive_sim import answer_stats
             drive_stats = answer_stats(sim.answer_times)

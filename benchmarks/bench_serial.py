@@ -20,11 +20,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from drivers.base import Setpoint  # noqa: E402
+from drivers.serial.backend import SerialBackend  # noqa: E402
+from drivers.serial.drive_sim import SimulatedSerialDrive  # noqa: E402
+from drivers.serial.protocol import CommandSet, render_reply  # noqa: E402
 from hil.config import load  # noqa: E402
-from hil.drivers.base import Setpoint  # noqa: E402
-from hil.drivers.serial.backend import SerialBackend  # noqa: E402
-from hil.drivers.serial.drive_sim import SimulatedSerialDrive  # noqa: E402
-from hil.drivers.serial.protocol import CommandSet, render_reply  # noqa: E402
+from hil.plant_config import plant_from_config
 
 
 def bytes_per_cycle(cs: CommandSet, worst: bool) -> int:
@@ -48,7 +49,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     cfg = load(args.config)
     cs = CommandSet.from_config(cfg)
-    with SimulatedSerialDrive(cfg, advance="setpoint") as drive:
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg), advance="setpoint") as drive:
         b = SerialBackend(cfg, port=drive.port, timeout=0.1, budget=0.3, free_run=True)
         b.open()
         b.enable()

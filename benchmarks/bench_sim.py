@@ -9,7 +9,7 @@ two must agree to 1e-9 m.
 ``--effects`` adds, per effect of the catalogue (its synth strength on the paper bench, the same
 move), the compiled loop's time per velocity step against its peer in the same run: the same cycle
 (hil.simulate's ``_cycles``) compiled with numba's reference counting, as it was before
-hil.sim_plant.kernel.njit_cycle; the two records must be equal bit for bit.
+sim_plant.kernel.njit_cycle; the two records must be equal bit for bit.
 
     python benchmarks/bench_sim.py [--effects] [--json]
 """
@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from drivers.control import controller_from_config  # noqa: E402
 from hil import config  # noqa: E402
-from hil.control import controller_from_config  # noqa: E402
 from hil.plant_config import plant_from_config  # noqa: E402
 from hil.profiles import MoveSpec, Trajectory  # noqa: E402
 from hil.simulate import simulate  # noqa: E402
@@ -113,11 +113,11 @@ def effect_figures(x_cmd, repeat) -> list[dict]:
     from numba import njit
 
     import hil.simulate as sim
-    from hil.control import new_velocity_state
+    from drivers.control import new_velocity_state
     from hil.ident.diagnosis import candidate_names
     from hil.plant_config import candidate, configure
-    from hil.sim_plant.effects.base import RecordEffect
-    from hil.sim_plant.kernel import mass_token
+    from sim_plant.effects.base import RecordEffect
+    from sim_plant.kernel import mass_token
     peer = njit(sim._cycles.py_func)
     cfg = config.load(ROOT / "config" / "paper_bench.toml")
     plant = plant_from_config(cfg)

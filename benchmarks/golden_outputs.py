@@ -89,10 +89,11 @@ for mode in ("csp", "csv", "cst"):
         sim.close()
     out["canopen_" + mode] = [rec.status, rec.reason]
 from hil import config
-from hil.drivers.serial.drive_sim import SimulatedSerialDrive
-from hil.drivers.serial.backend import SerialBackend
+from drivers.serial.drive_sim import SimulatedSerialDrive
+from drivers.serial.backend import SerialBackend
+from hil.plant_config import plant_from_config
 cfg = config.load("config/serial_ascii_example.toml")
-d = SimulatedSerialDrive(cfg, advance="setpoint")
+d = SimulatedSerialDrive(cfg, plant_from_config(cfg), advance="setpoint")
 try:
     b = SerialBackend(cfg, port=d.port, timeout=0.5, budget=2.0, retries=2, free_run=True)
     rec = run_trajectory(cfg, move(0.005), backend=b, out_file=f"{TMP}/serial.csv", settle=0.2)

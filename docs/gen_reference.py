@@ -3,7 +3,7 @@
 - ``reference/config.md``: every configuration key, from the schema as data (:data:`hil.config.SCHEMA`)
   and the sections beside it, data of :mod:`hil.config` too (``[supervisor]``, ``[canopen]``,
   ``[serial]``, ``[noise]``, ``[effects.<name>]``), each with the module that reads it;
-- ``reference/effects.md``: every effect of :data:`hil.sim_plant.effects.CATALOGUE` with its
+- ``reference/effects.md``: every effect of :data:`sim_plant.effects.CATALOGUE` with its
   parameters, their units, bounds and starting guesses;
 - ``reference/commands.md``: every command's usage and options, from the argparse parsers of
   :mod:`hil.cli` and ``hil/commands/*``;
@@ -81,7 +81,7 @@ def _field_rows(fields: dict) -> list[str]:
 def config_reference() -> str:
     import hil.supervisor as supervisor
     from hil.config import CANOPEN_SECTION, NOISE_KINDS, SCHEMA, SERIAL_SECTION, field_for
-    from hil.sim_plant.effects import CATALOGUE
+    from sim_plant.effects import CATALOGUE
 
     out = ["# Configuration keys", "", GENERATED_NOTE,
            "An axis is one TOML file; every key below is a dotted name (`plant.c2`) that `--set KEY=VALUE` "
@@ -96,11 +96,11 @@ def config_reference() -> str:
     out += ["## `[supervisor]`: the safety supervisor", "",
             "Read by `hil/supervisor.py`; see [Safety](../guide/safety.md).", ""] + _field_rows(supervisor.SECTION)
     out += ["", "## `[canopen]`: the CiA 402 backend and the simulated drive", "",
-            "Read by `hil/drivers/canopen/section.py` (the backend's settings, read once when it is built; the "
+            "Read by `drivers/canopen/section.py` (the backend's settings, read once when it is built; the "
             "simulated drive reads them too); see [CANopen](../guide/canopen.md) and the "
             "[commissioning tutorial](../tutorials/commissioning.md).", ""] + _field_rows(CANOPEN_SECTION)
     out += ["", "## `[serial]`: drives with an ASCII command interface", "",
-            "Read by `hil/drivers/serial/backend.py`; see [Serial drives](../guide/serial.md). Besides these, "
+            "Read by `drivers/serial/backend.py`; see [Serial drives](../guide/serial.md). Besides these, "
             "`serial.commands.<op>` (a Python format template of the command) and `serial.replies.<op>` "
             "(a regular expression its reply must match) for each operation.", ""] + _field_rows(SERIAL_SECTION)
     noise = {f"noise.{ch}": field_for(f"noise.{ch}") for ch in NOISE_KINDS}
@@ -125,13 +125,13 @@ def config_reference() -> str:
 # -- effects -------------------------------------------------------------------------------------------
 
 def effects_reference() -> str:
-    from hil.sim_plant.effects import ALIASES, CATALOGUE, RecordEffect
+    from sim_plant.effects import ALIASES, CATALOGUE, RecordEffect
 
     aliases: dict[str, list[str]] = {}
     for old, new in ALIASES.items():
         aliases.setdefault(new, []).append(old)
     out = ["# Effects", "", GENERATED_NOTE,
-           "The catalogue of `hil/sim_plant/effects/` (one module per family): the physical effects that `hil diagnose` looks for, "
+           "The catalogue of `sim_plant/effects/` (one module per family): the physical effects that `hil diagnose` looks for, "
            "`hil fit --add NAME` fits, `hil synth --effect NAME --param P=VALUE` hides in a synthetic record "
            "and a configuration switches on with an `[effects.NAME]` section. Parameter values are SI "
            "(`--param` takes each value with its unit, e.g. `level=2Nm`; a config section may write bare SI numbers). Bounds and the starting "

@@ -12,11 +12,11 @@ stopped, stdout goes to the null device). Never a traceback.
 
 Global options (before the command): ``--version``; ``--log-level LEVEL`` (the library logs
 through ``logging``, one logger per module named after it: ``hil.ident.diagnosis``,
-``hil.drivers.canopen.backend``; the level applies to them and to the bus libraries, canopen and
+``drivers.canopen.backend``; the level applies to them and to the bus libraries, canopen and
 python-can; without it the project's loggers show warnings and the bus libraries only critical
 messages, since the backends already report their failures as one clear line);
 ``--can-log FILE.asc|.blf`` (python-can's trace of the CAN bus of every canopen backend the command
-connects, hil.drivers.canopen.canlog; also accepted after the CAN commands).
+connects, drivers.canopen.canlog; also accepted after the CAN commands).
 An unknown command gets a "did you mean" (difflib).
 """
 from __future__ import annotations
@@ -149,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         if args.can_log:           # checked here; each command passes it to the backend it opens
-            from hil.drivers.canopen import canlog
+            from drivers.canopen import canlog
             try:
                 canlog.check(args.can_log)
             except ValueError as exc:

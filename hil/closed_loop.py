@@ -14,10 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.control import controller_from_config
+from drivers.control import controller_from_config
 from hil.errors import UnstableLoopError
 from hil.plant_config import plant_from_config
-from hil.sim_plant.transfer import chain_tfs
+from sim_plant.transfer import chain_tfs
 
 logger = logging.getLogger(__name__)
 
@@ -162,7 +162,7 @@ def lifted_loop(plant, ctrl):
         Where the terms sit in the state: ``"plant"``, ``"integral"``, ``"history"``,
         ``"qf"``, ``"delay"``, ``"lag"`` (slices or indices).
     """
-    from hil.control import loop_terms
+    from drivers.control import loop_terms
     n = plant.n
     disc = plant.chain.discretize(ctrl.velocity_period)
     Ad, b = disc.A, disc.B[:, 0] * plant.force_gain
@@ -241,7 +241,7 @@ def _extra_terms(cfg) -> list[str]:
         out.append("control.velocity_feedback")
     if cfg.get("actuator.current_loop_time_constant", 0.0):
         out.append("actuator.current_loop_time_constant")
-    from hil.sim_plant.kernel import time_delay
+    from sim_plant.kernel import time_delay
     if time_delay(plant_from_config(cfg)) > 0:
         out.append("the plant's transport delay")
     return out
@@ -267,7 +267,7 @@ def loop_stability(cfg) -> tuple[bool, float] | None:
     current loop's lag)."""
     plant = plant_from_config(cfg)
     ctrl = controller_from_config(cfg, plant)
-    from hil.control import loop_terms
+    from drivers.control import loop_terms
     size = 2 * plant.n + 3 + len(ctrl.velocity_filter) + int(loop_terms(plant, ctrl).delay)
     if size > MAX_LIFTED_STATES:
         raise UnstableLoopError(f"loop configuration refused: its delay ({size} states) is too long to judge the "

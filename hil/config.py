@@ -22,10 +22,13 @@ import math
 import re
 import sys
 import tomllib
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from drivers.canopen.schema import SECTION as CANOPEN_SECTION
+from drivers.schema import Field
+from drivers.serial.schema import SECTION as SERIAL_SECTION
+from drivers.serial.schema import field as serial_field
 from hil.errors import ConfigError
 from hil.units import SI_UNIT, UnitError, parse
 
@@ -33,31 +36,6 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["ConfigError", "Field", "Config", "load", "loads", "SCHEMA", "field_for",
            "parse_assignment", "schema_markdown", "examples_dir", "example_names"]
-
-
-@dataclass(frozen=True)
-class Field:
-    """One configuration key.
-
-    ``kind`` is a unit kind of :mod:`hil.units`, or ``"str"``, ``"int"``, ``"bool"``,
-    ``"floats"`` (a list of plain numbers). It may also be a callable ``kind(values) -> str``
-    when the kind depends on another key (torque for a rotary actuator, force for a linear one).
-    """
-    kind: Any
-    doc: str
-    default: Any = None
-    required: bool = False
-    choices: tuple = ()
-    positive: bool = False          # strictly > 0
-    nonnegative: bool = False       # >= 0
-    allow_inf: bool = False         # "inf" accepted (an integral time that switches the integral off)
-    maximum: float | None = None    # largest accepted value (SI); every number is also within MAX_MAGNITUDE
-    max_items: int = 64             # "floats": the longest list accepted
-    minimum: float | None = None    # smallest accepted value other than 0 (SI); a time: at least TIME_RANGE[0]
-    max_length: int = 1024          # "str": the longest text accepted (characters; MAX_STRING_CHARS)
-
-    def kind_for(self, values: dict) -> str:
-        return self.kind(values) if callable(self.kind) else self.kind
 
 
 def _rotary(values: dict) -> bool:
@@ -203,7 +181,7 @@ SCHEMA: dict[str, Field] = {
                                 "both and says which the record is", default=None, choices=("command", "actual")),
     "measurement.force": Field("str", "the same for a linear axis's force (or command) channel: command or actual",
                                default=None, choices=("command", "actual")),
-    # the recording's artefacts (hil.sim_plant.effects.RecordEffect): how the record was logged, not the plant
+    # the recording's artefacts (sim_plant.effects.RecordEffect): how the record was logged, not the plant
     "measurement.channel_skew": Field("time", "the force (torque, command) channel is logged this late against the "
                                       "positions (a logging artefact; + late)", default=None),
     "measurement.tip_skew": Field("time", "the tool-tip channel (another instrument) is logged this late against "
@@ -257,119 +235,15 @@ SUPERVISOR_SECTION = {
                                    "~/.local/state/compliant-axis-hil", default=""),
 }
 
-# The [canopen] section (hil.drivers.canopen.section reads it into the backend's settings; the
-# simulated drive reads it too)
-CANOPEN_SECTION = {
-    "canopen.interface": Field("str", "python-can interface (socketcan, pcan, kvaser, slcan, socketcand, virtual...)",
-                               default="virtual"),
-    "canopen.channel": Field("str", "python-can channel (can0, /dev/ttyACM0, a virtual channel name...)",
-                             default="hil"),
-    "canopen.bitrate": Field("int", "CAN bit rate (bit/s)", default=1000000, nonnegative=True),
-    "canopen.host": Field("str", "socketcand server address (127.0.0.1 only for the simulated drive)",
-                          default="127.0.0.1"),
-    "canopen.port": Field("int", "socketcand server port", default=29536, nonnegative=True),
-    "canopen.node_id": Field("int", "the drive's node id (1..127)", default=1, positive=True, maximum=127),
-    "canopen.host_node_id": Field("int", "the node id of the host's heartbeat (1..127)", default=127, positive=True,
-                                  maximum=127),
-    "canopen.eds": Field("str", "object dictionary of the drive (EDS); default hil/drivers/canopen/eds/cia402_generic.eds",
-                         default=""),
-    "canopen.mode": Field("str", "mode of operation: csp (the drive closes both loops), csv (velocity), cst "
-                          "(torque: the host closes both)", default="csp", choices=("csp", "csv", "cst")),
-    "canopen.counts_per_rev": Field("int", "motor encoder counts per motor revolution (0x608F)", default=1048576,
-                                    positive=True),
-    "canopen.gear_motor_revs": Field("int", "gear ratio: motor revolutions (0x6091.1)", default=1, positive=True),
-    "canopen.gear_shaft_revs": Field("int", "gear ratio: screw revolutions (0x6091.2)", default=1, positive=True),
-    "canopen.rated_torque": Field("torque", "motor rated torque (0x6076); torques go in per mille of it",
-                                  default=10.0, positive=True),
-    "canopen.tip_sensor": Field("bool", "the drive sends a tool-tip position 0x60E4.2 (a second encoder input)",
-                                default=True),
-    "canopen.tip_node_id": Field("int", "node id of a separate tool-tip sensor (CiA 406-like encoder, position "
-                                 "0x6004 in TPDO1 on every SYNC); 0: none (the tip is the drive's 0x60E4.2 "
-                                 "where canopen.tip_sensor, else not measured)", default=0, nonnegative=True,
-                                 maximum=127),
-    "canopen.tip_eds": Field("str", "object dictionary of the tip sensor node; default "
-                             "hil/drivers/canopen/eds/tip_encoder_cia406.eds", default=""),
-    "canopen.heartbeat": Field("time", "drive's heartbeat producer time (0x1017)", default=0.1, positive=True),
-    "canopen.heartbeat_timeout": Field("time", "host: the drive's heartbeat is lost after this", default=0.35,
-                                       positive=True),
-    "canopen.host_heartbeat": Field("time", "host's heartbeat period", default=0.1, positive=True),
-    "canopen.drive_heartbeat_timeout": Field("time", "drive: the host's heartbeat is lost after this (0x1016)",
-                                             default=0.35, positive=True),
-    "canopen.abort_option": Field("int", "0x6007, the drive's action when the host's heartbeat or SYNC is lost: "
-                                  "0 none, 1 fault, 2 disable voltage, 3 quick stop", default=3, nonnegative=True,
-                                  maximum=3),
-    "canopen.sync_timeout": Field("time", "drive: the SYNC is lost after this long without one (SYNC consumer: "
-                                  "0x1006 x the loss limit 0x2003 in cycles, rounded up); then 0x6007 acts; 0: off",
-                                  default=0.1, nonnegative=True),
-    "canopen.quick_stop_deceleration": Field("acceleration", "drive: quick-stop deceleration (0x6085); default: "
-                                             "what the drive derives (the simulated drive: 80 % of what "
-                                             "the torque limit gives the axis)", default=None, positive=True),
-    "canopen.following_error_window": Field("length", "drive-side following-error window (0x6065) on the motor "
-                                            "position; default 1.5 x limits.following_error_table", default=None,
-                                            positive=True),
-    "canopen.following_error_timeout": Field("time", "drive-side following-error time out (0x6066)",
-                                             default=0.01, nonnegative=True),
-    "canopen.pdo_timeout": Field("time", "lockstep: how long the SDO barrier after a SYNC may take before the "
-                                 "drive counts as gone (a loaded machine: generous)", default=5.0, positive=True),
-    "canopen.pdo_miss_limit": Field("int", "consecutive cycles without TPDO before 'lost communication'",
-                                    default=2, positive=True),
-    "canopen.lockstep": Field("bool", "drive time advances with SYNC only (a simulated drive in this process)",
-                              default=False),
-    "canopen.switch_interval": Field("time", "real-time runs: the interpreter's thread switch interval at most this "
-                                     "(process-wide; Python's default 5 ms delays the receive threads)",
-                                     default=1e-4, positive=True),
-    "canopen.connect_timeout": Field("time", "socketcand: how long the server may take to accept and greet",
-                                     default=2.0, positive=True),
-    "canopen.sdo_timeout": Field("time", "SDO response timeout", default=0.5, positive=True),
-    "canopen.stop_timeout": Field("time", "how long the host keeps the SYNC going while the drive finishes a "
-                                  "quick stop", default=2.0, positive=True),
-}
-
-# The [serial] section (hil.drivers.serial.backend reads it): the fixed keys; serial.commands.<op>
-# and serial.replies.<op> are one per operation of the command set
-SERIAL_SECTION = {
-    "serial.port": Field("str", "serial port (/dev/ttyUSB0, COM3, /dev/pts/N of hil serial-sim, or a pyserial URL)",
-                         default=""),
-    "serial.baudrate": Field("int", "baud rate, one of the standard rates (50 ... 4000000)", default=115200,
-                             positive=True),
-    "serial.parity": Field("str", "parity", default="N", choices=("N", "E", "O")),
-    "serial.stopbits": Field("int", "stop bits", default=1, nonnegative=True),
-    "serial.mode": Field("str", "position: the drive closes both loops (set_position); velocity: the host closes "
-                         "the position loop (set_speed)", default="position", choices=("position", "velocity")),
-    "serial.cycle_time": Field("time", "exchange period; default control.position_period", default=None,
-                               positive=True),
-    "serial.timeout": Field("time", "reply timeout of one attempt in the cycle", default=None, positive=True),
-    "serial.retries": Field("int", "retries of a cyclic transaction (within serial.budget)", default=2,
-                            nonnegative=True),
-    "serial.budget": Field("time", "time budget of one cyclic transaction; default half the cycle", default=None,
-                           positive=True),
-    "serial.setup_timeout": Field("time", "reply timeout of open/enable/disable commands", default=None,
-                                  positive=True),
-    "serial.watchdog": Field("time", "drive watchdog armed at open (0: none)", default=None, nonnegative=True),
-    "serial.line_ending": Field("str", "line ending of commands and replies (\\r, \\n, \\r\\n, CR, LF, CRLF)",
-                                default="\r"),
-    "serial.checksum": Field("str", "line checksum", default="none", choices=("none", "sum8", "xor8")),
-    "serial.checksum_separator": Field("str", "character before the checksum's two hex digits", default="*"),
-    "serial.max_reply": Field("int", "longest reply line accepted (bytes)", default=128, nonnegative=True,
-                              maximum=4096),
-    "serial.scale_position": Field("dimensionless", "drive position counts per metre (load side)", default=None,
-                                   positive=True),
-    "serial.scale_speed": Field("dimensionless", "velocity mode: drive speed units per controller speed unit "
-                                "(rad/s of the motor, or m/s)", default=None, positive=True),
-    "serial.scale_output": Field("dimensionless", "drive torque units per N*m (or per V)", default=None,
-                                 positive=True),
-}
-
-
 # the [noise] section: the channels whose sensor noise a configuration may give, and their kinds
 NOISE_KINDS = {"x_motor": "length", "x_table": "length", "x_tip": "length", "torque": "torque", "force": "force",
                "command": "voltage", "e_table": "length", "e_tip": "length"}
 
 
 def _effects_field(key: str) -> Field | None:
-    """Fields of the ``effects.<name>.<param>`` keys: the catalogue's parameters (hil.sim_plant,
+    """Fields of the ``effects.<name>.<param>`` keys: the catalogue's parameters (sim_plant,
     the layer below; imported here when first asked: it compiles)."""
-    from hil.sim_plant.effects import ALIASES, CATALOGUE, effect
+    from sim_plant.effects import ALIASES, CATALOGUE, effect
     parts = key.split(".")
     if len(parts) != 3 or ALIASES.get(parts[1], parts[1]) not in CATALOGUE:
         return None
@@ -384,14 +258,14 @@ def _effects_field(key: str) -> Field | None:
 
 def _param_kind(p):
     """The schema's kind of an effect's parameter: its kind, or a callable of the config's values
-    where it depends on ``actuator.type`` (:class:`hil.sim_plant.effects.ByActuator`)."""
+    where it depends on ``actuator.type`` (:class:`sim_plant.effects.ByActuator`)."""
     if isinstance(p.kind, str):
         return p.kind
     return lambda values: p.kind_for(_rotary(values))
 
 
 def _effects_keys() -> list[str]:
-    from hil.sim_plant.effects import CATALOGUE
+    from sim_plant.effects import CATALOGUE
     return [f"effects.{n}.{p.name}" for n, e in CATALOGUE.items() for p in e.params]
 
 
@@ -403,26 +277,13 @@ def _noise_field(key: str) -> Field | None:
                  f"noise floor of hil diagnose", default=None, nonnegative=True)
 
 
-def _serial_field(key: str) -> Field | None:
-    """Fields of the ``[serial]`` keys: the fixed ones, and a command template and a reply pattern
-    per operation of the command set."""
-    if key in SERIAL_SECTION:
-        return SERIAL_SECTION[key]
-    parts = key.split(".")
-    if len(parts) == 3 and parts[1] == "commands":
-        return Field("str", f"template of the {parts[2]} command")
-    if len(parts) == 3 and parts[1] == "replies":
-        return Field("str", f"regular expression of the reply to {parts[2]}")
-    return None
-
-
 # The sections beside SCHEMA, explicitly: name -> field of a key (None: not one of its keys).
 _SECTIONS: dict[str, Callable[[str], Field | None]] = {
     "supervisor": SUPERVISOR_SECTION.get,
     "effects": _effects_field,
     "noise": _noise_field,
     "canopen": CANOPEN_SECTION.get,
-    "serial": _serial_field,
+    "serial": serial_field,
 }
 # The keys each such section knows (for "did you mean").
 _SECTION_KEYS: dict[str, Callable[[], list[str]]] = {

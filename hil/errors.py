@@ -39,48 +39,29 @@ Tree::
     +-- BackendFault             the drive was lost or reported a fault (exit 1)
     +-- RunStopped               a run that moved ended early (exit code: how, STOP_EXIT_CODES)
 
-The library never raises the CLI's errors and the CLI adds no classes of its own. The physics
-(``hil.sim_plant``) sits below this module and raises plain ``ValueError``; the layer that reads
-a configuration into it turns those into :class:`ConfigError` naming the key.
+The library never raises the CLI's errors and the CLI adds no classes of its own. The root and the
+branches a backend raises (:class:`HilError`, :class:`ConfigError`, :class:`BackendError`,
+:class:`BackendFault`, :class:`StopKind`) are defined beside the backend contract,
+:mod:`drivers.errors`, since ``drivers`` never imports ``hil``; this module adds the rest and is
+the one place the user imports the tree from. The physics (``sim_plant``) sits below both and
+raises plain ``ValueError``; the layer that reads a configuration into it turns those into
+:class:`ConfigError` naming the key.
 """
 from __future__ import annotations
 
 from enum import StrEnum
 
+from drivers.errors import STOP_EXIT_CODES, BackendError, BackendFault, ConfigError, HilError, StopKind, fault_kind
+
 __all__ = ["HilError", "ConfigError", "BackendError", "UnitError", "LimitError", "MeasurementError",
            "UnstableLoopError", "UserError", "SupervisorTripped", "BackendFault", "RunStopped",
            "STOP_EXIT_CODES", "StopKind", "RunStatus", "fault_kind"]
-
-# how a run that moved ended -> the command's exit code (README, Safety: the exit codes)
-STOP_EXIT_CODES = {
-    "complete": 0,
-    "drive_fault": 1,
-    "trip": 3,
-    "link": 4,
-    "overrun": 5,
-    "interrupt": 130,
-}
 
 # stdout closed before the command printed everything (``hil move ... | head -1``): 128 + SIGPIPE,
 # what a shell reports for a process that SIGPIPE ended. The work is done by then (a run has ended,
 # with its controlled stop where it needed one, and its record and files are written before
 # anything is printed); only the printing stopped. Never 1, which says drive fault.
 STDOUT_CLOSED_EXIT = 141
-
-
-class StopKind(StrEnum):
-    """How a run ended (the keys of :data:`STOP_EXIT_CODES`); ``exit_code`` is the command's. A
-    ``StrEnum``: it prints and writes to JSON as its value (``"drive_fault"``)."""
-    COMPLETE = "complete"
-    DRIVE_FAULT = "drive_fault"
-    TRIP = "trip"
-    LINK = "link"
-    OVERRUN = "overrun"
-    INTERRUPT = "interrupt"
-
-    @property
-    def exit_code(self) -> int:
-        return STOP_EXIT_CODES[self.value]
 
 
 class RunStatus(StrEnum):
@@ -93,20 +74,6 @@ class RunStatus(StrEnum):
     FAULT = "fault"
     ABORTED = "aborted"
     REFUSED = "refused"
-
-
-class HilError(Exception):
-    """Root of the project's errors. ``exit_code`` and ``label`` say how the CLI reports it."""
-    exit_code = 2
-    label = "error"
-
-
-class ConfigError(HilError, ValueError):
-    """A configuration key, value or file that cannot be used; the message names the key."""
-
-
-class BackendError(ConfigError):
-    """An unknown backend, or one that is not available in this installation."""
 
 
 class UnitError(HilError, ValueError):
@@ -133,18 +100,6 @@ class SupervisorTripped(HilError, RuntimeError):
     """Motion refused: the supervisor tripped and was not reset."""
 
 
-class BackendFault(HilError, RuntimeError):
-    """The backend lost the drive, or the drive reported a fault. ``reason`` says which."""
-    exit_code = 1
-    label = "drive fault"
-
-    def __init__(self, reason: str, kind: StopKind | None = None):
-        super().__init__(reason)
-        self.reason = reason
-        # drive_fault or link where the backend says which (hil.drivers.base's fault rule)
-        self.kind = kind
-
-
 class RunStopped(HilError):
     """A run that moved and did not complete (a sweep's run, a jog): the exit code says how it
     stopped (:data:`STOP_EXIT_CODES`)."""
@@ -156,8 +111,3 @@ class RunStopped(HilError):
         self.exit_code = stop.exit_code
 
 
-def fault_kind(kind: StopKind | None, default: StopKind) -> StopKind:
-    """The kind of a backend's fault: ``kind`` where the backend gave one, else ``default``
-    (:data:`StopKind.TRIP` for a ``Feedback.fault``, :data:`StopKind.LINK` for a setpoint not
-    delivered or a start-up that failed). Called once, when the run stops."""
-    return default if kind is None else kind

@@ -1,7 +1,7 @@
 """The fixed-rate loop: one cycle per backend exchange, on a real-time or a simulated clock.
 
 Each cycle (:meth:`ControlLoop._tick`): read the feedback, run the loops the backend does not
-close (hil.control's stages: profile and position law, velocity law, output delay), record (every
+close (drivers.control's stages: profile and position law, velocity law, output delay), record (every
 position tick), let the supervisor check, write the setpoint, end the cycle (``backend.sync()``),
 wait for the next deadline. In steady state the cycle allocates nothing that stays: its state,
 setpoint, output delay and the clock's lateness are preallocated.
@@ -26,7 +26,7 @@ frequency responses through it).
 Real-time: the methods marked "(real-time)" run inside the cycle, between reading the feedback
 and ending the cycle; they, and the hooks they call, must be short and must not block.
 
-How a run ends follows the fault rule of :mod:`hil.drivers.base`: a ``Feedback.fault`` trips the
+How a run ends follows the fault rule of :mod:`drivers.base`: a ``Feedback.fault`` trips the
 supervisor (at a position tick through its check, between ticks here), a trip commands the
 configured controlled stop in the same cycle and ends the run ``tripped``; a
 :class:`~hil.errors.BackendFault` raised in the cycle ends it ``fault`` (latched in the supervisor
@@ -48,7 +48,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.control import (
+from drivers.base import Backend, BackendFault, Feedback, Setpoint, fault_kind
+from drivers.control import (
     injected_velocity_cycle,
     measured_speed,
     new_velocity_state,
@@ -57,8 +58,7 @@ from hil.control import (
     velocity_cycle,
     velocity_law,
 )
-from hil.drivers.base import Backend, BackendFault, Feedback, Setpoint, fault_kind
-from hil.drivers.rt import CpuLatencyRequest, fine_timer_slack
+from drivers.rt import CpuLatencyRequest, fine_timer_slack
 from hil.errors import ConfigError, RunStatus, StopKind
 from hil.scope.ring import ScopeRing
 
@@ -177,7 +177,7 @@ class RealTimeClock:
     for a twentieth of a core.
 
     ``cpu_latency`` (s): with a priority, the CPUs' wake-up latency asked of the kernel while the
-    loop runs (``runtime.cpu_latency``, :class:`hil.drivers.rt.CpuLatencyRequest`; default 0: idle
+    loop runs (``runtime.cpu_latency``, :class:`drivers.rt.CpuLatencyRequest`; default 0: idle
     CPUs poll; None or inf: no request)."""
     real_time = True
 
@@ -327,10 +327,10 @@ class ControlLoop:
     ``loop_cpu``: the CPU the thread that runs the cycle is pinned to while :meth:`run` lasts
     (``runtime.loop_cpu``; checked here, before the drive is enabled: :func:`check_loop_cpu`).
 
-    The cycle's stages (:meth:`_tick`), as hil.control writes them once for every loop: read
+    The cycle's stages (:meth:`_tick`), as drivers.control writes them once for every loop: read
     feedback, supervise, profile and position law, velocity law, write command, record. What the
-    cycle keeps is preallocated here: the loop's state and output delay (hil.control's arrays), one
-    :class:`~hil.drivers.base.Setpoint` written in place, the supervisor's methods looked up once.
+    cycle keeps is preallocated here: the loop's state and output delay (drivers.control's arrays), one
+    :class:`~drivers.base.Setpoint` written in place, the supervisor's methods looked up once.
 
     Real-time: :meth:`run`'s cycle and the methods it calls there (``_tick``, ``_command``,
     ``_supervise``, ``_record``, ``_stop``, ``_event``, the clock's ``wait``); :meth:`__init__` does
@@ -493,7 +493,7 @@ class ControlLoop:
         return ""
 
     def _command(self, k: int, j: int, cmd: np.ndarray, fb: Feedback) -> float:
-        """Profile, position law and velocity law of cycle ``j`` of tick ``k`` (hil.control's
+        """Profile, position law and velocity law of cycle ``j`` of tick ``k`` (drivers.control's
         stages, as far as the backend does not close the loops itself): writes this cycle's
         setpoint in place; returns the output to record (real-time)."""
         sp, b = self._setpoint, self.backend

@@ -1,4 +1,4 @@
-"""Reading a configuration into the plant: the one place where config keys meet hil.sim_plant.
+"""Reading a configuration into the plant: the one place where config keys meet sim_plant.
 
 * :func:`plant_from_config`: the chain, actuator, motor friction and sensors of a validated
   :class:`hil.config.Config`, with the effects its ``[effects.<name>]`` sections switch on
@@ -10,9 +10,9 @@
   effects that re-identify a value the config already has (:class:`ParameterEffect`,
   :func:`candidate`).
 * The components file (catalogue data with units, Appendix 2 and 3) read into SI values for
-  :func:`hil.sim_plant.components.equivalents` (:func:`load_components`).
+  :func:`sim_plant.components.equivalents` (:func:`load_components`).
 
-hil.sim_plant knows no configuration and raises ValueError or KeyError; here they become
+sim_plant knows no configuration and raises ValueError or KeyError; here they become
 :class:`hil.errors.ConfigError` naming the file and the key.
 """
 from __future__ import annotations
@@ -24,11 +24,11 @@ from pathlib import Path
 
 from hil.config import NOISE_KINDS, Config, field_for
 from hil.errors import ConfigError, UnitError
-from hil.sim_plant.chain import Chain
-from hil.sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
-from hil.sim_plant.effects import ByActuator, Combination, Effect, Param, RecordEffect, effect
-from hil.sim_plant.plant import Friction, Plant
 from hil.units import DIMENSIONS, fmt, parse
+from sim_plant.chain import Chain
+from sim_plant.components import k_axial, k_flexure, k_nut_table, k_screw_axial, k_torsional
+from sim_plant.effects import ByActuator, Combination, Effect, Param, RecordEffect, effect
+from sim_plant.plant import Friction, Plant
 
 __all__ = ["plant_from_config", "apply_effects", "record_effects", "measurement_key", "ParameterEffect", "candidate", "effect_values",
            "configure", "default_parameters", "control_bounds", "CONTROL_PARAMETERS", "load_components",
@@ -113,7 +113,7 @@ def measurement_key(eff: Effect) -> str | None:
 def _measurement_artefacts(cfg: Config, names: list[str]):
     """(key, effect, values) of the recording's artefacts the ``[measurement]`` section gives (an old
     config's ``[effects.channel_skew]`` still reads; both at once is refused by name)."""
-    from hil.sim_plant.effects import CATALOGUE
+    from sim_plant.effects import CATALOGUE
     out = []
     for eff in CATALOGUE.values():
         key = measurement_key(eff)
@@ -219,7 +219,7 @@ class ParameterEffect(Effect):
                 f"that tells an entry in the drive from another effect's shadow; ")
 
     def evidence(self, ctx, values):
-        """The config value before and after, in its unit (hil.sim_plant.effects.base: the hook)."""
+        """The config value before and after, in its unit (sim_plant.effects.base: the hook)."""
         key, cfg = self.key, ctx.cfg
         old = cfg.get(key)
         f = field_for(key)
@@ -233,7 +233,7 @@ def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:
     """A new config with the effect ``eff`` switched on with ``values``: a catalogue effect's
     section ``[effects.<name>]``, a combination's members one after the other, a
     ``parameter:<key>`` effect's key itself. The one place an effect becomes configuration keys
-    (the physics, hil.sim_plant, takes parameters and knows no configuration)."""
+    (the physics, sim_plant, takes parameters and knows no configuration)."""
     if isinstance(eff, Combination):
         for m, v in zip(eff.members, eff.split(values)):
             cfg = configure(m, cfg, v)
@@ -267,7 +267,7 @@ def effect_values(name: str, cfg) -> dict:
 
 def candidate(name: str, cfg: Config | None = None) -> Effect:
     """The effect of a catalogue name or ``parameter:<dotted name>``, or several joined by ``+``
-    (a :class:`~hil.sim_plant.effects.Combination`, fitted together)."""
+    (a :class:`~sim_plant.effects.Combination`, fitted together)."""
     if "+" in name:
         names = name.split("+")
         return Combination([candidate(n, cfg) for n in names], [candidate(n, cfg).name if n.startswith("parameter:")

@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.base import BackendFault, fault_kind
+from drivers.control import controller_from_config
+from hil.backends import open_backend
 from hil.closed_loop import check_loop_stability
-from hil.control import controller_from_config
-from hil.drivers import open_backend
-from hil.drivers.base import BackendFault, fault_kind
 from hil.errors import HilError, RunStatus, StopKind, UserError
 from hil.io.measurement import read as read_measurement
 from hil.io.recorder import Recorder

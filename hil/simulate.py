@@ -1,10 +1,10 @@
 """The closed loop on the simulated plant, compiled: position loop every Tp, velocity loop every
 Tv, the plant advanced by its exact zero-order-hold discretization over each Tv.
 
-The cycle is hil.control's, stage by stage (the same functions the real-time loop and the
+The cycle is drivers.control's, stage by stage (the same functions the real-time loop and the
 simulated backend call), and so are the terms between the law and the plant (delays, current-loop
-lag, effect table: :func:`hil.control.loop_terms`); the plant step and its forces (dry friction,
-effects) are hil.sim_plant.kernel's. :func:`simulate` returns a
+lag, effect table: :func:`drivers.control.loop_terms`); the plant step and its forces (dry friction,
+effects) are sim_plant.kernel's. :func:`simulate` returns a
 :class:`SimulationResult`, a plain data object (plotting lives in hil.plots). The
 frequency-response experiment (hil.frf.run) runs the same compiled loop, :func:`closed_loop_kernel`,
 with its excitation, measurement noise and per-period record, which the simulation leaves out.
@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from hil.control import (
+from drivers.control import (
     ControllerSettings,
     P,
     S,
@@ -41,8 +41,8 @@ from hil.control import (
     velocity_step,
 )
 from hil.plant_config import plant_from_config
-from hil.sim_plant.kernel import mass_token, njit_cycle, state_size
-from hil.sim_plant.plant import Plant
+from sim_plant.kernel import mass_token, njit_cycle, state_size
+from sim_plant.plant import Plant
 
 __all__ = ["SimulationResult", "simulate", "simulate_many", "closed_loop_batch", "batch_threads", "simulate_config", "closed_loop_kernel", "Record", "per_velocity_period",
            "external_forces", "TORQUE_SAMPLING"]
@@ -57,7 +57,7 @@ class SimulationResult:
 
     ``x``, ``v``: positions and velocities of every mass (true); ``x_motor``, ``x_table``: what the
     encoders read (quantized where the config says so; with an encoder's interpolation error where the
-    plant has one, hil.sim_plant.effects.encoder); ``x_tip``: the tool tip (true, or the
+    plant has one, sim_plant.effects.encoder); ``x_tip``: the tool tip (true, or the
     table for a chain without a tip); ``u``: controller output (torque N m, or command V);
     ``x_cmd``, ``v_cmd``: the command at each recorded instant."""
     t: np.ndarray
@@ -109,9 +109,9 @@ class Record(NamedTuple):
 def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, hbuf, rec=None, record_every=1,
                        exc=None, exc_into_speed=False, noise_w=None, noise_x=None, out=None, u_add=None, f_ext=None,
                        open_loop=False, speed_filter=None, log_command=False, masses=None, enc=None):
-    """Run len(x_cmd) - 1 position ticks of the cycle of hil.control, stage by stage, from the
+    """Run len(x_cmd) - 1 position ticks of the cycle of drivers.control, stage by stage, from the
     plant state ``x0`` (not changed). The plant: ``Ad``, ``Bd``, ``fric``, ``codes``, ``eparams``
-    (hil.control's stages); ``terms``: the loop terms (hil.control.LoopTerms.array); ``p``:
+    (drivers.control's stages); ``terms``: the loop terms (drivers.control.LoopTerms.array); ``p``:
     the settings (:class:`P`); ``ubuf``, ``hbuf``: the output delay's buffer and the feedback's
     history (LoopTerms.delay_buffer, feedback_buffer; None where there is no delay: compiled
     away). ``rec``: a :class:`Record` written every
@@ -136,7 +136,7 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
     recorded output is the controller's output at the sample, before the delay and the current
     loop (a drive that logs its torque command); False: the current after them (a drive that logs
     its measured current). ``masses``: None, or a tuple of one entry per mass
-    (hil.sim_plant.kernel.mass_token): the loop compiled for the chain's size, the same numbers.
+    (sim_plant.kernel.mass_token): the loop compiled for the chain's size, the same numbers.
     ``enc``: the encoders' interpolation errors (LoopTerms.enc), None where they read true
     (compiled away).
 
@@ -149,7 +149,7 @@ def closed_loop_kernel(Ad, Bd, fric, codes, eparams, terms, p, x0, x_cmd, ubuf, 
                    out, u_add, f_ext, open_loop, speed_filter, log_command, masses, enc)
 
 
-# without reference counting (hil.sim_plant.kernel.njit_cycle): a plant with effects 140-200 -> 25-45 ns
+# without reference counting (sim_plant.kernel.njit_cycle): a plant with effects 140-200 -> 25-45 ns
 # per velocity step, the same numbers
 @njit_cycle
 def _cycles(Ad, Bd, fric, codes, eparams, terms, p, x, x_new, f, s, x_cmd, ubuf, hbuf, rec, record_every, exc,
@@ -211,7 +211,7 @@ def _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into
     if exc is not None:
         r = exc[step]
         w_ref_v = w_ref + (r if exc_into_speed else 0.0)
-    # the encoders as read this period (the measured speed of the noisy run is always hil.control's)
+    # the encoders as read this period (the measured speed of the noisy run is always drivers.control's)
     xm, v_motor = motor_feedback(p, t, x, enc)
     if noise_x is not None:
         xm += noise_x[step, 0]
@@ -244,7 +244,7 @@ def _velocity_period(p, s, t, speed_filter, x, n, step, w_ref, ff, exc, exc_into
 @njit(cache=True, inline="always")
 def _record_row(rec, row, t, x, n, u_act, x_cmd, enc):
     """Record (real-time): row ``row`` of ``rec``, the plant's state (``n`` masses) as it is before
-    its step (the encoders as they read, :func:`hil.control.encoders`)."""
+    its step (the encoders as they read, :func:`drivers.control.encoders`)."""
     for i in range(n):
         rec.x[row, i] = x[i]
         rec.v[row, i] = x[n + i]

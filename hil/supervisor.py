@@ -146,7 +146,7 @@ QUANTITIES = ("fault", "elapsed", "x_cmd", "x_table", "x_motor", "v_cmd", "a_cmd
 class Rule:
     """One supervisor rule: ``trips(limits, value)`` on its quantity (a number per cycle, an array
     over a record: written with operators both take), ``says(limits, value)`` the reason of a trip
-    (one value), ``kind`` the stop it makes (None: the backend's, :func:`hil.drivers.base.fault_kind`),
+    (one value), ``kind`` the stop it makes (None: the backend's, :func:`drivers.base.fault_kind`),
     ``active(limits)`` whether the configuration turns it on, ``setpoint``: checked on the setpoint
     about to go out (:meth:`Supervisor.check_setpoint`) rather than on the tick's readings."""
     __slots__ = ("name", "quantity", "trips", "says", "kind", "active", "setpoint")
@@ -297,7 +297,7 @@ class Supervisor:
 
     def trip(self, t: float, reason: str, fb=None, kind: StopKind | None = None) -> str:
         """Latch a trip at time ``t``: ``reason``, and ``kind`` (default: a fault the feedback
-        ``fb`` reported, :func:`~hil.drivers.base.fault_kind`, else a supervisor trip)."""
+        ``fb`` reported, :func:`~drivers.base.fault_kind`, else a supervisor trip)."""
         if not self.tripped:
             if kind is None:
                 kind = fault_kind(fb.fault_kind, StopKind.TRIP) if fb is not None else StopKind.TRIP

@@ -4,9 +4,10 @@ import itertools
 
 import can
 
+from drivers.canopen.backend import CanopenBackend
+from drivers.canopen.drive_sim import DriveSim
 from hil import config
-from hil.drivers.canopen.backend import CanopenBackend
-from hil.drivers.canopen.drive_sim import DriveSim
+from hil.plant_config import plant_from_config
 
 _ids = itertools.count()
 
@@ -23,6 +24,6 @@ def rig(mode="csp", prefix="co", **ov):
     over.update(ov)
     cfg = config.load("config/paper_bench_canopen.toml", over)
     ch = channel(prefix)
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), mode=mode, lockstep=True)
     return cfg, sim, be

@@ -1,11 +1,12 @@
 """The test doubles of a drive that goes wrong, shared by the runtime and backend tests: the
 embedded plant in torque mode (the host closes both loops, one exchange per velocity cycle) whose
-feedback goes wrong from one velocity cycle on, either as the fault rule of hil.drivers.base asks
+feedback goes wrong from one velocity cycle on, either as the fault rule of drivers.base asks
 (reported in ``Feedback.fault``) or by raising :class:`BackendFault` from ``read_feedback`` (a
 backend that breaks the rule: the loop still ends the run ``fault``)."""
-from hil.drivers.base import Backend, BackendFault
-from hil.drivers.sim import SimulatedPlant
+from drivers.base import Backend, BackendFault
+from drivers.sim import SimulatedPlant
 from hil.errors import StopKind
+from hil.plant_config import plant_from_config
 
 
 class FaultyPlant(Backend):
@@ -19,7 +20,7 @@ class FaultyPlant(Backend):
 
     def __init__(self, cfg, at: int, reason: str = "drive fault: overcurrent", raises: bool = False,
                  kind: StopKind | None = StopKind.DRIVE_FAULT):
-        self.sim = SimulatedPlant(cfg, closes="none")
+        self.sim = SimulatedPlant(cfg, plant_from_config(cfg), closes="none")
         self.cycle_time = self.sim.cycle_time
         self.at, self.reason, self.raises, self.kind = at, reason, raises, kind
         self.cycles, self.stopped = 0, False

@@ -10,10 +10,11 @@ import can
 import pytest
 from canopen_rig import channel
 
+from drivers.canopen.drive_sim import DriveSim
 from hil import config
 from hil.cli import main
-from hil.drivers.canopen.drive_sim import DriveSim
 from hil.io.measurement import read as read_measurement
+from hil.plant_config import plant_from_config
 
 CANOPEN = "config/paper_bench_canopen.toml"
 
@@ -35,7 +36,7 @@ def axis():
     ch = channel("start")
     sets = ["--set", "canopen.lockstep=true", "--set", "canopen.interface=virtual", "--set", f"canopen.channel={ch}"]
     cfg = config.load(CANOPEN, {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     try:
         yield sim, ["--config", CANOPEN, *sets]
     finally:
@@ -134,9 +135,10 @@ def test_a_sweep_starts_where_the_axis_stands_and_finds_it_back_before_each_run(
 def test_a_serial_move_starts_where_the_last_one_left_the_axis(capsys, tmp_path):
     """The serial backend reads the position (one ``read``) before it enables the drive: a second
     10 mm move starts at 10 mm, and a move planned from 0 mm is refused."""
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     serial_cfg = "config/serial_ascii_example.toml"
-    with SimulatedSerialDrive(config.load(serial_cfg)) as drive:
+    cfg = config.load(serial_cfg)
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive:
         common = ["--config", serial_cfg, "--set", f'serial.port="{drive.port}"', "--set",
                   "supervisor.overrun_cycles=25", "--backend", "serial", "--feed", "7000mm/min", "--tacc", "200ms",
                   "--dwell", "0.3s", "--json"]

@@ -1,4 +1,4 @@
-"""What every backend shares (hil.drivers.base): the lifecycle's end (``shutdown``, safe twice, never
+"""What every backend shares (drivers.base): the lifecycle's end (``shutdown``, safe twice, never
 raising; the context manager), the one fault rule of the cycle (a serial in-cycle fault and a
 CANopen one end a ``hil move`` the same way), and configuration mistakes named as such (one line,
 exit 2), never as drive faults."""
@@ -13,12 +13,13 @@ import pytest
 from canopen_rig import channel, rig
 from fault_backends import FaultyPlant
 
+from drivers.base import Backend, Feedback
+from drivers.canopen.backend import CanopenBackend
+from drivers.canopen.drive_sim import DriveSim
+from drivers.sim import SimulatedPlant
 from hil import config
 from hil.cli import main
-from hil.drivers.base import Backend, Feedback
-from hil.drivers.canopen.backend import CanopenBackend
-from hil.drivers.canopen.drive_sim import DriveSim
-from hil.drivers.sim import SimulatedPlant
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 from hil.supervisor import Supervisor
@@ -61,7 +62,7 @@ class _Recording(Backend):
 
 def test_shutdown_never_raises_logs_and_closes(caplog):
     b = _Recording()
-    with caplog.at_level(logging.WARNING, logger="hil.drivers.base"):
+    with caplog.at_level(logging.WARNING, logger="drivers.base"):
         b.shutdown()
         b.shutdown()                      # twice: still no exception
     assert b.calls == ["disable", "close", "disable", "close"]
@@ -83,7 +84,7 @@ def test_context_manager_shuts_down_however_the_block_ends():
 
 
 def test_shutdown_twice_on_the_simulated_plant(bench):
-    b = SimulatedPlant(bench)
+    b = SimulatedPlant(bench, plant_from_config(bench))
     with b:
         b.enable()
     assert not b.enabled
@@ -108,7 +109,7 @@ def test_connect_only_leaves_the_drive_alone():
     (the drive may be another process's, in the middle of a move)."""
     ch = channel("be")
     cfg = config.load(CANOPEN, {"canopen.lockstep": True})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     observer = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     try:
@@ -125,10 +126,10 @@ def test_connect_only_leaves_the_drive_alone():
 
 @linux
 def test_shutdown_twice_on_the_serial_backend():
-    from hil.drivers.serial.backend import SerialBackend
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     cfg = config.load(SERIAL)
-    with SimulatedSerialDrive(cfg) as drive:
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive:
         b = SerialBackend(cfg, port=drive.port, timeout=0.03, budget=0.1, free_run=True)
         with b:
             b.enable()
@@ -163,7 +164,7 @@ def _move(args, tmp_path, capsys):
 def _canopen_move(tmp_path, capsys, fault, value):
     ch = channel("be")
     cfg = config.load(CANOPEN, {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     _inject_at_sync(sim, 30, fault, value)
     try:
         return _move(["--config", CANOPEN, "--backend", "canopen", "--set", "canopen.lockstep=true",
@@ -173,8 +174,9 @@ def _canopen_move(tmp_path, capsys, fault, value):
 
 
 def _serial_move(tmp_path, capsys, kind, count):
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
-    with SimulatedSerialDrive(config.load(SERIAL)) as drive:
+    from drivers.serial.drive_sim import SimulatedSerialDrive
+    cfg = config.load(SERIAL)
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive:
         drive.inject(kind, count=count, after=30, op="read")
         return _move(["--config", SERIAL, "--backend", "serial", "--set", f'serial.port="{drive.port}"',
                       "--set", "serial.timeout=30ms", "--set", "serial.budget=100ms",

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.optimize._numdiff import approx_derivative  # what least_squares(jac="2-point") calls
 
+from drivers.control import controller_from_config
 from hil.config import load
-from hil.control import controller_from_config
 from hil.ident import Replay, synthesize
 from hil.ident.fit import evaluate, fd_steps, joint_refit
 from hil.ident.starts import _costs

@@ -141,7 +141,7 @@ def test_ringing_after_the_edges_of_a_command():
     window's, and the share of the energy in the 100 ms windows after the edges (closed form)."""
     import numpy as np
 
-    from hil.sim_plant.effects import edges, ringing
+    from sim_plant.effects import edges, ringing
     dt = 1e-3
     t = np.arange(0, 8, dt)
     x = np.zeros_like(t)

@@ -11,12 +11,13 @@ import pytest
 from canopen.profiles.p402 import OperationMode, State402
 from canopen_rig import channel, rig
 
+from drivers.base import BackendFault
+from drivers.canopen import cia402
+from drivers.canopen.backend import CanopenBackend
+from drivers.canopen.drive_sim import DriveSim
 from hil import config
-from hil.drivers.base import BackendFault
-from hil.drivers.canopen import cia402
-from hil.drivers.canopen.backend import CanopenBackend
-from hil.drivers.canopen.drive_sim import DriveSim
 from hil.errors import ConfigError
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 
@@ -168,19 +169,19 @@ def _free_port():
 
 
 def test_socketcand_server_refuses_other_addresses():
-    from hil.drivers.canopen.drive_sim import SocketcandServerBus
+    from drivers.canopen.drive_sim import SocketcandServerBus
     with pytest.raises(ValueError, match="127.0.0.1"):
         SocketcandServerBus(host="0.0.0.0", port=_free_port())
 
 
 def test_drive_over_socketcand_on_loopback():
     """The python-can socketcand client (the host) against the drive's own socketcand server."""
-    from hil.drivers.canopen.drive_sim import SocketcandServerBus
+    from drivers.canopen.drive_sim import SocketcandServerBus
     port = _free_port()
     cfg = config.load("config/paper_bench_canopen.toml", {"canopen.interface": "socketcand",
                                                             "canopen.channel": "can0", "canopen.port": port})
     server = SocketcandServerBus(host="127.0.0.1", port=port, channel="can0")
-    sim = DriveSim(cfg, bus=server, lockstep=False)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=server, lockstep=False)
     be = CanopenBackend(cfg)
     try:
         be.open()
@@ -207,7 +208,7 @@ def _drive_on_channel(**ov):
     over = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch}
     over.update(ov)
     cfg = config.load("config/paper_bench_canopen.toml", over)
-    return cfg, ch, DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    return cfg, ch, DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
 
 
 def test_sweep_on_the_canopen_backend_matches_the_simulated_plant():
@@ -361,7 +362,7 @@ def test_tip_sensor_preset_at_homing_and_wrong_node():
     cfg = config.load("config/paper_bench_canopen.toml", {"canopen.lockstep": True, "canopen.tip_node_id": 3,
                                                             "canopen.sdo_timeout": 0.05})
     ch = channel("co")
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True, tip_node_id=0)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True, tip_node_id=0)
     be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     try:
         with pytest.raises(BackendFault, match="tip sensor node 3 does not answer"):

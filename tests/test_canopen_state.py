@@ -14,19 +14,20 @@ import pytest
 from canopen_rig import channel
 
 import hil
+from drivers.canopen import canlog
 from hil import config
-from hil.drivers import open_backend
-from hil.drivers.canopen import canlog
+from hil.backends import open_backend
+from hil.plant_config import plant_from_config
 
 CANOPEN = "config/paper_bench_canopen.toml"
 
 
 def test_the_can_trace_goes_through_open_backend_to_the_canopen_backend_only(tmp_path):
-    from hil.drivers.canopen.drive_sim import DriveSim
+    from drivers.canopen.drive_sim import DriveSim
     trace = tmp_path / "bus.asc"
     ch = channel("trace")
     cfg = config.load(CANOPEN, {"canopen.lockstep": True})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     try:
         be = open_backend(cfg, "canopen", can_log=str(trace), bus=can.Bus(interface="virtual", channel=ch))
         with be:
@@ -60,9 +61,9 @@ def test_a_real_time_open_restores_the_switch_interval_at_shutdown():
 
 
 def test_importing_the_backend_leaves_python_cans_logging_alone():
-    code = ("import logging, can; import hil.drivers.canopen.backend as b; "
+    code = ("import logging, can; import drivers.canopen.backend as b; "
             "f = logging.getLogger('can.broadcastmanager').filters; print(len(f)); "
-            "from hil.drivers.canopen.link import quiet_periodic_send_errors as q; q(); q(); "
+            "from drivers.canopen.link import quiet_periodic_send_errors as q; q(); q(); "
             "print(len(logging.getLogger('can.broadcastmanager').filters))")
     root = str(Path(hil.__file__).parents[1])      # the hil under test ("-c" puts the working directory first)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=root,
@@ -77,8 +78,8 @@ def test_the_backends_parts_are_short_and_say_whether_they_run_in_the_cycle():
     import ast
     import inspect
 
-    from hil.drivers.canopen.backend import CanopenBackend
-    from hil.drivers.serial.backend import SerialBackend
+    from drivers.canopen.backend import CanopenBackend
+    from drivers.serial.backend import SerialBackend
     drivers = Path(hil.__file__).parent / "drivers"
     long = []
     for path in [*drivers.glob("canopen/*.py"), *drivers.glob("serial/*.py"), drivers / "rt.py"]:

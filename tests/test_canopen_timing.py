@@ -15,10 +15,10 @@ import canopen.network
 import numpy as np
 from canopen_rig import channel, rig
 
+from drivers.canopen.backend import CanopenBackend
+from drivers.canopen.drive_sim import DriveSim
+from drivers.control import controller_from_config
 from hil import config
-from hil.control import controller_from_config
-from hil.drivers.canopen.backend import CanopenBackend
-from hil.drivers.canopen.drive_sim import DriveSim
 from hil.loop import ControlLoop
 from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
@@ -74,7 +74,7 @@ def test_no_notifier_thread_handles_pdos_while_the_real_time_loop_runs(monkeypat
     ch = channel("rt")
     cfg = config.load("config/paper_bench_canopen.toml", {"canopen.interface": "virtual", "canopen.channel": ch,
                                                             "canopen.pdo_miss_limit": 1000})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=False)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=False)
     be = CanopenBackend(cfg, lockstep=False)
     box["be"] = be
     watch.wrap(be)
@@ -171,11 +171,11 @@ def _drive_sims() -> set[int]:
 
 
 def test_a_bus_that_fails_in_the_cyclic_phase_is_the_feedbacks_fault():
-    """The fault rule of hil.drivers.base: read_feedback never raises; a bus that fails while the loop's
+    """The fault rule of drivers.base: read_feedback never raises; a bus that fails while the loop's
     thread receives is ``lost communication`` in the next feedback."""
     ch = channel("rt")
     cfg = config.load("config/paper_bench_canopen.toml", {"canopen.interface": "virtual", "canopen.channel": ch})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=False)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=False)
     be = CanopenBackend(cfg, lockstep=False)
     try:
         be.open()
@@ -192,11 +192,11 @@ def test_a_bus_that_fails_in_the_cyclic_phase_is_the_feedbacks_fault():
 
 
 def test_the_cpu_latency_request_is_the_kernels_format_and_released(tmp_path):
-    """hil.drivers.rt.CpuLatencyRequest writes the PM QoS value as the kernel reads it (a native 32-bit
+    """drivers.rt.CpuLatencyRequest writes the PM QoS value as the kernel reads it (a native 32-bit
     integer of microseconds: Documentation/power/pm_qos_interface.rst) and holds it while open."""
     import struct
 
-    from hil.drivers.rt import CpuLatencyRequest
+    from drivers.rt import CpuLatencyRequest
     dev = tmp_path / "cpu_dma_latency"           # a file stands in for the device
     dev.write_bytes(b"")
     req = CpuLatencyRequest(20e-6, path=str(dev))

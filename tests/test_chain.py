@@ -13,8 +13,8 @@ from hil.ident.chain import diagnose_chain
 from hil.ident.noise import quantization_step, record_noise, standstill_noise
 from hil.io.measurement import Measurement
 from hil.plant_config import candidate, configure
-from hil.sim_plant import kernel
-from hil.sim_plant.effects import CATALOGUE, Effect, Param
+from sim_plant import kernel
+from sim_plant.effects import CATALOGUE, Effect, Param
 
 CFG = load("config/paper_bench.toml")
 

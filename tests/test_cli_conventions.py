@@ -18,6 +18,7 @@ from canopen_rig import channel
 from hil.cli import main
 from hil.config import load, loads
 from hil.errors import ConfigError
+from hil.plant_config import plant_from_config
 from hil.units import fmt, fmt_uncertain, parse_angle_deg, parse_gain_db, round_to_uncertainty
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -213,10 +214,10 @@ def test_log_level(capsys, tmp_path):
 
 @pytest.mark.parametrize("suffix", [".asc", ".blf"])
 def test_can_log_records_the_bus_and_python_can_reads_it(tmp_path, capsys, suffix):
-    from hil.drivers.canopen.drive_sim import DriveSim
+    from drivers.canopen.drive_sim import DriveSim
     ch = channel("canlog")
     cfg = load(CANOPEN, {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     trace = tmp_path / f"bus{suffix}"
     try:
         rc = main(["move", "--config", CANOPEN, "--set", "canopen.lockstep=true", "-i", "virtual", "-c", ch,

@@ -6,8 +6,8 @@ import pytest
 
 from hil.config import ConfigError
 from hil.plant_config import components_from_dict, load_components
-from hil.sim_plant.chain import Chain
-from hil.sim_plant.components import (
+from sim_plant.chain import Chain
+from sim_plant.components import (
     equivalents,
     k1_equivalent,
     k_axial,

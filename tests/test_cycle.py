@@ -1,4 +1,4 @@
-"""The one cycle (hil.control's stages, issue 28): its records named by fields, the host's cycle
+"""The one cycle (drivers.control's stages, issue 28): its records named by fields, the host's cycle
 without allocation in steady state, the runtime on the backend contract alone."""
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from hil.control import (
+from drivers.base import Backend
+from drivers.control import (
     LOOP_STATE,
     LOOP_TERMS,
     S,
@@ -19,10 +20,10 @@ from hil.control import (
     loop_terms,
     terms_of,
 )
-from hil.drivers.base import Backend
-from hil.drivers.sim import SimulatedPlant
+from drivers.sim import SimulatedPlant
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop, RealTimeClock
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import record_channels, run_trajectory
 from hil.supervisor import Supervisor
@@ -39,7 +40,7 @@ def test_the_records_are_named_from_one_list():
 def test_loop_terms_array_holds_the_plant_and_controller_numbers(bench):
     cfg = bench.with_values({"effects.time_delay.delay": "0.15 ms", "effects.feedback_delay.delay": "1.3 ms",
                              "control.position_feedback": "motor"})
-    sim = SimulatedPlant(cfg)
+    sim = SimulatedPlant(cfg, plant_from_config(cfg))
     ctrl, pl = sim.ctrl, sim.plant
     t = loop_terms(pl, ctrl).array
     tv = ctrl.velocity_period
@@ -53,7 +54,7 @@ def test_loop_terms_array_holds_the_plant_and_controller_numbers(bench):
 
 def test_the_terms_record_reads_the_array_by_name(bench):
     """The compiled stages' record of the loop terms holds every field of the array, by its name."""
-    a = loop_terms(SimulatedPlant(bench).plant, SimulatedPlant(bench).ctrl).array + np.arange(T.SIZE) * 1e-3
+    a = loop_terms(SimulatedPlant(bench, plant_from_config(bench)).plant, SimulatedPlant(bench, plant_from_config(bench)).ctrl).array + np.arange(T.SIZE) * 1e-3
     rec = terms_of(a)
     assert rec == Terms(*a) and rec._fields == LOOP_TERMS
 
@@ -103,7 +104,7 @@ def test_the_python_cycle_does_not_grow(bench, tmp_path, closes, at):
     """1 000 cycles of the host's loop in steady state (after the supervisor's bounded history has
     filled) on the simulated backend, with the recorder, the supervisor and the real-time clock's
     bookkeeping: the traced memory does not grow (a list per cycle would add ~30 kB)."""
-    sim = SimulatedPlant(bench, closes=closes)
+    sim = SimulatedPlant(bench, plant_from_config(bench), closes=closes)
     sim.home_at(0.0)
     sim.enable()
     ctrl = controller_from_config(bench, sim.plant)
@@ -127,14 +128,14 @@ def test_the_python_cycle_does_not_grow(bench, tmp_path, closes, at):
 
 
 class _Wrapped(Backend):
-    """A backend that is not hil.drivers.sim.SimulatedPlant but offers the same dry run through the
+    """A backend that is not drivers.sim.SimulatedPlant but offers the same dry run through the
     contract; ``cycles``: how often the host exchanged with it."""
     name = "wrapped"
     closes = "none"
     simulated = True
 
     def __init__(self, cfg):
-        self.sim = SimulatedPlant(cfg)
+        self.sim = SimulatedPlant(cfg, plant_from_config(cfg))
         self.cycle_time = self.sim.cycle_time
         self.cycles = 0
 
@@ -174,7 +175,7 @@ def test_the_runtime_takes_the_dry_run_from_the_contract(bench):
     traj.move(MoveSpec(0.005, 0.05, a_max=2.0))
     wrapped = _Wrapped(bench)
     rec = run_trajectory(bench, traj, backend=wrapped, settle=0.05)
-    ref = run_trajectory(bench, traj, backend=SimulatedPlant(bench), settle=0.05)
+    ref = run_trajectory(bench, traj, backend=SimulatedPlant(bench, plant_from_config(bench)), settle=0.05)
     assert wrapped.cycles == 0 and rec.status == ref.status == "complete"
     for name, values in ref.channels.items():
         assert np.array_equal(rec.channels[name], values), name

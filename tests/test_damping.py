@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from hil.sim_plant.chain import Chain
-from hil.sim_plant.damping import c1_c2_from_ratio, c2_from_c1, c_2dof, modal_ratios_3dof, ratios_from_c
+from sim_plant.chain import Chain
+from sim_plant.damping import c1_c2_from_ratio, c2_from_c1, c_2dof, modal_ratios_3dof, ratios_from_c
 
 M3 = (335.57, 392.97, 4.228)
 K3 = (5.362e7, 3.7060e4)

@@ -13,11 +13,11 @@ from hil.ident import Replay, diagnose, synthesize
 from hil.ident.fit import evaluate
 from hil.io.measurement import Measurement
 from hil.plant_config import candidate, plant_from_config
-from hil.sim_plant import kernel
-from hil.sim_plant.components import k1_along_travel, k_axial, k_screw_fixed_fixed, k_screw_fixed_free
-from hil.sim_plant.effects import CATALOGUE
-from hil.sim_plant.modal import frequencies_3dof, transmission_mode
 from hil.simulate import simulate_config
+from sim_plant import kernel
+from sim_plant.components import k1_along_travel, k_axial, k_screw_fixed_fixed, k_screw_fixed_free
+from sim_plant.effects import CATALOGUE
+from sim_plant.modal import frequencies_3dof, transmission_mode
 
 CFG = load("config/paper_bench.toml")
 TV = CFG["control.velocity_period"]           # 62.5 us
@@ -168,7 +168,7 @@ def test_time_delay_is_an_alias_with_identical_numbers():
 
 def test_delay_grids_span_the_physical_range():
     plant = plant_from_config(CFG)
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     ctrl = controller_from_config(CFG, plant)
     act = [g["delay"] for g in CATALOGUE["actuator_delay"].grid(plant, ctrl, {"period": TS})]
     assert act[0] == pytest.approx(TV) and act[-1] == pytest.approx(0.02)

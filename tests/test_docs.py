@@ -403,12 +403,12 @@ def test_the_reference_names_every_key_effect_and_option():
     effect's parameters and every command's options: what the code accepts is what the docs list."""
     import argparse
 
-    import hil.drivers.canopen.backend as canopen_backend
-    import hil.drivers.serial.backend as serial_backend
+    import drivers.canopen.backend as canopen_backend
+    import drivers.serial.backend as serial_backend
     import hil.supervisor as supervisor
     from hil.cli import build_parser
     from hil.config import SCHEMA
-    from hil.sim_plant.effects import CATALOGUE
+    from sim_plant.effects import CATALOGUE
 
     gen = _gen()
     config, effects, commands = gen.config_reference(), gen.effects_reference(), gen.commands_reference()
@@ -431,8 +431,8 @@ def test_the_reference_names_every_key_effect_and_option():
 def test_the_reference_names_the_module_that_reads_each_backend_section():
     """The [canopen] and [serial] sections of the generated reference name the module that reads
     their keys: a file that exists, and for [canopen] the one that reads most of its keys by name
-    (counted in the sources here; after the CANopen split that is hil/drivers/canopen/section.py,
-    the page named hil/drivers/canopen/backend.py, which reads three)."""
+    (counted in the sources here; after the CANopen split that is drivers/canopen/section.py,
+    the page named drivers/canopen/backend.py, which reads three)."""
     import re
 
     from hil.config import CANOPEN_SECTION

@@ -25,23 +25,24 @@ PROBE = r"""
 import json, sys
 import numpy as np
 from hil import config
-import hil.control as control
-import hil.drivers.sim as sim
+import drivers.control as control
+import drivers.sim as sim
+from hil.plant_config import plant_from_config
 kind = sys.argv[1]
 cfg = config.load("paper_bench_canopen.toml" if kind == "canopen" else "serial_ascii_example.toml")
 if kind == "canopen":
     import can
-    from hil.drivers.canopen.drive_sim import DriveSim
-    drive = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="warm_up_probe"), lockstep=True)
+    from drivers.canopen.drive_sim import DriveSim
+    drive = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel="warm_up_probe"), lockstep=True)
     plant = drive.plant
 elif kind == "serial":
-    from hil.drivers.serial.drive_sim import _Drive
-    plant = _Drive(cfg).plant
+    from drivers.serial.drive_sim import _Drive
+    plant = _Drive(cfg, plant_from_config(cfg)).plant
 else:
     import copy
-    from hil.drivers.base import Setpoint
+    from drivers.base import Setpoint
     # a plant in motion (enabled, a setpoint ahead, its loops' state filled), and its twin
-    plant = sim.SimulatedPlant(cfg, closes=kind)
+    plant = sim.SimulatedPlant(cfg, plant_from_config(cfg), closes=kind)
     plant.home_at(0.01)
     plant.enable()
     for k in range(40):
@@ -84,7 +85,7 @@ def test_a_drive_simulator_loads_its_whole_cycle_before_it_serves(kind):
     assert all(compiled.values()), f"not loaded before the first cycle: {[k for k, v in compiled.items() if not v]}"
 
 
-# what each arrangement's cycle calls (hil.drivers.sim.SimulatedPlant.sync, advance, read_feedback)
+# what each arrangement's cycle calls (drivers.sim.SimulatedPlant.sync, advance, read_feedback)
 CALLS = {"none": {"coast_cycle", "torque_cycle", "quantize"},
          "velocity": {"drive_cycle", "coast_cycle", "torque_cycle", "quantize"},
          "both": {"drive_cycle", "coast_cycle", "torque_cycle", "drive_feedback", "quantize"}}
@@ -126,9 +127,10 @@ L.ControlLoop._tick = first_tick
 out = Path(tempfile.mkdtemp())
 if sys.argv[1] == "canopen":
     import can
-    from hil.drivers.canopen.drive_sim import DriveSim
+    from drivers.canopen.drive_sim import DriveSim
     sets = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": "warm_up_move"}
-    sim = DriveSim(config.load("config/paper_bench_canopen.toml", sets),
+    cfg = config.load("config/paper_bench_canopen.toml", sets)
+    sim = DriveSim(cfg, plant_from_config(cfg),
                    bus=can.Bus(interface="virtual", channel="warm_up_move"), lockstep=True)
     argv = ["--config", "config/paper_bench_canopen.toml", "--backend", "canopen", "--stroke", "20mm",
             "--feed", "6000mm/min", "--amax", "2m/s^2", "--dwell", "0.3s"]
@@ -137,8 +139,9 @@ if sys.argv[1] == "canopen":
         rc = main(["move", *argv, "--out", str(out)])
     sim.close()
 else:
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
-    with SimulatedSerialDrive(config.load("config/serial_ascii_example.toml")) as drive, \
+    from drivers.serial.drive_sim import SimulatedSerialDrive
+    cfg = config.load("config/serial_ascii_example.toml")
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive, \
             contextlib.redirect_stdout(io.StringIO()):
         rc = main(["move", "--config", "config/serial_ascii_example.toml", "--backend", "serial", "--set",
                    f'serial.port="{drive.port}"', "--stroke", "10mm", "--feed", "7000mm/min", "--tacc", "200ms",

@@ -4,8 +4,8 @@ import pytest
 
 from hil.config import load
 from hil.plant_config import candidate, configure, record_effects
-from hil.sim_plant.effects import CATALOGUE
 from hil.simulate import simulate_config
+from sim_plant.effects import CATALOGUE
 
 CFG = load("config/paper_bench.toml")
 X = np.concatenate([np.zeros(50), np.linspace(0, 0.02, 250), np.full(100, 0.02), np.linspace(0.02, 0, 250)])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from hil.config import load
-from hil.sim_plant.effects import CATALOGUE, Effect, Param, register
+from sim_plant.effects import CATALOGUE, Effect, Param, register
 
 CFG = load("config/paper_bench.toml")
 DRAG = 5000.0            # N s/m on the table, hidden by synth (its synth_strength)

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from drivers.control import controller_from_config
 from hil.config import ConfigError, load
-from hil.control import controller_from_config
 from hil.plant_config import candidate, configure, plant_from_config
 from hil.simulate import simulate, simulate_config
 
@@ -141,8 +141,8 @@ def test_motor_encoder_torque_ripple_matches_the_loop_transfer(fraction):
                                    "amplitude2": 0.3e-6, "phase2": -1.0}], ids=["motor", "table"])
 def test_the_host_loop_reads_the_encoders_as_the_compiled_loop(vals):
     """One control law: the host's cycle loop on the simulated plant (which reads its encoders
-    through hil.control's stages) records what the compiled loop records."""
-    from hil.drivers.sim import SimulatedPlant
+    through drivers.control's stages) records what the compiled loop records."""
+    from drivers.sim import SimulatedPlant
     from hil.loop import ControlLoop
     from hil.profiles import MoveSpec, Trajectory
     cfg = _with(vals)
@@ -151,7 +151,7 @@ def test_the_host_loop_reads_the_encoders_as_the_compiled_loop(vals):
     traj.dwell(0.05)
     _, x_cmd = traj.sample(TP)
     fast = simulate_config(cfg, x_cmd, record_every=1)
-    sim = SimulatedPlant(cfg, closes="none")
+    sim = SimulatedPlant(cfg, plant_from_config(cfg), closes="none")
     sim.home_at(0.0)
     sim.enable()
     ctrl = controller_from_config(cfg, sim.plant)
@@ -166,7 +166,7 @@ def test_the_host_loop_reads_the_encoders_as_the_compiled_loop(vals):
     assert np.max(np.abs(rows[:, 2] - fast.u[::n_sub])) < 1e-9
     # and the drive closing the velocity loop itself (velocity mode) reads them alike
     slow = simulate_config(cfg, x_cmd)
-    sim = SimulatedPlant(cfg, closes="velocity")
+    sim = SimulatedPlant(cfg, plant_from_config(cfg), closes="velocity")
     sim.home_at(0.0)
     sim.enable()
     rows = []

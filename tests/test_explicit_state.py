@@ -29,8 +29,8 @@ def test_the_schema_sections_are_listed_not_registered_on_import():
     reading them imports neither hil.supervisor nor hil.plant_config (before: found by importing
     those modules from their names as strings, which registered the sections as a side effect).
     The backends' sections are listed the same way: reading a [canopen] or [serial] key, or a
-    "did you mean" over them, imports no backend (before: hil.drivers.canopen.backend and
-    hil.drivers.serial.backend imported by name to register their sections)."""
+    "did you mean" over them, imports no backend (before: drivers.canopen.backend and
+    drivers.serial.backend imported by name to register their sections)."""
     import subprocess
     import sys
     code = ("import sys; from hil import config\n"
@@ -47,7 +47,7 @@ def test_the_schema_sections_are_listed_not_registered_on_import():
             "assert config.did_you_mean('canopen.nodeid') == \"; did you mean 'canopen.node_id'?\"\n"
             "assert config.did_you_mean('serial.baudrat') == \"; did you mean 'serial.baudrate'?\"\n"
             "print(sorted(m for m in ('hil.supervisor', 'hil.plant_config') if m in sys.modules)"
-            " + sorted(m for m in sys.modules if m.startswith('hil.drivers')))\n"
+            " + sorted(m for m in sys.modules if m.startswith('drivers')))\n"
             "print(sorted(config.SECTION_NAMES))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
     assert out[0] == "[]", out

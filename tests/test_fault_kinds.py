@@ -11,11 +11,12 @@ import sys
 import pytest
 from canopen_rig import rig
 
+from drivers.base import BackendFault, Setpoint, fault_kind
+from drivers.control import controller_from_config
 from hil import config
-from hil.control import controller_from_config
-from hil.drivers.base import BackendFault, Setpoint, fault_kind
 from hil.errors import RunStatus, StopKind
 from hil.loop import ControlLoop
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.supervisor import Supervisor
 
@@ -116,10 +117,10 @@ def test_a_frame_the_bus_refuses_is_a_link_fault():
     ("timeout", "lost communication: serial read: timeout", StopKind.LINK),
 ])
 def test_the_serial_backend_says_the_kind_of_its_feedback_fault(fault, words, kind):
-    from hil.drivers.serial.backend import SerialBackend
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     cfg = config.load(SERIAL)
-    with SimulatedSerialDrive(cfg) as drive:
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive:
         drive.inject(fault, count=10, after=6, op="read")
         with SerialBackend(cfg, port=drive.port, timeout=0.03, budget=0.1, retries=2, free_run=True) as b:
             b.enable()
@@ -133,10 +134,10 @@ def test_the_serial_backend_says_the_kind_of_its_feedback_fault(fault, words, ki
 
 @linux
 def test_the_serial_drive_refusing_a_setpoint_is_a_drive_fault():
-    from hil.drivers.serial.backend import SerialBackend
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     cfg = config.load(SERIAL)
-    with SimulatedSerialDrive(cfg) as drive:
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive:
         drive.inject("refuse", count=10, after=0, op="set_position")
         with SerialBackend(cfg, port=drive.port, timeout=0.03, budget=0.1, retries=2, free_run=True) as b:
             b.enable()
@@ -148,7 +149,7 @@ def test_the_serial_drive_refusing_a_setpoint_is_a_drive_fault():
 
 
 def test_supervisor_trip_takes_the_kind_the_feedback_carries(tmp_path):
-    from hil.drivers.base import Feedback
+    from drivers.base import Feedback
     sup = Supervisor(config.load(BENCH), latch_file=str(tmp_path / "latch.json"))
     fb = Feedback(0.0, 0.0, 0.0, fault="drive fault: overcurrent")       # no kind: the default, a trip
     assert sup.check(0.0, fb, 0.0) and sup.trip_kind is StopKind.TRIP

@@ -36,12 +36,13 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from canopen_rig import channel  # noqa: E402
 
+from drivers.canopen.drive_sim import DriveSim  # noqa: E402
 from hil import config  # noqa: E402
 from hil.cli import main  # noqa: E402
 from hil.commands.drive_sim import FaultSchedule, parse_fault  # noqa: E402
-from hil.drivers.canopen.drive_sim import DriveSim  # noqa: E402
 from hil.errors import STOP_EXIT_CODES  # noqa: E402
 from hil.io.measurement import read as read_measurement  # noqa: E402
+from hil.plant_config import plant_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CANOPEN = str(ROOT / "config" / "paper_bench_canopen.toml")
@@ -103,7 +104,7 @@ def run_canopen_case(fault: str, out: Path) -> dict:
     sets = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch,
             **CANOPEN_SETS.get(fault, {})}
     cfg = config.load(CANOPEN, sets)
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     schedule = FaultSchedule([parse_fault(fault)])
     cycle = sim._cycle
 
@@ -131,10 +132,10 @@ def run_canopen_case(fault: str, out: Path) -> dict:
 
 
 def run_serial_case(fault: str, out: Path) -> dict:
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
-    from hil.drivers.serial.drive_sim import parse_fault as parse_serial_fault
+    from drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.serial.drive_sim import parse_fault as parse_serial_fault
     cfg = config.load(SERIAL)
-    with SimulatedSerialDrive(cfg, faults=[parse_serial_fault(fault)]) as drive:
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg), faults=[parse_serial_fault(fault)]) as drive:
         # the loop-overrun watchdog widened (2 -> 25 periods): on a loaded shared machine a 20 ms
         # stall of the host is an overrun (exit 5), which is not what these cases are about
         # (test_a_loop_overrun_ends_the_same_way is)
@@ -289,7 +290,7 @@ class _Stalls:
 
 
 def _stalling_backend(cfg, at=30, stall=0.02, ctrl_c=False):
-    from hil.drivers.sim import SimulatedPlant
+    from drivers.sim import SimulatedPlant
 
     class Stalling(_Stalls, SimulatedPlant):
         name = "stalling"

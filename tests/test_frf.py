@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drivers.control import controller_from_config
+from drivers.sim import SimulatedPlant
 from hil import frf
 from hil.cli import main
 from hil.config import load
-from hil.control import controller_from_config
-from hil.drivers.sim import SimulatedPlant
 from hil.plant_config import plant_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -119,7 +119,7 @@ def test_backend_path_equals_compiled_path(bench):
     cfg, plant, ctrl = bench
     st = frf.FrfSettings(period=0.25, band=(4.0, 100.0), periods=1, settle=0.25, lead_in=0.1, auto_settle=False)
     fast = frf.run_sim(plant, ctrl, st)
-    b = SimulatedPlant(cfg, closes="none")
+    b = SimulatedPlant(cfg, plant_from_config(cfg), closes="none")
     b.open()
     b.home_at(0.0)
     b.enable()
@@ -173,11 +173,11 @@ def test_canopen_torque_mode_backend():
     """Over the CANopen contract: the simulated CiA 402 drive in cyclic synchronous torque mode
     (lock-step), the host closing both loops at 1 ms."""
     can = pytest.importorskip("can")
-    from hil.drivers.canopen.backend import CanopenBackend
-    from hil.drivers.canopen.drive_sim import DriveSim
+    from drivers.canopen.backend import CanopenBackend
+    from drivers.canopen.drive_sim import DriveSim
     cfg = load(ROOT / "config" / "paper_bench_canopen.toml",
                {"canopen.lockstep": True, "control.velocity_period": "1 ms"})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel="frf-test"), lockstep=True)  # noqa: F841
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel="frf-test"), lockstep=True)  # noqa: F841
     be = CanopenBackend(cfg, bus=can.Bus(interface="virtual", channel="frf-test"), mode="cst", lockstep=True)
     plant = plant_from_config(cfg)
     ctrl = controller_from_config(cfg, plant)

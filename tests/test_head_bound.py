@@ -14,7 +14,7 @@ from hil.ident import Replay, synthesize
 from hil.ident.starts import HEAD_SHARE, _bounded_costs, _costs
 from hil.io.measurement import Measurement
 from hil.plant_config import candidate, configure
-from hil.sim_plant.effects import CATALOGUE
+from sim_plant.effects import CATALOGUE
 
 CFG = load("config/paper_bench.toml")
 

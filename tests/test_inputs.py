@@ -90,7 +90,7 @@ def test_external_force_enters_the_loop(mass):
 def test_none_inputs_leave_the_simulation_bit_identical():
     x = np.concatenate([np.zeros(50), np.linspace(0, 0.02, 300), np.full(200, 0.02)])
     a = simulate_config(CFG, x)
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     from hil.plant_config import plant_from_config
     from hil.simulate import simulate
     plant = plant_from_config(CFG)

@@ -24,10 +24,11 @@ import pytest
 from canopen_rig import channel
 from conftest import CONFIG, ROOT, SHARED
 
+from drivers.canopen.drive_sim import DriveSim
 from hil import config
 from hil.cli import COMMANDS, build_parser, main
-from hil.drivers.canopen.drive_sim import DriveSim
 from hil.io.jsonout import JsonKey
+from hil.plant_config import plant_from_config
 
 BENCH = str(CONFIG / "paper_bench.toml")
 CANOPEN = str(CONFIG / "paper_bench_canopen.toml")
@@ -204,7 +205,8 @@ def drive():
     the command line's options that reach it."""
     ch = channel("json")
     over = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch, "canopen.tip_node_id": 2}
-    sim = DriveSim(config.load(CANOPEN, over), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    cfg = config.load(CANOPEN, over)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     try:
         yield ["--config", CANOPEN, *[x for k, v in over.items() for x in ("--set", f"{k}={str(v).lower()}")]]
     finally:

@@ -1,15 +1,22 @@
 """The architecture as a test: imports point one way, and there is no import circle.
 
+Three top-level packages, one way down between them: ``sim_plant`` (the physics) imports neither
+of the others; ``drivers`` (the backends, the drive's errors, the cascade law that a drive and the
+simulator both run, the backends' config sections) imports ``sim_plant`` and never ``hil``;
+``hil`` (the runtime and the tools) imports both.
+
 Layers, lowest first (a module may import its own layer and the layers below it, never above):
 
-0. the physics (``hil.sim_plant``) and the foundations every layer uses (``hil.errors``, ``hil.units``)
-1. the configuration, the one control law and the reading of a configuration into a plant
-2. the backends (``hil.drivers``)
-3. the runtime core: simulator, cycle loop, runtime, supervisor, profiles, measurement files
-4. the applications: identification, jerk sweeps, frequency responses
-5. figures and reports, the live scope's server and page (``hil.scope.server``; its ring buffer,
+0. the physics (``sim_plant``)
+1. the drives (``drivers``)
+2. the foundations every layer of ``hil`` uses (``hil.errors``, ``hil.units``)
+3. the configuration, the reading of a configuration into a plant, and the opening of a backend
+   (``hil.backends``)
+4. the runtime core: simulator, cycle loop, runtime, supervisor, profiles, measurement files
+5. the applications: identification, jerk sweeps, frequency responses
+6. figures and reports, the live scope's server and page (``hil.scope.server``; its ring buffer,
    ``hil.scope.ring``, is of the runtime core: the cycle writes it)
-6. the command line
+7. the command line
 
 Every import statement counts, at the top of a module or inside a function: an import inside a
 function is still an arrow of the graph. The table is data; docs/architecture.md says the same
@@ -24,18 +31,19 @@ from pathlib import Path
 
 import pytest
 
-PACKAGES = ("hil",)        # the one top-level package; physics and backends are hil.sim_plant, hil.drivers
+PACKAGES = ("sim_plant", "drivers", "hil")    # the design's three, lowest first
 
 # module prefix -> layer; the longest matching prefix decides
 LAYERS = {
-    "hil.sim_plant": 0, "hil.errors": 0, "hil.units": 0,
-    "hil": 1, "hil.config": 1, "hil.control": 1, "hil.plant_config": 1,
-    "hil.drivers": 2,
-    "hil.simulate": 3, "hil.loop": 3, "hil.runtime": 3, "hil.supervisor": 3, "hil.profiles": 3,
-    "hil.closed_loop": 3, "hil.analysis": 3, "hil.io": 3, "hil.scope": 3,
-    "hil.ident": 4, "hil.sweep": 4, "hil.frf": 4, "hil.fleet": 4,
-    "hil.plots": 5, "hil.scope.server": 5,
-    "hil.commands": 6, "hil.cli": 6,
+    "sim_plant": 0,
+    "drivers": 1,
+    "hil.errors": 2, "hil.units": 2,
+    "hil": 3, "hil.config": 3, "hil.plant_config": 3, "hil.backends": 3,
+    "hil.simulate": 4, "hil.loop": 4, "hil.runtime": 4, "hil.supervisor": 4, "hil.profiles": 4,
+    "hil.closed_loop": 4, "hil.analysis": 4, "hil.io": 4, "hil.scope": 4,
+    "hil.ident": 5, "hil.sweep": 5, "hil.frf": 5, "hil.fleet": 5,
+    "hil.plots": 6, "hil.scope.server": 6,
+    "hil.commands": 7, "hil.cli": 7,
 }
 
 
@@ -122,9 +130,26 @@ def test_no_upward_import(graph):
 
 
 def test_physics_imports_nothing_of_the_application(graph):
-    bad = [f"{n} -> {t}" for n, ts in graph.items() if n.startswith("hil.sim_plant")
-           for t in ts if not t.startswith("hil.sim_plant")]
+    bad = [f"{n} -> {t}" for n, ts in graph.items() if n.startswith("sim_plant")
+           for t in ts if not t.startswith("sim_plant")]
     assert not bad, bad
+
+
+def test_one_way_down_between_the_three_packages(graph):
+    """sim_plant imports neither of the others; drivers imports sim_plant and never hil (also
+    inside a function: every import statement is an arrow of the graph)."""
+    allowed = {"sim_plant": {"sim_plant"}, "drivers": {"sim_plant", "drivers"}, "hil": set(PACKAGES)}
+    bad = [f"{n} -> {t}" for n, ts in sorted(graph.items()) for t in sorted(ts)
+           if t.split(".")[0] not in allowed[n.split(".")[0]]]
+    assert not bad, "imports between the top-level packages pointing up:\n  " + "\n  ".join(bad)
+
+
+def test_the_three_packages_are_at_the_root():
+    """The design's layout: hil/, drivers/ and sim_plant/ at the repository root, each a package."""
+    root = Path(__file__).resolve().parents[1]
+    for pkg in PACKAGES:
+        assert (root / pkg / "__init__.py").is_file(), pkg
+    assert not (root / "hil" / "drivers").exists() and not (root / "hil" / "sim_plant").exists()
 
 
 def _cycle(graph: dict[str, set[str]]) -> list[str] | None:
@@ -178,17 +203,17 @@ def test_the_checker_sees_an_upward_import(tmp_path):
     would pass everything)."""
     mod = tmp_path / "probe.py"
     mod.write_text("def f():\n    from hil.commands.move import run\n    from .chain import Chain\n")
-    found = _imports("hil.sim_plant.probe", mod, {"hil.commands.move", "hil.sim_plant.chain"})
-    assert found == {"hil.commands.move", "hil.sim_plant.chain"}
-    assert layer_of("hil.commands.move")[1] > layer_of("hil.sim_plant.probe")[1]
+    found = _imports("sim_plant.probe", mod, {"hil.commands.move", "sim_plant.chain"})
+    assert found == {"hil.commands.move", "sim_plant.chain"}
+    assert layer_of("hil.commands.move")[1] > layer_of("sim_plant.probe")[1]
     assert _cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert _cycle({"a": {"b"}, "b": set()}) is None
 
 
 # --- configuration access below the configuration's layer (issue 28, item 4) ---------------------
 
-# What a backend may read of the configuration besides its own section (hil.drivers.<name> reads
-# <name>.*; hil.drivers itself, the registry, backend.*): what a drive is set up with before it
+# What a backend may read of the configuration besides its own section (drivers.<name> reads
+# <name>.*; drivers itself, the registry, backend.*): what a drive is set up with before it
 # moves: the cycle, the controller's output limit, the axis limits the drive also guards on its
 # side, the screw's pitch, the controlled stop, and whether the supervisor may be left out.
 DRIVER_SHARED_KEYS = {"control.position_period", "control.velocity_period", "control.output_limit",
@@ -236,30 +261,31 @@ def _config_sections() -> set[str]:
 
 def _driver_may_read(module: str, key: str) -> bool:
     parts = module.split(".")
-    own = parts[2] if len(parts) > 2 else "backend"          # hil.drivers.<own>..., hil.drivers: backend.*
+    # drivers.<own>... reads <own>.* (drivers.control: the control law's control.*); drivers: backend.*
+    own = parts[1] if len(parts) > 1 else "backend"
     return key.split(".", 1)[0] == own or key in DRIVER_SHARED_KEYS
 
 
 def test_physics_and_backends_know_no_configuration_syntax():
-    """``hil.sim_plant`` takes parameters: no configuration key (``cfg["plant.m1"]``,
+    """``sim_plant`` takes parameters: no configuration key (``cfg["plant.m1"]``,
     ``values.get("actuator.type")``, ``cfg[f"effects.{name}.{k}"]``) and no ``.with_values`` in it;
-    hil.plant_config reads the configuration into it and switches effects on. ``hil.drivers``: a
+    hil.plant_config reads the configuration into it and switches effects on. ``drivers``: a
     backend is built from the configuration and may read its own section and
     :data:`DRIVER_SHARED_KEYS`, and makes no configurations (no ``.with_values``). The imports
     cannot show this (the configuration is passed in, duck-typed); the syntax tree does."""
     sections = _config_sections()
     bad = []
     for name, path in sorted(_modules().items()):
-        if name.startswith("hil.sim_plant"):
+        if name.startswith("sim_plant"):
             bad += [f"{name}:{line} {how} {key}" for line, how, key in _config_accesses(path, sections)]
-        elif name.startswith("hil.drivers"):
+        elif name.startswith("drivers"):
             bad += [f"{name}:{line} {how} {key}" for line, how, key in _config_accesses(path, sections)
                     if how == ".with_values" or not _driver_may_read(name, key)]
     assert not bad, "configuration syntax below the configuration's layer:\n  " + "\n  ".join(bad)
 
 
 def test_the_checker_sees_duck_typed_config_access(tmp_path):
-    """The checker itself, on the forms it must see (what hil.sim_plant.effects did before: an
+    """The checker itself, on the forms it must see (what sim_plant.effects did before: an
     f-string key into ``with_values``, ``values.get("actuator.type")``), and not on a parameter
     dictionary's own dotted names (a combination's ``values[f"{n}.{p.name}"]``)."""
     mod = tmp_path / "probe.py"
@@ -272,6 +298,6 @@ def test_the_checker_sees_duck_typed_config_access(tmp_path):
                    "    values['stiffness.k_em']\n")
     found = [(line, how) for line, how, _ in _config_accesses(mod, {"effects", "actuator", "plant"})]
     assert found == [(2, ".with_values"), (3, ".get"), (4, "[]"), (5, "[]")]
-    assert _driver_may_read("hil.drivers.canopen.backend", "canopen.node_id")
-    assert not _driver_may_read("hil.drivers.canopen.backend", "serial.port")
-    assert not _driver_may_read("hil.drivers.sim", "effects.backlash.gap")
+    assert _driver_may_read("drivers.canopen.backend", "canopen.node_id")
+    assert not _driver_may_read("drivers.canopen.backend", "serial.port")
+    assert not _driver_may_read("drivers.sim", "effects.backlash.gap")

@@ -3,7 +3,7 @@
 on what ``hil synth`` hides at two strengths, and refused in one line where a config gives it a
 value out of its physical range.
 
-Closed form (hil/sim_plant/effects/load_friction.py): the torque the effect adds on the motor is
+Closed form (sim_plant/effects/load_friction.py): the torque the effect adds on the motor is
 T_pre + mu |F_link| p / (2 pi); on the paper bench the load side has no damping of its own, so at
 constant speed F_link = 0 (T_pre alone) and during a constant acceleration or deceleration a,
 F_link = (m2 + m3) a, against the motion in both (mu = 1/eta - 1).
@@ -78,8 +78,8 @@ def test_without_the_load_part_it_is_coulomb_friction():
 def test_the_load_part_alone_switches_the_dry_friction_on():
     """No preload, a load part only: the plant step decides dry friction (its level the link's
     force times mu), which acts while the link carries the load's inertia, and not at constant speed."""
-    from hil.control import T, controller_from_config, loop_terms
-    from hil.sim_plant.kernel import LOAD_FRICTION, dry_friction
+    from drivers.control import T, controller_from_config, loop_terms
+    from sim_plant.kernel import LOAD_FRICTION, dry_friction
     cfg2 = load(CONFIG / "paper_bench_2dof.toml")
     mu, a = 0.2, 2.0
     cfg = _with({"preload": 0.0, "coefficient": mu}, cfg2)

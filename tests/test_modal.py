@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from hil.sim_plant.chain import Chain
-from hil.sim_plant.modal import frequencies_3dof, modal_matrix_2dof, modal_matrix_3dof, omega_2dof
+from sim_plant.chain import Chain
+from sim_plant.modal import frequencies_3dof, modal_matrix_2dof, modal_matrix_3dof, omega_2dof
 
 M3 = (335.57, 392.97, 4.228)
 K3 = (5.362e7, 3.7060e4)

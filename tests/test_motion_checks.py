@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 from conftest import CONFIG
 
-from hil.control import controller_from_config
-from hil.drivers.base import Feedback
-from hil.drivers.sim import SimulatedPlant
+from drivers.base import Feedback
+from drivers.control import controller_from_config
+from drivers.sim import SimulatedPlant
 from hil.errors import LimitError
 from hil.loop import ControlLoop
+from hil.plant_config import plant_from_config
 from hil.profiles import AxisLimits, MoveSpec, Trajectory, check_sampled, plan_move
 from hil.runtime import record_channels, run_trajectory
 from hil.supervisor import Supervisor, check_record
@@ -126,7 +127,7 @@ def test_supervisor_stops_a_jump_before_it_is_sent(bench):
     x = np.zeros(30)
     x[10:] = 0.005
     b = _Probe()
-    ctrl = controller_from_config(bench, SimulatedPlant(bench).plant)
+    ctrl = controller_from_config(bench, SimulatedPlant(bench, plant_from_config(bench)).plant)
     sup = Supervisor(bench, period=0.004, latch_file="")
     res = ControlLoop(b, ctrl, supervisor=sup).run(x)
     assert res.status == "tripped" and res.reason.startswith("speed limit: commanded 1.25 m/s")
@@ -138,7 +139,7 @@ def _stepwise(cfg, traj):
     """The cycle-by-cycle loop on the simulated plant with the supervisor watching: what the real
     axis's run goes through."""
     _, x_cmd = traj.sample(cfg["control.position_period"])
-    sim = SimulatedPlant(cfg, closes="none")
+    sim = SimulatedPlant(cfg, plant_from_config(cfg), closes="none")
     sim.home_at(x_cmd[0])
     sim.enable()
     ctrl = controller_from_config(cfg, sim.plant)

@@ -19,7 +19,7 @@ import pytest
 from conftest import CONFIG, ROOT
 
 HEAVY = {"numpy", "scipy", "numba", "matplotlib", "pint", "can", "canopen", "serial", "dask", "control",
-         "hil.sim_plant", "hil.drivers"}
+         "sim_plant", "drivers"}
 
 
 def clean_env(**extra) -> dict:
@@ -75,7 +75,7 @@ def test_wheel_holds_every_module_eds_file_and_example_config(wheel):
         if "__pycache__" not in py.parts:
             assert py.relative_to(ROOT).as_posix() in names, f"{py.relative_to(ROOT)} is not in the wheel " \
                 "(a new package? add it to [tool.setuptools] packages in pyproject.toml)"
-    assert {"hil/drivers/canopen/eds/cia402_generic.eds", "hil/drivers/canopen/eds/tip_encoder_cia406.eds"} <= names
+    assert {"drivers/canopen/eds/cia402_generic.eds", "drivers/canopen/eds/tip_encoder_cia406.eds"} <= names
     shipped = {f"hil/examples/{p.name}" for p in CONFIG.iterdir() if p.suffix in (".toml", ".md")}
     assert "hil/examples/paper_bench.toml" in shipped and shipped <= names
     templates = {f"hil/plots/templates/{p.name}" for p in (ROOT / "hil" / "plots" / "templates").glob("*.j2")}
@@ -112,7 +112,7 @@ def test_wheel_installed_outside_the_clone_runs_the_canopen_walkthrough(wheel, t
         return subprocess.run([*cmd, *argv], cwd=work, env=clean_env(), capture_output=True, text=True,
                               timeout=300, **kw)
 
-    where = run("-c", "import hil, hil.drivers, hil.sim_plant; print(hil.__file__, hil.drivers.__file__, hil.sim_plant.__file__)",
+    where = run("-c", "import hil, drivers, sim_plant; print(hil.__file__, drivers.__file__, sim_plant.__file__)",
                 cmd=(py,))
     site = str(venv / "lib")
     assert all(p.startswith(site) for p in where.stdout.split()), where.stdout + where.stderr

@@ -17,6 +17,7 @@ import pytest
 
 from hil.io.measurement import read
 from hil.io.recorder import STATUS_EVERY, Recorder, status_of
+from hil.plant_config import plant_from_config
 from hil.runtime import record_channels
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -154,13 +155,13 @@ def test_hil_move_killed_mid_move_keeps_its_rows(tmp_path):
     commands a cycle, read and set_position, plus a few at start-up) but the last one or two,
     all parse, and move.json says ``running`` (did not end cleanly) with a row count within an
     update interval of the file's."""
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     from hil import config
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
     cfg_path = ROOT / "config" / "serial_ascii_example.toml"
     cfg = config.load(cfg_path)
     period = cfg["control.position_period"]
     out = tmp_path / "move"
-    with SimulatedSerialDrive(cfg) as drive:
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive:
         p = subprocess.Popen([sys.executable, "-c", CLI, "move", "--config", str(cfg_path), "--backend", "serial",
                               "--set", f'serial.port="{drive.port}"', "--set", "serial.timeout=30ms",
                               "--set", "serial.budget=100ms", "--stroke", "200mm", "--feed", "7000mm/min",

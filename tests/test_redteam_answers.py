@@ -110,7 +110,7 @@ def test_a_dry_run_trip_does_not_point_at_a_latch(tmp_path, capsys, state_dir):
 
 def _frf_json(path: Path, f=None, scale: float = 1.0, phase: float | None = None) -> Path:
     """An frf.json in the format 'hil frf' writes, the paper bench's own model responses."""
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     from hil.frf.model import model_responses
     from hil.plant_config import plant_from_config
     cfg = load(BENCH)

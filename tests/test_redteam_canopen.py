@@ -30,8 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from canopen_rig import rig  # noqa: E402
 from hang_guard import no_hang  # noqa: E402
 
-from hil.drivers.base import Setpoint  # noqa: E402
+from drivers.base import Setpoint  # noqa: E402
 from hil.io.measurement import read as read_measurement  # noqa: E402
+from hil.plant_config import plant_from_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CANOPEN = str(ROOT / "config" / "paper_bench_canopen.toml")
@@ -263,12 +264,12 @@ def test_a_silent_socketcand_server_is_a_named_fault_not_a_hang(tmp_path, comman
 
 # -- 5. one line, never a traceback: frames, --fault values, node ids, the reason of a dead bus ----------
 def _server_drive(tmp_path):
+    from drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
     from hil import config
-    from hil.drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
     port = _free_port()
     cfg = config.load(CANOPEN, {"canopen.interface": "socketcand", "canopen.channel": "can0", "canopen.port": port})
     server = SocketcandServerBus(host="127.0.0.1", port=port, channel="can0")
-    return DriveSim(cfg, bus=server, lockstep=False), port
+    return DriveSim(cfg, plant_from_config(cfg), bus=server, lockstep=False), port
 
 
 def test_the_drive_survives_malformed_frames_over_socketcand(tmp_path):
@@ -325,7 +326,7 @@ def test_a_bus_error_with_a_traceback_in_its_text_is_one_line():
     server dies (kill -9 of hil drive-sim); the reason (screen, move.json, latch) is one line."""
     import can
 
-    from hil.drivers.canopen.link import one_line as _one_line
+    from drivers.canopen.link import one_line as _one_line
     exc = can.CanOperationError("Failed to receive: [Errno 104] Connection reset by peer  Traceback (most recent "
                                 "call last):\n  File \"x.py\", line 1, in f\nConnectionResetError: [Errno 104]")
     text = _one_line(exc)
@@ -334,7 +335,7 @@ def test_a_bus_error_with_a_traceback_in_its_text_is_one_line():
 
 
 def test_can_log_refuses_a_symbolic_link(tmp_path):
-    from hil.drivers.canopen import canlog
+    from drivers.canopen import canlog
     target = tmp_path / "precious.txt"
     target.write_text("keep me")
     link = tmp_path / "trace.asc"
@@ -367,10 +368,10 @@ FRAMES = st.lists(st.one_of(FRAME, st.sampled_from(ENABLING), st.tuples(st.just(
 
 @pytest.fixture(scope="module")
 def fuzz_drive():
+    from drivers.canopen.drive_sim import DriveSim
     from hil import config
-    from hil.drivers.canopen.drive_sim import DriveSim
     cfg = config.load(CANOPEN, {"canopen.interface": "virtual", "canopen.channel": f"fz{os.getpid()}"})
-    sim = DriveSim(cfg, lockstep=False, thread=False)
+    sim = DriveSim(cfg, plant_from_config(cfg), lockstep=False, thread=False)
     yield sim
     sim.close()
 
@@ -450,7 +451,7 @@ def test_a_dead_link_under_the_library_threads_is_one_line_not_a_traceback(monke
     both errors as its one-line 'lost communication'."""
     import threading
 
-    from hil.drivers.canopen.link import BusErrors as _BusErrors
+    from drivers.canopen.link import BusErrors as _BusErrors
     died = []
     monkeypatch.setattr(threading, "excepthook", lambda args: died.append(args.exc_value))
     cfg, sim, be = rig(prefix="dead")

@@ -18,10 +18,11 @@ from pathlib import Path
 import pytest
 from hang_guard import no_hang
 
+from drivers.serial.protocol import CommandSet, ReplyError, UnsafeCommand
 from hil.cli import main
 from hil.config import load, loads
-from hil.drivers.serial.protocol import CommandSet, ReplyError, UnsafeCommand
 from hil.errors import ConfigError
+from hil.plant_config import plant_from_config
 
 linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 
@@ -126,8 +127,8 @@ def test_a_formatted_value_never_makes_a_second_line():
 
 
 def test_a_non_finite_setpoint_is_a_backend_fault_not_a_traceback():
-    from hil.drivers.base import BackendFault, Setpoint
-    from hil.drivers.serial.backend import SerialBackend
+    from drivers.base import BackendFault, Setpoint
+    from drivers.serial.backend import SerialBackend
     b = SerialBackend(load(SERIAL), port="/dev/null")
     with pytest.raises(BackendFault, match="setpoint refused: serial set_position: nan"):
         b.write_setpoint(Setpoint(position=math.nan))
@@ -168,12 +169,12 @@ def test_a_frozen_drive_stops_and_never_executes_what_was_queued():
     import signal
     import time
 
-    from hil.drivers.base import BackendFault, Setpoint
-    from hil.drivers.serial.backend import SerialBackend
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.base import BackendFault, Setpoint
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     cfg = load(SERIAL)
     T, v, acc = cfg["control.position_period"], 0.1, 2.0
-    with SimulatedSerialDrive(cfg, advance="setpoint") as drive:
+    with SimulatedSerialDrive(cfg, plant_from_config(cfg), advance="setpoint") as drive:
         # the watchdog widened from the example's 50 ms to 300 ms, and the host's retries: on a loaded
         # shared machine a 50 ms stall of either process is itself a silent host
         b = SerialBackend(cfg, port=drive.port, timeout=0.05, budget=0.1, retries=1, setup_timeout=0.5,
@@ -228,7 +229,7 @@ def test_every_shipped_config_has_the_supervisor_windows(path):
     """The report: the serial example had no following-error window, so a hidden target ran the
     axis 71 mm off its command, status complete. Each window is 2 x speed / kv (the lag of the
     position loop without feed-forward at the top speed, twice)."""
-    from hil.drivers import SUPERVISOR_WINDOWS
+    from hil.backends import SUPERVISOR_WINDOWS
     cfg = load(path)
     assert all(cfg.get(k) is not None for k in SUPERVISOR_WINDOWS), path.name
     want = 2 * cfg["limits.speed"] / cfg["control.kv"]
@@ -341,7 +342,7 @@ _BACKENDS: dict = {}
 
 def _scripted_backend(cfg, answer):
     """The backend of ``cfg`` (built once: building compiles the host's loop) on a new scripted port."""
-    from hil.drivers.serial.backend import SerialBackend, SerialStats
+    from drivers.serial.backend import SerialBackend, SerialStats
     if id(cfg) not in _BACKENDS:
         _BACKENDS[id(cfg)] = SerialBackend(cfg, port="loop://", timeout=0.002, budget=0.004, retries=1,
                                            setup_timeout=0.002)
@@ -391,7 +392,7 @@ def test_fuzz_serial_replies_into_the_backend(checksum, replies, eol, target):
     infinite numbers, with or without the line ending and checksum), the backend gives a
     Feedback (its ``fault`` set where the reply is not a valid one) or raises BackendFault with one
     line; never a traceback, never a hang; everything it sends is one line of printable ASCII."""
-    from hil.drivers.base import BackendFault, Feedback, Setpoint
+    from drivers.base import BackendFault, Feedback, Setpoint
     cfg = _serial_config(checksum)
     cs = CommandSet.from_config(cfg)
     script = list(replies)
@@ -456,8 +457,8 @@ def test_fuzz_serial_configuration_values(changes, value):
     """Any value for the serial keys: the config and the backend are built, or refused with one
     line naming a serial key (ConfigError); and what a built backend sends is one printable line,
     for any value formatted into it."""
-    from hil.drivers.serial.backend import SerialBackend
-    from hil.drivers.serial.protocol import VALUE_FIELD
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.protocol import VALUE_FIELD
     cfg = _serial_config("xor8")
     with no_hang(5):
         try:

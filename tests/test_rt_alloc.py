@@ -3,7 +3,7 @@
 channel in lockstep, the serial drive in its own process on a pseudo-terminal) the memory traced
 by ``tracemalloc`` does not grow. Before, the CANopen backend appended three latencies per cycle
 to lists without bound (about 100 kB per 1 000 cycles); its statistics now go into buffers
-allocated once (hil.drivers.rt.SampleBuffer) and its event log is bounded."""
+allocated once (drivers.rt.SampleBuffer) and its event log is bounded."""
 from __future__ import annotations
 
 import gc
@@ -13,7 +13,8 @@ import tracemalloc
 import pytest
 from canopen_rig import rig
 
-from hil.drivers.base import Setpoint
+from drivers.base import Setpoint
+from hil.plant_config import plant_from_config
 
 CYCLES = 1000
 # what 1 000 cycles may leave behind in the whole process: caches of the interpreter and the bus
@@ -24,9 +25,9 @@ GROWTH_LIMIT = 24_000
 # the noise of a received value replaced by one of another size (a small int is shared, a larger
 # one is not)
 OWN_LIMIT = 1000
-BACKEND_FILES = ("*/hil/drivers/canopen/backend.py", "*/hil/drivers/canopen/link.py",
-                 "*/hil/drivers/canopen/tracker.py", "*/hil/drivers/canopen/heartbeat.py",
-                 "*/hil/drivers/rt.py", "*/hil/drivers/serial/backend.py", "*/hil/drivers/serial/protocol.py")
+BACKEND_FILES = ("*/drivers/canopen/backend.py", "*/drivers/canopen/link.py",
+                 "*/drivers/canopen/tracker.py", "*/drivers/canopen/heartbeat.py",
+                 "*/drivers/rt.py", "*/drivers/serial/backend.py", "*/drivers/serial/protocol.py")
 
 
 def _growth(cycle, warm: int = 500) -> tuple[int, int]:
@@ -74,11 +75,11 @@ def test_the_canopen_cycle_keeps_nothing_per_cycle():
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 def test_the_serial_cycle_keeps_nothing_per_cycle():
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     from hil.config import load
-    from hil.drivers.serial.backend import SerialBackend
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
     cfg = load("config/serial_ascii_example.toml")
-    drive = SimulatedSerialDrive(cfg, advance="setpoint")
+    drive = SimulatedSerialDrive(cfg, plant_from_config(cfg), advance="setpoint")
     try:
         be = SerialBackend(cfg, port=drive.port, timeout=0.5, budget=2.0, retries=2, free_run=True,
                            watchdog=0.0)     # tracemalloc slows the host: no drive watchdog

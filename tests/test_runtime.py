@@ -8,8 +8,8 @@ import scipy.linalg
 from conftest import CONFIG
 from fault_backends import FaultyPlant
 
-from hil.control import ControllerSettings, new_velocity_state, velocity_law
-from hil.drivers.sim import SimulatedPlant
+from drivers.control import ControllerSettings, new_velocity_state, velocity_law
+from drivers.sim import SimulatedPlant
 from hil.io.measurement import read
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop
@@ -112,10 +112,10 @@ def test_stiction_holds_and_slips(bench):
     (tau - tau_c) / J_total."""
     cfg = bench.with_values({"friction.coulomb": "2.2 N*m", "friction.static": "2.2 N*m",
                              "friction.viscous": "0 N*m*s/rad"})
-    sim = SimulatedPlant(cfg, closes="none")
+    sim = SimulatedPlant(cfg, plant_from_config(cfg), closes="none")
     sim.home_at(0.0)
     sim.enable()
-    from hil.drivers.base import Setpoint
+    from drivers.base import Setpoint
     for _ in range(16000):                      # 1 s at 2.0 N m < 2.2 N m
         sim.write_setpoint(Setpoint(output=2.0))
         sim.sync()
@@ -155,10 +155,10 @@ def test_stepwise_loop_equals_compiled_kernel(bench, changes):
     traj.dwell(0.05)
     _, x_cmd = traj.sample(0.004)
     fast = simulate_config(bench, x_cmd, record_every=1)
-    sim = SimulatedPlant(bench, closes="none")
+    sim = SimulatedPlant(bench, plant_from_config(bench), closes="none")
     sim.home_at(0.0)
     sim.enable()
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     ctrl = controller_from_config(bench, sim.plant)
     loop = ControlLoop(sim, ctrl, recorder=None)
     rows = []
@@ -180,9 +180,9 @@ def test_velocity_and_position_mode_backends_run_the_same_law(bench, changes):
     traj.move(MoveSpec(0.005, 0.1, a_max=3.0))
     _, x_cmd = traj.sample(0.004, 0.05)
     fast = simulate_config(bench, x_cmd)
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     for closes in ("velocity", "both"):
-        sim = SimulatedPlant(bench, closes=closes)
+        sim = SimulatedPlant(bench, plant_from_config(bench), closes=closes)
         sim.home_at(0.0)
         sim.enable()
         rows = []

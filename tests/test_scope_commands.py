@@ -9,10 +9,11 @@ import pytest
 from canopen_rig import channel
 from conftest import CONFIG
 
+from drivers.canopen.drive_sim import DriveSim
 from hil import config
 from hil.cli import main
 from hil.commands import scope as scope_cmd
-from hil.drivers.canopen.drive_sim import DriveSim
+from hil.plant_config import plant_from_config
 from hil.scope.ring import SCOPE_CHANNELS
 
 BENCH = str(CONFIG / "paper_bench.toml")
@@ -52,7 +53,8 @@ def test_jog_on_the_simulated_plant(started, capsys):
 def test_home_shows_the_position_before_and_after(started, capsys):
     ch = channel("scopehome")
     over = {"canopen.lockstep": True, "canopen.interface": "virtual", "canopen.channel": ch}
-    sim = DriveSim(config.load(CANOPEN, over), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    cfg = config.load(CANOPEN, over)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     try:
         argv = ["--config", CANOPEN, *[x for k, v in over.items() for x in ("--set", f"{k}={str(v).lower()}")]]
         assert main(["home", *argv, "--offset", "3mm", "--json", *SCOPE]) == 0

@@ -13,11 +13,12 @@ from pathlib import Path
 import pytest
 from conftest import CONFIG
 
+from drivers.control import controller_from_config
+from drivers.sim import SimulatedPlant
 from hil.cli import main
-from hil.control import controller_from_config
-from hil.drivers.sim import SimulatedPlant
 from hil.errors import ConfigError
 from hil.loop import ControlLoop, check_loop_cpu, cpu_list
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -46,7 +47,7 @@ def test_the_loop_runs_on_its_cpu_and_gets_its_cpus_back(bench):
     traj = Trajectory()
     traj.move(MoveSpec(0.002, 0.05, a_max=3.0))
     _, x_cmd = traj.sample(0.004)
-    sim = SimulatedPlant(bench, closes="none")
+    sim = SimulatedPlant(bench, plant_from_config(bench), closes="none")
     sim.home_at(0.0)
     sim.enable()
     seen = []
@@ -62,7 +63,7 @@ def test_a_cpu_that_is_not_there_is_one_line_before_anything_moves(bench, capsys
     missing = max(os.sched_getaffinity(0)) + 1 if hasattr(os, "sched_getaffinity") else 1
     if not hasattr(os, "sched_setaffinity"):
         pytest.skip("no thread affinity on this system")
-    sim = SimulatedPlant(bench, closes="none")
+    sim = SimulatedPlant(bench, plant_from_config(bench), closes="none")
     with pytest.raises(ConfigError, match=rf"^runtime.loop_cpu {missing}: no such CPU for this process "
                                           rf"\(it may run on CPU {cpu_list(os.sched_getaffinity(0))}\)$"):
         ControlLoop(sim, controller_from_config(bench, sim.plant), loop_cpu=missing)

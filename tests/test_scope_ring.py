@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from fault_backends import FaultyPlant
 
-from hil.drivers.sim import SimulatedPlant
+from drivers.sim import SimulatedPlant
 from hil.io.measurement import read
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 from hil.scope.ring import SCOPE_CHANNELS, STATES, ScopeRing, feed
@@ -125,7 +126,7 @@ def test_the_loop_records_the_same_with_a_scope(bench, tmp_path, closes):
     paths = []
     for with_scope in (False, True):
         ring = ScopeRing() if with_scope else None
-        sim = SimulatedPlant(bench, closes=closes)
+        sim = SimulatedPlant(bench, plant_from_config(bench), closes=closes)
         out = tmp_path / f"{with_scope}.csv"
         rec = run_trajectory(bench, _move(), backend=sim, out_file=out, settle=0.1, scope=ring)
         assert rec.status == "complete"

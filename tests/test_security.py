@@ -10,8 +10,8 @@ import time
 import pytest
 from conftest import CONFIG
 
-from hil.drivers.canopen.drive_sim import SocketcandServerBus
-from hil.drivers.serial.protocol import CommandSet, command_pattern
+from drivers.canopen.drive_sim import SocketcandServerBus
+from drivers.serial.protocol import CommandSet, command_pattern
 from hil.errors import ConfigError, UserError
 from hil.io.recorder import Recorder
 from hil.io.safe_write import open_new, write_atomic

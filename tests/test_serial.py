@@ -12,9 +12,8 @@ import pytest
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 
-from hil.config import load  # noqa: E402
-from hil.drivers.base import BackendFault, Setpoint  # noqa: E402
-from hil.drivers.serial.protocol import (  # noqa: E402
+from drivers.base import BackendFault, Setpoint  # noqa: E402
+from drivers.serial.protocol import (  # noqa: E402
     ChecksumError,
     CommandSet,
     GarbledReply,
@@ -22,7 +21,9 @@ from hil.drivers.serial.protocol import (  # noqa: E402
     UnexpectedReply,
     render_reply,
 )
+from hil.config import load  # noqa: E402
 from hil.errors import ConfigError, StopKind  # noqa: E402
+from hil.plant_config import plant_from_config
 
 CONFIG = "config/serial_ascii_example.toml"
 # generous per-attempt timeouts: a shared 2-core test machine delays a pty reply by several ms
@@ -36,14 +37,14 @@ def cfg():
 
 @pytest.fixture
 def drive(cfg):
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
-    d = SimulatedSerialDrive(cfg)
+    from drivers.serial.drive_sim import SimulatedSerialDrive
+    d = SimulatedSerialDrive(cfg, plant_from_config(cfg))
     yield d
     d.stop()
 
 
 def _backend(cfg, drive, **kw):
-    from hil.drivers.serial.backend import SerialBackend
+    from drivers.serial.backend import SerialBackend
     opts = dict(FAST)
     opts.update(kw)
     b = SerialBackend(cfg, port=drive.port, **opts)
@@ -131,7 +132,7 @@ def test_move_end_to_end_hil_move(cfg, drive, tmp_path, capsys):
 
 
 def test_run_trajectory_free_run(cfg, drive):
-    from hil.drivers.serial.backend import SerialBackend
+    from drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -178,7 +179,7 @@ def test_persistent_fault_raises_backend_fault(cfg, drive, kind, words):
 
 
 def test_drive_fault_stops_the_loop(cfg, drive):
-    from hil.drivers.serial.backend import SerialBackend
+    from drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -191,7 +192,7 @@ def test_drive_fault_stops_the_loop(cfg, drive):
 
 
 def test_vanished_port(cfg, drive):
-    from hil.drivers.serial.backend import SerialBackend
+    from drivers.serial.backend import SerialBackend
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     traj = Trajectory(start=0.0)
@@ -224,8 +225,8 @@ def test_watchdog_stops_drive_when_host_falls_silent(cfg, drive):
 
 
 def test_no_port_is_a_clear_fault(cfg):
-    from hil.drivers import BackendError
-    from hil.drivers.serial.backend import SerialBackend
+    from drivers import BackendError
+    from drivers.serial.backend import SerialBackend
     with pytest.raises(BackendError, match="serial.port"):
         SerialBackend(cfg)
     # a device that does not exist is a configuration mistake (issue 16: exit 2; it was a BackendFault)
@@ -235,14 +236,14 @@ def test_no_port_is_a_clear_fault(cfg):
 
 def test_velocity_mode_host_closes_position_loop(cfg):
     """serial.mode = velocity: the host runs the position loop and sends speeds (set_speed)."""
-    from hil.drivers.serial.backend import SerialBackend
-    from hil.drivers.serial.drive_sim import SimulatedSerialDrive
+    from drivers.serial.backend import SerialBackend
+    from drivers.serial.drive_sim import SimulatedSerialDrive
     from hil.profiles import MoveSpec, Trajectory
     from hil.runtime import run_trajectory
     vcfg = cfg.with_values({"serial.mode": "velocity"})
     traj = Trajectory(start=0.0)
     traj.move(MoveSpec(stroke=0.005, feed=0.1, a_max=2.0))
-    with SimulatedSerialDrive(vcfg) as drive:
+    with SimulatedSerialDrive(vcfg, plant_from_config(vcfg)) as drive:
         b = SerialBackend(vcfg, port=drive.port, **FAST)
         assert b.closes == "velocity"
         rec = run_trajectory(vcfg, traj, backend=b, settle=0.3)
@@ -252,8 +253,8 @@ def test_velocity_mode_host_closes_position_loop(cfg):
 
 def test_fuzz_simulated_drive_commands(cfg):
     """The simulated drive answers random command bytes with its error reply, never crashes."""
-    from hil.drivers.serial.drive_sim import _Drive
-    d = _Drive(cfg)
+    from drivers.serial.drive_sim import _Drive
+    d = _Drive(cfg, plant_from_config(cfg))
     rng = np.random.default_rng(7)
     for _ in range(1000):
         line = rng.integers(0, 256, size=int(rng.integers(0, 60)), dtype=np.uint8).tobytes() + b"\r"

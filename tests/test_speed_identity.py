@@ -1,14 +1,14 @@
 """The chain made faster with the same numbers (issue 26): each shortcut against the path it
 replaces, bit for bit.
 
-* the compiled loop specialised on the chain's size (hil.sim_plant.kernel.mass_token) against the
+* the compiled loop specialised on the chain's size (sim_plant.kernel.mass_token) against the
   loop that reads the size from the matrix, for every structure the kernel compiles away or in
   (effects, dry friction, delays, the speed filter, measured inputs, one to four masses);
 * a config changed by a few keys (hil.config.Config.with_values, the validated values kept)
   against the same raw values validated from scratch: the same values, types and key order;
 * the replays' cache of simulations (hil.ident.replay.SimulationCache): a hit is the fresh
   simulation's arrays, a changed parameter misses, the replays of one record share it;
-* the cycles compiled without reference counting (hil.sim_plant.kernel.njit_cycle) against the same
+* the cycles compiled without reference counting (sim_plant.kernel.njit_cycle) against the same
   cycle compiled with it, for every structure above and every effect of the catalogue that acts in
   the loop.
 """
@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 from conftest import CONFIG
 
+from drivers.control import controller_from_config
 from hil.config import _validate, load
-from hil.control import controller_from_config
 from hil.ident import Replay, synthesize
 from hil.ident.replay import SimulationCache, _loop_key
 from hil.io.measurement import Measurement
 from hil.plant_config import candidate, configure, plant_from_config
-from hil.sim_plant.kernel import _CYCLE_OPTIONS, mass_token
 from hil.simulate import Record, _cycles, _prepared, closed_loop_kernel, simulate
+from sim_plant.kernel import _CYCLE_OPTIONS, mass_token
 
 CFG = load(CONFIG / "paper_bench.toml")
 
@@ -101,7 +101,7 @@ def _counted_cycles():
 @functools.cache
 def _in_loop_effects() -> dict:
     from hil.ident.diagnosis import candidate_names
-    from hil.sim_plant.effects.base import RecordEffect
+    from sim_plant.effects.base import RecordEffect
     plant = plant_from_config(CFG)
     out = {}
     for name in candidate_names(CFG, plant, include_parameters=False):
@@ -116,14 +116,14 @@ def test_the_cycles_are_compiled_without_reference_counting():
     reference counting, slower: this fails first, as the sign of it)."""
     assert _CYCLE_OPTIONS == {"_nrt": False}
     assert _cycles.targetoptions.get("_nrt") is False
-    from hil.drivers.sim import coast_cycle, drive_cycle, torque_cycle
+    from drivers.sim import coast_cycle, drive_cycle, torque_cycle
     assert all(f.targetoptions.get("_nrt") is False for f in (drive_cycle, torque_cycle, coast_cycle))
 
 
 def _both_cycles(cfg, x, experiment=False, **kw):
     """The cycle without and with reference counting on the same inputs: per run (the value it
     returns, its record, and the state, loop state and buffers it leaves)."""
-    from hil.control import new_velocity_state
+    from drivers.control import new_velocity_state
     plant = plant_from_config(cfg)
     ctrl = controller_from_config(cfg, plant)
     out = []
@@ -321,12 +321,12 @@ def test_simulate_is_the_unspecialised_loop():
 
 
 def test_the_discretization_on_one_blas_thread_is_the_same_bits():
-    """The chain's matrix exponential on one OpenBLAS thread (hil.sim_plant.blas_threads) is the
+    """The chain's matrix exponential on one OpenBLAS thread (sim_plant.blas_threads) is the
     one on the library's default threads, bit for bit, for chains of one to five masses."""
     import scipy.linalg
 
-    from hil.sim_plant.blas_threads import one_blas_thread
-    from hil.sim_plant.chain import Chain
+    from sim_plant.blas_threads import one_blas_thread
+    from sim_plant.chain import Chain
     rng = np.random.default_rng(7)
     for _ in range(25):
         n = int(rng.integers(1, 6))
@@ -343,7 +343,7 @@ def test_the_discretization_on_one_blas_thread_is_the_same_bits():
 
 def _blas_threads_now() -> list[int]:
     """This thread's OpenBLAS thread count of each loaded library (the setter returns the old one)."""
-    from hil.sim_plant.blas_threads import blas_thread_setters
+    from sim_plant.blas_threads import blas_thread_setters
     out = []
     for fn in blas_thread_setters():
         n = fn(1)
@@ -357,7 +357,7 @@ def test_the_chain_and_the_diagnosis_run_on_one_blas_thread():
     and give the caller's setting back on return."""
     from hil.ident.chain import diagnose_chain
     from hil.ident.diagnosis import diagnose
-    from hil.sim_plant.blas_threads import blas_thread_setters, one_blas_thread
+    from sim_plant.blas_threads import blas_thread_setters, one_blas_thread
     if not blas_thread_setters():
         pytest.skip("no OpenBLAS with openblas_set_num_threads_local in this process")
     for fn in (diagnose, diagnose_chain):
@@ -372,7 +372,7 @@ def test_one_blas_thread_holds_while_any_thread_is_inside():
     another's goes on must not give the process its BLAS threads back; the last block restores."""
     import threading
 
-    from hil.sim_plant.blas_threads import blas_thread_setters, one_blas_thread
+    from sim_plant.blas_threads import blas_thread_setters, one_blas_thread
     if not blas_thread_setters():
         pytest.skip("no OpenBLAS with openblas_set_num_threads_local in this process")
     before = _blas_threads_now()
@@ -397,7 +397,7 @@ def test_the_fits_linear_algebra_on_one_blas_thread_is_the_same_bits():
     tall matrix (a Jacobian's columns) and its products the same bits; the periods the position
     periodogram finds, with their amplitudes and phases (least squares), the same."""
     from hil.ident.residual import periodic_in_position
-    from hil.sim_plant.blas_threads import one_blas_thread
+    from sim_plant.blas_threads import one_blas_thread
     rng = np.random.default_rng(3)
     t = np.linspace(0.0, 6.0, 2400)
     x = 0.1 * np.sin(2 * np.pi * 0.4 * t) ** 2
@@ -416,10 +416,10 @@ def test_the_fits_linear_algebra_on_one_blas_thread_is_the_same_bits():
 
 
 def test_cached_loops_are_dropped_when_the_stages_they_inline_change(tmp_path):
-    """numba checks a cached loop against its own file alone: where hil.control's or the kernel's
+    """numba checks a cached loop against its own file alone: where drivers.control's or the kernel's
     sources change, the loops that inline them (control, simulate, drivers/sim) are removed from the
     cache, once; other modules' caches and the sources' own stay."""
-    from hil.sim_plant.kernel import INLINED_SOURCES, SOURCES_STAMP, drop_stale_compiled_loops
+    from sim_plant.kernel import INLINED_SOURCES, SOURCES_STAMP, drop_stale_compiled_loops
     for f in INLINED_SOURCES:
         (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
         (tmp_path / f).write_text("def stage(): return 1\n")

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from conftest import CONFIG
 
+from drivers.control import controller_from_config
 from hil.closed_loop import closed_loop_response, lifted_loop, loop_stability
-from hil.control import controller_from_config
 from hil.errors import ConfigError
 from hil.plant_config import plant_from_config
 from hil.simulate import simulate

@@ -11,6 +11,7 @@ from test_supervisor import Injector
 
 from hil.analysis import move_figures
 from hil.io.measurement import read as read_measurement
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
 
@@ -76,15 +77,15 @@ def _cli_move(tmp_path, name, fault):
     from conftest import CONFIG
     from test_faults import FaultSchedule, parse_fault
 
+    from drivers.canopen.drive_sim import DriveSim
     from hil import config
     from hil.cli import main
-    from hil.drivers.canopen.drive_sim import DriveSim
     ch = channel(f"cli{name}")
     sets = {"canopen.lockstep": "true", "canopen.interface": "virtual", "canopen.channel": ch,
             "canopen.pdo_miss_limit": "10"}
     cfg = config.load(CONFIG / "paper_bench_canopen.toml", {**sets, "canopen.lockstep": True,
                                                              "canopen.pdo_miss_limit": 10})
-    sim = DriveSim(cfg, bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
+    sim = DriveSim(cfg, plant_from_config(cfg), bus=can.Bus(interface="virtual", channel=ch), lockstep=True)
     schedule = []                    # each run its own schedule: a fault fires once per schedule
     cycle = sim._cycle
 

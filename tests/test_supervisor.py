@@ -7,7 +7,7 @@ import math
 import pytest
 from canopen_rig import rig
 
-from hil.drivers.base import Setpoint
+from drivers.base import Setpoint
 from hil.io.measurement import read as read_measurement
 from hil.profiles import MoveSpec, Trajectory
 from hil.runtime import run_trajectory
@@ -125,7 +125,7 @@ def test_limits_refused_and_latch(tmp_path):
     cfg, sim, be = _rig()
     sim.close()
     sup = Supervisor(cfg, latch_file=str(tmp_path / "latch.json"))
-    from hil.drivers.base import Feedback
+    from drivers.base import Feedback
     assert sup.check(0.0, Feedback(0, 0, 0), 0.0) is None
     r = sup.check(0.004, Feedback(0, 0, 0), 1.5)
     assert r and "travel limit" in r

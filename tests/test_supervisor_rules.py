@@ -7,12 +7,13 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from drivers.base import Backend, Feedback
+from drivers.control import controller_from_config
+from drivers.sim import SimulatedPlant
 from hil import config
-from hil.control import controller_from_config
-from hil.drivers.base import Backend, Feedback
-from hil.drivers.sim import SimulatedPlant
 from hil.errors import RunStatus, StopKind
 from hil.loop import ControlLoop
+from hil.plant_config import plant_from_config
 from hil.profiles import MoveSpec, Trajectory
 from hil.supervisor import RULES, Supervisor, check_record
 
@@ -30,7 +31,7 @@ class FaultyFeedback(Backend):
     simulated = True
 
     def __init__(self, cfg, fault: str = "", at: int = 0, value: float = 0.0):
-        self.sim = SimulatedPlant(cfg, closes="both")
+        self.sim = SimulatedPlant(cfg, plant_from_config(cfg), closes="both")
         self.cycle_time = self.sim.cycle_time
         self.fault, self.at, self.value = fault, at, value
         self.rows, self.last = [], None

@@ -206,7 +206,7 @@ def test_transmission_is_tf2_and_tf3(cfg3):
     """x2 = TF2 x1 and x3 = TF3 x2 (Table 1), checked against scipy's lsim of those polynomials."""
     import scipy.signal
 
-    from hil.sim_plant.transfer import table1_3dof
+    from sim_plant.transfer import table1_3dof
     plant, _ = sw.model_of(cfg3)
     ch = plant.chain
     move = plan_move(MoveSpec(0.05, 0.1, j_max=200.0))

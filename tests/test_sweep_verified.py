@@ -92,7 +92,7 @@ CASE = dict(stroke=0.1, feed=7.0 / 60.0, tolerance=40e-6)
 def _true_overshoot_um(cfg, j_max: float) -> float:
     """The tip overshoot on the simulator directly, every velocity step, a 2 s dwell: numpy's max
     of the excursion past the target, not the sweep's figures."""
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     from hil.plant_config import plant_from_config
     from hil.profiles import MoveSpec, Trajectory
     from hil.simulate import simulate

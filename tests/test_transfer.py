@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from hil.sim_plant.chain import Chain
-from hil.sim_plant.transfer import (
+from sim_plant.chain import Chain
+from sim_plant.transfer import (
     TransferFunction,
     chain_tfs,
     drive_side,

@@ -2,7 +2,7 @@
 
 ``-i/--interface``, ``-c/--channel``, ``-b/--bitrate`` (python-can's ``can.logger`` and
 ``can.viewer`` use the same letters) set ``canopen.interface``, ``canopen.channel`` and
-``canopen.bitrate``; ``--can-log FILE`` records the bus (hil.drivers.canopen.canlog).
+``canopen.bitrate``; ``--can-log FILE`` records the bus (drivers.canopen.canlog).
 
 Where the settings come from, first found wins: these options; the ``[canopen]`` keys the config
 file writes; python-can's own configuration (``can.util.load_config``: the ``CAN_INTERFACE``,

@@ -1,4 +1,4 @@
-"""``hil drive-sim``: the simulated CiA 402 drive (hil.drivers.canopen.drive_sim) as a separate process, reachable
+"""``hil drive-sim``: the simulated CiA 402 drive (drivers.canopen.drive_sim) as a separate process, reachable
 from other processes over python-can's socketcand interface on 127.0.0.1."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from hil.io.jsonout import JsonKey, dumps
 
 HELP = "run the simulated CiA 402 drive on a socketcand server on 127.0.0.1 (for --backend canopen)"
 DESCRIPTION = """Run the simulated CiA 402 servo drive (the config's plant as its shaft, the object
-dictionary of hil/drivers/canopen/eds/cia402_generic.eds) until Ctrl-C, reachable from any other process through
+dictionary of drivers/canopen/eds/cia402_generic.eds) until Ctrl-C, reachable from any other process through
 python-can's socketcand interface: this process is a small socketcand server (raw mode) on
 127.0.0.1 only. Run the host against it in another shell:
 
@@ -24,7 +24,7 @@ python-can's socketcand interface: this process is a small socketcand server (ra
 
 The drive runs on the wall clock, as a drive: one thread (this process's main thread, --priority
 N: SCHED_FIFO) takes each frame off the bus itself and answers a SYNC at once, on that thread:
-one drive cycle (the plant advanced by the compiled step of hil.drivers.sim; the targets of the last
+one drive cycle (the plant advanced by the compiled step of drivers.sim; the targets of the last
 RPDO) and its TPDOs written in one segment. Answer time, SYNC taken off the bus to the TPDOs
 written: under 0.5 ms (at 250 Hz p50 0.24 ms, p99 0.34-0.41 ms; at 1 kHz p50 0.09 ms, p99
 0.16-0.18 ms; a 2-core machine at load average 2 to 5, --priority 50); with --json the last
@@ -39,7 +39,7 @@ freeze (seconds, 0.5 by default: the drive's thread stalls, the host's frames qu
 finds that backlog when it carries on), kill (the drive is gone: no answer, no heartbeat, ever).
 
 --set canopen.tip_node_id=2 (here and on the host) adds a tool-tip sensor on its own node: a
-CiA 406-like linear encoder (hil/drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
+CiA 406-like linear encoder (drivers/canopen/eds/tip_encoder_cia406.eds) sending the tip mass's position in
 its TPDO1 on every SYNC.
 
 Ctrl-C (or SIGTERM) stops it; ``kill -USR1 PID`` prints every thread's stack on stderr and lets it
@@ -199,14 +199,15 @@ class FaultSchedule:
 
 
 def run(args) -> int:
+    from drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
     from hil.commands.move import load_config
-    from hil.drivers.canopen.drive_sim import DriveSim, SocketcandServerBus
+    from hil.plant_config import plant_from_config
     cfg = load_config(args)
     faults = [parse_fault(f) for f in args.fault]
     if any(k == "tip_missing_pdo" for k, _, _ in faults) and not int(cfg.get("canopen.tip_node_id", 0) or 0):
         raise UserError("--fault tip_missing_pdo: the simulated drive has no tip sensor node "
                         "(--set canopen.tip_node_id=2)")
-    from hil.drivers.rt import CpuLatencyRequest
+    from drivers.rt import CpuLatencyRequest
     from hil.units import parse_bounded, parse_option
     args.seconds = parse_bounded(args.seconds, "time", "--seconds", nonnegative=True)
     args.switch_interval = parse_bounded(args.switch_interval, "time", "--switch-interval", nonnegative=True)
@@ -223,7 +224,7 @@ def run(args) -> int:
     except OSError as exc:
         raise UserError(f"cannot serve on 127.0.0.1:{port} ({exc}); choose another --port") from None
     try:
-        sim = DriveSim(cfg, bus=bus, lockstep=False, thread=False)    # a mistake in the config (the EDS): ConfigError
+        sim = DriveSim(cfg, plant_from_config(cfg), bus=bus, lockstep=False, thread=False)    # a mistake in the config (the EDS): ConfigError
     except BaseException:
         bus.shutdown()
         raise

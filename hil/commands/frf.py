@@ -197,10 +197,10 @@ def _scope_feed(ring, rec, ctrl) -> None:
 
 
 def run(args) -> int:
+    from drivers.control import controller_from_config
     from hil import frf
+    from hil.backends import open_backend
     from hil.commands.move import load_config
-    from hil.control import controller_from_config
-    from hil.drivers import open_backend
     from hil.plant_config import plant_from_config
     pm_min, gm_min_db = parse_angle_deg(args.pm, "--pm"), parse_gain_db(args.gm, "--gm")
     check_margins(pm_min, gm_min_db)

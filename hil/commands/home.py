@@ -35,11 +35,11 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from drivers.base import BackendFault
+    from drivers.canopen.backend import CanopenBackend
+    from hil.backends import require_supervision
     from hil.commands.move import load_config
     from hil.commands.scope import check_scope_options, scope_for
-    from hil.drivers import require_supervision
-    from hil.drivers.base import BackendFault
-    from hil.drivers.canopen.backend import CanopenBackend
     from hil.errors import UserError
     from hil.supervisor import refuse_if_tripped
     cfg = load_config(args)

@@ -38,9 +38,10 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from drivers import BackendError
+    from hil.backends import open_backend
     from hil.commands.move import _no_move, load_config
     from hil.commands.scope import check_scope_options, scope_for
-    from hil.drivers import BackendError, open_backend
     from hil.errors import UserError
     from hil.profiles import LimitError, MoveSpec, Trajectory
     from hil.runtime import run_trajectory

@@ -59,7 +59,7 @@ def add_arguments(parser) -> None:
 def model_report(cfg) -> dict:
     """The numbers ``hil model`` reports, SI units, from a validated config."""
     from hil.plant_config import plant_from_config
-    from hil.sim_plant.chain import Chain
+    from sim_plant.chain import Chain
 
     plant = plant_from_config(cfg)
     ch = plant.chain
@@ -97,8 +97,8 @@ def write_plots(cfg, report: dict, out_dir: Path) -> str:
 
     from hil.plant_config import plant_from_config
     from hil.plots.model import bode_figure
-    from hil.sim_plant.chain import Chain
-    from hil.sim_plant.transfer import chain_tfs
+    from sim_plant.chain import Chain
+    from sim_plant.transfer import chain_tfs
 
     # the mechanical chain, as in Table 1 and Fig. 9: the motor's friction is a disturbance there
     ch = plant_from_config(cfg).chain

@@ -195,7 +195,8 @@ def run(args) -> int:
               f"move fits the limits: j_max {fmt(first.j_max, 'jerk')}, a_max {fmt(first.a_max, 'acceleration')}, "
               f"peak speed {first.peak_speed * 60e3:.0f} mm/min, duration {fmt(traj.duration, 'time')}")
         return 0
-    from hil.drivers import BackendError, open_backend
+    from drivers import BackendError
+    from hil.backends import open_backend
     from hil.runtime import run_trajectory
     try:
         backend = open_backend(cfg, args.backend, can_log=getattr(args, "can_log", None))

@@ -1,4 +1,4 @@
-"""``hil serial-sim``: a simulated ASCII serial drive on a pseudo-terminal (hil.drivers.serial.drive_sim)."""
+"""``hil serial-sim``: a simulated ASCII serial drive on a pseudo-terminal (drivers.serial.drive_sim)."""
 from __future__ import annotations
 
 import sys
@@ -7,7 +7,7 @@ from hil.errors import UserError
 
 HELP = "run a simulated serial (ASCII) drive on a pseudo-terminal and print the port to use"
 DESCRIPTION = """Run a simulated servo drive that speaks the config's [serial] command set on a new
-pseudo-terminal, with the hil.sim_plant model as its shaft, until Ctrl-C. It prints the port
+pseudo-terminal, with the sim_plant model as its shaft, until Ctrl-C. It prints the port
 (/dev/pts/N); run the host against it in another shell:
 
   hil serial-sim --config config/serial_ascii_example.toml
@@ -38,8 +38,9 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from drivers.serial.drive_sim import parse_fault, serve
     from hil.commands.move import load_config
-    from hil.drivers.serial.drive_sim import parse_fault, serve
+    from hil.plant_config import plant_from_config
     from hil.units import parse_option
     cfg = load_config(args)
     watchdog = parse_option(args.watchdog, "time", "--watchdog")      # a UnitError is one line, exit 2
@@ -57,7 +58,7 @@ def run(args) -> int:
         print(f"simulated serial drive on {path} (advance: {args.advance}); use --set serial.port={path}; "
               "Ctrl-C to stop", file=sys.stderr, flush=True)
     try:
-        serve(cfg, faults=faults, advance=args.advance, announce=announce, watchdog=watchdog)
+        serve(cfg, plant_from_config(cfg), faults=faults, advance=args.advance, announce=announce, watchdog=watchdog)
     except KeyboardInterrupt:
         pass
     return 0

@@ -48,8 +48,8 @@ def add_arguments(p) -> None:
 def connected(args):
     """``with connected(args) as (cfg, be):`` the config and the drive's node, connected only (no
     NMT command, no configuration); shut down (the bus released) when the block ends."""
+    from drivers.canopen.backend import CanopenBackend
     from hil.commands.move import load_config
-    from hil.drivers.canopen.backend import CanopenBackend
     cfg = load_config(args)
     be = CanopenBackend(cfg, can_log=getattr(args, "can_log", None))   # a mistake in the config (e.g. the EDS): ConfigError, exit 2
     try:

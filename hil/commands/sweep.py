@@ -351,7 +351,7 @@ def run(args) -> int:
         raise
     except Exception as exc:
         # a backend that cannot be opened, or a scheduler address that is not one
-        from hil.drivers import BackendError
+        from drivers import BackendError
         if isinstance(exc, BackendError) or (args.scheduler and isinstance(exc, (ValueError, TimeoutError))):
             raise UserError(str(exc)) from None
         raise

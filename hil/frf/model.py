@@ -2,7 +2,7 @@
 
 The responses are the exact ones of the sampled loop (zero-order hold of the chain over a velocity
 period, output delay and current-loop lag included; the controller and the speed measurement as
-hil.control's law), so that on the simulated plant measured and modelled responses agree to the
+drivers.control's law), so that on the simulated plant measured and modelled responses agree to the
 measurement's uncertainty. The position loop is multirate and modelled with the usual hold
 approximation (:func:`position_hold`: a delay of half a position period and a sinc).
 Names and units of the responses as in :mod:`hil.frf.estimation`.
@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from hil.control import loop_terms
+from drivers.control import loop_terms
 
 __all__ = ["model_responses", "position_hold"]
 
@@ -21,7 +21,7 @@ __all__ = ["model_responses", "position_hold"]
 def model_responses(plant, ctrl, f, tip_measured: bool = True) -> dict[str, np.ndarray]:
     """Exact responses of the sampled loop at ``f`` (Hz): zero-order hold of the chain over the
     velocity period, output delay and current-loop lag; controller and speed measurement as
-    hil.control's law. Position loop: hold approximation (delay Tp/2, sinc)."""
+    drivers.control's law. Position loop: hold approximation (delay Tp/2, sinc)."""
     f = np.asarray(f, float)
     tv, tp = ctrl.velocity_period, ctrl.position_period
     disc = plant.chain.discretize(tv, inputs="motor")

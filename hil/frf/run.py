@@ -15,7 +15,7 @@ Two ways to run it, with the same numbers on the simulated plant:
 
 * :func:`run_sim`: hil.simulate's compiled closed loop with the excitation and optional
   measurement noise;
-* :func:`run_backend`: cycle by cycle through the backend contract (hil.drivers.base), on
+* :func:`run_backend`: cycle by cycle through the backend contract (drivers.base), on
   hil.loop's :class:`~hil.loop.ControlLoop` with an :class:`~hil.loop.Injection`; the host closes
   both loops, so the backend takes torque (a CiA 402 drive in cyclic torque mode, the
   simulated plant).
@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from hil.control import loop_terms
+from drivers.control import loop_terms
 from hil.errors import RunStopped
 from hil.frf.excitation import Excitation, make_excitation
 from hil.loop import CYCLE_CHANNELS, ControlLoop, Injection
@@ -148,7 +148,7 @@ def run_sim(plant, ctrl, st: FrfSettings, progress=None, x0: float = 0.0) -> Frf
 
 def run_backend(backend, ctrl, st: FrfSettings, progress=None, supervisor=None, plant=None, clock=None,
                 scope=None) -> FrfRecord:
-    """The same experiment cycle by cycle through the backend contract (hil.drivers.base), on
+    """The same experiment cycle by cycle through the backend contract (drivers.base), on
     :class:`hil.loop.ControlLoop` with the excitation as its :class:`~hil.loop.Injection`: the
     host closes both loops, so the backend must take torque (``closes == "none"``). Works on any
     such backend (the simulated plant, a CiA 402 drive in cyclic torque mode); slower than

@@ -21,7 +21,7 @@ Each step:
    at least :data:`RIVAL_GAIN` of the verdict's share (and is not the same fit by another name):
    both go through 3., and the better BIC is the step (``rival``);
 3. every effect found so far refitted together from those values (one
-   :class:`~hil.sim_plant.effects.Combination`, bounded and scaled as any candidate's fit), kept when
+   :class:`~sim_plant.effects.Combination`, bounded and scaled as any candidate's fit), kept when
    it lowers the weighted error; the step is kept when its BIC score on the record pays for the
    parameters it added.
 
@@ -126,7 +126,7 @@ between motor and table (m1 4 % light, m2 3.5 % heavy), and the steps after the 
 stiffness along the travel and a pitch error for slivers of what that left; fitted again beside
 the ripple, the drift brings every channel to its floor (``tests/independent/test_tolerance.py``).
 
-An effect whose error jumps with its parameter (:attr:`~hil.sim_plant.effects.Effect.non_smooth`:
+An effect whose error jumps with its parameter (:attr:`~sim_plant.effects.Effect.non_smooth`:
 a backlash, whose table rattles in its gap) fitted on the config's plant follows the plant's drift
 rather than its own strength: at the paper bench's tool tip (a mode at 15 Hz damped at 1.5 %) a
 percent on k2 moves the ringing's phase, and a 34.7 um gap read 26.7 um. A step that adds one,
@@ -176,7 +176,7 @@ from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.tolerance import TOLERANCE, is_drift, tolerance_keys, within_tolerance
 from hil.ident.unexplained import AT_FLOOR, HALF_GAP, at_noise_floor, gap_closed, residual_evidence, rms
 from hil.plant_config import candidate, default_parameters, effect_values, measurement_key, without_replaced
-from hil.sim_plant.blas_threads import one_blas_thread
+from sim_plant.blas_threads import one_blas_thread
 
 logger = logging.getLogger(__name__)
 
@@ -716,7 +716,7 @@ def _beyond_tolerance(cur, d, test, add, have, found=()) -> dict | None:
 
 def _non_smooth(cur, name: str) -> bool:
     """Whether the effect ``name`` (not a combination) is refitted on the night's plant: its error
-    jumps with its one gridded parameter (:attr:`~hil.sim_plant.effects.Effect.non_smooth`)."""
+    jumps with its one gridded parameter (:attr:`~sim_plant.effects.Effect.non_smooth`)."""
     from hil.ident.tracking import _grid
     return "+" not in name and candidate(name, cur.cfg).non_smooth and bool(_grid(cur, name, cur.cfg))
 

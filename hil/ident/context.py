@@ -1,4 +1,4 @@
-"""The context an effect's hooks see (hil.sim_plant.effects.base: ``evidence``, ``starts``): the
+"""The context an effect's hooks see (sim_plant.effects.base: ``evidence``, ``starts``): the
 replay's record and its residual before the fit, the model, and the identification's helpers
 that simulate, so that the physics' plug-ins ask for them without importing this layer (the
 starts' own helpers, ``grid_starts``, ``prefilter``, ``periodic_starts``, ``mode_targets``, are
@@ -126,7 +126,7 @@ class EffectContext:
 
     @cached_property
     def controller(self):
-        from hil.control import controller_from_config
+        from drivers.control import controller_from_config
         return controller_from_config(self.cfg, self.plant)
 
     # --- helpers that simulate (the starts' helpers: hil.ident.starts.StartContext)

@@ -46,8 +46,8 @@ from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, bic_score
 from hil.ident.unexplained import at_noise_floor, gap_closed, residual_evidence
 from hil.plant_config import candidate, default_parameters
-from hil.sim_plant.blas_threads import one_blas_thread
-from hil.sim_plant.effects import CATALOGUE
+from sim_plant.blas_threads import one_blas_thread
+from sim_plant.effects import CATALOGUE
 
 logger = logging.getLogger(__name__)
 

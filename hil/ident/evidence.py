@@ -18,13 +18,13 @@ max|v|):
 * channel_skew, tip_skew: the skew in samples, said to be a logging artefact, not physics;
 * force_offset, position_offset: the offset, said to be a sensor's, not a load (the force
   residual's mean at rest and moving: a sensor offset is the same in both);
-* stiffness_along_travel: k1 and the transmission mode's frequency (hil.sim_plant.modal) at both ends
+* stiffness_along_travel: k1 and the transmission mode's frequency (sim_plant.modal) at both ends
   of the stretch, and whether the record can see the variation at all: a constant k1 (the best of
   the two end values and their middle) scored against the fit (BIC, hil.ident.scores); when it
   does as well, the variation cannot be seen over the stroke the record covers;
 * a combination: each member's evidence, then the fall of the joint fit.
 
-Each effect says its own (its hook :meth:`hil.sim_plant.effects.base.Effect.evidence`, with a
+Each effect says its own (its hook :meth:`sim_plant.effects.base.Effect.evidence`, with a
 context of the replay, hil.ident.context); a combination is assembled here.
 
 It ends with "RMS <channel> error <before> -> <after> (<fall> % less)", each error in its
@@ -55,7 +55,7 @@ def evidence(eff_name: str, vals: dict, replay: Replay, res0: dict, chan: str, b
             h = evidence(m, v, replay, res0, chan, before, after, base_modes)
             heads.append(h[:-len(fall)].rstrip("; ") if h.endswith(fall) and h != fall else "")
         return "; ".join([h for h in heads if h] + [fall])
-    # the effect's own hook says what in the residual points at it (hil.sim_plant.effects.base)
+    # the effect's own hook says what in the residual points at it (sim_plant.effects.base)
     eff = candidate(eff_name, replay.cfg)
     ctx = EffectContext(replay, res0, replay.cfg, chan=chan, base_modes=base_modes)
     return eff.evidence(ctx, vals) + fall

@@ -43,7 +43,7 @@ from hil.ident.replay import Replay
 from hil.ident.scores import MIN_SCORE, SIGNIFICANT_ABOVE_NOISE, bic_score
 from hil.ident.starts import record_scales, starting_values
 from hil.plant_config import candidate, configure
-from hil.sim_plant.effects import Effect
+from sim_plant.effects import Effect
 
 logger = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """Fitting the catalogue's effects and parameters to measured frequency responses.
 
-The same effects and ``parameter:<key>`` names as the time-domain fit (hil.sim_plant.effects), set
+The same effects and ``parameter:<key>`` names as the time-domain fit (sim_plant.effects), set
 against the responses ``hil frf`` measured (its ``frf.json``): the model's exact responses
 (hil.frf.model_responses) are compared with the measured ones on a log scale,
 log H_model - log H_measured (real part: the gain error in nepers, imaginary part: the phase
@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from hil.control import controller_from_config
+from drivers.control import controller_from_config
 from hil.errors import MeasurementError
 from hil.frf import model_responses
 from hil.plant_config import candidate, configure, plant_from_config
-from hil.sim_plant.effects import Combination
+from sim_plant.effects import Combination
 
 __all__ = ["FrfData", "load_frf", "fit_frf", "FrfFit", "is_frf_file", "PLANT_RESPONSES"]
 

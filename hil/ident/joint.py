@@ -33,7 +33,7 @@ import numpy as np
 from hil.ident.context import configured_value
 from hil.ident.inverse import motion
 from hil.ident.scores import effective_samples
-from hil.sim_plant.effects import CATALOGUE
+from sim_plant.effects import CATALOGUE
 
 __all__ = ["LINEAR", "linear_effects", "regressors", "screen_pairs", "JOINT_REFINE"]
 

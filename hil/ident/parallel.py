@@ -18,8 +18,8 @@ import multiprocessing as mp
 
 from hil.ident.fit import evaluate
 from hil.plant_config import candidate, configure
-from hil.sim_plant.blas_threads import one_blas_thread
 from hil.simulate import batch_threads, batches_on_this_thread
+from sim_plant.blas_threads import one_blas_thread
 
 __all__ = ["evaluate_many", "in_threads", "Beside"]
 

@@ -20,7 +20,7 @@ the file header, the quantization, the settled standstills), the record's, kept 
 :meth:`Replay.with_config`; ``noise_sources`` says where each came from.
 
 Artefacts of the recording (``channel_skew``, ``tip_skew``, ``force_offset``, ``position_offset``:
-hil.sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop. The
+sim_plant.effects.RecordEffect) act on the simulated channels read back, not in the loop. The
 last :data:`SIM_CACHE_SIZE` simulations are kept by the loop's key (every value of the config that
 the loop reads; :class:`SimulationCache`, shared by the replays of one record), so that fitting such
 an artefact, or simulating a config again, costs no simulation.
@@ -46,7 +46,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from hil.control import controller_from_config
+from drivers.control import controller_from_config
 from hil.errors import UserError
 from hil.ident.noise import record_noise
 from hil.ident.objective import Objective, batched
@@ -467,7 +467,7 @@ def config_key(cfg, keep=None):
 
 def _loop_key(cfg):
     """What the simulation depends on: the config's values less the recording's artefacts."""
-    from hil.sim_plant.effects import CATALOGUE, RecordEffect
+    from sim_plant.effects import CATALOGUE, RecordEffect
 
     def physics(k):
         parts = k.split(".")

@@ -25,7 +25,7 @@ def sampling_key(cfg) -> str:
 def sampling_matters(cfg) -> bool:
     """Whether the command and the current differ at the sample under ``cfg``'s model (a delay or a
     lag: the keys above, and the parameters of the effects that say so, ``Effect.lags_the_torque``)."""
-    from hil.sim_plant.effects import CATALOGUE
+    from sim_plant.effects import CATALOGUE
     lagging = tuple(f"effects.{n}.{p.name}" for n, e in CATALOGUE.items() if e.lags_the_torque for p in e.fitted_params)
     return any((cfg.get(k) or 0) > 0 for k in _DELAY_KEYS + lagging)
 

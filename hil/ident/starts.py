@@ -1,7 +1,7 @@
 """Starting values for the fit of one candidate effect, from the record and its residual before
 the fit (SI units).
 
-Each effect chooses its own (its hook :meth:`hil.sim_plant.effects.base.Effect.starts`, called
+Each effect chooses its own (its hook :meth:`sim_plant.effects.base.Effect.starts`, called
 with a :class:`StartContext`); the helpers here cost and refine them by simulation. What the
 catalogue's effects ask for:
 
@@ -44,7 +44,7 @@ catalogue's effects ask for:
   start of the residual's peaks and the cheapest of the grid (then the second of each). A coupled mode
   moves the chain's own resonance too, so the residual's peak alone has several basins (a light
   fast mode and a heavy slow one shift it alike): the grid tells them apart.
-* Effects with a grid (:meth:`hil.sim_plant.effects.Effect.grid`: the delays, the channel skews, the
+* Effects with a grid (:meth:`sim_plant.effects.Effect.grid`: the delays, the channel skews, the
   current loop's lag; the error is not convex in a delay): one simulation per grid point over the
   physically possible range, then, for a one-parameter grid, a finer scan between the best point's neighbours; the
   cheapest two are the starts of the local fit.
@@ -70,8 +70,8 @@ from hil.ident.objective import batched
 from hil.ident.replay import Replay, config_key
 from hil.ident.residual import periodic_in_position, spectrum_peaks
 from hil.plant_config import configure
-from hil.sim_plant.effects import Backlash, CompliantMode, Effect
 from hil.simulate import batch_threads
+from sim_plant.effects import Backlash, CompliantMode, Effect
 
 __all__ = ["record_scales", "starting_values", "StartContext", "mode_targets", "command_lines", "order_spectrum", "LINE_ABOVE",
            "LINE_TOL", "LINE_BINS", "MAX_ORDER", "MIN_RESOLVED", "PERIODS_KEPT", "GAP_GRID", "MODE_FREQS",
@@ -85,7 +85,7 @@ MIN_RESOLVED = 64    # moving samples at most a quarter period apart that an ord
 PERIODS_KEPT = 3     # the strongest orders of the screen solved in closed form
 HEAD_SHARE = 0.125   # the share of the record whose error bounds a start's (_bounded_costs)
 HEAD_ROUNDING = 1e-9  # a head must exceed the bound by this (relative): the sums' rounding differs
-# the grids of backlash and of an added mode are the effects' own (hil.sim_plant.effects); their old names here
+# the grids of backlash and of an added mode are the effects' own (sim_plant.effects); their old names here
 GAP_GRID = Backlash.GAP_GRID
 MODE_FREQS = CompliantMode.GRID_FREQS
 MODE_FMIN = CompliantMode.GRID_FMIN
@@ -118,7 +118,7 @@ def starting_values(eff: Effect, replay: Replay, res0: dict, scale: dict, cfg) -
 
 
 class StartContext(EffectContext):
-    """The context of an effect's :meth:`~hil.sim_plant.effects.base.Effect.starts` hook: the
+    """The context of an effect's :meth:`~sim_plant.effects.base.Effect.starts` hook: the
     replay's (hil.ident.context) and the helpers here that cost starts by simulation."""
 
     def grid_starts(self, eff, grid: list[dict], keep: int = 2, fine: int = 6) -> list[dict]:

@@ -27,8 +27,8 @@ import math
 import numpy as np
 
 from hil.plant_config import candidate, configure, record_effects
-from hil.sim_plant.effects import CATALOGUE
 from hil.simulate import simulate_config
+from sim_plant.effects import CATALOGUE
 
 __all__ = ["move_sequence", "synthesize", "pulse_train", "HIDDEN_DEFAULTS", "torque_sampling"]
 
@@ -179,7 +179,7 @@ def synthesize(cfg, effect: str | None = None, values: dict | None = None, *, du
 def _loop_inputs(cfg, ins: dict, t_rec, ticks: int, open_loop: bool) -> dict:
     """The inputs on the loop's clock (hil.simulate.simulate's keywords), held from each sample
     as hil.ident.replay holds a record's."""
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     from hil.plant_config import plant_from_config
     from hil.simulate import external_forces, per_velocity_period
     if not ins and not open_loop:

@@ -11,7 +11,7 @@ missing effect.
 
 So before the chain names a drift of the config (a step whose effects are all changes of the
 plant's masses, stiffnesses and dampings: ``parameter:plant.m3``, ``mass_change``, the table mass
-by another name; :meth:`~hil.sim_plant.effects.Effect.drifted_key`) it asks whether all of them
+by another name; :meth:`~sim_plant.effects.Effect.drifted_key`) it asks whether all of them
 together, each near its config value, fit the record within the tolerance: least squares of every
 such key of the config as z_k = value_k / config_k, searched within :data:`SEARCH` tolerances of 1
 with a prior residual (z_k - 1) / tol per key (small beside the record's thousands of samples: it
@@ -66,7 +66,7 @@ def tolerance_keys(cfg) -> list[str]:
 
 def is_drift(effects: list, plant, cfg) -> bool:
     """Whether every effect of a step is a change of one of :func:`tolerance_keys` (the effect's
-    :meth:`~hil.sim_plant.effects.Effect.drifted_key`)."""
+    :meth:`~sim_plant.effects.Effect.drifted_key`)."""
     keys = set(tolerance_keys(cfg))
     return bool(effects) and all(getattr(e, "drifted_key", lambda p: None)(plant) in keys for e in effects)
 

@@ -15,7 +15,7 @@ So the tracked effects ``names`` are fitted in four stages:
    explains most alone first (fitted first on a record that another effect dominates, a friction
    that rose, an effect's global start sees that effect's residual);
 2. for each tracked effect with a grid over a parameter in which the error is not convex
-   (:meth:`~hil.sim_plant.effects.base.Effect.grid`: a backlash's gaps, a delay), the profile of
+   (:meth:`~sim_plant.effects.base.Effect.grid`: a backlash's gaps, a delay), the profile of
    the cost over that grid and the stage before's value: each point screened by one simulation
    (those within :data:`SCREEN` times the cheapest, at least :data:`KEEP`, go on), then at each the
    night's plant refitted, the chain's masses by one common scale and the spring that sets each
@@ -43,7 +43,7 @@ within 2.5 % of the truth, where the greedy fit alone is off by up to 106 %.
 A lightly damped mode (damping ratio below :data:`LIGHT_ZETA`) is set by the link whose spring
 holds most of the mode's strain energy: k_i (phi_i+1 - phi_i)^2 of the mass-normalised mode shape
 phi of the chain the config's ``plant.m<i>``, ``plant.k<i>`` and ``plant.c<i>`` make
-(hil.sim_plant.chain).
+(sim_plant.chain).
 """
 from __future__ import annotations
 
@@ -55,7 +55,7 @@ import numpy as np
 from hil.ident.starts import _cost as cost_of
 from hil.ident.tolerance import tolerance_keys
 from hil.plant_config import ParameterEffect, candidate, configure, effect_values, measurement_key
-from hil.sim_plant.effects import Combination
+from sim_plant.effects import Combination
 
 logger = logging.getLogger(__name__)
 
@@ -80,7 +80,7 @@ def light_mode_keys(cfg, zeta_max: float = LIGHT_ZETA) -> list[str]:
     ``plant.c<i>`` make (its effects aside: one that adds a mass would shift the links' numbers):
     per such mode, the link holding most of its strain energy. [] where the config does not give
     the chain by those keys."""
-    from hil.sim_plant.chain import Chain
+    from sim_plant.chain import Chain
     m = []
     while (x := _number(cfg, f"plant.m{len(m) + 1}")) is not None:
         m.append(x)
@@ -175,7 +175,7 @@ def _profile_points(grid: list[dict]):
 
 def _grid(replay, name: str, cfg) -> list[dict]:
     """The effect's grid over its parameters in which the error is not convex (Effect.grid)."""
-    from hil.control import controller_from_config
+    from drivers.control import controller_from_config
     from hil.ident.starts import record_scales
     return candidate(name, cfg).grid(replay.plant, controller_from_config(replay.cfg, replay.plant),
                                      record_scales(replay, replay.base_residuals))

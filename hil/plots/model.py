@@ -1,6 +1,6 @@
 """Figures of ``hil model``: Bode diagrams of TF1, TF2, TF3 (the left panels of the paper's Fig. 9).
 
-Plotting only; the transfer functions come from :mod:`hil.sim_plant.transfer`.
+Plotting only; the transfer functions come from :mod:`sim_plant.transfer`.
 """
 from __future__ import annotations
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import hashlib
 
-from hil.control import controller_from_config
+from drivers.control import controller_from_config
 from hil.plant_config import plant_from_config
 
 __all__ = ["fingerprint", "model_of"]
@@ -47,7 +47,7 @@ def model_of(cfg):
         plant = plant_from_config(cfg)
         ctrl = controller_from_config(cfg, plant)
         # the exact ZOH of the chain (a matrix exponential) once per model, not once per run: the
-        # chain caches its discretization (hil.sim_plant.chain), so this warms that cache
+        # chain caches its discretization (sim_plant.chain), so this warms that cache
         plant.chain.discretize(ctrl.velocity_period)
         _MODELS[fp] = (plant, ctrl)
     return _MODELS[fp]

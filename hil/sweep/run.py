@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hil.analysis import move_figures
-from hil.drivers import open_backend
+from hil.backends import open_backend
 from hil.errors import RunStopped, UserError
 from hil.profiles import MoveSpec, Trajectory, plan_move
 from hil.runtime import run_trajectory
@@ -62,9 +62,9 @@ def _code_version() -> str:
     import hil
     root = Path(__file__).resolve().parents[2]
     h = hashlib.sha1(str(getattr(hil, "__version__", "")).encode())
-    for rel in ("hil/control.py", "hil/simulate.py", "hil/profiles.py", "hil/analysis.py", "hil/runtime.py",
+    for rel in ("drivers/control.py", "hil/simulate.py", "hil/profiles.py", "hil/analysis.py", "hil/runtime.py",
                 "hil/plant_config.py", "hil/sweep/run.py", "hil/sweep/transmission.py", "hil/sweep/model.py",
-                "hil/sim_plant/kernel.py", "hil/sim_plant/chain.py", "hil/sim_plant/plant.py"):
+                "sim_plant/kernel.py", "sim_plant/chain.py", "sim_plant/plant.py"):
         try:
             h.update((root / rel).read_bytes())
         except OSError:
@@ -209,7 +209,7 @@ def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float 
     this run, else it is refused; ``None`` (the first run): the run starts where the axis stands.
     The figures carry ``start_m``, where the run started. ``scope``: the live scope's ring (see
     ``hil.runtime.run_trajectory``); ``can_log``: the file this run's CAN bus is traced into (a
-    backend on a CAN bus, ``hil.drivers.open_backend``)."""
+    backend on a CAN bus, ``drivers.open_backend``)."""
     traj, move = backend_trajectory(spec, 0.0 if start is None else start)
     rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend, can_log=can_log), out_file=None, settle=0.0,
                          start="follow" if start is None else "check", scope=scope)

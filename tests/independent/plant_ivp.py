@@ -2,7 +2,7 @@
 
 Written again from the paper (Eq. 1-3: the n-dof lumped-mass chain M x'' + C x' + K x = f, the
 force {f, 0, ..., 0} on the motor's reflected mass; Eq. 11: friction on the motor; Eq. 15-16: the
-sine-square velocity profile) and from the drive's description in hil/control.py's docstring, not
+sine-square velocity profile) and from the drive's description in drivers/control.py's docstring, not
 from the project's kernel: it shares no code with ``hil`` (only the config reader may be used to
 fill :class:`Bench`, :func:`bench_from_config`). Where the project's kernel discretizes the chain
 exactly over a velocity period (a matrix exponential) and decides dry friction by time stepping,
@@ -28,7 +28,7 @@ acts), the command x_cmd[k], and the torque ``"command"`` (the controller's outp
 before the delay and the current loop) or ``"actual"`` (the motor's current at t_k, after them).
 
 Units: SI inside (m, kg, N, s; motor torques N m, rotary damping N m s/rad). Hidden effects
-(:class:`Hidden`) use the catalogue's names and meanings (hil/sim_plant/effects.py): Coulomb
+(:class:`Hidden`) use the catalogue's names and meanings (sim_plant/effects.py): Coulomb
 friction per direction, extra viscous friction per direction, backlash of total width ``gap`` in
 the motor-table link (inside the gap neither spring nor damper carries force), a compliant mode
 (an extra mass on a spring-damper at the tool tip, which becomes the tip), torque ripple of any

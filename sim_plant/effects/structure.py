@@ -1,0 +1,154 @@
+"""Effects of the structure: a mode the model lacks at the tool tip, a change of the moving mass.
+
+An added mode's starts (:meth:`CompliantMode.starts`): coupled to the chain, the new mode does not
+show at its own frequency (the measured resonances move), so for modal masses of 0.05 to 1.5
+times the tip mass the natural frequency that puts a mode of the coupled chain within 3 % of a
+peak of the residual spectrum (``ctx.mode_targets()``: the residual's own peaks, not the
+command's lines); beside those, a coarse grid over the physical range at damping ratio
+:attr:`CompliantMode.GRID_DAMPING`: the modal mass first (:attr:`CompliantMode.GRID_MASSES`
+log-spaced over :attr:`CompliantMode.GRID_RATIOS` of the tip mass, the mode stiff at the grid's
+top frequency, where it acts as a mass on the tip), then at the two best masses the natural
+frequency (:attr:`CompliantMode.GRID_FREQS` log-spaced from :attr:`CompliantMode.GRID_FMIN` to
+the record's 0.45 / sample period); each line refined between its best point's neighbours
+(``ctx.grid_starts``); the local fit starts from the cheapest start of the residual's peaks and
+the cheapest of the grid (then the second of each): a light fast mode and a heavy slow one shift
+the chain's own resonance alike, the grid tells them apart. Two starts in the brief screen.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from sim_plant.chain import Chain
+from sim_plant.effects.base import Effect, Param, register
+
+__all__ = ["CompliantMode", "MassChange"]
+
+
+@register
+class CompliantMode(Effect):
+    name = "compliant_mode"
+    description = ("an extra mass-spring-damper at the tool tip (a structural mode the model lacks); the "
+                   "new mass becomes the tool tip")
+    params = (Param("mass", "mass", 1e-3, 1e4, 5.0, "modal mass of the extra mode"),
+              Param("frequency", "frequency", 0.5, 1e3, 20.0, "natural frequency of the extra mode (Hz)"),
+              Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"))
+
+    def apply(self, plant, values):
+        m, f, z = values["mass"], values["frequency"], values["damping_ratio"]
+        w = 2 * math.pi * f
+        k, c = m * w * w, 2 * z * m * w
+        ch = plant.chain
+        chain = Chain(ch.m + (m,), ch.k + (k,), ch.c + (c,), ch.c_ground + (0.0,))
+        return dataclasses.replace(plant, chain=chain, tip=ch.n)
+
+    synth_strength = {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02}
+    screen_starts = 2          # the residual's peaks and the grid: two basins apart, both screened
+    GRID_FREQS = 12            # natural frequencies of the grid
+    GRID_FMIN = 2.0            # Hz, the grid's lower end
+    GRID_RATIOS = (0.02, 2.0)  # the grid's modal masses, relative to the tip mass: lowest, highest
+    GRID_MASSES = 7            # modal masses of the grid
+    GRID_DAMPING = 0.02        # damping ratio of the grid's points
+
+    @property
+    def cost_factor(self) -> int:
+        return 3
+
+    def degenerate(self, values, cfg=None, sample_period=None):
+        # stiff to the frequency's bound, or damped past ringing, the "mode" is a rigid mass on the
+        # tip (parameter:plant.m3) or a damper: not a mode; above the record's Nyquist frequency it
+        # cannot ring in the record at all, and what the fit took is the mass
+        at = [n for n in self._at_bound(values, ("frequency", "damping_ratio"))
+              if values[n] > 0.5 * (self.param(n).upper + self.param(n).lower)]
+        f = values.get("frequency")
+        if sample_period and f is not None and f > 0.5 / sample_period and "frequency" not in at:
+            return (f"a mode at {f:.4g} Hz, above the record's Nyquist frequency ({0.5 / sample_period:.4g} Hz), "
+                    f"cannot ring in it: a rigid {values.get('mass', 0.0):.3g} kg on the tip; ")
+        if not at:
+            return ""
+        return (f"a mode at its bound ({', '.join(f'{n} {values[n]:.4g}' for n in at)}) is no mode: a rigid "
+                f"{values.get('mass', 0.0):.3g} kg on the tip or a damper; ")
+
+    def evidence(self, ctx, values):
+        f = values.get("frequency", 0.0)
+        near = [fm for fm in ctx.base_modes if abs(fm - f) < 0.1 * f]
+        tail = "not a mode of the model" if not near else f"near the model's {near[0]:.1f} Hz mode"
+        return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}; "
+
+    def starts(self, ctx, guess):
+        # the best start from the residual's peaks and the best of the grid, then the next of each:
+        # the cheapest start is not always in the deepest basin
+        near = ctx.prefilter(self, self.peak_starts(ctx, guess))
+        grid = ctx.prefilter(self, self.grid_starts(ctx))
+        return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
+
+    def peak_starts(self, ctx, guess) -> list[dict]:
+        """For each modal mass (relative to the tip mass) the natural frequency that puts one of the
+        coupled chain's modes on a peak of the residual spectrum, with a low damping."""
+        fmax = 0.45 / ctx.sample_period
+        targets = ctx.mode_targets()[:2] or [guess["frequency"]]
+        plant = ctx.plant
+        m_tip = plant.chain.m[plant.tip]
+        f_grid = np.geomspace(0.5, fmax, 240)
+        starts = []
+        for ratio in (0.05, 0.15, 0.5, 1.5):
+            m = ratio * m_tip
+            for ft in targets:
+                best = None
+                for fn in f_grid:
+                    ch = self.apply(plant, {"mass": m, "frequency": fn, "damping_ratio": 0.0}).chain
+                    ev = np.linalg.eigvals(np.linalg.solve(ch.M, ch.K)).real
+                    fm = np.sqrt(np.maximum(ev, 0.0)) / (2 * np.pi)
+                    d = float(np.min(np.abs(fm - ft))) / ft
+                    if best is None or d < best[0]:
+                        best = (d, fn)
+                if best[0] < 0.03:
+                    starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01})
+            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01})
+        return starts
+
+    def grid_starts(self, ctx) -> list[dict]:
+        """The coarse grid (the module's definition): the modal mass with the mode stiff, then the
+        natural frequency at the best masses; the cheapest two of each line."""
+        m_tip = ctx.plant.chain.m[ctx.plant.tip]
+        p = self.param("frequency")
+        fmax = min(0.45 / ctx.sample_period, p.upper)
+        freqs = np.geomspace(max(self.GRID_FMIN, p.lower), fmax, self.GRID_FREQS)
+        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING}
+                  for r in np.geomspace(self.GRID_RATIOS[0], self.GRID_RATIOS[1], self.GRID_MASSES)]
+        out = ctx.grid_starts(self, masses, keep=2, fine=3)
+        for best in list(out):
+            out += ctx.grid_starts(self, [dict(best, frequency=float(f)) for f in freqs], keep=2, fine=3)
+        return out
+
+
+@register
+class MassChange(Effect):
+    name = "mass_change"
+    description = "a change of the moving mass (payload, workpiece) on the table"
+    params = (Param("mass", "mass", -1e4, 1e5, 0.0, "mass added to the table (negative: removed)"),)
+
+    def apply(self, plant, values):
+        ch = plant.chain
+        m = list(ch.m)
+        m[plant.table] += values["mass"]
+        if m[plant.table] <= 0:
+            raise ValueError(f"mass_change: the table mass would be {m[plant.table]:g} kg")
+        return dataclasses.replace(plant, chain=dataclasses.replace(ch, m=tuple(m)))
+
+    def guess(self, plant, scale):
+        return {"mass": 0.05 * plant.chain.m[plant.table]}
+
+    synth_strength = {"mass": 80.0}
+    linear_param = "mass"
+
+    def drifted_key(self, plant):
+        return f"plant.m{plant.table + 1}"
+
+    def evidence(self, ctx, values):
+        return f"{ctx.chan} residual follows the acceleration: {values.get('mass', 0):+.3g} kg on the table; "
+
+    def linear_column(self, ctx):
+        return ctx.a / ctx.force_to_load, ctx.configured(self.name, "mass")
