@@ -81,8 +81,11 @@ def add_arguments(parser) -> None:
     r.add_argument("--map", action="append", default=[], metavar="SOURCE=CHANNEL[unit]",
                    help="column -> channel, as hil diagnose's --map (every record)")
     r.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run on an existing dask.distributed cluster (tcp://HOST:8786); default: local processes. "
-                        "Dask unpickles what it receives: use only a scheduler you trust")
+                   help="run on an existing dask.distributed cluster (tcp://127.0.0.1:8786); default: local "
+                        "processes. Another machine's only over tls:// or with --allow-remote-scheduler")
+    r.add_argument("--allow-remote-scheduler", action="store_true",
+                   help="accept a --scheduler on another machine without encryption: Dask unpickles what it "
+                        "receives, so the scheduler and the network can run code here; only where you trust both")
     r.add_argument("--jobs", type=int, default=None, metavar="N", help="local processes (default: the CPUs)")
     r.add_argument("--json", action="store_true", help="print one JSON object")
     p = sub.add_parser("report", help="the fleet's HTML report, CSV and JSON from a run's folder",
@@ -131,6 +134,9 @@ def _run(args) -> int:
     if args.max_steps < 0:
         raise UserError(f"--max-steps {args.max_steps}: expected 0 or more")
     scatter = _scatter(args.scatter)
+    if args.scheduler:
+        from hil.sweep.executors import check_scheduler_address
+        check_scheduler_address(args.scheduler, args.allow_remote_scheduler)
     entries = read_manifest(args.manifest)
     configs = load_configs(entries, args.config, dict(parse_assignment(s) for s in args.set))
     first = configs[args.config] if args.config in configs else next(iter(configs.values()))
@@ -168,13 +174,19 @@ def _run(args) -> int:
     from hil.io.safe_write import write_atomic
     summary = Path(args.out) / "fleet.json"
     write_atomic(summary, dumps(state, indent=1) + "\n")
+    # a fleet of which no record could be diagnosed has answered nothing: not a success
+    none_diagnosed = bool(entries) and all("error" in (res.figures.get(e.id) or {"error": ""}) for e in entries)
     if args.json:
         print(dumps({"records": len(entries), "computed": res.computed, "reused": res.reused,
                      "store": str(Path(args.out) / "results.jsonl"), "summary": str(summary),
                      "errors": errors, "axes": axes}, indent=1))
-        return 0
-    for line in summary_text(entries, res, axes, kinds):
-        print(line)
+    else:
+        for line in summary_text(entries, res, axes, kinds):
+            print(line)
+    if none_diagnosed:
+        print(f"hil fleet run: error: none of the {len(entries)} records could be diagnosed (their errors above, "
+              f"and in {summary})", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -200,6 +212,30 @@ def summary_text(entries, res, axes, kinds) -> list[str]:
     return lines
 
 
+# what hil fleet report reads of a fleet.json: key -> (type, the keys each item must have)
+_STATE_KEYS = {"entries": (list, ("axis", "timestamp", "record")), "figures": (dict, ()),
+               "axes": (list, ("axis", "verdict", "flags", "worst", "normal", "params", "dates", "errors"))}
+
+
+def check_state(state, src) -> None:
+    """One line naming the file and the key for a fleet.json that hil fleet run did not write as
+    hil fleet report reads it ({}, [], a key missing, an item of the wrong type)."""
+    if not isinstance(state, dict):
+        raise UserError(f"{src}: expected a JSON object (hil fleet run's fleet.json), got {type(state).__name__}")
+    for key, (kind, item_keys) in _STATE_KEYS.items():
+        if not isinstance(state.get(key), kind):
+            raise UserError(f"{src}: key {key!r}: missing or not a {'list' if kind is list else 'JSON object'} "
+                            f"(not a fleet.json of hil fleet run?)")
+        for i, item in enumerate(state[key] if kind is list else ()):
+            missing = [k for k in item_keys if not isinstance(item, dict) or k not in item]
+            if missing:
+                raise UserError(f"{src}: {key}[{i}]: key {missing[0]!r} missing (not a fleet.json of hil fleet run?)")
+            if key == "entries" and not all(isinstance(item[k], str) for k in item_keys):
+                raise UserError(f"{src}: {key}[{i}]: axis, timestamp and record must be strings")
+    if not isinstance(state.get("kinds", {}), dict):
+        raise UserError(f"{src}: key 'kinds': expected a JSON object")
+
+
 def _report(args) -> int:
     import json
     from pathlib import Path
@@ -212,6 +248,7 @@ def _report(args) -> int:
         raise UserError(f"{src}: no fleet here (run hil fleet run ... --out {args.folder} first)") from None
     except ValueError:
         raise UserError(f"{src}: not a fleet summary (JSON) of hil fleet run") from None
+    check_state(state, src)
     out = write_report(state, Path(args.out or args.folder))
     if args.json:
         print(dumps({"records": len(state["entries"]), "axes": [{k: a[k] for k in ("axis", "verdict", "flags", "worst")}

@@ -132,7 +132,11 @@ def add_arguments(p) -> None:
                    help="velocity steps per sample of the dominant-frequency estimate (default 8 = 0.5 ms at 62.5 us; "
                         "the overshoot is taken at every velocity step)")
     p.add_argument("--jobs", metavar="N", type=int, help="local worker processes (default: all cores)")
-    p.add_argument("--scheduler", metavar="ADDRESS", help="run on a dask.distributed scheduler, e.g. tcp://host:8786")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="run on a dask.distributed scheduler, e.g. "
+                   "tcp://127.0.0.1:8786; another machine's only over tls:// or with --allow-remote-scheduler")
+    p.add_argument("--allow-remote-scheduler", action="store_true",
+                   help="accept a --scheduler on another machine without encryption: Dask unpickles what it "
+                   "receives, so the scheduler and the network can run code here; only where you trust both")
     p.add_argument("--backend", metavar="NAME", help="run the moves on this runtime backend (canopen, serial, sim) instead of "
                                      "the compiled simulation; one after the other, with return moves")
     p.add_argument("--out", default="out/sweep", metavar="DIR", help="output folder (default out/sweep)")
@@ -290,16 +294,6 @@ def _text(r: dict) -> str:
     return "\n".join(lines)
 
 
-def check_scheduler_address(address: str) -> None:
-    """A Dask scheduler address, ``[protocol://]host:port`` with a port 1..65535: checked before
-    anything connects (a bad one is a mistake: one line, exit 2; Dask itself would fail late)."""
-    rest = address.split("://", 1)[1] if "://" in address else address
-    host, sep, port = rest.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise UserError(f"--scheduler {address}: expected [tcp://]HOST:PORT with a port 1..65535, "
-                        "e.g. tcp://127.0.0.1:8786")
-
-
 def run(args) -> int:
     from hil.commands.progress import shown
     from hil.config import load, parse_assignment
@@ -314,7 +308,8 @@ def run(args) -> int:
         cmp_cfg = load(args.compare, shared) if shared else cmp_cfg
     s = settings_from_args(args, cfg)
     if args.scheduler:
-        check_scheduler_address(args.scheduler)
+        from hil.sweep.executors import check_scheduler_address
+        check_scheduler_address(args.scheduler, args.allow_remote_scheduler)
     from hil.supervisor import refuse_if_tripped
     refuse_if_tripped(cfg)             # a trip not reset refuses motion on every backend
     from hil.commands.scope import check_scope_options

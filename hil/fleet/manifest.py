@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import csv
 import datetime as _dt
+import io
 import re
 import tomllib
 from dataclasses import dataclass
@@ -47,6 +48,32 @@ class Entry:
     def id(self) -> str:
         """The record's name in reports and summaries: ``AXIS@TIMESTAMP``."""
         return f"{self.axis}@{self.timestamp}"
+
+
+MAX_MANIFEST_BYTES = 16 << 20         # a manifest of a million records is a few tens of MiB: a bound, not a limit
+
+
+def _text(path: Path) -> str:
+    """A manifest's text: UTF-8 (a byte-order mark, as Excel's "CSV UTF-8" writes, dropped) or
+    UTF-16 with its byte-order mark; a regular file of at most :data:`MAX_MANIFEST_BYTES`. One line
+    naming the file for anything else."""
+    try:
+        st = path.stat()
+        if not path.is_file():
+            raise ConfigError(f"{path}: is not a regular file (a pipe or a device), expected a manifest")
+        if st.st_size > MAX_MANIFEST_BYTES:
+            raise ConfigError(f"{path}: {st.st_size >> 20} MiB, expected a manifest of at most "
+                              f"{MAX_MANIFEST_BYTES >> 20} MiB")
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+            return raw.decode("utf-16")
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {exc.start}); save the manifest as UTF-8 "
+                          f"(a spreadsheet's \"CSV UTF-8\")") from None
 
 
 def _timestamp(text: str, where: str) -> str:
@@ -78,15 +105,18 @@ def _entry(row: dict, base: Path, where: str) -> Entry:
     if not _AXIS_RE.match(axis):
         raise ConfigError(f"{where}: axis {axis!r}: expected letters, digits, '_', '-', '.' (at most 64)")
     rec = Path(str(row["record"]).strip())
+    rec = rec if rec.is_absolute() else base / rec
+    if rec.exists() and not rec.is_file():
+        raise ConfigError(f"{where}: record {str(rec)!r}: is not a regular file (a folder, a pipe or a device), "
+                          f"expected a measurement file")
     cfg = str(row.get("config") or "").strip() or None
-    return Entry(str(rec if rec.is_absolute() else base / rec), axis, _timestamp(row["timestamp"], where),
+    return Entry(str(rec), axis, _timestamp(row["timestamp"], where),
                  None if cfg is None else str(Path(cfg) if Path(cfg).is_absolute() else base / cfg),
                  _bool(row.get("baseline", False), where))
 
 
 def _from_csv(path: Path) -> list[Entry]:
-    with open(path, newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
+    rows = list(csv.reader(io.StringIO(_text(path), newline="")))
     rows = [r for r in rows if r and not (len(r) == 1 and not r[0].strip()) and not r[0].lstrip().startswith("#")]
     if not rows:
         raise ConfigError(f"{path}: empty manifest (expected a header: record, axis, timestamp[, config, baseline])")
@@ -104,7 +134,7 @@ def _from_csv(path: Path) -> list[Entry]:
 
 def _from_toml(path: Path) -> list[Entry]:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(_text(path))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
     recs = data.get("record")
@@ -136,7 +166,8 @@ def _from_folder(folder: Path) -> list[Entry]:
                 continue
             axis, ts = m.group("axis"), m.group("ts")
         try:
-            out.append(_entry({"record": str(p), "axis": axis, "timestamp": ts}, folder, str(p)))
+            # the record relative to the folder, as a manifest's are (str(p) already holds the folder)
+            out.append(_entry({"record": str(rel), "axis": axis, "timestamp": ts}, folder, str(p)))
         except ConfigError:
             continue            # not a record of the fleet's naming
     if not out:
@@ -159,9 +190,22 @@ def read_manifest(path: str | Path) -> list[Entry]:
         entries = _from_toml(p)
     else:
         raise ConfigError(f"{p}: expected a manifest (.csv or .toml) or a folder of records")
+    if not entries:
+        raise ConfigError(f"{p}: no record listed (expected a header, then one line per record: "
+                          f"{', '.join(COLUMNS[:3])}[, config, baseline])")
+    times = {e.timestamp: _dt.datetime.fromisoformat(e.timestamp) for e in entries}
+    zoned = {t.tzinfo is not None for t in times.values()}
+    if len(zoned) > 1:
+        aware = next(k for k, t in times.items() if t.tzinfo is not None)
+        naive = next(k for k, t in times.items() if t.tzinfo is None)
+        raise ConfigError(f"{p}: timestamps with a time zone ({aware}) and without one ({naive}): their order is "
+                          f"not defined; give every timestamp a zone, or none")
     seen = {}
     for e in entries:
-        if e.id in seen:
-            raise ConfigError(f"{p}: axis {e.axis} has two records at {e.timestamp} ({seen[e.id]}, {e.record})")
-        seen[e.id] = e.record
-    return sorted(entries, key=lambda e: (e.axis, _dt.datetime.fromisoformat(e.timestamp), e.timestamp))
+        instant = (e.axis, times[e.timestamp])         # 2026-03-02 and 2026-03-02T00:00 are one instant
+        if instant in seen:
+            first = seen[instant]
+            raise ConfigError(f"{p}: axis {e.axis} has two records at one instant ({first.timestamp}: {first.record}; "
+                              f"{e.timestamp}: {e.record})")
+        seen[instant] = e
+    return sorted(entries, key=lambda e: (e.axis, times[e.timestamp], e.timestamp))

@@ -121,7 +121,10 @@ def _record_page(e: dict, fig: dict, kinds: dict) -> str:
 
 
 def _page_name(e: dict) -> str:
-    return f"records/{e['axis']}_{e['timestamp'].replace(':', '-')}.html"
+    """The record's page, ``records/AXIS_DATE.html``: one file name made from the data (a timestamp
+    ``../../x`` in a fleet.json stays inside ``records/``)."""
+    from hil.io.safe_write import safe_name
+    return f"records/{safe_name(str(e['axis']) + '_' + str(e['timestamp']).replace(':', '-'))}.html"
 
 
 def write_report(state: dict, out_dir) -> dict:
@@ -129,14 +132,14 @@ def write_report(state: dict, out_dir) -> dict:
     fleet.json) in ``out_dir``; returns their paths."""
     from hil.fleet.manifest import Entry
     from hil.fleet.summary import rows
-    from hil.io.safe_write import write_atomic
+    from hil.io.safe_write import confined, write_atomic
     out = Path(out_dir)
     kinds = state.get("kinds", {})
     entries = state["entries"]
     figures = state["figures"]
     pages = []
     for e in entries:
-        path = out / _page_name(e)
+        path = confined(out, _page_name(e))
         path.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(path, _page(f"{e['axis']} at {e['timestamp']}", _record_page(e, figures.get(
             f"{e['axis']}@{e['timestamp']}", {"error": "not run"}), kinds)))

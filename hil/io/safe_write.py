@@ -19,12 +19,34 @@ inode: a relative path, a hard link or a link to it included).
 from __future__ import annotations
 
 import os
+import re
 import secrets
 from pathlib import Path
 
 from hil.errors import UserError
 
-__all__ = ["open_new", "write_atomic", "refuse_inputs", "save_figure"]
+__all__ = ["open_new", "write_atomic", "refuse_inputs", "save_figure", "safe_name", "confined"]
+
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._+-]+")
+
+
+def safe_name(text: str, max_chars: int = 120) -> str:
+    """``text`` as one file name made from data (an axis, a timestamp): every run of characters
+    other than letters, digits, ``. _ + -`` is one ``-`` (no separator, no ``..`` left to climb
+    out of the folder), at most ``max_chars`` long, never empty, never a leading dot."""
+    name = _UNSAFE.sub("-", text).strip("-")[:max_chars].lstrip(".")
+    return name or "-"
+
+
+def confined(folder: str | Path, relative: str | Path) -> Path:
+    """``folder / relative``, refused (UserError) where it would lie outside ``folder`` once resolved
+    (``..`` or an absolute part in a name read from data, a link to elsewhere)."""
+    base = Path(folder).resolve()
+    path = (base / relative).resolve()
+    if path != base and base not in path.parents:
+        raise UserError(f"{relative}: resolves outside the output folder {folder}; refusing to write there")
+    return Path(folder) / relative
 
 
 def refuse_inputs(path: str | Path, inputs=()) -> None:

@@ -12,14 +12,64 @@ unpickles what it receives: use only a scheduler you trust.
 from __future__ import annotations
 
 import hashlib
+import ipaddress
+import logging
 import multiprocessing
 import os
+import re
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
+from hil.errors import UserError
 from hil.sweep.run import run_on_backend, run_task
 
-__all__ = ["LocalExecutor", "DaskExecutor", "BackendExecutor", "run_trace_name"]
+__all__ = ["LocalExecutor", "DaskExecutor", "BackendExecutor", "run_trace_name", "check_scheduler_address"]
+
+log = logging.getLogger(__name__)
+
+# Dask's protocols; tls:// and wss:// are encrypted and authenticate the scheduler
+SCHEDULER_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+_ENCRYPTED = ("tls", "wss")
+_HOST_NAME = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?)*")
+_REMOTE_RISK = ("Dask's protocol unpickles what it receives: the scheduler, or anyone on the path to it, can run "
+                "code in this process")
+
+
+def check_scheduler_address(address: str, allow_remote: bool = False, what: str = "--scheduler") -> str:
+    """A Dask scheduler address, ``[protocol://]host:port``, checked before anything connects (a bad
+    one is a mistake: one line, exit 2; Dask itself would fail late, or resolve a word as a host).
+
+    The loopback (127.0.0.0/8, ::1, ``localhost``) is taken as it is. Another address is refused
+    unless it is encrypted (``tls://``, ``wss://``) or ``allow_remote`` (``--allow-remote-scheduler``)
+    says the user trusts the network and the scheduler; then the risk is said once (a warning).
+    A host name other than ``localhost`` is resolved through DNS and may name any machine: it
+    counts as remote. Returns the address as given."""
+    def refuse(why: str):
+        shown = address if address.isprintable() and len(address) <= 80 else repr(address[:80])
+        raise UserError(f"{what} {shown}: {why}")
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        scheme, rest = "tcp", address
+    if scheme not in SCHEDULER_SCHEMES:
+        refuse(f"unknown protocol {scheme!r} (expected one of {', '.join(SCHEDULER_SCHEMES)})")
+    host, sep, port = rest.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        refuse("expected [tcp://]HOST:PORT with a port 1..65535, e.g. tcp://127.0.0.1:8786")
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        ip = None
+        if not _HOST_NAME.fullmatch(host):
+            refuse(f"{host!r} is neither an IP address nor a host name; expected [tcp://]HOST:PORT, "
+                   f"e.g. tcp://127.0.0.1:8786")
+    if host == "localhost" or (ip is not None and ip.is_loopback):
+        return address
+    if scheme not in _ENCRYPTED and not allow_remote:
+        refuse(f"not a loopback address, and not encrypted: {_REMOTE_RISK}. Use tls://, or "
+               f"--allow-remote-scheduler where you trust the network and the scheduler")
+    log.warning("%s %s: a scheduler on another machine: %s; only use one you trust", what, address, _REMOTE_RISK)
+    return address
 
 
 def _chunk(cfg, tasks):

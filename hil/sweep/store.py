@@ -16,9 +16,22 @@ import os
 from dataclasses import asdict
 from pathlib import Path
 
+from hil.errors import UserError
 from hil.sweep.run import RunSpec
 
 __all__ = ["ResultStore"]
+
+
+def _open(path: Path, flags: int, mode: str):
+    """``path`` opened with ``O_NOFOLLOW``: a symbolic link planted at the store's name (between
+    two runs, or while one runs) is refused, never followed to append to its target."""
+    try:
+        fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0), 0o666)
+    except OSError as exc:
+        if path.is_symlink():
+            raise UserError(f"{path}: is a symbolic link; refusing to write through it") from None
+        raise UserError(f"{path}: cannot write ({exc.strerror})") from None
+    return os.fdopen(fd, mode)
 
 
 class ResultStore:
@@ -29,10 +42,12 @@ class ResultStore:
         self.done: dict[str, dict] = {}
         if self.path is not None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            if self.path.is_symlink():        # as every other output: never written through a planted link
+                raise UserError(f"{self.path}: is a symbolic link; refusing to write through it")
             if not resume and self.path.exists():
                 self.path.unlink()
             if self.path.exists():
-                with open(self.path, "rb+") as fh:     # end a line cut by an interruption
+                with _open(self.path, os.O_RDWR, "rb+") as fh:     # end a line cut by an interruption
                     fh.seek(0, os.SEEK_END)
                     if fh.tell() > 0:
                         fh.seek(-1, os.SEEK_END)
@@ -52,6 +67,6 @@ class ResultStore:
         self.done[key] = figures
         self.computed += 1
         if self.path is not None:
-            with open(self.path, "a") as fh:
+            with _open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, "a") as fh:
                 fh.write(json.dumps({"key": key, "spec": asdict(spec), "figures": figures}) + "\n")
                 fh.flush()

@@ -1,0 +1,223 @@
+"""The red team's findings in the fleet (issue 49, findings 2 and 5), each a test that failed before:
+record pages written outside the report's folder, the store appending through a planted link, a
+scheduler off this machine taken without a word, and the manifests and fleet.json files that
+ended in a traceback or a silent wrong reading. Plus fuzzers of the scheduler's address and of a
+manifest's bytes and timestamps, so the next round finds nothing new there. None of it diagnoses a
+record but the last test, which diagnoses nothing on purpose."""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+from conftest import CONFIG
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hil.cli import main
+from hil.errors import ConfigError, HilError, UserError
+from hil.fleet.manifest import read_manifest
+from hil.sweep.executors import check_scheduler_address
+from hil.sweep.run import RunSpec
+from hil.sweep.store import ResultStore
+
+BENCH = str(CONFIG / "paper_bench.toml")
+FUZZ = settings(max_examples=200, deadline=None, derandomize=True,
+                suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def _one_line_exit_2(capsys, argv) -> str:
+    assert main([str(a) for a in argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    return err
+
+
+# --- 2. the report's pages stay in their folder; the store never follows a link -------------------
+
+def _fleet_json(timestamp: str, axis: str = "X1") -> dict:
+    entry = {"record": "r.csv", "axis": axis, "timestamp": timestamp, "config": None, "baseline": False}
+    axis_row = {"axis": axis, "verdict": "ok", "flags": [], "worst": None, "normal": [], "params": {},
+                "dates": [timestamp], "errors": [], "findings": []}
+    return {"entries": [entry], "figures": {}, "axes": [axis_row], "kinds": {}}
+
+
+@pytest.mark.parametrize("timestamp", ["../../../../tmp/x", "/etc/passwd", "..", "a/../../b", "2026-03-02T22:00"])
+def test_a_record_page_is_written_inside_records_whatever_its_timestamp(tmp_path, capsys, timestamp):
+    fleet = tmp_path / "fleet"
+    fleet.mkdir()
+    (fleet / "fleet.json").write_text(json.dumps(_fleet_json(timestamp)))
+    before = set(tmp_path.parent.rglob("*"))
+    assert main(["fleet", "report", str(fleet), "--json"]) == 0
+    (page,) = json.loads(capsys.readouterr().out)["pages"]
+    assert Path(page).resolve().parent == (fleet / "records").resolve()
+    assert Path(page).name.count("/") == 0 and not Path(page).name.startswith(".")
+    new = {p for p in set(tmp_path.parent.rglob("*")) - before if not str(p).startswith(str(tmp_path))}
+    assert not new, new
+
+
+@pytest.mark.parametrize("state, says", [({}, "key 'entries'"), ([], "expected a JSON object"),
+                                         ({"entries": [], "figures": {}}, "key 'axes'"),
+                                         ({"entries": [{"axis": "X"}], "figures": {}, "axes": []}, "'timestamp'"),
+                                         ({"entries": "x", "figures": {}, "axes": []}, "key 'entries'")])
+def test_fleet_report_on_what_fleet_run_did_not_write_is_one_line(tmp_path, capsys, state, says):
+    (tmp_path / "fleet.json").write_text(json.dumps(state))
+    err = _one_line_exit_2(capsys, ["fleet", "report", tmp_path])
+    assert str(tmp_path / "fleet.json") in err and says in err
+
+
+def test_the_store_refuses_a_planted_link_at_open_and_between_runs(tmp_path):
+    target = tmp_path / "elsewhere.txt"
+    target.write_text("keep\n")
+    link = tmp_path / "out" / "results.jsonl"
+    link.parent.mkdir()
+    link.symlink_to(target)
+    with pytest.raises(UserError, match="symbolic link"):
+        ResultStore(link)
+    link.unlink()
+    store = ResultStore(link)
+    link.symlink_to(target)                    # planted while the fleet runs
+    with pytest.raises(UserError, match="symbolic link"):
+        store.add("k", {"x": 1.0}, RunSpec("move", 0.1, 0.1, 0.0, 1.0, None, 0.0, 1))
+    assert target.read_text() == "keep\n"
+
+
+# --- 2. the scheduler: the loopback, or said and allowed ------------------------------------------
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:8786", "127.0.0.1:8786", "localhost:8786",
+                                     "tcp://[::1]:8786", "tcp://127.3.2.1:1"])
+def test_a_loopback_scheduler_is_taken(address):
+    assert check_scheduler_address(address) == address
+
+
+@pytest.mark.parametrize("address, says", [
+    ("notanaddress", "expected [tcp://]HOST:PORT"), ("tcp://10.0.0.5:8786", "not a loopback address"),
+    ("tcp://example.org:8786", "not a loopback address"), ("192.168.1.2:8786", "not a loopback"),
+    ("tcp://127.0.0.1:0", "port 1..65535"), ("tcp://127.0.0.1:99999", "port 1..65535"),
+    ("http://127.0.0.1:8786", "unknown protocol"), ("tcp://bad_host!:8786", "neither an IP address")])
+def test_a_scheduler_elsewhere_or_malformed_is_refused_in_one_line(address, says):
+    with pytest.raises(UserError, match="--scheduler") as err:
+        check_scheduler_address(address)
+    assert says in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_remote_scheduler_is_taken_when_allowed_or_encrypted_and_the_risk_is_said(caplog):
+    assert check_scheduler_address("tcp://10.0.0.5:8786", allow_remote=True) == "tcp://10.0.0.5:8786"
+    assert check_scheduler_address("tls://10.0.0.5:8786") == "tls://10.0.0.5:8786"
+    assert sum("unpickles" in r.getMessage() for r in caplog.records) == 2
+
+
+@pytest.mark.parametrize("command", [["fleet", "run", "nowhere.csv", "--config", BENCH, "--out", "x"],
+                                     ["sweep", "--config", BENCH, "--stroke", "100mm", "--feed", "7000mm/min",
+                                      "--jmax", "10m/s^3,20m/s^3"]])
+def test_both_commands_refuse_a_remote_scheduler_before_anything_runs(capsys, tmp_path, command):
+    err = _one_line_exit_2(capsys, command + ["--scheduler", "tcp://10.0.0.5:8786"])
+    assert "not a loopback address" in err and "--allow-remote-scheduler" in err
+
+
+@FUZZ
+@given(address=st.one_of(st.text(max_size=40), st.builds(
+    lambda s, h, p: f"{s}{h}:{p}", st.sampled_from(["", "tcp://", "tls://", "ws://", "x://", "tcp:/"]),
+    st.one_of(st.ip_addresses().map(str), st.text(alphabet="abc.-_[]:0123456789", max_size=20)),
+    st.integers(-5, 70000))))
+def test_no_address_passes_unchecked(address):
+    """Whatever the text: one line of UserError, or an address whose host is the loopback (nothing
+    else is taken without allow_remote or an encrypted protocol)."""
+    import ipaddress
+    try:
+        got = check_scheduler_address(address)
+    except UserError as exc:
+        assert "\n" not in str(exc)
+        return
+    scheme, _, rest = got.partition("://") if "://" in got else ("tcp", "", got)
+    host = rest.rpartition(":")[0].strip("[]")
+    assert scheme in ("tls", "wss") or host == "localhost" or ipaddress.ip_address(host).is_loopback
+
+
+# --- 5. manifests: encodings, marks, instants, devices, folders ----------------------------------
+
+HEADER = "record,axis,timestamp\n"
+
+
+def _manifest(tmp_path, text, encoding="utf-8", name="m.csv") -> Path:
+    p = tmp_path / name
+    p.write_bytes(text.encode(encoding) if isinstance(text, str) else text)
+    return p
+
+
+def test_a_spreadsheets_byte_order_mark_and_utf16_are_read(tmp_path):
+    body = HEADER + "a.csv,X1,2026-03-02\n"
+    for i, raw in enumerate(["\ufeff" + body, body.encode("utf-16")]):
+        (e,) = read_manifest(_manifest(tmp_path, raw, name=f"m{i}.csv"))
+        assert e.axis == "X1" and e.record == str(tmp_path / "a.csv")
+
+
+@pytest.mark.parametrize("raw, says", [
+    ((HEADER + "caf\u00e9.csv,X1,2026-03-02\n").encode("latin-1"), "not UTF-8 text"),
+    (HEADER, "no record listed"),
+    (HEADER + "a.csv,X1,2026-03-02\nb.csv,X1,2026-03-02T00:00\n", "two records at one instant"),
+    (HEADER + "a.csv,X1,2026-03-02T00:00+01:00\nb.csv,X1,2026-03-03\n", "with a time zone"),
+    (HEADER + "/dev/zero,X1,2026-03-02\n", "not a regular file"),
+])
+def test_manifests_that_ended_in_a_traceback_are_one_line(tmp_path, capsys, raw, says):
+    p = _manifest(tmp_path, raw)
+    with pytest.raises(ConfigError) as err:
+        read_manifest(p)
+    assert says in str(err.value) and str(p) in str(err.value) and "\n" not in str(err.value)
+    msg = _one_line_exit_2(capsys, ["fleet", "run", p, "--config", BENCH, "--out", tmp_path / "o"])
+    assert says in msg
+
+
+def test_a_manifest_that_is_a_device_is_not_read(tmp_path):
+    link = tmp_path / "m.csv"
+    link.symlink_to("/dev/zero")
+    with pytest.raises(ConfigError, match="not a regular file"):
+        read_manifest(link)
+
+
+def test_a_folder_given_relatively_reads_its_own_records(tmp_path, monkeypatch):
+    """``hil fleet run fl/records`` read ``fl/records/fl/records/X1_...csv``: the folder's path twice."""
+    folder = tmp_path / "fl" / "records"
+    folder.mkdir(parents=True)
+    (folder / "X1_2026-03-02.csv").write_text("t [s],x_cmd [m]\n0,0\n")
+    (folder / "X2").mkdir()
+    (folder / "X2" / "2026-03-03.csv").write_text("t [s],x_cmd [m]\n0,0\n")
+    monkeypatch.chdir(tmp_path)
+    entries = read_manifest("fl/records")
+    assert [e.axis for e in entries] == ["X1", "X2"] and all(Path(e.record).is_file() for e in entries)
+
+
+@FUZZ
+@given(rows=st.lists(st.tuples(st.sampled_from(["X1", "X2"]), st.one_of(
+    st.sampled_from(["2026-03-02", "2026-03-02T00:00", "2026-03-02 00:00:00", "2026-03-02T00:00+00:00",
+                     "2026-03-02T01:00+01:00", "2026-03-03T12:30", "2026-13-01", "x"]),
+    st.text(max_size=12))), max_size=6),
+    bom=st.booleans(), encoding=st.sampled_from(["utf-8", "utf-16", "latin-1"]))
+def test_a_manifest_is_read_or_refused_in_one_line(tmp_path, rows, bom, encoding):
+    text = HEADER + "".join(f"r{i}.csv,{a},{t.replace(',', ' ')}\n" for i, (a, t) in enumerate(rows))
+    try:
+        raw = (("\ufeff" if bom and encoding == "utf-8" else "") + text).encode(encoding)
+    except UnicodeEncodeError:
+        return
+    p = _manifest(tmp_path, raw)
+    try:
+        entries = read_manifest(p)
+    except HilError as exc:
+        assert "\n" not in str(exc)
+        return
+    instants = [(e.axis, __import__("datetime").datetime.fromisoformat(e.timestamp)) for e in entries]
+    assert len(set(instants)) == len(instants) == len(rows)
+
+
+# --- 5. a fleet that answered nothing is no success ----------------------------------------------
+
+def test_a_fleet_of_which_nothing_could_be_diagnosed_exits_2(tmp_path, capsys):
+    recs = tmp_path / "recs"
+    recs.mkdir()
+    (recs / "X1_2026-03-02.csv").write_text("t [s],x_cmd [m]\n0,zero\n")
+    assert main(["fleet", "run", str(recs), "--config", BENCH, "--out", str(tmp_path / "out"), "--jobs", "1",
+                 "--json"]) == 2
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["errors"] and "none of the 1 records could be diagnosed" in captured.err
+    assert not os.path.islink(tmp_path / "out" / "results.jsonl")
