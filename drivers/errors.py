@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-__all__ = ["HilError", "ConfigError", "BackendError", "BackendFault", "STOP_EXIT_CODES", "StopKind", "fault_kind"]
+__all__ = ["HilError", "ConfigError", "BackendError", "BackendFault", "STOP_EXIT_CODES", "STOP_FAILED_EXIT", "StopKind",
+           "fault_kind"]
 
 # how a run that moved ended -> the command's exit code (README, Safety: the exit codes)
 STOP_EXIT_CODES = {
@@ -21,6 +22,12 @@ STOP_EXIT_CODES = {
     "overrun": 5,
     "interrupt": 130,
 }
+
+
+# a run whose controlled stop itself failed (the quick stop or the disable not delivered: the link was
+# gone): whatever ended it, the axis was not stopped by the host; the drive's own guards (its
+# watchdog, its heartbeat consumer) are what stop it then. Outranks the kind's own exit code.
+STOP_FAILED_EXIT = 6
 
 
 class StopKind(StrEnum):

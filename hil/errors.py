@@ -25,6 +25,9 @@ loop's interrupt) and carried with the run's :class:`RunStatus` to the exit code
     5    overrun       the real-time loop overran its watchdog
     130  interrupt     Ctrl-C
 
+and 6 (:data:`STOP_FAILED_EXIT`) where the controlled stop itself failed (not delivered: the link
+was gone), whatever ended the run.
+
 Tree::
 
     HilError
@@ -51,11 +54,20 @@ from __future__ import annotations
 
 from enum import StrEnum
 
-from drivers.errors import STOP_EXIT_CODES, BackendError, BackendFault, ConfigError, HilError, StopKind, fault_kind
+from drivers.errors import (
+    STOP_EXIT_CODES,
+    STOP_FAILED_EXIT,
+    BackendError,
+    BackendFault,
+    ConfigError,
+    HilError,
+    StopKind,
+    fault_kind,
+)
 
 __all__ = ["HilError", "ConfigError", "BackendError", "UnitError", "LimitError", "MeasurementError",
            "UnstableLoopError", "UserError", "SupervisorTripped", "BackendFault", "RunStopped",
-           "STOP_EXIT_CODES", "StopKind", "RunStatus", "fault_kind"]
+           "STOP_EXIT_CODES", "STOP_FAILED_EXIT", "StopKind", "RunStatus", "fault_kind"]
 
 # stdout closed before the command printed everything (``hil move ... | head -1``): 128 + SIGPIPE,
 # what a shell reports for a process that SIGPIPE ended. The work is done by then (a run has ended,

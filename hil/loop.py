@@ -313,6 +313,8 @@ class LoopResult:
     reason: str = ""
     clock: dict = field(default_factory=dict)
     stop: StopKind = StopKind.COMPLETE     # how it ended: the command's exit code
+    # the controlled stop commanded when the run ended early: {"how", "ok", "error"}; None: none was
+    controlled_stop: dict | None = None
 
 
 class ControlLoop:
@@ -417,6 +419,7 @@ class ControlLoop:
         if self.injection is not None and self.injection.signal.size < K * self.per_tick:
             raise ValueError(f"injection: {self.injection.signal.size} values for {K * self.per_tick} cycles")
         self._s = new_velocity_state()
+        self._stopped = None              # the controlled stop, once one is commanded (_stop)
         # no garbage-collection pauses inside the cycle on hardware (collected in __init__,
         # before the drive was enabled: a collection can take longer than a drive's watchdog)
         gc_was_on = gc.isenabled()
@@ -546,6 +549,7 @@ class ControlLoop:
         never raises: the link may be gone, and the drive-side guards stop the axis then
         (real-time)."""
         how = self._stop_how
+        self._stopped = {"how": how, "ok": True, "error": ""}
         try:
             if how == "disable":
                 backend.disable()
@@ -553,11 +557,12 @@ class ControlLoop:
                 backend.quick_stop()
         except Exception as exc:
             log.warning("%s backend: the controlled stop (%s) failed: %s", backend.name, how, exc)
+            self._stopped = {"how": how, "ok": False, "error": f"{type(exc).__name__}: {exc}"}
 
     def _end(self, ticks: int, status: RunStatus, reason: str, kind: StopKind) -> LoopResult:
         """The run's result (not real-time: after the cycle)."""
         clock = self.clock.stats() if hasattr(self.clock, "stats") else {}
-        return LoopResult(ticks, status, reason, clock, kind)
+        return LoopResult(ticks, status, reason, clock, kind, self._stopped)
 
 
 # the columns _record fills, in the order of hil.runtime.record_channels

@@ -65,6 +65,8 @@ class RunRecord:
     loop: dict = field(default_factory=dict)
     start: float | None = None          # where the run started (m; on an axis: as measured)
     stop: StopKind = StopKind.COMPLETE  # how it ended: the command's exit code (hil.errors.StopKind)
+    # the controlled stop commanded when the run ended early ({"how", "ok", "error"}); None: none was
+    controlled_stop: dict | None = None
 
     def __getitem__(self, name):
         return self.channels[name]
@@ -187,7 +189,7 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     else:                  # stopped before it moved (e.g. the drive did not answer at start-up)
         chans = {n: np.zeros(0) for n in names}
     return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock,
-                     start=float(x_cmd[0]), stop=result.stop)
+                     start=float(x_cmd[0]), stop=result.stop, controlled_stop=result.controlled_stop)
 
 
 def _plant_scales(cfg):

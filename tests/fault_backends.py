@@ -12,18 +12,19 @@ from hil.plant_config import plant_from_config
 class FaultyPlant(Backend):
     """``at``: the first velocity cycle (1-based count of ``read_feedback`` calls) that goes wrong;
     ``reason``: what it says; ``kind``: the kind of stop it says (None: none, the default of where
-    it stops the run); ``raises``: raise BackendFault instead of reporting it. ``stopped``: the
-    controlled stop was commanded."""
+    it stops the run); ``raises``: raise BackendFault instead of reporting it; ``stop_fails``: the
+    controlled stop raises BackendFault too (the link is gone). ``stopped``: the controlled stop was
+    commanded."""
     name = "faulty"
     closes = "none"
     simulated = True
 
     def __init__(self, cfg, at: int, reason: str = "drive fault: overcurrent", raises: bool = False,
-                 kind: StopKind | None = StopKind.DRIVE_FAULT):
+                 kind: StopKind | None = StopKind.DRIVE_FAULT, stop_fails: bool = False):
         self.sim = SimulatedPlant(cfg, plant_from_config(cfg), closes="none")
         self.cycle_time = self.sim.cycle_time
         self.at, self.reason, self.raises, self.kind = at, reason, raises, kind
-        self.cycles, self.stopped = 0, False
+        self.cycles, self.stopped, self.stop_fails = 0, False, stop_fails
 
     def open(self):
         self.sim.home_at(0.0)
@@ -48,6 +49,8 @@ class FaultyPlant(Backend):
 
     def quick_stop(self):
         self.stopped = True
+        if self.stop_fails:
+            raise BackendFault("lost communication: no answer to the quick stop", StopKind.LINK)
         self.sim.disable()
 
     def disable(self):

@@ -10,6 +10,7 @@ from fault_backends import FaultyPlant
 
 from drivers.control import ControllerSettings, new_velocity_state, velocity_law
 from drivers.sim import SimulatedPlant
+from hil.errors import StopKind
 from hil.io.measurement import read
 from hil.io.recorder import Recorder
 from hil.loop import ControlLoop
@@ -264,3 +265,44 @@ def test_hil_move_refuses_with_a_clear_line(capsys):
     err = capsys.readouterr().err
     assert err.startswith("hil move: error: move refused before motion:") and err.count("\n") == 1
     assert "limits.acceleration" in err and "would fit" in err
+
+
+def test_a_controlled_stop_that_failed_is_said_not_reported_as_done(bench, tmp_path, state_dir):
+    """Issue 49, finding 4: after a drive lost mid-move the host warned that the quick stop failed,
+    then its summary said "stopped with the configured controlled stop". The run's record says
+    whether the stop got through (``controlled_stop``), and one that did is told apart."""
+    traj = Trajectory()
+    traj.move(MoveSpec(0.01, 0.1, a_max=3.0))
+    lost = FaultyPlant(bench, at=64 * 20 + 6, reason="lost communication: no answer", raises=True,
+                       kind=StopKind.LINK, stop_fails=True)
+    rec = run_trajectory(bench, traj, backend=lost, out_file=tmp_path / "lost.csv", settle=0.1)
+    assert rec.status == "fault" and lost.stopped
+    assert rec.controlled_stop["ok"] is False and rec.controlled_stop["how"] == "quick_stop"
+    assert "no answer to the quick stop" in rec.controlled_stop["error"]
+    (state_dir / "latch.json").unlink()          # the trip latched: cleared as 'hil reset' would
+    held = FaultyPlant(bench, at=64 * 20 + 6, raises=True)
+    rec = run_trajectory(bench, traj, backend=held, out_file=tmp_path / "held.csv", settle=0.1)
+    assert rec.controlled_stop == {"how": "quick_stop", "ok": True, "error": ""}
+    (state_dir / "latch.json").unlink()
+    done = run_trajectory(bench, traj, out_file=None, settle=0.1)
+    assert done.status == "complete" and done.controlled_stop is None
+
+
+def test_hil_move_says_a_failed_stop_in_text_json_and_exit_code(bench, tmp_path, capsys, monkeypatch, state_dir):
+    """The command's side of it: the text says FAILED, the JSON ``controlled_stop.ok`` is false and
+    the exit code is 6 (hil.errors.STOP_FAILED_EXIT), not the kind's own 4."""
+    import hil.backends
+    from hil.cli import main
+    from hil.errors import STOP_FAILED_EXIT
+    monkeypatch.setattr(hil.backends, "open_backend", lambda cfg, *a, **k: FaultyPlant(
+        cfg, at=64 * 20 + 6, reason="lost communication: no answer", raises=True, kind=StopKind.LINK,
+        stop_fails=True))
+    argv = ["move", "--config", str(CONFIG / "paper_bench.toml"), "--stroke", "10mm", "--feed", "6000mm/min",
+            "--tacc", "50ms"]
+    assert main(argv + ["--out", str(tmp_path / "a")]) == STOP_FAILED_EXIT == 6
+    out = capsys.readouterr().out
+    assert "controlled stop (quick_stop) FAILED" in out and "stopped with the configured" not in out
+    (state_dir / "latch.json").unlink()          # the trip latched: cleared as 'hil reset' would
+    assert main(argv + ["--out", str(tmp_path / "b"), "--json"]) == 6
+    got = json.loads(capsys.readouterr().out)
+    assert got["controlled_stop"]["ok"] is False and got["stop"] == "link" and got["exit_code"] == 6

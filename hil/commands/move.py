@@ -5,7 +5,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hil import config as config_mod
-from hil.errors import UserError
+from hil.errors import STOP_FAILED_EXIT, UserError
 from hil.io.jsonout import JsonKey, dumps
 from hil.units import parse_option
 
@@ -70,7 +70,10 @@ JSON_KEYS = {
     "stop": JsonKey("", "the kind of stop: `drive_fault`, `trip` (the supervisor), `link` (lost communication), "
                         "`overrun`, `interrupt`",
                     when=_STOPPED),
-    "exit_code": JsonKey("", "the exit code of that kind: 1, 3, 4, 5, 130", when=_STOPPED),
+    "controlled_stop": JsonKey("", "the controlled stop commanded: `how` (quick_stop or disable), `ok` (false: it "
+                                   "failed, the host did not stop the axis) and `error`", when=_STOPPED),
+    "exit_code": JsonKey("", "the exit code of that kind: 1, 3, 4, 5, 130; 6 where the controlled stop failed",
+                         when=_STOPPED),
     "stopped_at_s": JsonKey("s", "time of the record's last sample", when=_STOPPED),
     "ok": JsonKey("", "true: the move fits the limits (or there is nothing to move)",
                   when="with --check, or a stroke below the resolution"),
@@ -221,19 +224,26 @@ def run(args) -> int:
         # a run that did not complete: say so first, and no overshoot or settling figures for it
         png = plot_move(ch, out / "move.png", title=title, stopped=(rec.status, rec.reason))
         kind = rec.stop
-        summary = {"status": rec.status, "reason": rec.reason, "stop": kind,
-                   "exit_code": kind.exit_code, "stopped_at_s": float(ch["t"][-1]),
+        stopped = rec.controlled_stop or {"how": cfg.get("supervisor.stop", "quick_stop"), "ok": True, "error": ""}
+        exit_code = kind.exit_code if stopped["ok"] else STOP_FAILED_EXIT
+        summary = {"status": rec.status, "reason": rec.reason, "stop": kind, "controlled_stop": stopped,
+                   "exit_code": exit_code, "stopped_at_s": float(ch["t"][-1]),
                    "start_m": traj.start, "record": str(rec.path), "plot": str(png), "backend": backend.name}
         if args.json:
             print(dumps(summary, indent=2))
         else:
             print(f"move DID NOT COMPLETE on {backend.name}: {rec.status} ({kind}) at t = {ch['t'][-1]:.3f} s: "
                   f"{rec.reason}")
-            print(f"  stopped with the configured controlled stop ({cfg.get('supervisor.stop', 'quick_stop')}); "
-                  f"no overshoot or settling figures for an incomplete move")
+            if stopped["ok"]:
+                print(f"  stopped with the configured controlled stop ({stopped['how']}); "
+                      f"no overshoot or settling figures for an incomplete move")
+            else:
+                print(f"  the controlled stop ({stopped['how']}) FAILED: {stopped['error']}; the host did not stop "
+                      f"the axis: only the drive's own guards (its watchdog, its heartbeat consumer) stop it now. "
+                      f"Check the axis before anything else")
             from hil.supervisor import trip_hint
             print(f"  record {rec.path}, plot {png}; {trip_hint(cfg)}")
-        return summary["exit_code"]
+        return exit_code
     t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
         traj.segments[1], "stroke") else 0.0)
     fig = move_figures(ch["t"], ch["x_cmd"], ch["x_table"], ch["x_tip"], ch.get("torque", ch.get("command")),
