@@ -50,7 +50,11 @@ JSON_KEYS = {
     "steps": JsonKey("", "each --add fit in turn, then the joint refit: effect, params (SI), stderr (SI), channel, "
                          "error_before, error_after, score, evidence, gain, significant, worse_than_without, confounded, degenerate (as diagnose's "
                          "candidates[])", when=_RECORD),
-    "fitted": JsonKey("SI", "per written config key: value, stderr (standard error) and unit (its SI unit)",
+    "misfit": JsonKey("", "null where the fitted model reaches the estimation records' noise floor; else where it "
+                          "misses most: record, channel, above_floor (its ratio to the floor). The fitted values then "
+                          "take up what the model lacks, which their standard errors do not count"),
+    "fitted": JsonKey("SI", "per written config key: value, stderr (standard error, counting the residual's serial "
+                            "correlation; null: at its bound or not identifiable alone) and unit (its SI unit)",
                       when=_RECORD),
     "unchanged": JsonKey("SI", "per fitted config key that the fit left at the config's value (so not written): "
                                "value, stderr and unit", when=_RECORD),
@@ -166,6 +170,7 @@ def run(args) -> int:
     after = out["error_after"] = {c: float((res[c] ** 2).mean() ** 0.5) for c in rp.channels}
     table = estimation_validation(parts, checks, saved)
     out.update(table)
+    out["misfit"] = misfit(table, rp.channels)
     if args.json:
         print(dumps(out, indent=1))
     else:
@@ -177,12 +182,35 @@ def run(args) -> int:
         if len(metas) > 1 or vals:
             for line in errors_text(table, rp.unit):
                 print(line)
+        for k in written:
+            if stderr.get(k) is None and k in stderr:
+                print(f"{k}: no standard error: at its bound, or the record sees it only together with another "
+                      f"parameter (a near-singular fit); the value is not a measurement of it alone")
+        if out["misfit"]:
+            m = out["misfit"]
+            print(f"note: the fitted model leaves {m['channel']} {m['above_floor']:.1f} x above its noise floor on "
+                  f"{m['record']}: the values take up what the model still lacks, which their standard errors do "
+                  f"not count (hil diagnose names what is missing)")
         for k in kept:
             print(f"{k}: the fit left it at the config's value {fitted_text([k], new, {})[0].split(' = ', 1)[1]} "
                   f"(the record does not move it; not written)")
         print(f"wrote {args.out} (changed: {', '.join(written) or 'nothing'}"
               f"{'; unchanged: ' + ', '.join(kept) if kept else ''})")
     return 0
+
+
+def misfit(table: dict, channels) -> dict | None:
+    """Where the fitted model still misses the estimation records: the channel furthest above its
+    noise floor, where that is beyond :data:`hil.ident.unexplained.MISFIT` times it ({"record",
+    "channel", "above_floor"}); None where every channel is within it."""
+    from hil.ident.unexplained import MISFIT
+    worst = None
+    for r in table.get("estimation", []):
+        for c in channels:
+            x = r["after"]["above_floor"].get(c)
+            if x is not None and x == x and (worst is None or x > worst["above_floor"]):
+                worst = {"record": r["record"], "channel": c, "above_floor": float(x)}
+    return worst if worst is not None and worst["above_floor"] > MISFIT else None
 
 
 def _si_unit(key: str, cfg) -> str:

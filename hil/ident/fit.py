@@ -20,10 +20,15 @@ from the greedy values; :func:`joint_refit` refits config keys together from the
 
 The standard error of each fitted parameter is the linearised one of the least-squares fit
 (:func:`standard_errors`): with the Jacobian J of the weighted residual vector at the solution
-(scipy's, in the scaled parameters), s^2 = ||r||^2 / (n - p) and Cov = s^2 (J^T J)^-1 (a
-pseudo-inverse: a parameter at its bound or without influence has no finite one and gets NaN).
-It is the uncertainty of the value under the model (white, independent residuals); a record whose
-residual is coloured makes it optimistic. The correlation matrix of the same covariance,
+(scipy's, in the scaled parameters), s^2 = ||r||^2 / (n - p) and Cov = s^2 (J^T J)^-1, counting
+n / tau independent samples where the residual is serially correlated (tau its integrated
+autocorrelation time, :func:`correlation_time`: a residual of what the model lacks rings for
+hundreds of samples, and taking its samples as independent made the errors ten to a few hundred
+times too small). A parameter at its bound, without influence, or in a near-singular direction
+(J^T J's condition beyond :data:`SINGULAR`) has none: NaN, and the commands say why. It is the
+uncertainty under the model: where the fit leaves the record far above its noise floor, the
+value also takes up what the model lacks, which no standard error counts (``hil fit`` says so).
+The correlation matrix of the same covariance,
 Cov_ij / sqrt(Cov_ii Cov_jj), says what a parameter is confounded with: the pairs with |r| above
 :data:`CONFOUNDED` are named (``confounded``: [name, name, r]); the data cannot tell them apart, only
 their combination.
@@ -48,9 +53,12 @@ from sim_plant.effects import Effect
 logger = logging.getLogger(__name__)
 
 CONFOUNDED = 0.9     # |correlation| of two fitted parameters above which they are named as confounded
+SINGULAR = 1e12      # condition number of J^T J (scaled parameters) beyond which no standard error is claimed
+TAU_WINDOW = 5.0     # Sokal's window: the autocorrelation summed to the first lag M >= TAU_WINDOW * tau(M)
 WORSE_TOL = 1e-6     # relative: a fit leaving more weighted error than this above the effect-free model's is wrong
 
-__all__ = ["Candidate", "evaluate", "fd_steps", "fit_effects", "joint_refit", "standard_errors", "confounded_pairs",
+__all__ = ["Candidate", "evaluate", "fd_steps", "fit_effects", "joint_refit", "standard_errors", "correlation_time",
+           "confounded_pairs",
            "config_aliases", "CONFOUNDED"]
 
 
@@ -86,15 +94,41 @@ class Candidate:
                 "confounded": [[a, b, float(r)] for a, b, r in self.confounded], "degenerate": self.degenerate}
 
 
-def _covariance(sol):
-    """The linearised covariance s^2 (J^T J)^-1 of the scaled parameters ``sol.x`` (the module's
-    definition) and a mask of the directions without a finite one; None when it cannot be formed."""
+def correlation_time(r) -> float:
+    """The integrated autocorrelation time of a residual vector, tau = 1 + 2 sum_k rho_k, summed
+    to Sokal's window (the first lag M with M >= :data:`TAU_WINDOW` tau(M)): the number of samples
+    per independent one (1 for white noise). Bounded to [1, n / 2]."""
+    r = np.asarray(r, dtype=float)
+    n = r.size
+    if n < 4 or not np.all(np.isfinite(r)):
+        return 1.0
+    r = r - r.mean()
+    spec = np.fft.rfft(r, 2 * n)
+    ac = np.fft.irfft(spec * np.conj(spec))[:n]
+    if ac[0] <= 0:
+        return 1.0
+    partial = 1.0 + 2.0 * np.cumsum(ac[1:] / ac[0])
+    lags = np.arange(1, n)
+    done = np.nonzero(lags >= TAU_WINDOW * partial)[0]
+    tau = float(partial[done[0]] if done.size else partial[-1])
+    return float(min(max(tau, 1.0), n / 2))
+
+
+def _covariance(sol, correlated: bool = True):
+    """The linearised covariance s^2 tau (J^T J)^-1 of the scaled parameters ``sol.x`` (the module's
+    definition; ``correlated=False``: tau = 1) and a mask of the directions without a finite one;
+    None when it cannot be formed or is near-singular."""
     J = np.asarray(sol.jac, dtype=float)
     n, p = J.shape
     if n <= p or not np.all(np.isfinite(J)):
         return None
     s2 = 2.0 * float(sol.cost) / (n - p)
+    if correlated and getattr(sol, "fun", None) is not None:
+        s2 *= correlation_time(sol.fun)
     jtj = J.T @ J
+    d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
+    if p > 1 and np.linalg.cond(jtj / np.outer(d, d)) > SINGULAR:
+        return None                # the data see only a combination: no parameter has an error alone
     try:
         cov = s2 * np.linalg.inv(jtj)
     except np.linalg.LinAlgError:
@@ -105,13 +139,15 @@ def _covariance(sol):
     return cov, bad | at_bound
 
 
-def standard_errors(sol, scale) -> np.ndarray:
+def standard_errors(sol, scale, correlated: bool = True) -> np.ndarray:
     """Standard errors of the parameters ``sol.x * scale`` of a :func:`least_squares` result:
-    sqrt(diag(s^2 (J^T J)^-1)) * scale, s^2 = 2 cost / (n - p); NaN where J^T J is singular in that
-    direction (a parameter at its bound, or one the residual does not see)."""
+    sqrt(diag(s^2 tau (J^T J)^-1)) * scale, s^2 = 2 cost / (n - p), tau the residual's correlation
+    time (:func:`correlation_time`; ``correlated=False`` or a result without ``fun``: 1); NaN where
+    J^T J is singular in that direction (a parameter at its bound, or one the residual does not
+    see), and for every parameter where it is near-singular (:data:`SINGULAR`)."""
     p = np.asarray(sol.jac).shape[1]
     scale = np.broadcast_to(np.asarray(scale, dtype=float), (p,))
-    got = _covariance(sol)
+    got = _covariance(sol, correlated)
     if got is None:
         return np.full(p, np.nan)
     cov, bad = got
@@ -121,7 +157,7 @@ def standard_errors(sol, scale) -> np.ndarray:
 def confounded_pairs(sol, names) -> list:
     """The pairs of fitted parameters whose correlation (of the linearised covariance) exceeds
     :data:`CONFOUNDED` in magnitude: [name, name, r], strongest first."""
-    got = _covariance(sol)      # the scale cancels in a correlation
+    got = _covariance(sol, correlated=False)      # the scale and tau cancel in a correlation
     if got is None:
         return []
     cov, bad = got

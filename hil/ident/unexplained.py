@@ -22,6 +22,9 @@ from hil.ident.residual import REPORT_MERGE_BINS, motion_phases, spectrum_peaks
 __all__ = ["AT_FLOOR", "HALF_GAP", "rms", "at_noise_floor", "gap_closed", "residual_evidence", "describe"]
 
 AT_FLOOR = 1.5
+# beyond this many times its noise floor a fitted model misses the record: its values take up what it
+# lacks (hil fit says so)
+MISFIT = 3.0
 HALF_GAP = 0.5
 TRAVEL_BINS = 10
 
