@@ -175,6 +175,10 @@ class ParameterEffect(Effect):
         f = field_for(key)
         if f is None or key.startswith("effects."):
             raise KeyError(f"parameter:{key}: not a parameter of the config schema")
+        if not callable(f.kind) and f.kind not in DIMENSIONS:
+            # a text, a flag, a count or a list (meta.name, measurement.torque): nothing a fit can move
+            raise KeyError(f"parameter:{key}: not a physical quantity (a {f.kind} setting); a fit re-identifies "
+                           f"numbers with a unit: a mass, a stiffness, a damping, a gain, a friction value")
         self.key = key
         self.name = f"parameter:{key}"
         self.description = f"re-identify {key} ({f.doc})"

@@ -262,3 +262,27 @@ def test_cli_user_errors(tmp_path, capsys):
     assert main(base + ["--tacc", "60ms", "--budget", "soon"]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.count("error:") == 3
+
+
+def test_the_headline_text_and_json_answer_the_question_asked(tmp_path, capsys):
+    """Issue 49, finding 7: asked for the largest jerk within a tolerance, the report's headline gave
+    the proposal (the jerk minimizing the overshoot within a move time), three times the tolerance at
+    the tip. The headline, the text's first line and the JSON's answer are one: the tolerance's."""
+    from hil.cli import main
+    from hil.plots.report import sweep_verdict
+    from hil.sweep.sweep import sweep_answer
+    # the report's situation, as data: a proposal beyond the tolerance beside the tolerance's answer
+    r = {"tolerance_um": 8.0, "max_jerk": 4.123, "max_jerk_t_acc": None, "runs": [],
+         "proposal": {"j_max": 121.3, "overshoot_tip_um": 25.4, "duration": 2.5, "t_acc": None}}
+    ans = sweep_answer(r)
+    assert ans["j_max"] == 4.123 and "within 8 um: 4.123 m/s^3" in ans["text"] and "121" not in sweep_verdict(r)
+    rc = main(["sweep", "--config", str(CFG3), "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500m/s^3",
+               "--points", "5", "--dwell", "0.3s", "--tolerance", "20um", "--jobs", "1", "--out", str(tmp_path),
+               "--no-plot", "--no-progress", "--json"])
+    assert rc == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["answer"]["j_max"] == out["max_jerk"] and "within 20 um" in out["answer"]["text"]
+    assert main(["sweep", "--config", str(CFG3), "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500m/s^3",
+                 "--points", "5", "--dwell", "0.3s", "--tolerance", "20um", "--jobs", "1", "--out", str(tmp_path),
+                 "--no-plot", "--no-progress"]) == 0
+    assert capsys.readouterr().out.splitlines()[0] == f"answer: {out['answer']['text']}"

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import re
 import select
 import time
 import tty
@@ -69,22 +70,23 @@ LATE = 0.05          # s: how late a ``late`` reply comes
 STANDSTILL = 1e-4    # m/s: the quick stop is complete below this motor speed (as the CANopen drive's)
 
 
+_FAULT = re.compile(r"(?P<kind>[a-z_]+)(?:@(?P<after>[0-9]+))?(?:x(?P<count>[0-9]+))?(?::(?P<op>[A-Za-z0-9_]+))?")
+
+
 def parse_fault(text: str) -> dict:
-    """``kind[@after][xcount][:op]``, e.g. ``timeout@100x3:set_position``."""
-    op = None
-    if ":" in text:
-        text, op = text.split(":", 1)
-    count = 1
-    if "x" in text:
-        text, c = text.rsplit("x", 1)
-        count = int(c)
-    after = 0
-    if "@" in text:
-        text, a = text.split("@", 1)
-        after = int(a)
-    if text not in FAULTS:
-        raise ValueError(f"unknown fault {text!r} (known: {', '.join(FAULTS)})")
-    return {"kind": text, "after": after, "count": count, "op": op}
+    """``kind[@after][xcount][:op]``, e.g. ``timeout@100x3:set_position``: ``after`` exchanges
+    first (0 or more), ``count`` times (1 or more), on the operation ``op`` only (any: none).
+    Anything else is a ValueError naming the grammar (``timeout@1x-1`` read a count of -1)."""
+    m = _FAULT.fullmatch(text.strip())
+    if m is None:
+        raise ValueError(f"{text!r}: expected KIND[@AFTER][xCOUNT][:OP], e.g. timeout@100x3:set_position "
+                         f"(AFTER 0 or more, COUNT 1 or more)")
+    kind, after, count = m["kind"], int(m["after"] or 0), int(m["count"] or 1)
+    if kind not in FAULTS:
+        raise ValueError(f"unknown fault {kind!r} (known: {', '.join(FAULTS)})")
+    if count < 1:
+        raise ValueError(f"{text!r}: a count of at least 1, e.g. {kind}x1")
+    return {"kind": kind, "after": after, "count": count, "op": m["op"]}
 
 
 class _Drive:

@@ -80,8 +80,8 @@ def add_arguments(p) -> None:
                    help="TCP port on 127.0.0.1 (default: the config's canopen.port, 29536)")
     p.add_argument("--fault", action="append", default=[], metavar="KIND[=VALUE]@SECONDS",
                    help="inject a fault that many seconds after the start (repeatable)")
-    p.add_argument("--seconds", default="0s", metavar="TIME",
-                   help="stop after this long, e.g. 30s or 2min (default: until Ctrl-C)")
+    p.add_argument("--seconds", default=None, metavar="TIME",
+                   help="stop after this long, e.g. 30s or 2min, more than 0 (default: until Ctrl-C)")
     p.add_argument("--switch-interval", default="100us", metavar="TIME",
                    help="the interpreter's thread switch interval (default 100 us: a fault timer's thread gives the "
                         "interpreter back to the drive's soon; Python's own default is 5 ms)")
@@ -209,7 +209,8 @@ def run(args) -> int:
                         "(--set canopen.tip_node_id=2)")
     from drivers.rt import CpuLatencyRequest
     from hil.units import parse_bounded, parse_option
-    args.seconds = parse_bounded(args.seconds, "time", "--seconds", nonnegative=True)
+    # given, a positive time (0 s ran until Ctrl-C, as if not given); not given: 0, until Ctrl-C
+    args.seconds = 0.0 if args.seconds is None else parse_bounded(args.seconds, "time", "--seconds", positive=True)
     args.switch_interval = parse_bounded(args.switch_interval, "time", "--switch-interval", nonnegative=True)
     cpu_latency = parse_option(args.cpu_latency, "time", "--cpu-latency")
     if not cpu_latency >= 0:

@@ -74,7 +74,26 @@ def load_records(args):
     paths = [args.data] if isinstance(args.data, str) else list(args.data)
     est = [_read_record(args, cfg, p) for p in paths]
     val = [_read_record(args, cfg, *split_record_map(p)) for p in getattr(args, "validate", None) or []]
+    _warn_self_validation(paths, getattr(args, "validate", None) or [])
     return cfg, est, val
+
+
+def _warn_self_validation(estimation, validation) -> None:
+    """A --validate record that is an estimation record itself (the same file) validates nothing:
+    its errors are the estimation's. Said once per such record, not refused (a quick check of the
+    command line is a fair use)."""
+    import os
+    import sys
+    for v in validation:
+        path = split_record_map(v)[0]
+        for e in estimation:
+            try:
+                same = os.path.samefile(path, e)
+            except OSError:
+                continue
+            if same:
+                print(f"warning: --validate {path}: the estimation record itself; its validation errors are the "
+                      f"fit's own and say nothing of how the model predicts another record", file=sys.stderr)
 
 
 def split_record_map(arg: str) -> tuple[str, str | None]:

@@ -99,6 +99,9 @@ JSON_KEYS = {
                                             "cycles, explanation (f_dom T_r = k + 1/2)"),
     "predicted_cancellation": JsonKey("m/s^3, s", "jerks where the ramp cancels the dominant vibration: k, cycles, "
                                                   "ramp_time, j_max"),
+    "answer": JsonKey("m/s^3", "the answer to the question asked, as the report's headline and the text's first line "
+                               "give it: question, j_max (with --tolerance the largest jerk within it; else the "
+                               "proposal's), text"),
     "proposal": JsonKey("m/s^3, s, um", "the jerk minimizing the tip overshoot within the time budget: j_max, t_acc, "
                                         "a_max, duration, overshoot_tip_um, overshoot_table_um, residual_tip_um, "
                                         "budget_s, fastest_s, analysis (or j_max null and a note)"),
@@ -243,8 +246,10 @@ def write_csv(report: dict, path: Path) -> None:
 
 
 def _text(r: dict) -> str:
+    from hil.sweep.sweep import sweep_answer
     mv = r["move"]
-    lines = [f"{r.get('name') or r['config']}: {len(r['runs'])} moves of {mv['stroke_m'] * 1e3:g} mm at "
+    lines = [f"answer: {(r.get('answer') or sweep_answer(r))['text']}",
+             f"{r.get('name') or r['config']}: {len(r['runs'])} moves of {mv['stroke_m'] * 1e3:g} mm at "
              f"{mv['feed_m_per_s'] * 60:g} m/min ({r['analysis']}; dwell {mv['dwell_s']:g} s, recorded every "
              f"{mv['record_period_s'] * 1e3:g} ms)",
              f"{'j_max':>9} {'a_max':>7} {'t_acc':>7} {'over table':>10} {'over tip':>9} {'FE table':>9} "

@@ -484,24 +484,10 @@ RUN_HEADER = ["j_max", "a_max", "t_acc", "overshoot table", "overshoot tip", "pe
 
 
 def sweep_verdict(r: dict) -> str:
-    p = r.get("proposal") or {}
-    if p.get("j_max"):
-        return (f"proposed j_max {fmt(p['j_max'], 4)} m/s^3"
-                + (f" (t_acc {fmt(p['t_acc'] * 1e3, 3)} ms)" if p.get("t_acc") else "")
-                + f": tip overshoot {fmt(p['overshoot_tip_um'], 3)} um, move {eng(p['duration'], 's')}"
-                + (f" (budget {eng(p['budget_s'], 's')})" if p.get("budget_s") else ""))
-    if r.get("tolerance_um") is not None:
-        mj = r.get("max_jerk")
-        return (f"largest jerk keeping the tip within {fmt(r['tolerance_um'], 3)} um: "
-                + (f"{fmt(mj, 4)} m/s^3" if mj else "none in the swept range"))
-    if p.get("note"):
-        return engineering_text(p["note"])
-    runs = r.get("runs") or []
-    if not runs:
-        return "no run"
-    best = min(runs, key=lambda x: x["overshoot_tip_um"])
-    return (f"{len(runs)} moves swept; the smallest tip overshoot, {fmt(best['overshoot_tip_um'], 3)} um, "
-            f"at j_max {fmt(best['j_max'], 4)} m/s^3")
+    """The report's headline: the answer to the question asked (hil.sweep.sweep.sweep_answer), as
+    the text and the JSON give it."""
+    from hil.sweep.sweep import sweep_answer
+    return engineering_text((r.get("answer") or sweep_answer(r))["text"])
 
 
 def write_sweep_report(path: Path, report: dict, figures=(), *, validation: list | None = None) -> Path:

@@ -59,10 +59,17 @@ def sweep_figure(report: dict, title: str = ""):
     for m in report.get("local_minima") or []:
         axes[1].plot([m["j_max"]], [m["overshoot_tip_um"]], "o", mfc="none", mec="C1", ms=9)
     p = report.get("proposal") or {}
+    if tol is not None and report.get("max_jerk"):
+        # the answer to the question asked: the largest jerk within the tolerance, on the tolerance line
+        axes[1].plot([report["max_jerk"]], [tol], "*", color="C0", ms=12,
+                     label=f"answer: {report['max_jerk']:.4g} m/s^3 within {tol:g} um")
     if p.get("j_max"):
-        axes[1].plot([p["j_max"]], [p["overshoot_tip_um"]], "*", color="C1", ms=12,
-                     label=f"proposed {p['j_max']:.3g} m/s^3 (<= {p['budget_s']:.3g} s)" if p.get("budget_s")
-                     else f"proposed {p['j_max']:.3g} m/s^3")
+        beyond = tol is not None and p["overshoot_tip_um"] > tol
+        what = f"proposed for the move time {p['j_max']:.3g} m/s^3" if beyond else f"proposed {p['j_max']:.3g} m/s^3"
+        axes[1].plot([p["j_max"]], [p["overshoot_tip_um"]], "*", color="C1", ms=12 if not beyond else 9,
+                     mfc="none" if beyond else "C1",
+                     label=what + (f" (<= {p['budget_s']:.3g} s)" if p.get("budget_s") else "")
+                     + (", beyond the tolerance" if beyond else ""))
     axes[0].set_yscale("symlog", linthresh=1.0)
     for ax in axes:
         ax.set_ylim(bottom=0)

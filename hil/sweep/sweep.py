@@ -416,10 +416,40 @@ def run_sweep(cfg, settings: SweepSettings, *, compare_cfg=None, out_dir: str | 
         if propose and report["runs"]:
             report["proposal"] = _propose(runner, report["runs"], s, dwell, pred)
         report["note"] = "; ".join(notes) if notes else None
+        report["answer"] = sweep_answer(report)
     finally:
         ex.close()
     report["stats"] = {"computed": store.computed, "reused": store.reused}
     return report
+
+
+def sweep_answer(r: dict) -> dict:
+    """The answer to the question the sweep was asked, one for the headline of the report, the text
+    and the JSON: with a tolerance, the largest jerk keeping the tip within it (the proposal, which
+    minimizes the overshoot within a move time, is another question); else the proposed jerk; else
+    the smallest tip overshoot swept. {"question", "j_max" (m/s^3, None: none), "text"}."""
+    p = r.get("proposal") or {}
+    if r.get("tolerance_um") is not None:
+        mj, tol = r.get("max_jerk"), r["tolerance_um"]
+        t_acc = r.get("max_jerk_t_acc")
+        text = (f"largest jerk keeping the tip within {tol:.3g} um: "
+                + (f"{mj:.4g} m/s^3" + (f" (t_acc {t_acc * 1e3:.3g} ms)" if t_acc else "") if mj
+                   else "none in the swept range"))
+        return {"question": f"largest jerk keeping the tip within {tol:g} um", "j_max": mj, "text": text}
+    if p.get("j_max"):
+        text = (f"proposed j_max {p['j_max']:.4g} m/s^3" + (f" (t_acc {p['t_acc'] * 1e3:.3g} ms)" if p.get("t_acc")
+                                                          else "")
+                + f": tip overshoot {p['overshoot_tip_um']:.3g} um, move {p['duration']:.3f} s"
+                + (f" (budget {p['budget_s']:.3f} s)" if p.get("budget_s") else ""))
+        return {"question": "the jerk minimizing the tip overshoot within the move-time budget", "j_max": p["j_max"],
+                "text": text}
+    runs = r.get("runs") or []
+    if not runs:
+        return {"question": "overshoot against jerk", "j_max": None, "text": "no run"}
+    best = min(runs, key=lambda x: x["overshoot_tip_um"])
+    return {"question": "overshoot against jerk", "j_max": best["j_max"],
+            "text": f"{len(runs)} moves swept; the smallest tip overshoot, {best['overshoot_tip_um']:.3g} um, at "
+                    f"j_max {best['j_max']:.4g} m/s^3" + (f" ({p['note']})" if p.get("note") else "")}
 
 
 def warm_up(cfg, analyses: Iterable[str] = ANALYSES) -> None:

@@ -1,0 +1,57 @@
+"""The red team's smaller findings (issue 49, finding 6), each a test that failed before: a serial
+fault whose count was -1 accepted, ``hil drive-sim --seconds 0s`` running forever, a candidate that
+is a text setting silently dropped (an empty list, ``unexplained``, exit 0), and a ``--validate``
+record that is the estimation record itself taken without a word."""
+import pytest
+from conftest import CONFIG
+
+from drivers.serial.drive_sim import parse_fault
+from hil.cli import main
+
+BENCH = str(CONFIG / "paper_bench.toml")
+
+
+@pytest.mark.parametrize("text", ["timeout@1x-1", "timeout@-1", "timeoutx0", "garbled x2", "timeout@1x2:", "", "@1"])
+def test_a_serial_fault_outside_its_grammar_is_refused(text):
+    with pytest.raises(ValueError):
+        parse_fault(text)
+
+
+def test_the_serial_fault_grammar_reads_every_part():
+    assert parse_fault("timeout@100x3:set_position") == {"kind": "timeout", "after": 100, "count": 3,
+                                                         "op": "set_position"}
+    assert parse_fault("frozen_encoder") == {"kind": "frozen_encoder", "after": 0, "count": 1, "op": None}
+
+
+def test_serial_sim_refuses_a_negative_count_in_one_line(capsys):
+    assert main(["serial-sim", "--config", str(CONFIG / "serial_ascii_example.toml"), "--fault", "timeout@1x-1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--fault" in err and "COUNT 1 or more" in err
+
+
+def test_drive_sim_seconds_zero_is_refused_not_forever(capsys):
+    assert main(["drive-sim", "--config", str(CONFIG / "paper_bench_canopen.toml"), "--seconds", "0s"]) == 2
+    assert "--seconds" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def record(tmp_path_factory):
+    rec = tmp_path_factory.mktemp("small") / "cf.csv"
+    assert main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--param", "level=2Nm", "--duration",
+                 "3s", "--seed", "2", "--out", str(rec)]) == 0
+    return rec
+
+
+@pytest.mark.parametrize("key", ["measurement.torque", "meta.name", "backend.type"])
+def test_a_text_setting_as_a_candidate_is_one_line_not_dropped(record, capsys, key):
+    assert main(["diagnose", str(record), "--config", BENCH, "--candidates", f"parameter:{key}", "--no-chain"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"parameter:{key}: not a physical quantity" in err and len(err.splitlines()) == 1
+
+
+def test_validating_on_the_estimation_record_itself_is_said(record, tmp_path, capsys):
+    capsys.readouterr()
+    assert main(["fit", str(record), "--config", BENCH, "--add", "coulomb_friction", "--validate", str(record),
+                 "--out", str(tmp_path / "f.toml")]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: --validate {record}: the estimation record itself" in err
