@@ -64,20 +64,22 @@ __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQ
 N_EFFECT_PARAMS = 8
 
 # the sources whose stages other files' compiled loops inline, and those loops' cache files (numba's
-# in-tree cache: <folder>/__pycache__/<module>.<function>-<line>.py<ver>.nbi / .nbc), from hil/
-INLINED_SOURCES = ("sim_plant/kernel.py", "control.py")
-INLINING_CACHES = ("__pycache__/control.", "__pycache__/simulate.", "drivers/__pycache__/sim.")
-SOURCES_STAMP = "__pycache__/numba-inlined-sources.sha256"
+# in-tree cache: <folder>/__pycache__/<module>.<function>-<line>.py<ver>.nbi / .nbc), from the folder
+# that holds the three packages (the clone's root, or site-packages)
+INLINED_SOURCES = ("sim_plant/kernel.py", "drivers/control.py")
+INLINING_CACHES = ("drivers/__pycache__/control.", "hil/__pycache__/simulate.", "drivers/__pycache__/sim.")
+SOURCES_STAMP = "sim_plant/__pycache__/numba-inlined-sources.sha256"
 
 
 def drop_stale_compiled_loops(root: Path | None = None) -> list[str]:
     """Remove the cached compiled loops of :data:`INLINING_CACHES` where the sources they inline
     (:data:`INLINED_SOURCES`) are not those they were compiled from (the module's definitions): a
-    hash of the sources is kept in ``SOURCES_STAMP``. ``root``: the package's folder (hil/). Returns
+    hash of the sources is kept in ``SOURCES_STAMP``. Returns
     the files removed. Nothing where the package's folder cannot be written: numba then caches in
     the user's cache folder (or ``NUMBA_CACHE_DIR``, always, where it is set), which this does not
     look into. Nor does it stop a process started before the edit from saving loops compiled with
-    the old stages after this has run (numba's index of the caller's unchanged file accepts them)."""
+    the old stages after this has run (numba's index of the caller's unchanged file accepts them).
+    ``root``: the folder that holds sim_plant/, drivers/ and hil/."""
     root = Path(__file__).resolve().parents[1] if root is None else Path(root)
     try:
         digest = hashlib.sha256(b"".join(f.encode() + b"\0" + (root / f).read_bytes() + b"\0"

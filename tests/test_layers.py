@@ -301,3 +301,14 @@ def test_the_checker_sees_duck_typed_config_access(tmp_path):
     assert _driver_may_read("drivers.canopen.backend", "canopen.node_id")
     assert not _driver_may_read("drivers.canopen.backend", "serial.port")
     assert not _driver_may_read("drivers.sim", "effects.backlash.gap")
+
+
+def test_the_stores_code_versions_hash_files_that_exist():
+    """The sweep's and the fleet's stores are keyed by a hash of the sources that compute their
+    figures; a path left behind by a move would hash its name instead, and a changed kernel would
+    be taken from the store."""
+    from hil.fleet.run import code_files as fleet_files
+    from hil.sweep.run import code_files as sweep_files
+    for path in [*fleet_files(), *sweep_files()]:
+        assert path.is_file(), path
+    assert any(p.parent.name == "effects" for p in fleet_files())

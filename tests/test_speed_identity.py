@@ -425,9 +425,11 @@ def test_cached_loops_are_dropped_when_the_stages_they_inline_change(tmp_path):
         (tmp_path / f).write_text("def stage(): return 1\n")
 
     def cached():
-        names = ["__pycache__/simulate._cycles-151.py311.nbi", "__pycache__/simulate._cycles-151.py311.3.nbc",
-                 "__pycache__/control.position_stage-90.py311.nbi", "drivers/__pycache__/sim.drive_cycle-60.py311.nbi",
-                 "sim_plant/__pycache__/kernel.plant_step-200.py311.nbi", "sweep/__pycache__/transmission.f-1.py311.nbi"]
+        names = ["hil/__pycache__/simulate._cycles-151.py311.nbi", "hil/__pycache__/simulate._cycles-151.py311.3.nbc",
+                 "drivers/__pycache__/control.position_stage-90.py311.nbi",
+                 "drivers/__pycache__/sim.drive_cycle-60.py311.nbi",
+                 "sim_plant/__pycache__/kernel.plant_step-200.py311.nbi",
+                 "hil/sweep/__pycache__/transmission.f-1.py311.nbi"]
         for n in names:
             (tmp_path / n).parent.mkdir(parents=True, exist_ok=True)
             (tmp_path / n).write_text("")
@@ -438,9 +440,21 @@ def test_cached_loops_are_dropped_when_the_stages_they_inline_change(tmp_path):
     assert all((tmp_path / n).exists() for n in names[4:])
     cached()
     assert drop_stale_compiled_loops(tmp_path) == []          # the same sources: the cache stands
-    (tmp_path / "control.py").write_text("def stage(): return 2\n")
+    (tmp_path / "drivers" / "control.py").write_text("def stage(): return 2\n")
     assert len(drop_stale_compiled_loops(tmp_path)) == 4
     assert drop_stale_compiled_loops(tmp_path) == []
+
+
+def test_the_inlined_sources_are_found_where_the_packages_are():
+    """The guard reads the real files: each inlined source and each inlining module exists under the
+    folder that holds the three packages (a path left behind by a move would make it guard nothing)."""
+    import sim_plant.kernel as kernel
+    from sim_plant.kernel import INLINED_SOURCES, INLINING_CACHES
+    root = Path(kernel.__file__).resolve().parents[1]
+    assert all((root / f).is_file() for f in INLINED_SOURCES)
+    for prefix in INLINING_CACHES:
+        folder, module = prefix.split("/__pycache__/")
+        assert (root / folder / (module.rstrip(".") + ".py")).is_file(), prefix
 
 
 def test_the_position_periodogram_is_scipys_lomb_scargle():

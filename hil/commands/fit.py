@@ -52,7 +52,8 @@ JSON_KEYS = {
                          "candidates[])", when=_RECORD),
     "misfit": JsonKey("", "null where the fitted model reaches the estimation records' noise floor; else where it "
                           "misses most: record, channel, above_floor (its ratio to the floor). The fitted values then "
-                          "take up what the model lacks, which their standard errors do not count"),
+                          "take up what the model lacks, which their standard errors do not count",
+                      when=_RECORD + ", written"),
     "fitted": JsonKey("SI", "per written config key: value, stderr (standard error, counting the residual's serial "
                             "correlation; null: at its bound or not identifiable alone) and unit (its SI unit)",
                       when=_RECORD),

@@ -205,7 +205,8 @@ def read_manifest(path: str | Path) -> list[Entry]:
         instant = (e.axis, times[e.timestamp])         # 2026-03-02 and 2026-03-02T00:00 are one instant
         if instant in seen:
             first = seen[instant]
-            raise ConfigError(f"{p}: axis {e.axis} has two records at one instant ({first.timestamp}: {first.record}; "
-                              f"{e.timestamp}: {e.record})")
+            same = "" if first.timestamp == e.timestamp else f"; {e.timestamp} is the same instant"
+            raise ConfigError(f"{p}: axis {e.axis} has two records at {first.timestamp} ({first.record}, "
+                              f"{e.record}){same}")
         seen[instant] = e
     return sorted(entries, key=lambda e: (e.axis, times[e.timestamp], e.timestamp))

@@ -32,19 +32,25 @@ from hil.errors import HilError
 __all__ = ["Settings", "Task", "diagnose_record", "record_key", "tracked_kinds", "executor", "CODE_VERSION"]
 
 
+def code_files() -> list[Path]:
+    """The sources that compute a record's figures (their hash keys the store: a change recomputes)."""
+    root = Path(__file__).resolve().parents[2]          # the folder that holds hil/, drivers/, sim_plant/
+    ident = ("chain", "diagnosis", "fit", "replay", "starts", "noise", "tracking", "tolerance")
+    rels = ["hil/fleet/run.py", *(f"hil/ident/{m}.py" for m in ident), "sim_plant/kernel.py",
+            *sorted(f"sim_plant/effects/{f.name}" for f in (root / "sim_plant" / "effects").glob("*.py")),
+            "hil/plant_config.py", "hil/simulate.py", "drivers/control.py"]
+    return [root / rel for rel in rels]
+
+
 def _code_version() -> str:
     """The project's version and a hash of the sources that compute a record's figures."""
     import hil
-    root = Path(__file__).resolve().parents[1]
     h = hashlib.sha1(str(getattr(hil, "__version__", "")).encode())
-    for rel in ("fleet/run.py", "ident/chain.py", "ident/diagnosis.py", "ident/fit.py", "ident/replay.py",
-                "ident/starts.py", "ident/noise.py", "ident/tracking.py", "ident/tolerance.py", "sim_plant/kernel.py", *sorted(
-                    f"sim_plant/effects/{f.name}" for f in (root / "sim_plant" / "effects").glob("*.py")),
-                "plant_config.py", "simulate.py"):
+    for path in code_files():
         try:
-            h.update((root / rel).read_bytes())
+            h.update(path.read_bytes())
         except OSError:
-            h.update(rel.encode())
+            h.update(path.name.encode())
     return h.hexdigest()[:16]
 
 

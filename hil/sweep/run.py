@@ -54,21 +54,27 @@ RUN_FIELDS = ("j_max", "a_max", "t_acc", "peak_speed", "ramp_time", "duration",
               "settling_time_tip", "peak_torque", "f_dom_tip_hz")
 
 
+def code_files() -> list:
+    """The sources that compute a run's figures (their hash keys the store: a change recomputes)."""
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[2]          # the folder that holds hil/, drivers/, sim_plant/
+    return [root / rel for rel in (
+        "drivers/control.py", "hil/simulate.py", "hil/profiles.py", "hil/analysis.py", "hil/runtime.py",
+        "hil/plant_config.py", "hil/sweep/run.py", "hil/sweep/transmission.py", "hil/sweep/model.py",
+        "sim_plant/kernel.py", "sim_plant/chain.py", "sim_plant/plant.py")]
+
+
 def _code_version() -> str:
     """A short hash of the project's version and of the sources that compute a run's figures."""
     import hashlib
-    from pathlib import Path
 
     import hil
-    root = Path(__file__).resolve().parents[2]
     h = hashlib.sha1(str(getattr(hil, "__version__", "")).encode())
-    for rel in ("drivers/control.py", "hil/simulate.py", "hil/profiles.py", "hil/analysis.py", "hil/runtime.py",
-                "hil/plant_config.py", "hil/sweep/run.py", "hil/sweep/transmission.py", "hil/sweep/model.py",
-                "sim_plant/kernel.py", "sim_plant/chain.py", "sim_plant/plant.py"):
+    for path in code_files():
         try:
-            h.update((root / rel).read_bytes())
+            h.update(path.read_bytes())
         except OSError:
-            h.update(rel.encode())
+            h.update(path.name.encode())
     return h.hexdigest()[:10]
 
 

@@ -433,11 +433,11 @@ def sweep_answer(r: dict) -> dict:
         mj, tol = r.get("max_jerk"), r["tolerance_um"]
         t_acc = r.get("max_jerk_t_acc")
         text = (f"largest jerk keeping the tip within {tol:.3g} um: "
-                + (f"{mj:.4g} m/s^3" + (f" (t_acc {t_acc * 1e3:.3g} ms)" if t_acc else "") if mj
+                + (f"{mj:.4g} m/s^3" + (f" (t_acc {t_acc * 1e3:.0f} ms)" if t_acc else "") if mj
                    else "none in the swept range"))
         return {"question": f"largest jerk keeping the tip within {tol:g} um", "j_max": mj, "text": text}
     if p.get("j_max"):
-        text = (f"proposed j_max {p['j_max']:.4g} m/s^3" + (f" (t_acc {p['t_acc'] * 1e3:.3g} ms)" if p.get("t_acc")
+        text = (f"proposed j_max {p['j_max']:.4g} m/s^3" + (f" (t_acc {p['t_acc'] * 1e3:.0f} ms)" if p.get("t_acc")
                                                           else "")
                 + f": tip overshoot {p['overshoot_tip_um']:.3g} um, move {p['duration']:.3f} s"
                 + (f" (budget {p['budget_s']:.3f} s)" if p.get("budget_s") else ""))
