@@ -55,3 +55,23 @@ def test_validating_on_the_estimation_record_itself_is_said(record, tmp_path, ca
                  "--out", str(tmp_path / "f.toml")]) == 0
     err = capsys.readouterr().err
     assert f"warning: --validate {record}: the estimation record itself" in err
+
+
+def test_a_large_record_is_said_before_it_is_read(tmp_path, capsys, monkeypatch):
+    """A 10^7-row record was read for 90 s in silence: a record above LARGE_RECORD_BYTES gets one
+    line on stderr first (the bound lowered here, the record a small one)."""
+    import hil.commands.record_inputs as ri
+    monkeypatch.setattr(ri, "LARGE_RECORD_BYTES", 10)
+    rec = tmp_path / "big.csv"
+    rec.write_text("t [s],x_cmd [m]\n0,0\n")
+    ri._say_if_large(rec)
+    assert "a large record takes a while" in capsys.readouterr().err
+
+
+def test_move_check_refuses_what_the_move_would_refuse(capsys):
+    """``hil move --check`` passed a serial command with a line ending inside, which the move refused."""
+    argv = ["move", "--config", str(CONFIG / "serial_ascii_example.toml"), "--stroke", "10mm", "--feed", "6000mm/min",
+            "--tacc", "100ms", "--check"]
+    assert main(argv) == 0
+    assert main(argv + ["--set", 'serial.commands.read="RD\\rPT 50000000"']) == 2
+    assert "serial.commands.read: the line ending" in capsys.readouterr().err

@@ -90,6 +90,12 @@ class CanopenBackend(Backend):
     misses_answers = True         # a SYNC without its TPDO in time (Feedback.stale)
     records_can = True            # takes open_backend's can_log (a trace of the bus)
 
+    @staticmethod
+    def check_settings(cfg) -> None:
+        """What the configuration says of the drive, checked without a bus (``hil move --check``):
+        the [canopen] settings, as the backend reads them when it is built (not real-time)."""
+        CanopenSettings.from_config(cfg, has_bus=True)
+
     def __init__(self, cfg, bus=None, interface: str | None = None, channel: str | None = None,
                  mode: str | None = None, lockstep: bool | None = None, node_id: int | None = None,
                  can_log: str | None = None):

@@ -112,6 +112,12 @@ class SerialBackend(Backend):
     misses_answers = True         # a read that failed in the cycle (Feedback.stale)
     takes_plant = "optional"      # the host loop's laws are warmed up on it where the config has one
 
+    @staticmethod
+    def check_settings(cfg) -> None:
+        """What the configuration says of the drive, checked without a port (``hil move --check``):
+        the command set and its replies, as the backend reads them when it is built (not real-time)."""
+        CommandSet.from_config(cfg)
+
     def __init__(self, cfg, port: str | None = None, free_run: bool = False, plant=None, **options):
         self.cfg = cfg
         self._plant = plant

@@ -169,6 +169,19 @@ def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:
     return True
 
 
+def _check_backend_settings(cfg, name: str | None) -> None:
+    """--check: the backend's own settings too (a serial command the move would refuse), checked as
+    the backend reads them, without connecting: one line, exit 2."""
+    from drivers import BackendError, backend_class
+    try:
+        cls = backend_class(name or cfg.get("backend.type", "sim"))
+    except BackendError as exc:
+        raise UserError(str(exc)) from None
+    check = getattr(cls, "check_settings", None)
+    if check is not None:
+        check(cfg)
+
+
 def run(args) -> int:
     from hil.analysis import move_figures
     from hil.closed_loop import UnstableLoopError, check_loop_stability
@@ -191,6 +204,7 @@ def run(args) -> int:
         raise UserError(str(exc)) from None
     first = traj.moves[0]
     if args.check:
+        _check_backend_settings(cfg, args.backend)
         summary = {"ok": True, "j_max": first.j_max, "a_max": first.a_max, "peak_speed": first.peak_speed,
                    "duration": traj.duration, "reduced_peak_speed": first.reduced}
         summary["units"] = {"j_max": "m/s^3", "a_max": "m/s^2", "peak_speed": "m/s", "duration": "s"}

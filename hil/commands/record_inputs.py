@@ -46,12 +46,30 @@ def load_inputs(args):
     return cfg, _read_record(args, cfg, args.data)
 
 
+LARGE_RECORD_BYTES = 50 << 20      # a record above this takes noticeably long to read: said before it is
+
+
+def _say_if_large(path) -> None:
+    """One line on stderr before a large record is read (a 10^7-row CSV took 90 s in silence)."""
+    import os
+    import sys
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return                  # reading it says what is wrong
+    if size > LARGE_RECORD_BYTES:
+        print(f"reading {path} ({size / 2**20:.0f} MiB): a large record takes a while to read and replay (a record "
+              f"of every n-th row, at the loop's own period, replays in a fraction of the time)", file=sys.stderr,
+              flush=True)
+
+
 def _read_record(args, cfg, path, mapping=None):
     import sys
 
     from hil.io.importers import data_warnings, parse_mapping, read_any
     from hil.io.measurement import check_usable
     mapping = args.map if mapping is None else [mapping]
+    _say_if_large(path)
     meas = read_any(path, parse_mapping(mapping) or None, sheet=getattr(args, "sheet", None))
     # degenerate records are refused, never diagnosed
     check_usable(meas, (cfg["limits.travel_min"], cfg["limits.travel_max"]), cfg["control.position_period"],

@@ -202,7 +202,9 @@ class LocalExecutor:
             ctx = multiprocessing.get_context("fork")
         except ValueError:          # pragma: no cover - platforms without fork
             ctx = None
-        self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx)
+        from hil.pool import die_with_parent
+        self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=die_with_parent,
+                                        initargs=(os.getpid(),))
         from hil.simulate import usable_cpus
         allowed = usable_cpus()
         alone = self.jobs >= (len(allowed) if allowed else (os.cpu_count() or 1))

@@ -15,6 +15,7 @@ cannot be fitted (ValueError) gives None.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 
 from hil.ident.fit import evaluate
 from hil.plant_config import candidate, configure
@@ -121,7 +122,9 @@ def evaluate_many(replay, work, res0, jobs, progress):
             ctx = None
         if ctx is not None:
             out = []
-            with ctx.Pool(min(jobs, len(work)), initializer=_start_worker, initargs=(replay, res0)) as pool:
+            from hil.pool import die_with_parent
+            with ctx.Pool(min(jobs, len(work)), initializer=die_with_parent,
+                          initargs=(os.getpid(), _start_worker, replay, res0)) as pool:
                 for c in pool.imap(_work, work):
                     if progress:
                         progress(c.effect if c else "?")

@@ -21,6 +21,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from hil.errors import UserError
+from hil.pool import die_with_parent
 from hil.sweep.run import run_on_backend, run_task
 
 __all__ = ["LocalExecutor", "DaskExecutor", "BackendExecutor", "run_trace_name", "check_scheduler_address"]
@@ -94,7 +95,8 @@ class LocalExecutor:
                 ctx = multiprocessing.get_context("fork")
             except ValueError:              # pragma: no cover - platforms without fork
                 ctx = None
-            self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx)
+            self.pool = ProcessPoolExecutor(max_workers=self.jobs, mp_context=ctx, initializer=die_with_parent,
+                                            initargs=(os.getpid(),))
         # a few chunks per worker: little inter-process traffic, yet results stream in for the
         # store (resume) and the progress bar
         n_chunks = min(len(tasks), 4 * self.jobs)
