@@ -683,7 +683,7 @@ def example_names() -> list[str]:
     return sorted(p.name for p in folder.glob("*.toml")) if folder.is_dir() else []
 
 
-def _example(path: Path) -> Path | None:
+def shipped_example(path: Path) -> Path | None:
     """The shipped example that a missing ``path`` names: ``NAME.toml`` or ``config/NAME.toml``."""
     if path.is_absolute() or path.parent not in (Path("."), Path("config")) or path.suffix != ".toml":
         return None
@@ -698,7 +698,7 @@ def load(path: str | Path, overrides: dict[str, Any] | None = None) -> Config:
     examples (:func:`examples_dir`), so that an installed package runs the README's commands.
     """
     p = Path(path)
-    if not p.exists() and (shipped := _example(p)) is not None:
+    if not p.exists() and (shipped := shipped_example(p)) is not None:
         p = path = shipped
     try:
         if p.exists() and not p.is_file():

@@ -22,7 +22,7 @@ import re
 import tomllib
 from pathlib import Path
 
-from hil.config import NOISE_KINDS, Config, field_for
+from hil.config import NOISE_KINDS, Config, field_for, value_range
 from hil.errors import ConfigError, UnitError
 from hil.units import DIMENSIONS, fmt, parse
 from sim_plant.chain import Chain
@@ -243,14 +243,34 @@ def configure(eff: Effect, cfg: Config, values: dict[str, float]) -> Config:
             cfg = configure(m, cfg, v)
         return cfg
     if isinstance(eff, ParameterEffect):
-        return cfg.with_values({eff.key: float(values["value"])})
+        return cfg.with_values({eff.key: holdable(eff.key, float(values["value"]), cfg.values)})
     key = measurement_key(eff)
     if key is not None:       # a recording artefact: [measurement], never the plant's [effects.*]
         return cfg.with_values({key: float(values[eff.params[0].name]),
                                 **{f"effects.{eff.name}.{p.name}": None for p in eff.params}})
     params = {p.name: p for p in eff.params}
-    return cfg.with_values({f"effects.{eff.name}.{k}": params[k].written(v) if k in params else float(v)
+    return cfg.with_values({f"effects.{eff.name}.{k}": holdable(f"effects.{eff.name}.{k}", params[k].written(v)
+                                                                if k in params else float(v), cfg.values)
                             for k, v in values.items()})
+
+
+def holdable(key: str, value, values: dict):
+    """A fitted number as the configuration can hold it: below the smallest magnitude other than 0
+    that its key takes (hil.config.value_range: a time under a microsecond, which no timer
+    resolves) it is 0 where the key takes 0, else that smallest magnitude. A delay fitted at
+    0.75 us on a record without one is zero within its uncertainty and reads so, where the config
+    refused it and the fleet's every record ended in that error: the fit and the config share the
+    config's bound."""
+    if not isinstance(value, float) or value == 0.0 or not math.isfinite(value):
+        return value
+    f = field_for(key)
+    kind = f.kind_for(values) if f is not None else None
+    if kind not in DIMENSIONS:
+        return value
+    low, _ = value_range(f, kind)
+    if low is None or abs(value) >= low:
+        return value
+    return math.copysign(low, value) if f.positive else 0.0
 
 
 def effect_values(name: str, cfg) -> dict:

@@ -221,3 +221,30 @@ def test_a_fleet_of_which_nothing_could_be_diagnosed_exits_2(tmp_path, capsys):
     captured = capsys.readouterr()
     assert json.loads(captured.out)["errors"] and "none of the 1 records could be diagnosed" in captured.err
     assert not os.path.islink(tmp_path / "out" / "results.jsonl")
+
+
+def test_a_manifests_config_resolves_as_config_does(tmp_path):
+    """Issue 53: a manifest's config ``paper_bench.toml`` was looked for beside the manifest only, while
+    the message offered the shipped example by that very name. Beside the manifest first, then the
+    shipped examples by name; neither: the path beside the manifest, which loading names."""
+    from hil.config import examples_dir
+    m = _manifest(tmp_path, "record,axis,timestamp,config\na.csv,X1,2026-03-02,paper_bench.toml\n"
+                            "b.csv,X2,2026-03-02,config/paper_bench_2dof.toml\nc.csv,X3,2026-03-02,mine.toml\n")
+    a, b, c = read_manifest(m)
+    assert a.config == str(examples_dir() / "paper_bench.toml")
+    assert b.config == str(examples_dir() / "paper_bench_2dof.toml")
+    assert c.config == str(tmp_path / "mine.toml")
+    (tmp_path / "paper_bench.toml").write_text((CONFIG / "paper_bench.toml").read_text())
+    assert read_manifest(m)[0].config == str(tmp_path / "paper_bench.toml")       # beside it wins
+
+
+def test_an_axis_whose_records_error_is_never_ok():
+    """Issue 53: an axis with its records in error read ``ok (normal: ...)``."""
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import judge_axis
+    es = [Entry(f"r{i}.csv", "D", f"2026-03-0{i + 1}") for i in range(4)]
+    figs = {e.id: {"values": {}, "stderr": {}, "named": []} for e in es[:2]}
+    figs.update({e.id: {"error": "r.csv: effects.feedback_delay.delay: out of range"} for e in es[2:]})
+    a = judge_axis("D", es, figs, {})
+    assert not a["verdict"].startswith("ok") and a["verdict"] == "records in error: 2 of 4 (the other 2 ok)"
+    assert judge_axis("D", es[:2], figs, {})["verdict"] == "ok"

@@ -96,6 +96,20 @@ def _bool(v, where: str) -> bool:
     raise ConfigError(f"{where}: baseline {v!r}: expected true or false")
 
 
+def _config_path(cfg: str | None, base: Path) -> str | None:
+    """A manifest's ``config`` as ``--config`` resolves it: absolute as it is; relative, the file
+    beside the manifest where there is one, else a shipped example by that name (``paper_bench.toml``,
+    ``config/paper_bench.toml``); neither: the path beside the manifest, which loading names."""
+    if cfg is None or Path(cfg).is_absolute():
+        return cfg
+    from hil.config import shipped_example
+    beside = base / cfg
+    if beside.exists():
+        return str(beside)
+    shipped = shipped_example(Path(cfg))
+    return str(shipped) if shipped is not None else str(beside)
+
+
 def _entry(row: dict, base: Path, where: str) -> Entry:
     for col in ("record", "axis", "timestamp"):
         if not str(row.get(col) or "").strip():
@@ -109,9 +123,9 @@ def _entry(row: dict, base: Path, where: str) -> Entry:
     if rec.exists() and not rec.is_file():
         raise ConfigError(f"{where}: record {str(rec)!r}: is not a regular file (a folder, a pipe or a device), "
                           f"expected a measurement file")
-    cfg = str(row.get("config") or "").strip() or None
+    cfg = _config_path(str(row.get("config") or "").strip() or None, base)
     return Entry(str(rec), axis, _timestamp(row["timestamp"], where),
-                 None if cfg is None else str(Path(cfg) if Path(cfg).is_absolute() else base / cfg),
+                 cfg,
                  _bool(row.get("baseline", False), where))
 
 

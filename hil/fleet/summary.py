@@ -70,6 +70,11 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
                              "not in the axis's normal", "from": None, "to": None})
     if out["flags"]:
         out["verdict"] = "drift: " + ", ".join(f"{fl['parameter']} since {fl['since']}" for fl in out["flags"])
+        if errors:
+            out["verdict"] += f"; {len(errors)} of {len(entries)} records in error"
+    elif errors:
+        # a record that could not be diagnosed is never counted healthy: the axis is not "ok"
+        out["verdict"] = f"records in error: {len(errors)} of {len(entries)} (the other {len(good)} ok)"
     else:
         out["verdict"] = "ok"
     return out
