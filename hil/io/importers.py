@@ -651,12 +651,39 @@ def _channel_kind(meas: Measurement, name: str) -> str:
     return "torque" if kind == "actuator" else kind
 
 
+ACCELERATING_SAMPLES = 5     # samples either side of a commanded acceleration that its torque step may take
+
+
+def _drives(meas: Measurement, name: str) -> bool:
+    """Whether channel ``name`` is what drives the axis (a torque, a force, a command)."""
+    return _channel_kind(meas, name) in ("torque", "force") or name in ("torque", "force", "command", "u_add")
+
+
+def _accelerating(meas: Measurement):
+    """A mask of the samples where the command accelerates (its second difference not 0, widened by
+    :data:`ACCELERATING_SAMPLES`): a drive's torque steps there with the command, which explains
+    it (the start and the end of every move of a clean record were warned about as outliers).
+    None without a command."""
+    x = meas.channels.get("x_cmd")
+    if x is None or x.size < 3:
+        return None
+    a = np.abs(np.diff(x, 2))
+    top = float(np.max(a)) if a.size else 0.0
+    if not top > 0:
+        return np.zeros(x.size, bool)
+    on = np.zeros(x.size, bool)
+    on[1:-1] = a > 1e-3 * top
+    from scipy.ndimage import binary_dilation
+    return binary_dilation(on, iterations=ACCELERATING_SAMPLES)
+
+
 def data_warnings(meas: Measurement, position_period: float | None = None) -> list[str]:
     """Warnings about a record that can still be replayed: outliers of a channel (beyond
     ``OUTLIER_MADS`` median absolute deviations of the sample-to-sample difference around a
     running median of 9, and beyond the channel's 0.5..99.5 % percentile range by that range
     again), gaps of the time base, a sample period more than ``SLOW_FACTOR`` position periods.
-    Sample numbers count from 1."""
+    A torque or force where the command accelerates is no outlier (:func:`_accelerating`). Sample
+    numbers count from 1."""
     out = list(getattr(meas, "warnings", []) or [])
     from scipy.ndimage import median_filter
     for name, v in meas.channels.items():
@@ -672,6 +699,8 @@ def data_warnings(meas: Measurement, position_period: float | None = None) -> li
         lo, hi = np.percentile(v, [0.5, 99.5])
         span = max(float(hi - lo), floor)
         bad = np.flatnonzero((dev > bound) & ((v > hi + span) | (v < lo - span)))
+        if bad.size and _drives(meas, name):
+            bad = bad[~commanded[bad]] if (commanded := _accelerating(meas)) is not None else bad
         if bad.size and bad.size < 0.01 * v.size + 1:
             from hil.units import fmt as fmt_quantity
             kind = _channel_kind(meas, name)
