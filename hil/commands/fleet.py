@@ -1,7 +1,7 @@
 """``hil fleet``: a fleet's records diagnosed, every axis judged against its own history."""
 from __future__ import annotations
 
-from hil.errors import UserError
+from hil.errors import HilError, UserError
 from hil.io.jsonout import JsonKey, dumps
 
 HELP = "many records of many axes: diagnose each, track the effects' strengths, flag the axes that drift"
@@ -166,6 +166,12 @@ def _run(args) -> int:
         res = run_fleet(entries, configs, args.config, settings, args.out, scheduler=args.scheduler, jobs=args.jobs,
                         progress=progress)
     axes = judge_fleet(entries, res.figures, thresholds, args.baseline, scatter)
+    # the units of the normal effects' strengths, judged beside the tracked ones
+    normal = sorted({n for a in axes for n in a["normal"]})
+    try:
+        kinds = {**tracked_kinds(first, normal), **kinds}
+    except HilError:
+        pass                    # a normal effect of a name this config does not know: printed without a unit
     errors = [er for a in axes for er in a["errors"]]
     state = {"entries": [e.__dict__ for e in entries], "figures": res.figures, "axes": axes, "kinds": kinds,
              "settings": {"track": list(track), "candidates": list(cands or []), "max_steps": args.max_steps,
@@ -207,6 +213,11 @@ def summary_text(entries, res, axes, kinds) -> list[str]:
                              f"({f['reason']}, first moved {f['since']})")
             else:
                 lines.append(f"    {f['parameter']}: {f['reason']}, since {f['since']}")
+        for name, p in a.get("params", {}).items():
+            if p.get("source") == "chain":      # a normal effect's strength, night by night (issue 53)
+                vals = ", ".join("-" if v != v else q(v, name) for v in p["values"][-8:])
+                lines.append(f"    {name} (the chain's, per night{', last 8' if len(p['values']) > 8 else ''}): "
+                             f"{vals}")
         for er in a["errors"]:
             lines.append(f"    error: {er['error']}")
     return lines

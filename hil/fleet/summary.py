@@ -22,8 +22,9 @@ def _baseline(entries: list[Entry], n_baseline: int) -> list[int]:
 
 def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict, n_baseline: int = N_BASELINE,
                scatter: float = SCATTER) -> dict:
-    """One axis: ``params`` (per tracked parameter: centre, sigma, status per record, flagged,
-    first_moved date, reasons), ``normal`` (effects of every baseline record), ``findings``
+    """One axis: ``params`` (per tracked parameter, and per parameter of an effect of the axis's
+    normal that is not tracked, its strength as the chain fitted it each night (``source``
+    "chain"): centre, sigma, status per record, flagged, first_moved date, reasons), ``normal`` (effects of every baseline record), ``findings``
     (effects named after the baseline outside the normal, with their first date), ``errors``,
     ``verdict`` of the latest record and ``worst`` (the parameter that moved most, in sigma)."""
     good = [e for e in entries if "error" not in figures.get(e.id, {"error": "not run"})]
@@ -36,11 +37,16 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
         return out
     base = _baseline(good, n_baseline)
     figs = [figures[e.id] for e in good]
-    names = sorted({k for f in figs for k in f.get("values", {})})
+    named = [set(f.get("named", [])) for f in figs]
+    normal = normal_effects(named, base)
+    series = _tracked_series(figs)
+    # every effect of the axis's normal has its strength judged as a tracked one, from the values the
+    # chain fitted each night, where the user did not track it (--track fits it on the night's plant)
+    for name, vals in _normal_series(figs, normal).items():
+        if name not in series:
+            series[name] = (vals, [None] * len(vals), "chain")
     worst = None
-    for name in names:
-        vals = [f.get("values", {}).get(name, float("nan")) for f in figs]
-        ses = [f.get("stderr", {}).get(name) for f in figs]
+    for name, (vals, ses, source) in sorted(series.items()):
         try:
             j = judge_series(vals, ses, base, thresholds.get(name), scatter)
         except ValueError:
@@ -48,7 +54,7 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
         p = {"centre": j.limits.centre, "sigma": j.limits.sigma, "values": vals, "stderr": ses,
              "lower": j.lower, "upper": j.upper, "status": j.status, "flagged": j.flagged,
              "first_moved": good[j.first_moved].timestamp if j.first_moved is not None else None,
-             "reasons": j.reasons,
+             "reasons": j.reasons, "source": source,
              "threshold": thresholds[name].text if name in thresholds else None}
         last = vals[-1]
         drift = abs(last - j.limits.centre) / j.limits.sigma if j.limits.sigma > 0 else 0.0
@@ -61,8 +67,6 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
             worst = (name, drift, j.limits.centre, last)
     if worst is not None:
         out["worst"] = {"parameter": worst[0], "sigma": worst[1], "from": worst[2], "to": worst[3]}
-    named = [set(f.get("named", [])) for f in figs]
-    normal = normal_effects(named, base)
     out["normal"] = sorted(normal)
     out["findings"] = [{"effect": k, "since": good[i].timestamp} for k, i in new_effects(named, base, normal).items()]
     for f in out["findings"]:
@@ -77,6 +81,30 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
         out["verdict"] = f"records in error: {len(errors)} of {len(entries)} (the other {len(good)} ok)"
     else:
         out["verdict"] = "ok"
+    return out
+
+
+def _tracked_series(figs: list[dict]) -> dict:
+    """The tracked parameters' series: name -> (values, standard errors, "tracked")."""
+    names = sorted({k for f in figs for k in f.get("values", {})})
+    return {n: ([f.get("values", {}).get(n, float("nan")) for f in figs],
+                [f.get("stderr", {}).get(n) for f in figs], "tracked") for n in names}
+
+
+def _normal_series(figs: list[dict], normal) -> dict:
+    """The chain's fitted strength of each normal effect per record: ``effect.param`` -> values
+    (NaN where the chain's final model lacks it), from the last step's parameters (every effect the
+    model holds after it)."""
+    out: dict[str, list] = {}
+    finals = []
+    for f in figs:
+        steps = f.get("chain") or []
+        finals.append(steps[-1].get("params", {}) if steps else {})
+    for eff in sorted(normal):
+        params = sorted({p for fin in finals for p, v in (fin.get(eff) or {}).items()
+                         if isinstance(v, (int, float)) and not isinstance(v, bool)})
+        for p in params:
+            out[f"{eff}.{p}"] = [float((fin.get(eff) or {}).get(p, float("nan"))) for fin in finals]
     return out
 
 
