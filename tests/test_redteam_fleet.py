@@ -248,3 +248,27 @@ def test_an_axis_whose_records_error_is_never_ok():
     a = judge_axis("D", es, figs, {})
     assert not a["verdict"].startswith("ok") and a["verdict"] == "records in error: 2 of 4 (the other 2 ok)"
     assert judge_axis("D", es[:2], figs, {})["verdict"] == "ok"
+
+
+def _night(level: float, named=("coulomb_friction",)) -> dict:
+    return {"values": {}, "stderr": {}, "named": list(named),
+            "chain": [{"step": 1, "effects": list(named), "params": {"coulomb_friction": {"level": level}}}]}
+
+
+def test_a_normal_effects_strength_is_judged_without_tracking_it():
+    """Issue 53: the chain named the friction on every night, so it was the axis's normal, and a
+    friction seven times its first value read "ok". Its strength as the chain fitted it is judged as
+    a tracked one's: flagged on the first night it leaves the baseline's limits; a steady axis is not."""
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import judge_axis
+    dates = [f"2026-03-{d:02d}" for d in (2, 9, 16, 23, 30)]
+    es = [Entry(f"B_{d}.csv", "B", d) for d in dates]
+    rising = judge_axis("B", es, {e.id: _night(v) for e, v in zip(es, [0.3, 0.302, 0.298, 0.9, 2.2])}, {})
+    p = rising["params"]["coulomb_friction.level"]
+    assert p["source"] == "chain" and p["values"][-1] == 2.2 and rising["normal"] == ["coulomb_friction"]
+    assert rising["verdict"] == "drift: coulomb_friction.level since 2026-03-23"
+    steady = judge_axis("B", es, {e.id: _night(v) for e, v in zip(es, [0.3, 0.302, 0.298, 0.301, 0.299])}, {})
+    assert steady["verdict"] == "ok" and not steady["params"]["coulomb_friction.level"]["flagged"]
+    tracked = {e.id: dict(_night(v), values={"coulomb_friction.level": 0.3}, stderr={"coulomb_friction.level": 0.001})
+               for e, v in zip(es, [0.3, 0.3, 0.3, 0.9, 2.2])}
+    assert judge_axis("B", es, tracked, {})["params"]["coulomb_friction.level"]["source"] == "tracked"
