@@ -22,10 +22,12 @@ An unknown command gets a "did you mean" (difflib).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import errno
 import importlib
 import importlib.util
+import io
 import logging
 import os
 import re
@@ -142,19 +144,79 @@ def main(argv: list[str] | None = None) -> int:
     if sys.stdout is None:        # started with stdout closed (>&-): the run goes on, its text goes nowhere
         sys.stdout = open(os.devnull, "w")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    wants_json = "--json" in (sys.argv[1:] if argv is None else argv)
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(said) if wants_json else contextlib.nullcontext():
+            args = parser.parse_args(argv)
+    except SystemExit as exc:
+        if wants_json:
+            sys.stderr.write(said.getvalue())
+            if exc.code == 2:                   # argparse's usage error, said on stderr: JSON on stdout too
+                last = (said.getvalue().strip().splitlines() or ["the command line"])[-1]
+                _json_error(last.split(": error: ", 1)[-1], 2, "usage")
+        raise
+    if wants_json:
+        sys.stderr.write(said.getvalue())
     setup_logging(args.log_level)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    if getattr(args, "json", False):
+        sys.stdout = _Watched(sys.stdout)
+    try:
+        return _run(args)
+    finally:
+        if isinstance(sys.stdout, _Watched):
+            sys.stdout = sys.stdout.inner
+
+
+class _Watched:
+    """stdout, noting whether anything was written: a --json run that fails before printing its
+    object prints one of its error instead (a script reading stdout gets JSON either way)."""
+
+    def __init__(self, inner):
+        self.inner, self.wrote = inner, False
+
+    def write(self, text):
+        self.wrote = self.wrote or bool(text)
+        return self.inner.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+
+def _json_error(message: str, code: int, label: str) -> None:
+    """``{"error", "exit_code", "kind"}`` on stdout, where a --json run printed nothing."""
+    import json
+    out = sys.stdout
+    if isinstance(out, _Watched):
+        if out.wrote:
+            return
+        out = out.inner
+    try:
+        out.write(json.dumps({"error": message, "exit_code": code, "kind": label}) + "\n")
+        out.flush()
+    except (OSError, ValueError):
+        pass
+
+
+def _failed(args, message: str, code: int, label: str = "error") -> int:
+    """One line on stderr (and its JSON on stdout with --json); returns the exit code."""
+    print(f"hil {args.command}: {label}: {message}", file=sys.stderr)
+    if getattr(args, "json", False):
+        _json_error(message, code, label)
+    return code
+
+
+def _run(args) -> int:
     try:
         if args.can_log:           # checked here; each command passes it to the backend it opens
             from drivers.canopen import canlog
             try:
                 canlog.check(args.can_log)
             except ValueError as exc:
-                print(f"hil {args.command}: error: {exc}", file=sys.stderr)
-                return 2
+                return _failed(args, str(exc), 2)
         rc = int(args._run(args) or 0)
         sys.stdout.flush()        # here, not at exit: a reader gone away is answered below
         return rc
@@ -163,16 +225,16 @@ def main(argv: list[str] | None = None) -> int:
     except HilError as exc:
         # one line, and the exit code of the error's kind (2: fix and retry; 1: drive fault;
         # a run stopped early: how it stopped, hil.errors.STOP_EXIT_CODES)
-        print(f"hil {args.command}: {exc.label}: {exc}", file=sys.stderr)
-        return exc.exit_code
+        return _failed(args, str(exc), exc.exit_code, exc.label)
     except (FileExistsError, FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as exc:
         # a path the user gave that cannot be read or written as asked (e.g. --out naming a file)
         if exc.filename is None:
             raise
-        print(f"hil {args.command}: error: {exc.filename}: {exc.strerror}", file=sys.stderr)
-        return 2
+        return _failed(args, f"{exc.filename}: {exc.strerror}", 2)
     except KeyboardInterrupt:
         print(f"hil {args.command}: interrupted", file=sys.stderr)
+        if getattr(args, "json", False):
+            _json_error("interrupted", 130, "interrupted")
         return 130
     except OSError as exc:
         # a device that takes nothing more (stdout on /dev/full, a full disk): one line, not a
