@@ -148,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     said = io.StringIO()
     try:
         with contextlib.redirect_stderr(said) if wants_json else contextlib.nullcontext():
-            args = parser.parse_args(argv)
+            args = _parse(parser, argv)
     except SystemExit as exc:
         if wants_json:
             sys.stderr.write(said.getvalue())
@@ -169,6 +169,29 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if isinstance(sys.stdout, _Watched):
             sys.stdout = sys.stdout.inner
+
+
+_UNIT_WORD = re.compile(r"^(?:[a-zA-Z\u00b5\u03bc%\u00b0][a-zA-Z0-9/^*.\u00b5\u03bc\u00b2\u00b3]*|/[a-zA-Z].*)$")
+_NUMBER_WORD = re.compile(r"^[+\-\u2212]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+\-]?[0-9]+)?$")
+
+
+def _parse(parser, argv):
+    """``parser.parse_args``, where a word left over is said by the command's own parser, with the
+    fix where it is a unit written apart from its number (``--feed 7000 mm/min``: one word,
+    ``7000mm/min``, or quoted)."""
+    args, extras = parser.parse_known_args(argv)
+    if not extras:
+        return args
+    words = list(sys.argv[1:] if argv is None else argv)
+    hints = []
+    for w in extras:
+        i = words.index(w) if w in words else -1
+        if i > 0 and _UNIT_WORD.match(w) and _NUMBER_WORD.match(words[i - 1]):
+            hints.append(f"{words[i - 1]}{w}")
+    hint = (f" (a quantity is one word: {', '.join(hints)}, without the space, or in quotes)" if hints else "")
+    sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+    own = sub.choices.get(getattr(args, "command", None)) if sub is not None else None
+    (own or parser).error(f"unrecognized arguments: {' '.join(extras)}{hint}")
 
 
 class _Watched:

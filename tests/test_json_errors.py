@@ -38,3 +38,11 @@ class _no_exit:
 
     def __exit__(self, *exc):
         return False
+
+
+def test_a_unit_written_apart_is_said_with_its_fix_by_the_commands_own_usage(capsys):
+    """``--feed 7000 mm/min`` gave the top-level usage and "unrecognized arguments: mm/min"."""
+    with pytest.raises(SystemExit):
+        main(["move", "--config", BENCH, "--stroke", "10mm", "--feed", "7000", "mm/min", "--tacc", "100ms", "--check"])
+    err = capsys.readouterr().err
+    assert err.startswith("usage: hil move") and "a quantity is one word: 7000mm/min" in err
