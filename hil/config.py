@@ -297,17 +297,26 @@ _SECTION_KEYS: dict[str, Callable[[], list[str]]] = {
 SECTION_NAMES = tuple(_SECTIONS)
 
 
-def did_you_mean(key: str) -> str:
+def did_you_mean(key: str, present=()) -> str:
     """``"; did you mean 'plant.c2'?"`` for a mistyped key, or ``""`` when nothing is close
-    (difflib, over the schema's keys and the keys the sections beside it list)."""
+    (difflib, over the schema's keys and the keys the sections beside it list). ``present``: the
+    keys the configuration has; its chain's numbered keys are offered as far as its chain goes
+    (``plant.kl`` on a chain of k1..k2 is ``plant.k1``, not ``plant.k9``)."""
     import difflib
     names = [k for k in SCHEMA if "*" not in k]
-    names += [f"plant.{c}{i}" for c in "mkc" for i in range(1, 10)]
+    masses = [int(m.group(2)) for k in present if (m := _NUMBERED_RE.match(k)) and m.group(1) == "m"]
+    n = max(masses) if masses else 9
+    names += [f"plant.m{i}" for i in range(1, n + 1)] + [f"plant.{c}{i}" for c in "kc" for i in range(1, max(n, 2))]
     for known in _SECTION_KEYS.values():
         try:
             names += list(known())
         except Exception:       # a section that cannot list its keys now: no suggestion from it
             continue
+    # a letter typed for the digit it looks like (plant.kl, plant.cO) before any other closeness
+    section, _, name = key.partition(".")
+    lookalike = f"{section}.{name[:1]}{name[1:].translate(str.maketrans('lIOo', '1100'))}"
+    if lookalike != key and lookalike in names:
+        return f"; did you mean {lookalike!r}?"
     close = difflib.get_close_matches(key, names, n=1, cutoff=0.75)
     return f"; did you mean {close[0]!r}?" if close else ""
 
@@ -544,7 +553,7 @@ def _validate(raw: dict[str, Any], where: str, known: dict[str, Any] | None = No
             known = _known_in_section(section) if section else ""
             hint = f" (known keys in [{section}]: {known})" if known else \
                 f" (known sections: {', '.join(_known_sections())})"
-            raise ConfigError(f"{where}: unknown key {key!r}{hint}{did_you_mean(key)}")
+            raise ConfigError(f"{where}: unknown key {key!r}{hint}{did_you_mean(key, raw)}")
         if key == "actuator.type":
             continue
         values[key] = _convert(key, value, f, values, where)

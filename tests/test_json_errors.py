@@ -46,3 +46,18 @@ def test_a_unit_written_apart_is_said_with_its_fix_by_the_commands_own_usage(cap
         main(["move", "--config", BENCH, "--stroke", "10mm", "--feed", "7000", "mm/min", "--tacc", "100ms", "--check"])
     err = capsys.readouterr().err
     assert err.startswith("usage: hil move") and "a quantity is one word: 7000mm/min" in err
+
+
+def test_the_messages_name_the_fix(tmp_path, capsys):
+    """The nearest key of the config's own chain (plant.kl on a chain of k1..k2 suggested plant.k9),
+    --map for a record of other column names, the range form with its unit."""
+    from hil.config import did_you_mean
+    assert did_you_mean("plant.kl", ["plant.m1", "plant.m2", "plant.m3", "plant.k1", "plant.k2"]) == \
+        "; did you mean 'plant.k1'?"
+    rec = tmp_path / "drive.csv"
+    rec.write_text("Time,Cmd,Act\n0,0,0\n0.004,0,0\n")
+    assert main(["compare", str(rec), "--config", BENCH, "--out", str(tmp_path / "c")]) == 2
+    assert "missing required column 't'" in (err := capsys.readouterr().err) and "--map" in err
+    assert main(["sweep", "--config", BENCH, "--stroke", "50mm", "--feed", "6m/min", "--jmax", "1..2000",
+                 "--no-plot"]) == 2
+    assert "e.g. 1..2000m/s^3" in capsys.readouterr().err

@@ -6,7 +6,7 @@ import math
 import re
 from pathlib import Path
 
-from hil.errors import LimitError, UserError
+from hil.errors import LimitError, UnitError, UserError
 from hil.io.jsonout import JsonKey, dumps
 from hil.io.safe_write import save_figure, write_atomic
 from hil.units import parse_list, parse_option
@@ -167,7 +167,15 @@ def parse_values(text: str, kind: str, points: int, what: str) -> list[float]:
         unit = re.sub(r"^[\s+\-0-9.eE]*", "", hi_t)
         if unit and re.fullmatch(r"[+\-]?[0-9.]+([eE][+\-]?[0-9]+)?", lo_t):
             lo_t = f"{lo_t} {unit}"
-        lo, hi = parse_option(lo_t, kind, what), parse_option(hi_t, kind, what)
+        try:
+            lo, hi = parse_option(lo_t, kind, what), parse_option(hi_t, kind, what)
+        except UnitError as exc:
+            if unit:
+                raise
+            from hil.units import option_units
+            first = option_units(kind).split(",")[0].strip()
+            raise UserError(f"{exc}; a range carries the unit on its high end, e.g. "
+                            f"{m.group(1)}..{m.group(2)}{first}") from None
         if not (math.isfinite(lo) and math.isfinite(hi)):
             raise UserError(f"{what} {text!r}: the range must be finite")
         try:

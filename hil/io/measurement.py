@@ -285,8 +285,12 @@ def parse_text(text: str, source: str = "<text>", mapping: dict[str, str] | None
         if req == "x_cmd" and any(c in names for c in ("torque", "force", "command")):
             continue          # an open-loop record: its actuator's command drives (check_usable asks for --open-loop)
         if req not in names:
+            shown = ", ".join(names)
+            shown = shown if len(shown) <= 200 else shown[:197] + "..."
             raise MeasurementError(f"{source}, line {header_line}: missing required column {req!r} "
-                                   f"(header has: {', '.join(names)})")
+                                   f"(header has: {shown}); a record with other column names is read with "
+                                   f"--map SOURCE=CHANNEL[unit], e.g. --map 'Time=t[s],Cmd=x_cmd[mm]' "
+                                   f"(docs/how-to/column-names.md)")
     rows = []
     data_lines = lines[i + 1:]
     for j, line in enumerate(data_lines):
