@@ -418,7 +418,10 @@ class CanopenBackend(Backend):
             except Exception:
                 pass
         sw = sdo[0x6041].raw
-        out = {"node": s.node_id, "nmt": self.node.nmt.state, "state": cia402.state_from_statusword(sw),
+        nmt = self.node.nmt.state
+        if nmt == "INITIALISING":       # python-canopen's state before a heartbeat: not what a node answering SDO is
+            nmt = "unknown (no heartbeat seen; the node answers SDO)"
+        out = {"node": s.node_id, "nmt": nmt, "state": cia402.state_from_statusword(sw),
                "statusword": f"0x{sw:04X}", "mode": s.mode, "position_m": sdo[0x6064].raw / s.counts_per_m,
                "table_m": sdo[0x60E4][1].raw * 1e-9, "error_code": f"0x{sdo[0x603F].raw:04X}",
                "emcy": list(self.emcy_log)[-5:]}
