@@ -90,13 +90,15 @@ _NM = re.compile(r"(?<![A-Za-z])Nm(?![A-Za-z])")
 # wrong way. Every one is mapped to its ASCII meaning once, here, for the CLI, the config and --set.
 _SIGNS = {"\u2212": "-", "\u2796": "-", "\ufe63": "-", "\uff0d": "-", "\u02d7": "-",
           "\ufe62": "+", "\uff0b": "+", "\u2795": "+"}
-_INVISIBLE = {"\u200b", "\u200c", "\u200d", "\u2060", "\ufeff", "\u00ad"}
-# what pint reads beyond ASCII: the micro sign, the degree, a dot or cross as a product, the ohm,
-# superscript exponents (m², s⁻¹); any other character is refused, never dropped
-_KNOWN = set("µμ°·⋅×Ω⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺")
-# "1 000 mm": a group of three digits after a space, not the 1 of a unit "1/s" ("50 1/s")
-_DIGITS_SPACED = re.compile(r"[0-9]\s+[0-9]{3}(?![0-9])(?!\s*/)")
+# (a soft hyphen, U+00AD, is not among them: pasted where a minus was meant, it is refused, not dropped)
+_INVISIBLE = {"\u200b", "\u200c", "\u200d", "\u2060", "\ufeff"}
+# what pint reads beyond ASCII: the micro sign, the degree, a dot or cross as a product, the ohm, pi,
+# the angstrom, per mille, superscript exponents (m², s⁻¹); any other character is refused, never dropped
+_KNOWN = set("µμ°·⋅×ΩπÅå‰⁰¹²³⁴⁵⁶⁷⁸⁹⁻⁺")
+# "1 000 mm", "1 500/s": a group of three digits after a space (the 1 of a unit "1/s" is one digit: "50 1/s")
+_DIGITS_SPACED = re.compile(r"[0-9]\s+[0-9]{3}(?![0-9])")
 _DECIMAL_COMMA = re.compile(r"[0-9],[0-9]")
+_THOUSANDS_COMMA = re.compile(r"[0-9],[0-9]{3}(?![0-9])")
 
 
 def _plain_character(ch: str) -> str:
@@ -133,10 +135,14 @@ def _check_characters(text: str, original: str, what: str) -> None:
             name = unicodedata.name(ch, "unnamed")
             raise UnitError(f"{what}: cannot read {original!r}: the character {ch!r} (U+{ord(ch):04X} {name}) "
                             f"is not part of a quantity, expected {_QUANTITY_EXAMPLE}")
+    if _THOUSANDS_COMMA.search(text):          # "1,000 mm": a thousand, or one with a decimal comma?
+        whole = _THOUSANDS_COMMA.sub(lambda m: m.group(0).replace(",", ""), text)
+        point = _THOUSANDS_COMMA.sub(lambda m: m.group(0).replace(",", "."), text)
+        raise UnitError(f"{what}: cannot read {original!r}: a comma between digits is a thousands separator "
+                        f"({whole!r}) or a decimal comma ({point!r}); write the one meant, with a point for decimals")
     if _DECIMAL_COMMA.search(text):
         hint = _DECIMAL_COMMA.sub(lambda m: m.group(0).replace(",", "."), text)
-        raise UnitError(f"{what}: cannot read {original!r}: a decimal comma; write a point ({hint!r}), "
-                        f"and no separator between the thousands")
+        raise UnitError(f"{what}: cannot read {original!r}: a decimal comma; write a point ({hint!r})")
     if "," in text:
         raise UnitError(f"{what}: cannot read {original!r}: a comma inside one quantity, expected "
                         f"{_QUANTITY_EXAMPLE}")

@@ -60,6 +60,12 @@ def test_no_error_at_a_bound_or_in_a_near_singular_direction():
     assert at_bound.x[0] == pytest.approx(1.0) and np.isnan(standard_errors(at_bound, 1.0)[0])
     twins = least_squares(lambda z: (z[0] + z[1]) * t - y, [0.3, 0.4])      # only the sum is seen
     assert np.all(np.isnan(standard_errors(twins, 1.0)))
+    # nearly twins: no error claimed alone, and the pair still named as confounded
+    near = least_squares(lambda z: z[0] * t + z[1] * (t + 1e-8 * t * t) - y, [0.3, 0.4])
+    from hil.ident.fit import confounded_pairs
+    assert np.all(np.isnan(standard_errors(near, 1.0)))
+    ((a, b, r),) = confounded_pairs(near, ["a", "b"])
+    assert (a, b) == ("a", "b") and r < -0.99
 
 
 @pytest.fixture(scope="module")

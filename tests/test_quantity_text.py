@@ -39,7 +39,8 @@ def test_a_minus_sign_in_the_exponent_and_before_a_bare_number(minus):
 
 @pytest.mark.parametrize("text, says", [
     ("1\u00a0000 mm", "digits separated by a space"), ("1 000 mm", "digits separated by a space"),
-    ("1,5mm", "decimal comma; write a point ('1.5mm')"), ("1,000mm", "decimal comma"),
+    ("1,5mm", "decimal comma; write a point ('1.5mm')"), ("1,000mm", "thousands separator ('1000mm')"),
+    ("1 500/s", "digits separated by a space"), ("\u00ad10mm", "U+00AD SOFT HYPHEN"),
     ("\u20ac5 mm", "U+20AC"), ("\uff11\uff10mm", "U+FF11"), ("5 mm\u2044s", "U+2044")])
 def test_what_pint_would_misread_is_one_line_naming_the_value(text, says):
     with pytest.raises(UnitError) as err:
@@ -61,6 +62,12 @@ def test_no_text_reads_as_a_value_of_the_other_sign(text):
     shown = text.strip().lstrip("\u200b\u00ad \u00a0\u202f\u2009\u2007\u200a\u2002\u2003")
     if v and math.isfinite(v) and shown[:1] in MINUS_SIGNS and shown[1:2] not in MINUS_SIGNS + ["+"]:
         assert v < 0, (text, v)
+
+
+def test_what_pint_reads_beyond_ascii_still_reads():
+    assert parse("2*\u03c0 rad/s", "angular_speed") == pytest.approx(2 * math.pi)
+    assert parse("5 \u00c5", "length") == pytest.approx(5e-10)
+    assert parse("50 1/s", "frequency") == 50.0 and parse("8.5e-4 kg*m\u00b2", "inertia") == pytest.approx(8.5e-4)
 
 
 def test_the_config_and_set_keep_the_sign(tmp_path):

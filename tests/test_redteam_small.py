@@ -75,3 +75,28 @@ def test_move_check_refuses_what_the_move_would_refuse(capsys):
     assert main(argv) == 0
     assert main(argv + ["--set", 'serial.commands.read="RD\\rPT 50000000"']) == 2
     assert "serial.commands.read: the line ending" in capsys.readouterr().err
+
+
+def test_a_canopen_quick_stop_that_is_not_sent_is_said():
+    """The CANopen backend swallowed a quick stop it could not send, so a lost bus was reported as a
+    stop done (controlled_stop.ok true, exit 4 not 6). It raises now, for the loop to report."""
+    from canopen_rig import rig
+
+    from drivers.base import BackendFault
+    cfg, sim, be = rig(prefix="qsfail")
+    try:
+        be.open()
+        be.enable()
+
+        def gone(*_):
+            raise OSError("the bus is down")
+        be.link.send = gone
+        with pytest.raises(BackendFault, match="quick stop was not sent"):
+            be.quick_stop()
+        assert not be.enabled
+    finally:
+        be.link.send = lambda *a, **k: None
+        try:
+            be.close()
+        finally:
+            sim.close()

@@ -358,11 +358,14 @@ class CanopenBackend(Backend):
         self._cw = cia402.COMMANDS["QUICK STOP" if how == "quick_stop" else "DISABLE VOLTAGE"]
         self.quick_stop_sync = self.syncs
         self.events.append(f"cycle {self.syncs}: {how.replace('_', ' ')} commanded")
+        self.enabled = False
         try:
             self._send_rpdo()
-        except Exception:
-            pass
-        self.enabled = False
+        except Exception as exc:
+            # not delivered (the bus is gone): said, so the run reports its stop as failed; disable()
+            # at the shutdown tries again over SDO, and the drive's own guards stop it where that fails
+            raise BackendFault(f"lost communication: the {how.replace('_', ' ')} was not sent ({one_line(exc)})",
+                               StopKind.LINK) from None
 
     # -- the end (not real-time) -------------------------------------------------------------------
     def wait_stopped(self, max_cycles: int | None = None) -> str:

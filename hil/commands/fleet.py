@@ -17,7 +17,7 @@ that leaves its limits is flagged with the date it first moved; an effect the ch
 baseline record is the axis's normal, not a finding.
 
   hil fleet run records/ --config axis.toml --out out/fleet              (a folder, or manifest.csv / .toml)
-  hil fleet run manifest.csv --config axis.toml --out out/fleet --scheduler tcp://10.0.0.5:8786
+  hil fleet run manifest.csv --config axis.toml --out out/fleet --scheduler tcp://127.0.0.1:8786
   hil fleet report out/fleet                 (report.html, values.csv, values.json)
 
 Results are stored per record (out/fleet/results.jsonl, keyed by the record's content, the config,

@@ -252,9 +252,9 @@ def run(args) -> int:
                 print(f"  stopped with the configured controlled stop ({stopped['how']}); "
                       f"no overshoot or settling figures for an incomplete move")
             else:
-                print(f"  the controlled stop ({stopped['how']}) FAILED: {stopped['error']}; the host did not stop "
-                      f"the axis: only the drive's own guards (its watchdog, its heartbeat consumer) stop it now. "
-                      f"Check the axis before anything else")
+                print(f"  the controlled stop ({stopped['how']}) FAILED: {stopped['error']}; the host's later "
+                      f"disable may not have reached the drive either: its own guards (its watchdog, its heartbeat "
+                      f"consumer) are what stop the axis then. Check the axis before anything else")
             from hil.supervisor import trip_hint
             print(f"  record {rec.path}, plot {png}; {trip_hint(cfg)}")
         return exit_code

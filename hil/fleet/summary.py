@@ -7,6 +7,8 @@ out of the series and listed with its line. Values SI.
 """
 from __future__ import annotations
 
+import math
+
 from hil.fleet.manifest import Entry
 from hil.fleet.spc import SCATTER, judge_series, new_effects, normal_effects
 
@@ -63,7 +65,7 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
         if j.flagged:
             out["flags"].append({"parameter": name, "since": p["first_moved"], "reason": "; ".join(j.reasons),
                                  "from": j.limits.centre, "to": last})
-        if worst is None or drift > worst[1]:
+        if math.isfinite(drift) and (worst is None or drift > worst[1]):     # a night without it: NaN
             worst = (name, drift, j.limits.centre, last)
     if worst is not None:
         out["worst"] = {"parameter": worst[0], "sigma": worst[1], "from": worst[2], "to": worst[3]}

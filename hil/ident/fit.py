@@ -114,10 +114,10 @@ def correlation_time(r) -> float:
     return float(min(max(tau, 1.0), n / 2))
 
 
-def _covariance(sol, correlated: bool = True):
+def _covariance(sol, correlated: bool = True, refuse_singular: bool = True):
     """The linearised covariance s^2 tau (J^T J)^-1 of the scaled parameters ``sol.x`` (the module's
     definition; ``correlated=False``: tau = 1) and a mask of the directions without a finite one;
-    None when it cannot be formed or is near-singular."""
+    None when it cannot be formed, or is near-singular (``refuse_singular``)."""
     J = np.asarray(sol.jac, dtype=float)
     n, p = J.shape
     if n <= p or not np.all(np.isfinite(J)):
@@ -127,7 +127,7 @@ def _covariance(sol, correlated: bool = True):
         s2 *= correlation_time(sol.fun)
     jtj = J.T @ J
     d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
-    if p > 1 and np.linalg.cond(jtj / np.outer(d, d)) > SINGULAR:
+    if refuse_singular and p > 1 and np.linalg.cond(jtj / np.outer(d, d)) > SINGULAR:
         return None                # the data see only a combination: no parameter has an error alone
     try:
         cov = s2 * np.linalg.inv(jtj)
@@ -157,7 +157,8 @@ def standard_errors(sol, scale, correlated: bool = True) -> np.ndarray:
 def confounded_pairs(sol, names) -> list:
     """The pairs of fitted parameters whose correlation (of the linearised covariance) exceeds
     :data:`CONFOUNDED` in magnitude: [name, name, r], strongest first."""
-    got = _covariance(sol, correlated=False)      # the scale and tau cancel in a correlation
+    # the scale and tau cancel in a correlation; a near-singular fit is where the pair matters most
+    got = _covariance(sol, correlated=False, refuse_singular=False)
     if got is None:
         return []
     cov, bad = got
