@@ -107,11 +107,12 @@ from numba.core.registry import CPUDispatcher
 import hil.loop as L
 from hil import config
 from hil.cli import main
+from hil.plant_config import plant_from_config
 
 def dispatchers():
     out = {}
     for name, mod in list(sys.modules.items()):
-        if name == "hil" or name.startswith("hil."):
+        if name.split(".")[0] in ("hil", "drivers", "sim_plant"):
             for obj in list(vars(mod).values()):
                 if isinstance(obj, CPUDispatcher):
                     out[obj.py_func.__module__ + "." + obj.py_func.__name__] = len(obj.signatures)

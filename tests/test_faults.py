@@ -40,7 +40,7 @@ from drivers.canopen.drive_sim import DriveSim  # noqa: E402
 from hil import config  # noqa: E402
 from hil.cli import main  # noqa: E402
 from hil.commands.drive_sim import FaultSchedule, parse_fault  # noqa: E402
-from hil.errors import STOP_EXIT_CODES  # noqa: E402
+from hil.errors import STOP_EXIT_CODES, STOP_FAILED_EXIT  # noqa: E402
 from hil.io.measurement import read as read_measurement  # noqa: E402
 from hil.plant_config import plant_from_config
 
@@ -154,7 +154,11 @@ def run_serial_case(fault: str, out: Path) -> dict:
 
 def _check_common(r: dict, kind: str, words: str) -> None:
     s, st, m = r["summary"], r["status"], r["record"]
-    assert r["rc"] == STOP_EXIT_CODES[kind], (r["rc"], s.get("reason"))
+    # the exit code of the kind, or 6 where the host's controlled stop itself did not get through (a
+    # port gone, a drive that does not answer the stop either): said, never reported as done
+    stopped = s["controlled_stop"]
+    assert r["rc"] == (STOP_EXIT_CODES[kind] if stopped["ok"] else STOP_FAILED_EXIT), (r["rc"], s.get("reason"))
+    assert stopped["ok"] or stopped["error"]
     assert s["stop"] == kind and words in s["reason"], s["reason"]
     assert "overshoot_table_um" not in s                         # no figures of an incomplete move
     assert Path(s["plot"]).stat().st_size > 10000                # its plot, the stop marked
@@ -183,6 +187,8 @@ def test_canopen_fault_matrix(tmp_path, label, fault, kind, words):
 def test_serial_fault_matrix(tmp_path, label, fault, kind, words):
     r = run_serial_case(fault, tmp_path)
     _check_common(r, kind, words)
+    if r["killed"]:                  # the port is gone: the host's quick stop cannot have got through
+        assert r["rc"] == STOP_FAILED_EXIT and r["summary"]["controlled_stop"]["ok"] is False
     if not r["killed"]:
         # the controlled stop reached the drive (or its watchdog acted): it is disabled
         assert r["drive"]["stopped"] is not None and not r["drive"]["enabled"]
@@ -294,7 +300,7 @@ def _stalling_backend(cfg, at=30, stall=0.02, ctrl_c=False):
 
     class Stalling(_Stalls, SimulatedPlant):
         name = "stalling"
-    b = Stalling(cfg, closes="both")
+    b = Stalling(cfg, plant_from_config(cfg), closes="both")
     b._init(at, stall, ctrl_c)
     return b
 

@@ -252,9 +252,10 @@ def run(args) -> int:
                 print(f"  stopped with the configured controlled stop ({stopped['how']}); "
                       f"no overshoot or settling figures for an incomplete move")
             else:
-                print(f"  the controlled stop ({stopped['how']}) FAILED: {stopped['error']}; the host's later "
-                      f"disable may not have reached the drive either: its own guards (its watchdog, its heartbeat "
-                      f"consumer) are what stop the axis then. Check the axis before anything else")
+                print(f"  the controlled stop ({stopped['how']}) FAILED (not confirmed by the drive): "
+                      f"{stopped['error']}; the host's later disable may not have reached the drive either: its own "
+                      f"guards (its watchdog, its heartbeat consumer) are what stop the axis then. Check the axis "
+                      f"before anything else")
             from hil.supervisor import trip_hint
             print(f"  record {rec.path}, plot {png}; {trip_hint(cfg)}")
         return exit_code
