@@ -100,3 +100,37 @@ def test_a_canopen_quick_stop_that_is_not_sent_is_said():
             be.close()
         finally:
             sim.close()
+
+
+def test_a_frame_during_the_socketcand_handshake_fails_no_connect():
+    """``hil status`` now and then failed to connect: the simulated drive wrote a heartbeat right
+    after the "< ok >" of the client's handshake, and python-can's client, which reads that "< ok >"
+    with one recv and wants it alone, got both. A client joining gets frames after JOIN_GRACE, or
+    from its own first frame on (the server's side, on a socket pair: the race itself depends on
+    the scheduler)."""
+    import socket
+
+    import can
+
+    from drivers.canopen.socketcand_server import JOIN_GRACE, SocketcandServerBus
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = SocketcandServerBus(port=port)
+    near, far = socket.socketpair()
+    far.setblocking(False)
+    heartbeat = can.Message(arbitration_id=0x701, data=[5], is_extended_id=False)
+    try:
+        assert server._command(near, ["rawmode"], False)
+        assert far.recv(256) == b"< ok >"
+        server.send(heartbeat)                       # at once: not to the client still reading its "< ok >"
+        with pytest.raises(BlockingIOError):
+            far.recv(256)
+        server._command(near, ["send", "601", "1", "40"], True)     # its first frame: it is on the bus
+        server.send(heartbeat)
+        assert far.recv(256).startswith(b"< frame 701 ")
+        assert 0 < JOIN_GRACE <= 0.1
+    finally:
+        near.close()
+        far.close()
+        server.shutdown()

@@ -21,6 +21,7 @@ __all__ = ["SocketcandServerBus", "LOOPBACK"]
 
 # -- the separate-process transport: a socketcand-protocol server on the loopback address ------------
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
+JOIN_GRACE = 0.05        # s after a client's "< ok >" to raw mode before frames reach it (see _command)
 
 
 class SocketcandServerBus(can.BusABC):
@@ -41,6 +42,7 @@ class SocketcandServerBus(can.BusABC):
         self._pending: deque = deque()
         self._conns: dict = {}                 # socket -> its unparsed text
         self._clients: list = []               # sockets in raw mode: they get every frame
+        self._joins: dict = {}                 # a client just in raw mode -> when frames start to reach it
         self._clients_lock = threading.Lock()
         self._held: list | None = None         # frames held back by hold() until release()
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
@@ -72,6 +74,7 @@ class SocketcandServerBus(can.BusABC):
         with self._clients_lock:
             if conn in self._clients:
                 self._clients.remove(conn)
+            self._joins.pop(conn, None)
         conn.close()
 
     # the longest command a client may send (a "< send 1FFFFFFF 8 FF FF FF FF FF FF FF FF >" is 46
@@ -120,8 +123,17 @@ class SocketcandServerBus(can.BusABC):
             with self._clients_lock:
                 if conn not in self._clients:
                     self._clients.append(conn)
+                    # python-can's client reads the "< ok >" of its handshake with one recv and wants
+                    # it alone: a heartbeat written right after it, in the same segment, failed its
+                    # connect ('hil status' now and then). Frames reach a new client after a moment,
+                    # or from its first frame on, as a node joining a bus misses the frames before it
+                    # is on it
+                    self._joins[conn] = time.monotonic() + JOIN_GRACE
             return True
         elif cmd[0] == "send" and ready and len(cmd) >= 3:
+            if self._joins:             # it sends: its handshake is behind it, the answers must reach it
+                with self._clients_lock:
+                    self._joins.pop(conn, None)
             try:
                 can_id, n = int(cmd[1], 16), int(cmd[2], 16)
                 if not (0 <= can_id <= 0x1FFFFFFF and 0 <= n <= 8 and len(cmd) == 3 + n):
@@ -145,8 +157,12 @@ class SocketcandServerBus(can.BusABC):
             self._write(line, skip)
 
     def _write(self, data: bytes, skip=None) -> None:
+        if self._joins:
+            now = time.monotonic()
+            for c in [c for c, t in self._joins.items() if t <= now]:
+                del self._joins[c]
         for c in self._clients:
-            if c is not skip:
+            if c is not skip and c not in self._joins:
                 try:
                     c.sendall(data)
                 except OSError:
@@ -203,4 +219,5 @@ class SocketcandServerBus(can.BusABC):
         self._conns = {}
         with self._clients_lock:
             self._clients = []
+            self._joins = {}
         super().shutdown()
