@@ -3,6 +3,7 @@ thread to one CPU while a run lasts, and the scope's server runs on the other CP
 it can never take the loop's core; a ring file a SIGKILLed run left in /dev/shm is removed at the
 next start. What is checked is what the kernel reports (``sched_getaffinity``, ``getpriority``) of
 the thread and the process, not what the code meant to set."""
+import json
 import os
 import signal
 import subprocess
@@ -73,7 +74,8 @@ def test_a_cpu_that_is_not_there_is_one_line_before_anything_moves(bench, capsys
     for extra in ([], ["--scope", "--scope-hold", "0s"]):
         assert main(argv + extra) == 2
         cap = capsys.readouterr()
-        assert cap.out == "" and "scope at" not in cap.err
+        # --json: the error as JSON on stdout (hil.cli), nothing else; no scope started
+        assert json.loads(cap.out)["exit_code"] == 2 and "scope at" not in cap.err
         assert cap.err.strip().splitlines() == [
             f"hil move: error: runtime.loop_cpu {missing}: no such CPU for this process "
             f"(it may run on CPU {cpu_list(os.sched_getaffinity(0))})"]

@@ -651,7 +651,7 @@ def _channel_kind(meas: Measurement, name: str) -> str:
     return "torque" if kind == "actuator" else kind
 
 
-ACCELERATING_SAMPLES = 5     # samples either side of a commanded acceleration that its torque step may take
+EDGE_TIME = 0.05     # s either side of a move's start or end that its torque step may take (5 samples at least)
 
 
 def _drives(meas: Measurement, name: str) -> bool:
@@ -660,21 +660,26 @@ def _drives(meas: Measurement, name: str) -> bool:
 
 
 def _accelerating(meas: Measurement):
-    """A mask of the samples where the command accelerates (its second difference not 0, widened by
-    :data:`ACCELERATING_SAMPLES`): a drive's torque steps there with the command, which explains
-    it (the start and the end of every move of a clean record were warned about as outliers).
-    None without a command."""
+    """A mask of the samples at the edges of a move: where the command leaves standstill or comes to
+    it, widened by :data:`EDGE_TIME`. A drive's torque steps there with the command (its
+    acceleration and the dry friction set in at once), which explains it: the start and the end of
+    every move of a clean record were warned about as outliers. None without a command."""
     x = meas.channels.get("x_cmd")
     if x is None or x.size < 3:
         return None
-    a = np.abs(np.diff(x, 2))
-    top = float(np.max(a)) if a.size else 0.0
-    if not top > 0:
-        return np.zeros(x.size, bool)
-    on = np.zeros(x.size, bool)
-    on[1:-1] = a > 1e-3 * top
+    step = np.abs(np.diff(x))
+    top = float(np.max(step)) if step.size else 0.0
+    edges = np.zeros(x.size, bool)
+    if top > 0:
+        moving = step > 1e-6 * top
+        change = np.flatnonzero(moving[1:] != moving[:-1]) + 1      # standstill <-> motion
+        edges[np.clip(change, 0, x.size - 1)] = True
+        edges[np.clip(change + 1, 0, x.size - 1)] = True
     from scipy.ndimage import binary_dilation
-    return binary_dilation(on, iterations=ACCELERATING_SAMPLES)
+    t = meas.channels.get("t")
+    dt = float(np.median(np.diff(t))) if t is not None and t.size > 1 else 0.0
+    n = max(5, int(round(EDGE_TIME / dt))) if dt > 0 else 5
+    return binary_dilation(edges, iterations=n) if edges.any() else edges
 
 
 def data_warnings(meas: Measurement, position_period: float | None = None) -> list[str]:
@@ -682,7 +687,7 @@ def data_warnings(meas: Measurement, position_period: float | None = None) -> li
     ``OUTLIER_MADS`` median absolute deviations of the sample-to-sample difference around a
     running median of 9, and beyond the channel's 0.5..99.5 % percentile range by that range
     again), gaps of the time base, a sample period more than ``SLOW_FACTOR`` position periods.
-    A torque or force where the command accelerates is no outlier (:func:`_accelerating`). Sample
+    A torque or force at the start or the end of a move is no outlier (:func:`_accelerating`). Sample
     numbers count from 1."""
     out = list(getattr(meas, "warnings", []) or [])
     from scipy.ndimage import median_filter
