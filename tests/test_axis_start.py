@@ -140,7 +140,8 @@ def test_a_serial_move_starts_where_the_last_one_left_the_axis(capsys, tmp_path)
     cfg = config.load(serial_cfg)
     with SimulatedSerialDrive(cfg, plant_from_config(cfg)) as drive:
         common = ["--config", serial_cfg, "--set", f'serial.port="{drive.port}"', "--set",
-                  "supervisor.overrun_cycles=25", "--backend", "serial", "--feed", "7000mm/min", "--tacc", "200ms",
+                  "supervisor.overrun_cycles=25", "--set", "serial.timeout=30ms", "--set", "serial.budget=100ms",
+                      "--backend", "serial", "--feed", "7000mm/min", "--tacc", "200ms",
                   "--dwell", "0.3s", "--json"]
         ends = []
         for k in range(2):

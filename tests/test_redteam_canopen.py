@@ -94,7 +94,8 @@ def _frozen_drive_case(tmp_path, miss_limit: int, how: str) -> dict:
     try:
         json.loads(drive.stdout.readline())
         host = subprocess.Popen(HIL + ["move", "--config", CANOPEN, "--backend", "canopen", *sets,
-                                       "--set", f"canopen.pdo_miss_limit={miss_limit}", "--stroke", "200mm",
+                                       "--set", f"canopen.pdo_miss_limit={miss_limit}",
+                                       "--set", "supervisor.overrun_cycles=25", "--stroke", "200mm",
                                        "--feed", "6000mm/min", "--amax", "2m/s^2", "--out", str(tmp_path / "out"),
                                        "--json"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         if how == "sigstop":
