@@ -140,6 +140,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# the commands that never run the compiled simulator (no first-compile notice to give)
+NO_SIMULATOR = frozenset({"model", "status", "reset", "scope", None})
+
+
 def main(argv: list[str] | None = None) -> int:
     if sys.stdout is None:        # started with stdout closed (>&-): the run goes on, its text goes nowhere
         sys.stdout = open(os.devnull, "w")
@@ -159,6 +163,9 @@ def main(argv: list[str] | None = None) -> int:
     if wants_json:
         sys.stderr.write(said.getvalue())
     setup_logging(args.log_level)
+    if args.command not in NO_SIMULATOR:      # numba's import (0.3 s) where nothing compiles
+        from hil.commands.progress import announce_compiles
+        announce_compiles()
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

@@ -39,7 +39,7 @@ JSON_KEYS = {
     "damped_ratios": JsonKey("1", "damping ratios of the damped eigenvalues", when=_CHAIN),
     "overdamped_modes": JsonKey("", "elastic modes without a damped frequency (real eigenvalues: no oscillation); "
                                     "damped_modes_hz holds the others", when=_CHAIN),
-    "plot": JsonKey("", "path of the Bode plots of TF1, TF2, TF3"),
+    "plot": JsonKey("", "path of the Bode plots of TF1, TF2, TF3; null with --no-plot"),
     "closed_loop": JsonKey("Hz, dB", "the closed position loop: stable, spectral_radius, bandwidth_hz and "
                                      "peak_gain_db (table_ff, table_no_ff, tip_ff, ...), plot",
                            when="with --closed-loop"),
@@ -52,6 +52,8 @@ def add_arguments(parser) -> None:
                         help="override a parameter, e.g. plant.c2=33 or 'plant.m3=4.3 kg' (repeatable)")
     parser.add_argument("--out", default="out/model", metavar="DIR", help="folder for the plots (default: out/model)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    parser.add_argument("--no-plot", action="store_true",
+                        help="no Bode plots: the numbers alone (a third of the time; for scripts and quick looks)")
     parser.add_argument("--closed-loop", action="store_true",
                         help="also report the closed position loop (needs the runtime's hil.closed_loop)")
 
@@ -141,8 +143,6 @@ def _text(r: dict) -> str:
             lines.append("  damped eigenvalues, friction included: "
                          + ("; ".join(f"zeta {z:.4f} at {fd:.3f} Hz" for z, fd in damped) or "none oscillates")
                          + f"; {r['overdamped_modes']} mode(s) overdamped (real eigenvalues: no oscillation)")
-    if r.get("plot"):
-        lines.append(f"Bode plots: {r['plot']}")
     return "\n".join(lines)
 
 
@@ -180,10 +180,14 @@ def run(args) -> int:
     overrides = dict(parse_assignment(s) for s in args.set)
     cfg = load(args.config, overrides)
     report = model_report(cfg)
-    try:
-        report["plot"] = write_plots(cfg, report, Path(args.out))
-    except OSError as exc:
-        raise UserError(f"--out {args.out}: cannot write the plots ({exc.strerror or exc})") from None
+    report["plot"] = None
+    if not args.json:           # the answer first; the plots take longer than the numbers
+        print(_text(report), flush=True)
+    if not args.no_plot:
+        try:
+            report["plot"] = write_plots(cfg, report, Path(args.out))
+        except OSError as exc:
+            raise UserError(f"--out {args.out}: cannot write the plots ({exc.strerror or exc})") from None
     if args.closed_loop:
         from hil.closed_loop import closed_loop_report, closed_loop_response
         from hil.plots.model import closed_loop_figure
@@ -193,7 +197,8 @@ def run(args) -> int:
     if args.json:
         print(dumps(report, indent=2))
     else:
-        print(_text(report))
+        if report["plot"]:
+            print(f"Bode plots: {report['plot']}")
         if "closed_loop" in report:
             print(closed_loop_text(report["closed_loop"]))
     return 0

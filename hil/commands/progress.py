@@ -14,10 +14,40 @@ import sys
 import time
 from contextlib import contextmanager
 
-__all__ = ["bar", "shown", "LINE_INTERVAL"]
+__all__ = ["bar", "shown", "LINE_INTERVAL", "announce_compiles", "COMPILE_NOTICE"]
 
 # the least time between two plain progress lines (not a terminal)
 LINE_INTERVAL = 2.0
+
+# said once, where a run must compile the simulator's loops (numba's cache has none for this
+# installation): else a first run is silent for a while (hil move: 12 s at load 1.9 on 2 cores)
+COMPILE_NOTICE = ("hil: compiling the simulator once for this installation (some 10-60 s; later runs "
+                  "load it from numba's cache)")
+_OWN_PACKAGES = ("sim_plant.", "drivers.", "hil.")
+_announced = False
+
+
+def announce_compiles(stream=None) -> None:
+    """Say :data:`COMPILE_NOTICE` on stderr the first time in this process that numba compiles one
+    of the project's functions. numba raises its ``numba:compile`` event on a cache miss alone (a
+    loop loaded from the cache raises none), so a warm installation says nothing."""
+    from numba.core import event
+
+    class _Notice(event.Listener):
+        def on_start(self, ev):
+            global _announced
+            fn = getattr(ev.data.get("dispatcher"), "py_func", None)
+            if _announced or not str(getattr(fn, "__module__", "")).startswith(_OWN_PACKAGES):
+                return
+            _announced = True
+            print(COMPILE_NOTICE, file=stream or sys.stderr, flush=True)
+
+        def on_end(self, ev):
+            pass
+
+    if not getattr(announce_compiles, "installed", False):
+        event.register("numba:compile", _Notice())
+        announce_compiles.installed = True
 
 
 def shown(args=None) -> bool:
