@@ -283,7 +283,7 @@ def run(args) -> int:
         raise UserError(f"--out {args.out}: the single diagnosis ({'--no-chain' if args.no_chain else '--max-steps 1'}) "
                         f"adds nothing to the model, so there is no config to write; drop --out, or let the chain run")
     cfg, metas, vals = load_records(args)
-    rp = make_records(args, cfg, metas, vals)
+    rp = make_records(args, cfg, metas)     # the floor: the estimation records' alone, never --validate's
     sampling = None
     names = args.candidates.split(",") if args.candidates else None
     for n in names or []:
@@ -363,7 +363,7 @@ def _chain_both_samplings(args, cfg, metas, rp, names, prog, vals=()):
 
     def replay_of(c):
         if id(c) not in replays:
-            replays[id(c)] = make_records(args, c, metas, vals)
+            replays[id(c)] = make_records(args, c, metas)
         return replays[id(c)]
     def chain(r):
         # every step earns its place on data it was not fitted on: the --validate records (replayed

@@ -128,35 +128,20 @@ def split_record_map(arg: str) -> tuple[str, str | None]:
     return arg, None
 
 
-def make_records(args, cfg, measurements, repetitions=()):
+def make_records(args, cfg, measurements):
     """One record: its Replay; several: :class:`hil.ident.records.Records`, fitted as one, on the
-    channels every record has (or ``--channels``). ``repetitions``: records not fitted (the
-    ``--validate`` ones) whose repetitions of the fitted records' tests join the run-to-run spread."""
+    channels every record has (or ``--channels``). Their floor is theirs alone: the ``--validate``
+    records never join it (issue 50: a held-out record raised the floor it was judged against)."""
     from hil.ident.records import Records, common_channels
-    reps = _repeating(args, cfg, measurements, repetitions)
     if len(measurements) == 1:
-        rp = make_replay(args, cfg, measurements[0])
-        return Records([rp], reps) if reps else rp
+        return make_replay(args, cfg, measurements[0])
     parts = [make_replay(args, cfg, m) for m in measurements]
     chans = common_channels(parts)
     if any(p.channels != chans for p in parts):
         from hil.ident.replay import Replay
         parts = [Replay(m, cfg, chans, align=getattr(args, "align", False),
                         open_loop=getattr(args, "open_loop", False)) for m in measurements]
-    return Records(parts, reps)
-
-
-def _repeating(args, cfg, measurements, others) -> list:
-    """The records of ``others`` that repeat a test of ``measurements`` (hil.ident.noise.same_test:
-    the same position command, or the same drive channel of an open-loop run)."""
-    if not others:
-        return []
-    from hil.ident.noise import same_test
-    from hil.ident.replay import _drive_channel
-
-    def command(m):
-        return _drive_channel(m, cfg) if getattr(args, "open_loop", False) else "x_cmd"
-    return [o for o in others if any(same_test(m, o, command(m)) for m in measurements)]
+    return Records(parts)
 
 
 def make_replay(args, cfg, meas):

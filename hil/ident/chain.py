@@ -308,9 +308,9 @@ def _holdout_parts(replay, holdout):
         return ("moves", masks) if masks is not None else None
     from hil.ident.records import Records
     parts = list(holdout)
-    # the fitted records join the validation records' run-to-run spread (repetitions across the two)
-    fitted = [p._source_meas for p in getattr(replay, "parts", [replay])]
-    return ("records", Records(parts, fitted)) if parts else None
+    # the validation records' floor is their own (sensor, standstill, their own repetitions): the
+    # fitted records never raise it (a difference between the two is what the model must predict)
+    return ("records", Records(parts)) if parts else None
 
 
 def _earned(cur, split, add, found, cfg1, fit_nfev, refit=None) -> dict:

@@ -213,17 +213,30 @@ def record_noise(meas, cfg, residuals: dict) -> dict:
 
 def same_test(a, b, command: str) -> bool:
     """Two records are repetitions of one test: the same sample times (within 1 % of a period over
-    the common length, lengths within 1 %) and the same ``command`` channel (the position command,
-    or the drive channel of an open-loop run) within :data:`SAME_TEST` of its RMS."""
+    the common length, lengths within 1 %), the same ``command`` channel (the position command, or
+    the drive channel of an open-loop run) and every measured input the same (``u_add``, an
+    external force: :data:`hil.io.measurement.INPUT_CHANNELS`, in both records or in neither), each
+    within :data:`SAME_TEST` of its RMS. Records of one command whose added pulses differ are two
+    tests: the pulses' own response is not scatter."""
+    from hil.io.measurement import INPUT_CHANNELS
     n = min(len(a.t), len(b.t))
     if n < 3 or abs(len(a.t) - len(b.t)) > 0.01 * n or command not in a or command not in b:
         return False
     ta, tb = a.t[:n] - a.t[0], b.t[:n] - b.t[0]
     if float(np.max(np.abs(ta - tb))) > 0.01 * a.sample_period:
         return False
-    ca, cb = np.asarray(a[command][:n], float), np.asarray(b[command][:n], float)
+    return all(_same_channel(a, b, c, n) for c in (command, *INPUT_CHANNELS) if c == command or c in a or c in b)
+
+
+def _same_channel(a, b, channel: str, n: int) -> bool:
+    """``channel`` in both records and equal within :data:`SAME_TEST` of its RMS (an input that is
+    zero in both is the same)."""
+    if channel not in a or channel not in b:
+        return False
+    ca, cb = np.asarray(a[channel][:n], float), np.asarray(b[channel][:n], float)
     scale = float(np.sqrt(np.mean(ca * ca)))
-    return bool(scale > 0 and np.sqrt(np.mean((ca - cb) ** 2)) <= SAME_TEST * scale)
+    diff = float(np.sqrt(np.mean((ca - cb) ** 2)))
+    return bool(diff <= SAME_TEST * scale) if scale > 0 else diff == 0.0
 
 
 def run_to_run_spread(measurements, channels, command: str) -> dict:

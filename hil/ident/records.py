@@ -64,13 +64,10 @@ class Records:
     """Records of one axis replayed through one config, fitted as one (see the module's
     definitions). ``parts``: the Replay of each record, all on the same config and channels."""
 
-    def __init__(self, parts: list[Replay], repetitions=()):
+    def __init__(self, parts: list[Replay]):
         if not parts:
             raise ValueError("Records: no record")
         self.parts = list(parts)
-        # records of the same tests that are not fitted (the validation records): they join the
-        # run-to-run spread, nothing else
-        self.repetitions = list(repetitions)
         first = self.parts[0]
         self.cfg, self.plant, self.align = first.cfg, first.plant, first.align
         self.units = first.units
@@ -112,7 +109,7 @@ class Records:
         same command are to each other."""
         first = self.parts[0]
         command = first.drive_channel if first.open_loop else "x_cmd"
-        spread = run_to_run_spread([p._source_meas for p in self.parts] + self.repetitions, self.channels, command)
+        spread = run_to_run_spread([p._source_meas for p in self.parts], self.channels, command)
         self.spread = {c: s["rms"] for c, s in spread.items()}
         for c, s in spread.items():
             ns = self.noise_sources[c]
@@ -124,7 +121,7 @@ class Records:
         return {c: np.concatenate([d[c] for d in dicts]) for c in self.channels}
 
     def with_config(self, cfg) -> "Records":
-        return Records([p.with_config(cfg) for p in self.parts], self.repetitions)
+        return Records([p.with_config(cfg) for p in self.parts])
 
     def residuals(self, cfg=None) -> dict:
         return self._join([p.residuals(cfg) for p in self.parts])
