@@ -105,6 +105,15 @@ JSON_KEYS = {
     "chain[].recording_artefacts": JsonKey("", "the step's effects that are artefacts of the recording (a channel's "
                                                "skew, a sensor offset): written to the config's [measurement], "
                                                "never to the plant's [effects.*]"),
+    "skill": JsonKey("", "the final error against two baselines that need no model (hil.ident.skill)"),
+    "skill.error": JsonKey(CHANNEL_UNIT, "per channel, the final RMS error (the start model's without a chain)"),
+    "skill.baseline": JsonKey(CHANNEL_UNIT, "start: the start model's error per channel; command: the following "
+                                            "error x - x_cmd per position channel ('the axis is where it was told "
+                                            "to be'; none for an open-loop record)"),
+    "skill.fit_percent": JsonKey("%", "start and command: per channel 100 (1 - error / baseline); 0: no better "
+                                      "than the baseline, negative: worse"),
+    "skill.no_skill": JsonKey("", "the position channels whose error is no smaller than the following error"),
+    "skill.has_skill": JsonKey("", "false where the model is no better than the command on every position channel"),
     "run_to_run": JsonKey("", "where the records repeat one test: spread (per channel, the repetitions' scatter "
                               "about their mean, the channel's unit), floor_parts (per channel: spread, sensor: the "
                               "records' own floor, quantization: q/sqrt(12)), error_over (the final error in "
@@ -263,7 +272,7 @@ def candidates_json(d, unit=None):
     out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
-    for k in ("shown_together", "estimation", "validation", "run_to_run"):
+    for k in ("shown_together", "estimation", "validation", "run_to_run", "skill"):
         if k in d:
             out[k] = d[k]
     if "chain" in d:
@@ -304,6 +313,8 @@ def run(args) -> int:
     rr = run_to_run(d, rp)
     if rr is not None:
         d["run_to_run"] = rr
+    from hil.ident.skill import skill, skill_text
+    d["skill"] = skill(rp, d["error_before"], d["final"]["error"] if "final" in d else d["error_before"])
     table = None
     if len(metas) > 1 or vals:
         from hil.ident.records import estimation_validation
@@ -327,6 +338,10 @@ def run(args) -> int:
             out["report"] = str(args.report)
         print(dumps(out, indent=1))
         return 0
+    from hil.units import fmt_si
+    said = skill_text(d["skill"], lambda c, v: fmt_si(v, rp.unit(c), 3))
+    if not d["skill"]["has_skill"]:      # the answer before the candidates
+        print(said.pop(0))
     for line in ranking_text(d):
         print(line)
     if "chain" in d:
@@ -341,6 +356,8 @@ def run(args) -> int:
     if rr is not None:
         for line in run_to_run_text(rr, rp):
             print(line)
+    for line in said:
+        print(line)
     if table is not None:
         from hil.ident.records import errors_text
         for line in errors_text(table, rp.unit):

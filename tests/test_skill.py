@@ -1,0 +1,51 @@
+"""Issue 50, skill against baselines: every diagnosis reports its final error against the start
+model and against "the axis is where it was told to be" (the following error x - x_cmd), and a
+model no better than the command says so first."""
+import json
+
+import numpy as np
+import pytest
+from conftest import CONFIG
+
+from hil.cli import main
+from hil.io.measurement import read
+
+BENCH = str(CONFIG / "paper_bench.toml")
+
+
+@pytest.fixture(scope="module")
+def record(tmp_path_factory):
+    path = tmp_path_factory.mktemp("skill") / "rec.csv"
+    assert main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--duration", "2s", "--out", str(path)]) == 0
+    return path
+
+
+def _diagnose(capsys, record, *extra, json_out=True):
+    capsys.readouterr()
+    assert main(["diagnose", str(record), "--config", BENCH, "--candidates", "coulomb_friction", "--no-chain",
+                 "--jobs", "1", *extra, *(["--json"] if json_out else [])]) == 0
+    out = capsys.readouterr().out
+    return json.loads(out) if json_out else out
+
+
+def test_the_command_baseline_is_the_following_error_and_the_fit_its_nrmse(record, capsys):
+    s = _diagnose(capsys, record)["skill"]
+    m = read(record)
+    for c in ("x_motor", "x_table", "x_tip"):
+        e = m[c] - m["x_cmd"]
+        assert s["baseline"]["command"][c] == pytest.approx(np.sqrt(np.mean(e * e)), rel=1e-9)
+        assert s["fit_percent"]["command"][c] == pytest.approx(
+            100 * (1 - s["error"][c] / s["baseline"]["command"][c]), rel=1e-12)
+    assert s["fit_percent"]["start"]["x_motor"] == pytest.approx(0.0, abs=1e-9)     # no chain: the start model
+    assert s["has_skill"] is True and s["no_skill"] == []
+
+
+def test_a_model_no_better_than_the_command_says_so_first(record, capsys):
+    # a start model without the feed-forward the record had: its lag (v / kv) exceeds the following error
+    d = _diagnose(capsys, record, "--set", "control.ffv=0")
+    s = d["skill"]
+    assert s["has_skill"] is False and set(s["no_skill"]) == {"x_motor", "x_table", "x_tip"}
+    assert all(s["fit_percent"]["command"][c] < 0 for c in s["no_skill"])
+    text = _diagnose(capsys, record, "--set", "control.ffv=0", json_out=False)
+    assert text.splitlines()[0].startswith("the model has no skill here: it predicts x_motor no better than the "
+                                          "command itself")
