@@ -49,3 +49,18 @@ def test_a_model_no_better_than_the_command_says_so_first(record, capsys):
     text = _diagnose(capsys, record, "--set", "control.ffv=0", json_out=False)
     assert text.splitlines()[0].startswith("the model has no skill here: it predicts x_motor no better than the "
                                           "command itself")
+
+
+def test_a_fit_at_the_edge_of_its_range_is_no_finding():
+    """hil.ident.fit.at_range_edge: a value at a non-zero bound names the parameter and the bound;
+    inside the range, or at a bound of zero (the effect absent), nothing."""
+    from hil.ident.fit import at_range_edge
+    from sim_plant.effects import CATALOGUE
+    eff = CATALOGUE["torque_constant"]
+    p = eff.param("factor")
+    assert p.lower > 0
+    assert "factor ended at the bound of its range" in at_range_edge(eff, {"factor": p.lower})
+    assert "factor ended at the bound of its range" in at_range_edge(eff, {"factor": p.upper})
+    assert at_range_edge(eff, {"factor": 0.5 * (p.lower + p.upper)}) == ""
+    coulomb = CATALOGUE["coulomb_friction"]
+    assert coulomb.param("level").lower == 0 and at_range_edge(coulomb, {"level": 0.0}) == ""

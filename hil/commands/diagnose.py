@@ -189,7 +189,8 @@ JSON_KEYS = {
     "final.rejected": JsonKey("", "the last step the held-out data refused: effects, score, "
                                   "error_after, stderr, confounded, estimation_error, held_out (as chain[]); tolerance "
                                   "(plant.tolerance) where it was the fit of the config's drift within its tolerance; "
-                                  "next_tried (true) where the next verdict was tried after it",
+                                  "next_tried (true) where the next verdict was tried after it; confounded_with "
+                                  "(why) where the step's parameters cannot be told apart from those found before",
                               when="a step did not earn its place"),
     "final.also_refused": JsonKey("", "the steps refused before it (each as final.rejected), after each of which the "
                                       "next verdict, without the refused effects, was tried",
@@ -555,6 +556,8 @@ def chain_text(d, rp) -> list[str]:
         what = (f"the config's drift within its tolerance ({', '.join(r['effects'])} and the other masses, stiffnesses "
                 f"and dampings)" if "tolerance" in r else " + ".join(r["effects"]))
         then = "; the next verdict tried without it" if r.get("next_tried") else ""
+        if r.get("confounded_with"):
+            then = f"; confounded with what was found: {r['confounded_with']}" + then
         lines.append(f"  refused: + {what} (BIC score {r['score']:.1f} on the whole record{then})")
         lines += _held_out_lines(r, rp)
     lines.append(f"end: {f['end']}; " + ("every channel at its noise floor" if f["at_noise_floor"] else

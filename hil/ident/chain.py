@@ -439,6 +439,29 @@ def _stderr_of(fit, names) -> tuple[dict, list]:
     return out, [list(p) for p in fit.confounded]
 
 
+TANGLED = 0.95     # |r| between a step's parameter and a found one's beyond which the step is refused
+
+
+def confounded_with_found(conf, aliases, add, found) -> str:
+    """Why a step's effects ``add`` cannot be told apart from the effects ``found`` before it, ""
+    where they can: a parameter of the step correlated with a found one's beyond :data:`TANGLED`
+    in the step's joint fit (``conf``: [name, name, r]), or a step's parameter that aliases a
+    config key found as ``parameter:<key>`` (``aliases``: :func:`_aliases`; LinA: a torque
+    constant of 1.075 beside kp +25 %, r = -1.000)."""
+    def owner(name):
+        return next((n for n in add + found if name == n or name.startswith(n + ".")), None)
+    for a, b, r in conf:
+        ea, eb = owner(a), owner(b)
+        if abs(r) >= TANGLED and ea != eb and {ea, eb} & set(add) and {ea, eb} & set(found):
+            return f"{a} and {b} (r = {r:+.3f}): this record cannot tell them apart"
+    for n, al in (aliases or {}).items():
+        for x in al:
+            if abs(x["r"]) >= TANGLED and f"parameter:{x['key']}" in found:
+                return (f"{n} and parameter:{x['key']}, found before (r = {x['r']:+.3f}): this record cannot tell "
+                        f"them apart")
+    return ""
+
+
 def _aliases(replay, cfg1, add) -> dict:
     """{effect: :func:`~hil.ident.fit.config_aliases`} of a step's effects at the step's config
     against the config's own parameters (the diagnosis's ``parameter:`` candidates): what a drift
@@ -1145,6 +1168,22 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if (i > 0 or retry) and paid <= MIN_SCORE:
             end = end if retry else "no effect pays for its parameters"
             break
+        err1 = rms(res1)
+        se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
+        if first_nights is not None:        # the fit on the config's plant is not the step's values
+            se, conf = _nested(first_nights["nights_plant"]["stderr"]), []
+        aliases = _aliases(replay, cfg1, add)
+        tangled = confounded_with_found(conf, aliases, add, found)
+        if tangled:
+            # the record cannot tell the step from what was found: adding both only splits one finding
+            end = "no step left that the record tells apart from the effects found"
+            rejected = {"effects": list(add), "score": float(paid), "error_after": err1, "stderr": se,
+                        "confounded": conf, "confounded_with": tangled}
+            refused.append(rejected)
+            logger.info("chain step %d: %s refused, confounded with the effects found: %s", i + 1, " + ".join(add),
+                        tangled)
+            barred |= {_same(n, cur.cfg) for n in add}
+            continue
         held = (first_nights["held"] if first_nights is not None else
                 _earned(cur, split, add, found, cfg1, fit_nfev) if split else None)
         if held is not None and members:
@@ -1152,10 +1191,6 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         lead = next((c for c in d["candidates"] if c.effect == verdict), None)
         if together is not None:
             lead = None
-        err1 = rms(res1)
-        se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
-        if first_nights is not None:        # the fit on the config's plant is not the step's values
-            se, conf = _nested(first_nights["nights_plant"]["stderr"]), []
         if held is not None and not held["earned"]:
             end = "no step earns its place on the held-out data"
             rejected = {"effects": list(add), "score": float(paid), "error_after": err1, "stderr": se,
@@ -1177,7 +1212,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             gap_closed={c: gap_closed(err0[c], err1[c], floor[c]) for c in err0}, score=float(paid),
             evidence=(together["text"] if together is not None else first_nights["text"] if first_nights is not None
                       else lead.evidence if lead is not None else ""),
-            refitted_together=joint is not None, stderr=se, confounded=conf, aliases=_aliases(replay, cfg1, add),
+            refitted_together=joint is not None, stderr=se, confounded=conf, aliases=aliases,
             rival=rival, recording_artefacts=[n for n in add if measurement_key(candidate(n, cur.cfg)) is not None],
             dropped=dropped or None, fits=fits, joint=joint, config=cfg1, runner_up=runner_up,
             beyond_tolerance=beyond if beyond is not None and beyond["effect"] in add else None))

@@ -52,6 +52,7 @@ from sim_plant.effects import Effect
 
 logger = logging.getLogger(__name__)
 
+EDGE = 1e-3         # share of a parameter's range within which a fitted value is at its bound
 CONFOUNDED = 0.9     # |correlation| of two fitted parameters above which they are named as confounded
 SINGULAR = 1e12      # condition number of J^T J (scaled parameters) beyond which no standard error is claimed
 TAU_WINDOW = 5.0     # Sokal's window: the autocorrelation summed to the first lag M >= TAU_WINDOW * tau(M)
@@ -394,7 +395,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     significant = score > MIN_SCORE and before > SIGNIFICANT_ABOVE_NOISE * floor
     ev = evidence(name, vals, replay, res0, chan, before, after, model_modes(cfg))
     worse = e1 > e0 * (1 + WORSE_TOL)
-    why = eff.degenerate(vals, cfg, replay.sample_period)
+    why = eff.degenerate(vals, cfg, replay.sample_period) or at_range_edge(eff, vals)
     if why:          # it fits, but as another effect (a mode at its bound) or a sliver of a setting
         ev = why + ev
         significant = False
@@ -404,6 +405,23 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     return Candidate(name, vals, chan, before, after, float(score), ev, gain, significant and not worse, cfg1,
                      {c: float(np.sqrt(np.mean(res1[c] ** 2))) for c in chans}, nfev, res1, se, worse, confounded,
                      why)
+
+
+def at_range_edge(eff, vals: dict) -> str:
+    """Why a fit that ends at a bound of a parameter's range is no finding ("" where none does):
+    no value the effect can take explains the record, only the edge of what it may, so it stands
+    for something else (HSM150: a torque constant at its lower bound 0.5). A bound at zero is left
+    alone: there the effect, or that part of it, is absent."""
+    edges = []
+    for p in getattr(eff, "fitted_params", ()):
+        v = vals.get(p.name)
+        if v is None or not (math.isfinite(p.lower) and math.isfinite(p.upper)) or p.upper <= p.lower:
+            continue
+        edges += [(p.name, v, b) for b in (p.lower, p.upper) if b != 0 and abs(v - b) <= EDGE * (p.upper - p.lower)]
+    if not edges:
+        return ""
+    return ("; ".join(f"{n} ended at the bound of its range ({v:.4g}, bound {b:.4g})" for n, v, b in edges)
+            + ": no value within the range explains the record, so it stands for another effect; ")
 
 
 def fit_effects(replay: Replay, names: list[str], max_nfev: int = 60, progress=None):
