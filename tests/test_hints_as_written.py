@@ -131,7 +131,7 @@ def test_the_tutorial_tells_every_step_of_the_emps_chain(capsys):
     page = "tutorials/model-against-measurement.md"
     argv = _console_command(page, "diagnose ../shared")
     argv = [str(ROOT / a) if a.startswith(("../", "config/")) else a for a in argv]
-    argv = [a for a in argv if a not in ("--out", "emps_fitted.toml")] + ["--json"]
+    argv = [a for a in argv if a not in ("--out", "out/emps_fitted.toml")] + ["--json"]
     assert main(argv) == 0
     chain = json.loads(capsys.readouterr().out)["chain"]
     text = (ROOT / "docs" / page).read_text(encoding="utf-8")

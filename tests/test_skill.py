@@ -62,5 +62,7 @@ def test_a_fit_at_the_edge_of_its_range_is_no_finding():
     assert "factor ended at the bound of its range" in at_range_edge(eff, {"factor": p.lower})
     assert "factor ended at the bound of its range" in at_range_edge(eff, {"factor": p.upper})
     assert at_range_edge(eff, {"factor": 0.5 * (p.lower + p.upper)}) == ""
+    k = CATALOGUE["stiffness_along_travel"].param("k_start")       # a range over decades
+    assert at_range_edge(CATALOGUE["stiffness_along_travel"], {"k_start": 100 * k.lower}) == ""
     coulomb = CATALOGUE["coulomb_friction"]
     assert coulomb.param("level").lower == 0 and at_range_edge(coulomb, {"level": 0.0}) == ""

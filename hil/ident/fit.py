@@ -417,7 +417,10 @@ def at_range_edge(eff, vals: dict) -> str:
         v = vals.get(p.name)
         if v is None or not (math.isfinite(p.lower) and math.isfinite(p.upper)) or p.upper <= p.lower:
             continue
-        edges += [(p.name, v, b) for b in (p.lower, p.upper) if b != 0 and abs(v - b) <= EDGE * (p.upper - p.lower)]
+        # close to the bound on its own scale too: a range over decades (a stiffness from 1000 N/m)
+        # puts a tenth of a percent of its span far above the lower bound
+        edges += [(p.name, v, b) for b in (p.lower, p.upper)
+                  if b != 0 and abs(v - b) <= EDGE * min(abs(b), p.upper - p.lower)]
     if not edges:
         return ""
     return ("; ".join(f"{n} ended at the bound of its range ({v:.4g}, bound {b:.4g})" for n, v, b in edges)

@@ -69,11 +69,12 @@ def skill_text(s: dict, fmt) -> list[str]:
         lines.append("the model has no skill here: it predicts "
                      + ", ".join(f"{c} no better than the command itself (model {fmt(c, s['error'][c])}, "
                                  f"following error {fmt(c, base[c])})" for c in s["no_skill"]))
-    parts = []
-    for c, v in s["fit_percent"]["command"].items():
-        parts.append(f"{c} {v:.1f} % against 'the axis is where it was told to be' (following error {fmt(c, base[c])})")
-    for c, v in s["fit_percent"]["start"].items():
-        parts.append(f"{c} {v:.1f} % against the start model")
-    if parts:
-        lines.append("skill (fit %, 100 perfect, 0 no better than the baseline): " + "; ".join(parts))
+    fit = s["fit_percent"]
+    if fit["command"] or fit["start"]:
+        lines.append("skill (fit %: 100 perfect, 0 no better than the baseline):")
+    if fit["command"]:
+        lines.append("  against the command ('the axis is where it was told to be'): "
+                     + ", ".join(f"{c} {v:.1f} % (following error {fmt(c, base[c])})" for c, v in fit["command"].items()))
+    if fit["start"]:
+        lines.append("  against the start model: " + ", ".join(f"{c} {v:.1f} %" for c, v in fit["start"].items()))
     return lines
