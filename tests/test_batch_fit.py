@@ -30,6 +30,7 @@ def _configs(effect, values):
     return [configure(eff, CFG, dict(base, **v)) for v in values]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect, values", [
     ("backlash", [{"gap": 1e-6}, {"gap": 8e-6}, {"gap": 3e-5}]),
     ("coulomb_friction", [{"level": 0.5}, {"level": 2.0}]),

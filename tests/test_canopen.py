@@ -235,6 +235,8 @@ def test_sweep_on_the_canopen_backend_matches_the_simulated_plant():
     assert tips[0] < 100 < tips[1]
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_hil_move_and_sweep_commands_on_the_canopen_backend(tmp_path, capsys):
     """The CLI, as a user runs it, against the lockstep drive on the same virtual channel."""
     import json
@@ -261,6 +263,8 @@ def test_hil_move_and_sweep_commands_on_the_canopen_backend(tmp_path, capsys):
     assert sim.state == "READY TO SWITCH ON"
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_can_log_traces_every_run_of_a_sweep_on_the_canopen_backend(tmp_path, capsys):
     """``hil --can-log FILE sweep --backend canopen``: every run of the sweep traced, one file per
     run numbered in run order (issue 28: after the split the option no longer reached the sweep's

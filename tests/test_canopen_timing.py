@@ -13,6 +13,7 @@ from pathlib import Path
 import can
 import canopen.network
 import numpy as np
+import pytest
 from canopen_rig import channel, rig
 
 from drivers.canopen.backend import CanopenBackend
@@ -124,6 +125,8 @@ def test_no_notifier_thread_handles_pdos_in_a_lockstep_run(monkeypatch, tmp_path
     assert be.missed_total == 0 and be.pdo_frames_on_loop >= 3 * (cycles - 1)
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_timing_benchmark_json_from_a_short_run():
     """Both transports at 250 Hz for 1 s, idle and with one core busy: four results with the
     figures the issue names, consistent with each other; no process left behind."""

@@ -23,6 +23,7 @@ def _no_pulses_record(tmp_path):
     return p
 
 
+@pytest.mark.slow
 @emps_record
 def test_emps_validate_validates_the_chain_and_every_step(tmp_path, capsys):
     from hil.cli import main

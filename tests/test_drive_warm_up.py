@@ -91,6 +91,8 @@ CALLS = {"none": {"coast_cycle", "torque_cycle", "quantize"},
          "both": {"drive_cycle", "coast_cycle", "torque_cycle", "drive_feedback", "quantize"}}
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.parametrize("closes", sorted(CALLS))
 def test_the_warm_up_leaves_the_state_as_it_was(closes):
     state, compiled = _probe(closes)
@@ -153,6 +155,8 @@ print(json.dumps({"rc": rc, "ticked": bool(first),
 """
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.parametrize("backend", ["canopen", "serial"])
 def test_nothing_compiled_is_loaded_once_the_loop_runs(backend):
     out = subprocess.run([sys.executable, "-c", MOVE_PROBE, backend], cwd=ROOT, capture_output=True, text=True,

@@ -104,6 +104,7 @@ def test_output_error_fit_lands_on_the_published_values():
         assert e[k] <= PUBLISHED["errors"][k]
 
 
+@pytest.mark.slow
 def test_cli_diagnose_json_names_the_pair(capsys):
     # the JSON: candidates ranked, verdict; also_missing beside the verdict
     import json

@@ -25,6 +25,7 @@ def _pulses_record(tmp_path):
     return p
 
 
+@pytest.mark.slow
 @pytest.mark.skipif("u_add" not in CHANNELS, reason="no u_add input channel in this version (issue 15 item 1)")
 def test_emps_validate_json(tmp_path, capsys):
     from hil.cli import main

@@ -135,6 +135,7 @@ def test_motor_encoder_torque_ripple_matches_the_loop_transfer(fraction):
         assert 0.05 < np.ptp(ripple) < 3.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("vals", [{"encoder": 0.0, "period": PITCH / 512, "amplitude1": 0.4e-6, "phase1": 0.2,
                                    "amplitude2": 0.1e-6, "phase2": 0.0},
                                   {"encoder": 1.0, "period": 40e-6, "amplitude1": 0.8e-6, "phase1": 0.4,

@@ -172,6 +172,8 @@ def _check_common(r: dict, kind: str, words: str) -> None:
     assert r["latch"].get("reason") == s["reason"] and r["latch"].get("time")
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.parametrize("label,fault,kind,words", CANOPEN_CASES, ids=[c[0] for c in CANOPEN_CASES])
 def test_canopen_fault_matrix(tmp_path, label, fault, kind, words):
     r = run_canopen_case(fault, tmp_path)
@@ -182,6 +184,8 @@ def test_canopen_fault_matrix(tmp_path, label, fault, kind, words):
         assert r["drive_state"] != "OPERATION ENABLED" and abs(r["drive_speed"]) < 1e-3, r["drive_state"]
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 @linux
 @pytest.mark.parametrize("label,fault,kind,words", SERIAL_CASES, ids=[c[0] for c in SERIAL_CASES])
 def test_serial_fault_matrix(tmp_path, label, fault, kind, words):

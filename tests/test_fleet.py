@@ -181,6 +181,7 @@ def _keys_documented(obj):
         assert {f"axes[].{k}" for k in a} <= set(JSON_KEYS), set(a)
 
 
+@pytest.mark.slow
 def test_the_drifting_axis_is_flagged_on_the_date_of_its_step(fleet):
     work, run = fleet
     _keys_documented(run)

@@ -23,6 +23,7 @@ def _rms(r):
     return float(np.sqrt(np.mean(r * r)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("amplitude", [0.3, 1.0])
 def test_pulses_after_the_controller_replay_to_the_noise_floor(tmp_path, capsys, amplitude):
     out = tmp_path / "pulses.csv"
@@ -87,6 +88,7 @@ def test_external_force_enters_the_loop(mass):
     assert _rms(rp0.residuals()["torque"]) > 0.2 * expect
 
 
+@pytest.mark.slow
 def test_none_inputs_leave_the_simulation_bit_identical():
     x = np.concatenate([np.zeros(50), np.linspace(0, 0.02, 300), np.full(200, 0.02)])
     a = simulate_config(CFG, x)

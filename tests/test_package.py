@@ -90,6 +90,8 @@ def test_wheel_installs_the_three_packages_of_the_design_and_nothing_else(wheel)
     assert {t for t in tops if not t.endswith(".dist-info")} == {"hil", "drivers", "sim_plant"}
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_wheel_installed_outside_the_clone_runs_the_canopen_walkthrough(wheel, tmp_path):
     venv = tmp_path / "venv"
     # the dependencies come from the environment running the tests (no network), whether that is

@@ -195,6 +195,7 @@ def test_compare_with_a_constant_tip_says_undefined(tmp_path, capsys):
     assert "fit undefined" in tip and "e+" not in tip.split("fit")[1].split("rel")[0]
 
 
+@pytest.mark.slow
 def test_compare_with_a_zero_tip_says_undefined_not_nan(tmp_path, capsys):
     """The red-team re-run: an all-zero measured channel printed 'rel nan %' (its RMS is zero)."""
     rec = _with_column(_record(tmp_path, capsys), tmp_path / "zero.csv", "x_tip", "0")
@@ -279,6 +280,7 @@ def test_a_closed_stdout_ends_cleanly_after_the_run(tmp_path):
     assert status["status"] == "complete" and status["rows"] > 100
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not os.path.exists("/dev/full"), reason="no /dev/full on this system")
 def test_a_full_or_absent_stdout_is_one_line(tmp_path):
     """The red-team re-run: stdout on /dev/full gave OSError [Errno 28] with a traceback and exit 1

@@ -124,6 +124,8 @@ def _frozen_drive_case(tmp_path, miss_limit: int, how: str) -> dict:
             "record": read_measurement(tmp_path / "out" / "move.csv"), "stalls": stalls}
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 @linux
 @pytest.mark.parametrize("miss_limit,how", [(2, "freeze"), (10, "freeze"), (10, "sigstop")])
 def test_a_frozen_drive_never_executes_its_backlog(tmp_path, miss_limit, how):

@@ -28,6 +28,9 @@ from conftest import CONFIG, ROOT, SHARED
 
 import hil
 
+# a browser per report: the slow set, which CI runs
+pytestmark = pytest.mark.slow
+
 BENCH = CONFIG / "paper_bench.toml"
 # the shared record beside the clone (CI), or beside the folder of the work trees
 EMPS = next((p for p in (SHARED / "data" / "emps" / "DATA_EMPS.mat",

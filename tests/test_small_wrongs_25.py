@@ -37,6 +37,7 @@ def hsm_record(tmp_path_factory):
     return str(out)
 
 
+@pytest.mark.slow
 def test_a_motor_without_a_screw_prints_its_positions_in_rad(hsm_record, tmp_path, capsys):
     """The HSM150's positions are the motor's angle: 'x_motor RMS 5866 m' was printed."""
     rc, out, _ = _run(capsys, "compare", hsm_record, "--config", HSM, "--open-loop", "--set",

@@ -28,6 +28,9 @@ from hil.plant_config import candidate, configure, plant_from_config
 from hil.simulate import Record, _cycles, _prepared, closed_loop_kernel, simulate
 from sim_plant.kernel import _CYCLE_OPTIONS, mass_token
 
+# compiles every variant of the loops afresh (a minute and more each set): the slow set, which CI runs
+pytestmark = pytest.mark.slow
+
 CFG = load(CONFIG / "paper_bench.toml")
 
 

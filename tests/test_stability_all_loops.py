@@ -45,6 +45,7 @@ def _lifted_response(plant, ctrl, x):
     return np.array(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("changes", CASES, ids=[str(i) for i in range(len(CASES))])
 def test_lifted_loop_is_the_compiled_loop(bench, changes):
     """Small moves (no saturation, no friction): the lifted map reproduces the compiled kernel's

@@ -90,6 +90,7 @@ def test_fit_validate_reports_estimation_and_validation(tmp_path, capsys, level)
     assert v in lines[1] and "torque" in lines[1] and "x floor" in lines[1]
 
 
+@pytest.mark.slow
 def test_diagnose_validate_json(tmp_path, capsys):
     from hil.cli import main
     truth = _truth([("coulomb_friction", {"level": 1.6}), ("constant_force", {"force": 300.0})])

@@ -30,6 +30,9 @@ embedded).
 # checks them against what run() prints)
 CHANNEL_UNIT = "the channel's (m, N*m, N, V)"
 JSON_KEYS = {
+    "answer": JsonKey("", "the answer first: whether the model (the --after model where given) explains the record "
+                          "down to its noise floor on every channel, then the evidence (each channel's fit, where the "
+                          "residual is not white)"),
     "before": JsonKey("", "the analysis of the --config model against the record (keys before.*)"),
     "after": JsonKey("", "the same analysis of the --after model; null without --after"),
     "report": JsonKey("", "path of the self-contained report.html"),
@@ -38,7 +41,9 @@ JSON_KEYS = {
                                "(self-contained, offline)"),
     "warnings": JsonKey("", "what deserves a look in the record (outliers, gaps, a slow log), one sentence each"),
     "before.channels": JsonKey(CHANNEL_UNIT, "per compared channel: rms, peak and noise_floor of the residual (the "
-                                             "channel's SI unit, named by unit), fit (NRMSE fit, %), relative_error "
+                                             "third-difference estimate) and record_floor (the record's own floor, "
+                                             "quantization or standstill noise, as the diagnosis judges) in the "
+                                             "channel's SI unit, named by unit; fit (NRMSE fit, %), relative_error "
                                              "(%), for positions overshoot_difference, following_error_rms_measured "
                                              "and _simulated (m); phase_rms (per motion phase), spectrum_peaks "
                                              "(frequency Hz, amplitude), whiteness (band_99, fraction_outside, white), "
@@ -105,13 +110,16 @@ def run(args) -> int:
     rep = write_report(out / "report.html", title, a, figs, after=b, notes=notes,
                        record=meas.source, configs=[("model", cfg.source), ("fitted model", after and after.source)],
                        interactive=live.name)
+    from hil.plots.report import compare_verdict
+    answer = compare_verdict(a, b)
     if args.json:
-        print(dumps({"before": strip(a), "after": strip(b) if b else None, "report": str(rep),
+        print(dumps({"answer": answer, "before": strip(a), "after": strip(b) if b else None, "report": str(rep),
                      "figures": [str(f) for f in figs], "interactive": str(live), "warnings": meas.warnings},
                     indent=1))
     else:
         from hil.ident.scores import fmt_fit
         from hil.units import fmt_si
+        print(answer.split(". ", 1)[0] + ".")          # the answer, then the numbers behind it
         for c, d in a["channels"].items():
             e = b["channels"][c] if b else None
             u = d["unit"]

@@ -62,6 +62,9 @@ def analyse(replay: Replay, cfg=None) -> dict:
         r = res[c]
         d = metrics(t, xc, y, y - r, c, replay.unit(c))
         d["noise_floor"] = noise_floor(r)
+        # the record's own floor (quantization, standstill noise: hil.ident.noise), which the
+        # diagnosis judges against too; the answer of a comparison is whether the model reaches it
+        d["record_floor"] = float(replay.noise.get(c, 0.0))
         d["phase_rms"] = {p: (float(np.sqrt(np.mean(r[mask] ** 2))) if mask.any() else None)
                           for p, mask in phases.items()}
         d["spectrum_peaks"] = [{"frequency": f, "amplitude": amp} for f, amp in

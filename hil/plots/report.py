@@ -175,20 +175,33 @@ def _residual_table(analysis: dict) -> dict:
 
 
 def compare_verdict(analysis: dict, after: dict | None = None) -> str:
-    """One sentence: the fit of each channel (before -> after), and where the residual is not white
-    (structure a model could still explain)."""
+    """The answer first: does the (fitted) model explain the record down to its noise floor
+    (every channel's RMS residual within AT_FLOOR of the record's floor, as the diagnosis judges)?
+    Then the evidence: the channels above it and by how much, the fit of each channel (before ->
+    after), and where the residual is not white (structure a model could still explain)."""
+    from hil.ident.unexplained import AT_FLOOR
+    last = after or analysis
+    who = "the fitted model" if after else "the model"
+    above = {c: d["rms"] / d["record_floor"] for c, d in last["channels"].items()
+             if d.get("record_floor") and d["rms"] > AT_FLOOR * d["record_floor"]}
+    if not above and all(d.get("record_floor") for d in last["channels"].values()):
+        answer = f"Yes: {who} explains the record down to its noise floor on every channel"
+    elif above:
+        answer = (f"No: {who} leaves " + ", ".join(f"{c} at {r:.3g} x its noise floor" for c, r in above.items())
+                  + " (hil diagnose names what is missing)")
+    else:
+        answer = f"{who[0].upper()}{who[1:]}'s errors below (the record gives no noise floor to judge them against)"
     parts = []
     for c, d in analysis["channels"].items():
         s = f"{c} fit {fmt_fit(d['fit'])}"
         if after:
             s += f" -> {fmt_fit(after['channels'][c]['fit'])}"
         parts.append(s)
-    last = after or analysis
     coloured = [c for c, d in last["channels"].items() if not d["whiteness"]["white"]]
-    who = "the fitted model" if after else "the model"
-    tail = (f"; the residual of {who} is not white on {', '.join(coloured)} (structure left to explain)" if coloured
-            else f"; the residual of {who} is white on every channel")
-    return ", ".join(parts) + tail
+    tail = (f"; its residual is not white on {', '.join(coloured)}" + (
+        " (at the noise floor: the sensor's own correlated noise, e.g. quantization)" if not above else
+        " (structure left to explain)") if coloured else "; its residual is white on every channel")
+    return answer + ". " + ", ".join(parts) + tail
 
 
 def _compare_context(title, analysis, figures, after, names, notes, record, configs, validation, verdict,

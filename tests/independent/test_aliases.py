@@ -31,6 +31,7 @@ def _record(k2_factor, seed=4, duration=1.6):
     return ivp.measure(ivp.simulate(b, x, ivp.Hidden()), seed)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("k2_factor", [1.025, 0.982])
 def test_m3_fitted_where_k2_drifted_is_the_ratio_and_says_so(k2_factor):
     from hil.ident.fit import config_aliases, evaluate

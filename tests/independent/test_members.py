@@ -34,6 +34,7 @@ def _replay(seed, level, viscous):
     return Replay(Measurement(ivp.measure(ivp.simulate(BENCH, x, hidden), seed), source="plant_ivp"), CFG)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed, viscous", [(0, 0.0), (5, 0.002)] + [
     pytest.param(s, v, marks=pytest.mark.slow) for s, v in [(4, 0.0), (6, 0.0), (7, 0.0), (4, 0.001), (6, 0.0005),
                                                              (7, 0.001)]])

@@ -143,6 +143,7 @@ EFFECT_CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(EFFECT_CASES))
 def test_effects_agree_with_kernel(name):
     vals, hidden, tol = EFFECT_CASES[name]

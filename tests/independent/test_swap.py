@@ -31,6 +31,7 @@ def _replay(duration, seed, **hidden):
     return Replay(Measurement(rec, source="plant_ivp"), CFG)
 
 
+@pytest.mark.slow
 def test_a_lag_and_a_delay_look_alike_a_friction_does_not():
     rp = _replay(2.0, 5, delay=0.4e-3)
     cands = [evaluate(rp, n) for n in ("current_loop_lag", "actuator_delay", "coulomb_friction")]

@@ -42,6 +42,7 @@ def _diagnose(tmp_path, rec, max_steps, candidates):
     return json.loads(out.getvalue()), load(tmp_path / "found.toml")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mass", [1, 0])
 def test_the_fit_finds_where_the_force_acts(mass):
     # the fit tries both places (the torque is the same, the motor - table offset is not) and keeps

@@ -60,6 +60,7 @@ def test_which_effects_are_drifts_of_the_config():
     assert not drift("mass_change", "coulomb_friction") and not drift()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_drifts_within_the_tolerance_reach_the_floor_and_find_what_the_record_tells(seed):
     bench, truth = _drifted(seed)
@@ -80,6 +81,7 @@ def test_drifts_within_the_tolerance_reach_the_floor_and_find_what_the_record_te
     assert within_tolerance(rp, 0.0) is None
 
 
+@pytest.mark.slow
 def test_a_change_beyond_the_tolerance_is_not_explained():
     # the table 40 kg heavier (10 %): the config within 5 % does not explain it
     m = list(BENCH.m)
@@ -136,6 +138,7 @@ def _drifted_bench():
     return BENCH.changed(m=tuple(m), k=tuple(k), c=tuple(c)), m, k
 
 
+@pytest.mark.slow
 def test_the_chain_takes_the_drift_without_naming_it_and_names_it_without_a_tolerance():
     # two candidates only (a drift and a friction), 4 s: the chain's first verdict is the tip's mass;
     # within the tolerance it names nothing and ends at the floor, the fit earned on the held-out
@@ -153,6 +156,7 @@ def test_the_chain_takes_the_drift_without_naming_it_and_names_it_without_a_tole
     assert [s["effects"] for s in d0["chain"]][:1] == [["parameter:plant.m3"]] and "tolerance" not in d0["final"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("level,seed", [(0.3, 31), (1.0, 32)])
 def test_a_drift_after_an_effect_is_fitted_with_it_and_named_nothing(level, seed):
     # Coulomb friction on a drifted bench: the chain names the friction first, then a drift; the
@@ -179,6 +183,7 @@ def test_a_drift_after_an_effect_is_fitted_with_it_and_named_nothing(level, seed
     assert math.sqrt(p["plant.k2"] / p["plant.m3"]) == pytest.approx(math.sqrt(k[1] / m[2]), rel=2e-3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("level,seed", [(0.3, 31), (1.0, 32)])
 def test_a_later_effect_that_the_drift_leaves_nothing_for_is_no_finding(level, seed):
     # the same drifted bench with Coulomb friction, the candidates the friction and a torque
@@ -207,6 +212,7 @@ def test_a_later_effect_that_the_drift_leaves_nothing_for_is_no_finding(level, s
     assert [s.effects for s in d0["chain"]] == [["coulomb_friction"], ["torque_constant"]]
 
 
+@pytest.mark.slow
 def test_an_effect_the_drift_holds_in_its_place_is_dropped_once_the_drift_is_refitted_without_it():
     # the tip 3 % heavier with Coulomb friction, the model holding the friction and a mode fitted at
     # 990 Hz, far above the record's Nyquist frequency (125 Hz): a rigid 0.13 kg on the tip, the

@@ -55,6 +55,7 @@ def test_command_logged_before_the_delay_replays_to_the_floor(periods):
     assert _rms(unsaid["torque"]) > 5 * noise
 
 
+@pytest.mark.slow
 def test_hil_compare_after_brings_the_torque_to_its_floor(tmp_path):
     from hil.cli import main
     delay = 4 * BENCH.tv

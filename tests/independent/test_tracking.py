@@ -61,6 +61,7 @@ def test_the_profile_refines_between_the_best_point_and_its_neighbours():
     assert _profile_points(two)[0] == two and _profile_points(two)[1](two[0]) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [3, 4, 5])
 def test_backlash_and_friction_on_a_scattered_night(seed):
     """Strengths drawn over a ball screw's range, every plant parameter scattered by 1.5 % (the tip's
@@ -83,6 +84,7 @@ def _short_record():
                        source="ivp")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("track", [["backlash+coulomb_friction"], ["parameter:plant.k2", "backlash"],
                                    ["coulomb_friction"]])
 def test_combinations_plant_keys_and_effects_without_a_grid_are_tracked(track):
