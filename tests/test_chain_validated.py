@@ -80,6 +80,7 @@ def test_chain_markdown_puts_estimation_and_held_out_side_by_side():
     assert "| refused | channel_skew | 9e-07 | 2.4 | 2e-06 -> 1e-06 | 20 -> 3.3 | -20.0 +- 1.0 | no |" in text
 
 
+@pytest.mark.slow
 def test_diagnose_report_shows_estimation_and_held_out_for_every_step(tmp_path, capsys):
     """The HTML report's chain table carries each step's estimation error and its held-out error
     before and after, the figures of the JSON's chain[] entries."""

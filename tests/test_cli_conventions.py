@@ -371,6 +371,7 @@ def test_model_closed_loop_is_text_not_json(tmp_path, capsys):
     assert re.search(r"k1 = [0-9.]+ N/um", text) and re.search(r"m3 = 4\.228 kg", text)
 
 
+@pytest.mark.slow
 def test_compare_text_in_engineering_units(c2_record, tmp_path, capsys):
     capsys.readouterr()
     assert main(["compare", str(c2_record), "--config", BENCH, "--out", str(tmp_path)]) == 0

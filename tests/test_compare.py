@@ -120,6 +120,7 @@ def test_interactive_page_is_self_contained(analyses, tmp_path):
         assert f"model: {d['fit']:.2f} %" in html
 
 
+@pytest.mark.slow
 def test_compare_links_the_interactive_page(tmp_path, capsys):
     import json
 

@@ -39,6 +39,8 @@ def _long_record(tmp_path, rows):
     return write(tmp_path / "long.csv", ch)
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_compare_shows_progress_and_stops_on_ctrl_c_within_a_second(tmp_path):
     rec = _long_record(tmp_path, 150_000)
     env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")

@@ -181,6 +181,7 @@ MOTOR_512 = {"encoder": 0.0, "period": PITCH / 512, "amplitude1": 0.4e-6, "phase
              "phase2": 1.0}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", ["default", "half", "motor"])
 def test_synth_then_diagnose_names_it(tmp_path, capsys, case):
     """The paper bench's 40 um scale (the position loop's feedback) read with 0.8 um (2 % of the

@@ -200,6 +200,7 @@ def test_the_drifting_axis_is_flagged_on_the_date_of_its_step(fleet):
     assert axes["X1"]["normal"] == ["backlash"] and axes["X2"]["findings"] == []
 
 
+@pytest.mark.slow
 def test_a_rerun_reuses_every_record_and_a_new_one_is_diagnosed_alone(fleet, tmp_path):
     work, _ = fleet
     out = tmp_path / "out"
@@ -220,6 +221,7 @@ def test_a_rerun_reuses_every_record_and_a_new_one_is_diagnosed_alone(fleet, tmp
     assert text.count("error:") == 1 and "X2: drift: backlash.gap since 2026-03-23" in text
 
 
+@pytest.mark.slow
 def test_bad_settings_are_one_line_with_exit_2(fleet, capsys):
     work, _ = fleet
     assert main(["fleet", "run", str(work / "records"), "--config", BENCH, "--track", "backlash", "--threshold",
@@ -239,6 +241,7 @@ def test_bad_settings_are_one_line_with_exit_2(fleet, capsys):
     assert "no fleet here" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_report_and_its_values(fleet):
     work, run = fleet
     out = json.loads(_cli("fleet", "report", work / "out", "--json"))
@@ -256,6 +259,7 @@ def test_the_report_and_its_values(fleet):
     assert all(r["stderr"] is not None and 0 < r["stderr"] < 0.05 * r["value"] for r in rows)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="no Chromium installed (Debian: apt-get install chromium)")
 def test_the_report_renders_in_chromium(fleet, tmp_path):
     work, _ = fleet
@@ -297,6 +301,7 @@ def _same_as_local(work, folder, n=2):
         assert math.isfinite(fig["values"]["backlash.gap"])
 
 
+@pytest.mark.slow
 def test_the_same_figures_on_a_local_dask_cluster(fleet, tmp_path):
     """--scheduler ADDRESS of a LocalCluster on 127.0.0.1 (its worker a thread of this process, the
     kernels compiled already): two records (one of each axis) equal the local run's figures."""

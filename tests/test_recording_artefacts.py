@@ -27,6 +27,7 @@ def _skewed_record(tmp_path, skew):
     return str(p)
 
 
+@pytest.mark.slow
 def test_chain_writes_a_skew_to_measurement_and_compare_reproduces_its_error(tmp_path, capsys):
     from hil.cli import main
     rec = _skewed_record(tmp_path, 3 * TS)

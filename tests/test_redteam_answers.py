@@ -187,6 +187,7 @@ def _with_column(src: Path, dst: Path, name: str, value: str) -> Path:
     return dst
 
 
+@pytest.mark.slow
 def test_compare_with_a_constant_tip_says_undefined(tmp_path, capsys):
     """Before: 'fit -4140097623904975872.00 %' for a tip channel stuck at one value."""
     rec = _with_column(_record(tmp_path, capsys), tmp_path / "const.csv", "x_tip", "0.1")

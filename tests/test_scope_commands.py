@@ -91,6 +91,8 @@ def test_a_model_sweep_has_no_axis_to_show(started, capsys, tmp_path):
     assert "\n" not in err and "--scope: the model sweep moves no axis" in err and not started
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_frf_on_the_compiled_loop(started, capsys, tmp_path, monkeypatch):
     """The compiled run's record into the scope, one row per position tick: the record's own numbers."""
     import hil.frf

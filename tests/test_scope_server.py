@@ -100,6 +100,8 @@ def test_a_foreign_origin_is_refused_for_the_websocket(served):
     assert IOLoop(make_current=False).run_sync(lambda: attempt(f"http://127.0.0.1:{port}")) is None
 
 
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_hil_scope_replays_a_record(tmp_path, monkeypatch, capsys):
     """``hil scope RECORD.csv``: the page's data source gets the record's values."""
     from hil.cli import main

@@ -50,6 +50,7 @@ def test_a_motor_without_a_screw_prints_its_positions_in_rad(hsm_record, tmp_pat
     assert json.loads(out)["before"]["channels"]["x_motor"]["unit"] == "rad"
 
 
+@pytest.mark.slow
 def test_a_linear_axis_keeps_metres(tmp_path, capsys):
     rec = tmp_path / "r.csv"
     assert main(["synth", "--config", BENCH, "--duration", "2s", "--out", str(rec)]) == 0

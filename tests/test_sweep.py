@@ -220,6 +220,7 @@ def test_transmission_is_tf2_and_tf3(cfg3):
     assert np.max(np.abs(x3 - x2)) > 1e-6          # the compliant mass does lag and ring
 
 
+@pytest.mark.slow
 def test_three_dof_against_two_dof_over_estimate(cfg3, cfg2):
     """The 590 mm move at 15 m/min: the 2-dof model over-estimates the admissible jerk for 8 um at
     the tip by far (the paper: 200 against 20 m/s^3, 90 %)."""

@@ -153,6 +153,7 @@ def test_the_first_crossing_is_the_dense_one(default_sweep, true_edges):
     assert r["admissible"][0] == [5.0, r["max_jerk"]]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kw", [pytest.param({"record_every": 1}, marks=pytest.mark.slow), {"record_every": 4},
                                 {"record_every": 64}, {"dwell": 0.0}, {"dwell": 2.0}],
                          ids=["record1", "record4", "record64", "dwell0", "dwell2s"])

@@ -49,6 +49,7 @@ def test_m3_fitted_where_k2_drifted_is_the_ratio_and_says_so(k2_factor):
     assert al[0]["key"] == "plant.k2"          # strongest first
 
 
+@pytest.mark.slow
 def test_diagnose_json_and_text_name_the_alias(tmp_path):
     from hil.cli import main
     path = write(tmp_path / "rec.csv", _record(1.03), {"sample_period": f"{BENCH.tp} s"})

@@ -89,6 +89,7 @@ def test_synth_samples_the_command_when_the_config_says():
     assert np.max(np.abs(act["torque"][:k] - ours["torque_actual"])) < 1e-3 * np.max(np.abs(ours["torque"]))
 
 
+@pytest.mark.slow
 def test_diagnose_says_which_torque_an_unsaid_record_holds(tmp_path):
     # the config does not say; the drive logged its command before a 500 us delay: the chain under
     # the current (as before) cannot bring the torque down; under the command it finds the delay
