@@ -731,10 +731,23 @@ def _beyond_tolerance(cur, d, test, add, have, found=()) -> dict | None:
         return None
     lead = next((c for c in d["candidates"] if "+" not in c.effect and c.significant and key_of(c.effect) == key
                  and _same(c.effect, cur.cfg) not in have), None)
-    if lead is None:
+    if lead is None or _tangled_with_key(cur, d, add[0], key):
         return None
     return {"verdict": add[0], "effect": lead.effect, "key": key, "change": test["params"][key]["change"],
             "tolerance": tol, "params": {k: p["change"] for k, p in test["params"].items()}}
+
+
+def _tangled_with_key(cur, d, verdict: str, key: str) -> bool:
+    """Whether the record cannot tell the diagnosis's ``verdict`` from a drift of the config's
+    ``key`` (|r| >= :data:`TANGLED` between its fitted parameters and the key, at its fit): then the
+    key the tolerance's fit leaves beyond it is the same finding put elsewhere, and the diagnosis's
+    verdict, ranked first on the record, stands (h12 of the independent records: +30 kg on the table
+    named as the motor's mass, m1 and m2 at r = -0.96)."""
+    c = next((c for c in d["candidates"] if c.effect == verdict), None)
+    if getattr(c, "cfg", None) is None:
+        return False
+    aliases = config_aliases(cur.with_config(c.cfg), verdict, effect_values(verdict, c.cfg), [key])
+    return any(abs(a["r"]) >= TANGLED for a in aliases)
 
 
 def _non_smooth(cur, name: str) -> bool:
