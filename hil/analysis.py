@@ -89,10 +89,12 @@ class MoveFigures:
 
 
 def move_figures(t, x_cmd, x_table, x_tip, u, move, t_start: float = 0.0, t_end: float | None = None,
-                 band: float = 1e-6, stale=None) -> MoveFigures:
+                 band: float = 1e-6, stale=None, tail: float = 0.0) -> MoveFigures:
     """Figures of ``move`` (a planned SineSquareMove starting at ``t_start``) from a record.
 
     ``t_end``: end of the window examined (the next move's start, or the record's end).
+    ``tail``: how much later than the move the command ends (an input shaper's last impulse,
+    hil.shaping): settling and the residual vibration are measured from the command's end.
     ``stale``: per row, nonzero where the feedback repeats the last answer (left out of the
     following errors); None: every row is a fresh answer."""
     t = np.asarray(t, float)
@@ -105,7 +107,7 @@ def move_figures(t, x_cmd, x_table, x_tip, u, move, t_start: float = 0.0, t_end:
         fresh = sel
     target = move.end
     d = move.direction
-    t_cmd_end = t_start + move.duration
+    t_cmd_end = t_start + move.duration + tail
     spec = move.spec
     return MoveFigures(
         overshoot_table_um=overshoot(np.asarray(x_table)[sel], target, d) * 1e6,

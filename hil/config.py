@@ -165,6 +165,9 @@ SCHEMA: dict[str, Field] = {
     # --- NC ------------------------------------------------------------------------------------
     "nc.g0": Field("speed", "rapid (G00) speed, the reference for the acceleration time t_acc", default=None,
                    positive=True),
+    "nc.shaper": Field("str", "input shaper of the command (hil.shaping): KIND@FREQUENCY[:DAMPING] with KIND zv, zvd "
+                       "or ei (e.g. 'zvd@14.94Hz'), 'auto' (ZVD at the model's lowest mode) or 'none'; hil move "
+                       "--shaper overrides it", default="none"),
     # --- sensors (what the controller and the recorder see) ----------------------------------
     "sensors.table_resolution": Field("length", "linear-encoder quantum; 0 = ideal", default=0.0,
                                       nonnegative=True),

@@ -12,7 +12,7 @@ Layers, lowest first (a module may import its own layer and the layers below it,
 2. the foundations every layer of ``hil`` uses (``hil.errors``, ``hil.units``)
 3. the configuration, the reading of a configuration into a plant, and the opening of a backend
    (``hil.backends``)
-4. the runtime core: simulator, cycle loop, runtime, supervisor, profiles, measurement files
+4. the runtime core: simulator, cycle loop, runtime, supervisor, profiles and their shaping, measurement files
 5. the applications: identification, jerk sweeps, frequency responses
 6. figures and reports, the live scope's server and page (``hil.scope.server``; its ring buffer,
    ``hil.scope.ring``, is of the runtime core: the cycle writes it)
@@ -39,7 +39,7 @@ LAYERS = {
     "drivers": 1,
     "hil.errors": 2, "hil.units": 2,
     "hil": 3, "hil.config": 3, "hil.plant_config": 3, "hil.backends": 3,
-    "hil.simulate": 4, "hil.loop": 4, "hil.runtime": 4, "hil.supervisor": 4, "hil.profiles": 4,
+    "hil.simulate": 4, "hil.loop": 4, "hil.runtime": 4, "hil.supervisor": 4, "hil.profiles": 4, "hil.shaping": 4,
     "hil.closed_loop": 4, "hil.analysis": 4, "hil.io": 4, "hil.scope": 4,
     "hil.ident": 5, "hil.sweep": 5, "hil.frf": 5, "hil.fleet": 5,
     "hil.plots": 6, "hil.scope.server": 6,

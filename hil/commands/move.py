@@ -66,6 +66,9 @@ JSON_KEYS = {
     "peak_speed": JsonKey("m/s", "peak speed (below the feed when the stroke is too short)",
                           when=_DONE + ", or --check"),
     "t_acc": JsonKey("s", "NC acceleration time (null when not given by --tacc)", when=_DONE),
+    "shaper": JsonKey("Hz, s", "the input shaper the command passed through (hil.shaping): kind, frequency_hz, "
+                               "damping_ratio, amplitudes, times_s, duration_s (the command ends this much after "
+                               "the move); null without one", when=_DONE),
     "units": JsonKey("", "the SI unit of each key that does not name its own", when=_DONE + ", or --check"),
     "stop": JsonKey("", "the kind of stop: `drive_fault`, `trip` (the supervisor), `link` (lost communication), "
                         "`overrun`, `interrupt`",
@@ -123,6 +126,10 @@ def add_arguments(p) -> None:
                    "(canopen, serial): where it must stand (within limits.start_window), else refused; "
                    "default: the move starts where the axis stands")
     p.add_argument("--back", action="store_true", help="return to the start after the dwell")
+    p.add_argument("--shaper", metavar="KIND@FREQ[:DAMPING]", default=None,
+                   help="shape the command for a mode so that the tool tip arrives still: zv, zvd or ei at a "
+                        "frequency (zvd@14.94Hz; the damping ratio of the model's nearest mode unless given), auto "
+                        "(ZVD at the model's lowest mode) or none; default: the config's nc.shaper (none)")
     p.add_argument("--dwell", metavar="TIME", default="1s", help="standstill after each move (default 1s)")
     p.add_argument("--band", metavar="LENGTH", default="1um", help="settling band around the target (default 1um)")
     p.add_argument("--check", action="store_true", help="check the move against the limits, do not run it")
@@ -154,7 +161,33 @@ def build_trajectory(args, cfg) -> Trajectory:
     if args.back:
         traj.move(MoveSpec(-spec.stroke, spec.feed, spec.t_acc, spec.g0, spec.a_max, spec.j_max))
         traj.dwell(dwell)
+    shaper = move_shaper(cfg, getattr(args, "shaper", None))
+    if shaper is not None:
+        from hil.shaping import ShapedTrajectory
+        return ShapedTrajectory(traj, shaper)
     return traj
+
+
+def move_shaper(cfg, option: str | None):
+    """The input shaper of the move (hil.shaping): ``--shaper``, else the config's ``nc.shaper``;
+    None for none. A bad one is a UserError naming where it came from."""
+    from hil.shaping import parse_shaper
+    text = option if option is not None else cfg.get("nc.shaper", "none")
+    what = "--shaper" if option is not None else f"{cfg.source}: nc.shaper"
+    if str(text).strip().lower() in ("", "none", "off"):
+        return None
+    modes = _model_modes(cfg)
+    try:
+        return parse_shaper(str(text), what, modes)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+
+
+def _model_modes(cfg) -> list[tuple[float, float]]:
+    """(frequency Hz, damping ratio with the motor's viscous friction) of the model's elastic modes."""
+    from hil.commands.model import model_report
+    r = model_report(cfg)
+    return list(zip(r["modes_hz"], r["damping_ratios_with_friction"]))
 
 
 def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:
@@ -262,10 +295,13 @@ def run(args) -> int:
     t_next = first.duration + (traj.segments[1].duration if len(traj.segments) > 1 and not hasattr(
         traj.segments[1], "stroke") else 0.0)
     fig = move_figures(ch["t"], ch["x_cmd"], ch["x_table"], ch["x_tip"], ch.get("torque", ch.get("command")),
-                       first, 0.0, t_next, band, stale=ch.get("stale"))
+                       first, 0.0, t_next, band, stale=ch.get("stale"),
+                       tail=traj.shaper.duration if getattr(traj, "shaper", None) else 0.0)
     png = plot_move(ch, out / "move.png", title=title)
+    shaper = getattr(traj, "shaper", None)
     summary = dict(fig.as_dict(), status=rec.status, reason=rec.reason, record=str(rec.path), plot=str(png),
-                   backend=backend.name, start_m=traj.start, overruns=int(rec.loop.get("overruns", 0)))
+                   backend=backend.name, start_m=traj.start, overruns=int(rec.loop.get("overruns", 0)),
+                   shaper=shaper.as_json() if shaper is not None else None)
     drive = "torque" if cfg.rotary else "force"
     summary["units"] = {k: u for k, u in (("settling_time_table", "s"), ("settling_time_tip", "s"),
                                           ("peak_torque", SI_UNIT[drive]), ("j_max", "m/s^3"),
@@ -278,6 +314,10 @@ def run(args) -> int:
         print(f"move {fmt(first.stroke, 'length')} at {first.peak_speed * 60e3:.0f} mm/min on {backend.name}: "
               f"j_max {fmt(first.j_max, 'jerk')}, a_max {fmt(first.a_max, 'acceleration')}")
         blind = fig.observed_after_s <= 0.0     # no record after the command (--dwell 0s)
+        if shaper is not None:
+            print(f"  command shaped by {shaper.kind.upper()} at {shaper.frequency:.4g} Hz, damping ratio "
+                  f"{shaper.damping:.3g} ({len(shaper.times)} impulses; the command ends "
+                  f"{fmt(shaper.duration, 'time', unit='ms')} after the move, settling counted from there)")
         print(f"  overshoot          table {fig.overshoot_table_um:8.2f} um   tip {fig.overshoot_tip_um:8.2f} um"
               + ("   (up to the command's end only: no dwell)" if blind else ""))
         print(f"  peak follow. error table {fig.peak_following_error_table_um:8.1f} um   tip "
