@@ -18,7 +18,7 @@ _UNITS = ["dB re 1 m/N", "dB", "dB"]
 
 def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
     """A figure with one column per transfer function: magnitude (dB) above, phase (deg) below.
-    ``modes_hz`` are marked by dotted lines."""
+    ``modes_hz`` are marked by dotted lines, each labelled with its number and frequency."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -40,6 +40,11 @@ def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
             ax.grid(True, which="both", alpha=0.3)
             for f in modes_hz:
                 ax.axvline(f, color="0.5", linestyle=":", linewidth=0.8)
+        # each mode named where its line meets the top of the magnitude panel (mode 2 is the first
+        # elastic one, as hil model numbers them)
+        for i, f in enumerate(modes_hz):
+            mag.annotate(f"mode {i + 2}\n{f:.4g} Hz", xy=(f, 1.0), xycoords=("data", "axes fraction"),
+                         xytext=(2, -2), textcoords="offset points", ha="left", va="top", fontsize=7, color="0.3")
     if title:
         fig.suptitle(title)
     # fixed margins: tight_layout measures every tick label of the log axes and costs more than

@@ -6,6 +6,8 @@ Plotting only; the numbers come from :func:`hil.sweep.run_sweep`'s report.
 """
 from __future__ import annotations
 
+import math
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -20,7 +22,7 @@ def _xy(rows, field):
 
 
 def sweep_figure(report: dict, title: str = ""):
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), sharex=True)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6.0), sharex=True)
     an = "transmission" if report.get("analysis") == "transmission" else "mechatronic"
     name = report.get("name") or report.get("config", "model")
     series = [(report.get("runs"), f"{name}, {an}", "C0", "-o")]
@@ -56,8 +58,11 @@ def sweep_figure(report: dict, title: str = ""):
             tip.text(0.98, 0.03, f"2-dof estimate error {report['estimate_error_pct']:.1f} %",
                      transform=tip.transAxes, va="bottom", ha="right", fontsize=9)
         tip.set_yscale("symlog", linthresh=max(tol / 8, 1e-3))
-    for m in report.get("local_minima") or []:
-        axes[1].plot([m["j_max"]], [m["overshoot_tip_um"]], "o", mfc="none", mec="C1", ms=9)
+    for i, m in enumerate(report.get("local_minima") or []):
+        axes[1].plot([m["j_max"]], [m["overshoot_tip_um"]], "o", mfc="none", mec="C1", ms=9,
+                     label="local minima (vibration-cancelling jerks)" if i == 0 else None)
+    if report.get("admissible") and tol is not None:
+        axes[1].axvspan(0, 0, color="C2", alpha=0.08, label=f"jerks within {tol:g} um")    # the band's legend entry
     p = report.get("proposal") or {}
     if tol is not None and report.get("max_jerk"):
         # the answer to the question asked: the largest jerk within the tolerance, on the tolerance line
@@ -71,11 +76,15 @@ def sweep_figure(report: dict, title: str = ""):
                      label=what + (f" (<= {p['budget_s']:.3g} s)" if p.get("budget_s") else "")
                      + (", beyond the tolerance" if beyond else ""))
     axes[0].set_yscale("symlog", linthresh=1.0)
+    seen: dict = {}
     for ax in axes:
         ax.set_ylim(bottom=0)
-        ax.legend(fontsize=7, loc="upper left")
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(lab, h)
+    # one legend for both panels, below them, where it covers no line (inside, it hid the answer's jerk)
+    fig.legend(list(seen.values()), list(seen), loc="lower center", ncol=3, fontsize=7, frameon=False)
     mv = report.get("move", {})
     fig.suptitle(title or (f"overshoot vs. jerk: stroke {mv.get('stroke_m', 0) * 1e3:g} mm, feed "
                            f"{mv.get('feed_m_per_s', 0) * 60:g} m/min, dwell {mv.get('dwell_s', 0):g} s"))
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05 + 0.028 * math.ceil(len(seen) / 3), 1, 1))
     return fig
