@@ -267,7 +267,7 @@ def test_the_report_renders_in_chromium(fleet, tmp_path):
     probe = """<script>window.addEventListener("load", function () {
       var t = document.querySelector("#title").getBoundingClientRect();
       var svgs = Array.prototype.slice.call(document.querySelectorAll("svg")).map(function (s) {
-        var r = s.getBoundingClientRect(); return [r.width, r.height, s.querySelectorAll("circle").length]; });
+        var r = s.getBoundingClientRect(); return [r.width, r.height, s.querySelectorAll("circle title").length]; });
       var pre = document.createElement("pre"); pre.id = "browser-probe";
       pre.textContent = JSON.stringify({title: t.height, svgs: svgs,
         verdict: document.querySelector("#verdict").innerText}); document.body.appendChild(pre); });</script>"""

@@ -4,8 +4,9 @@ CSV and JSON.
 The page: one row per axis (latest verdict, flags, worst drift), then per axis a trend plot of
 each tracked parameter (inline SVG, no script, nothing linked): the values with their standard
 error as bars, the control band (centre +- 3 sigma of each record) shaded, the centre dashed, a
-threshold dotted, the flagged dates marked by a red line; below it the links to each record's
-page (``records/AXIS_DATE.html``: the chain's verdict, end and steps, the tracked values).
+threshold dotted, the flagged dates marked by a red line, each mark in a legend above it, the axes
+titled; below it the links to each record's page (``records/AXIS_DATE.html``: what was flagged
+that night, the chain's verdict, end and steps, the tracked values, a link back).
 values.csv / values.json: every (axis, date, effect, value, stderr) in SI.
 """
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 
 __all__ = ["write_report", "trend_svg"]
 
-W, H, PAD_L, PAD_R, PAD_T, PAD_B = 640, 220, 70, 20, 20, 40
+W, H, PAD_L, PAD_R, PAD_T, PAD_B = 700, 290, 96, 44, 44, 56
 
 CSS = """body{font-family:sans-serif;margin:2em;max-width:900px;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:4px 8px;text-align:left}
@@ -81,11 +82,54 @@ def trend_svg(name: str, dates: list[str], p: dict, kind: str) -> str:
         out.append(f'<line x1="{a:.1f}" x2="{a:.1f}" y1="{e0:.1f}" y2="{e1:.1f}" stroke="{colour}"/>'
                    f'<circle cx="{a:.1f}" cy="{b:.1f}" r="3" fill="{colour}"><title>{html.escape(d)}: '
                    f'{html.escape(_q(v, kind))} ({st})</title></circle>')
-    out.append(f'<text x="{PAD_L}" y="{H - 8}" font-size="11">{html.escape(dates[0])}</text>'
-               f'<text x="{W - PAD_R}" y="{H - 8}" font-size="11" text-anchor="end">{html.escape(dates[-1])}</text>'
-               f'<text x="4" y="{PAD_T + 10}" font-size="11">{html.escape(_q(hi, kind))}</text>'
-               f'<text x="4" y="{H - PAD_B}" font-size="11">{html.escape(_q(lo, kind))}</text>')
+    out.append(_axes(xs, dates, lo, hi, X, Y, name, kind))
+    out.append(_legend(p))
     out.append("</svg>")
+    return "".join(out)
+
+
+def _axes(xs, dates, lo, hi, X, Y, name: str, kind: str) -> str:
+    """The frame, the ticks (every night's date where they fit, five values) and the axis titles."""
+    from hil.units import SI_UNIT
+    out = [f'<rect x="{PAD_L}" y="{PAD_T}" width="{W - PAD_L - PAD_R}" height="{H - PAD_T - PAD_B}" fill="none" '
+           f'stroke="#999"/>']
+    step = max(1, math.ceil(len(dates) / 6))
+    shown = list(range(0, len(dates), step)) + ([len(dates) - 1] if (len(dates) - 1) % step else [])
+    for i in shown:
+        x = X(xs[i])
+        out.append(f'<line x1="{x:.1f}" x2="{x:.1f}" y1="{H - PAD_B}" y2="{H - PAD_B + 4}" stroke="#999"/>'
+                   f'<text x="{x:.1f}" y="{H - PAD_B + 16}" font-size="10" text-anchor="middle">'
+                   f'{html.escape(dates[i][:10])}</text>')
+    for k in range(5):
+        y = lo + (hi - lo) * k / 4
+        out.append(f'<line x1="{PAD_L - 4}" x2="{PAD_L}" y1="{Y(y):.1f}" y2="{Y(y):.1f}" stroke="#999"/>'
+                   f'<text x="{PAD_L - 6}" y="{Y(y) + 3:.1f}" font-size="10" text-anchor="end">'
+                   f'{html.escape(_q(y, kind))}</text>')
+    unit = SI_UNIT.get(kind, "")
+    ytitle = f"{name}" + (f" [{unit}]" if unit and unit != "1" else "")
+    yc = (PAD_T + H - PAD_B) / 2
+    out.append(f'<text x="{(PAD_L + W - PAD_R) / 2:.1f}" y="{H - 8}" font-size="11" text-anchor="middle">'
+               f'date of the record (night)</text>'
+               f'<text x="12" y="{yc:.1f}" font-size="11" text-anchor="middle" transform="rotate(-90 12 {yc:.1f})">'
+               f'{html.escape(ytitle)}</text>')
+    return "".join(out)
+
+
+def _legend(p: dict) -> str:
+    """What each mark is, in a row above the plot."""
+    items = [('<rect width="14" height="8" y="-7" fill="#cde"/>', "control band (centre +- 3 sigma)"),
+             ('<line x2="14" y1="-3" y2="-3" stroke="#579" stroke-dasharray="5,3"/>', "centre (the baseline)"),
+             ('<line x1="7" x2="7" y1="-9" y2="3" stroke="#333"/><circle cx="7" cy="-3" r="3" fill="#333"/>',
+              "value +- standard error (red: flagged)")]
+    if p.get("threshold_value") is not None:
+        items.append(('<line x2="14" y1="-3" y2="-3" stroke="#b00" stroke-dasharray="2,2"/>', "threshold"))
+    if p.get("first_moved"):
+        items.append(('<line x1="7" x2="7" y1="-9" y2="3" stroke="#d00" stroke-width="2"/>', "first moved"))
+    out, x = [], PAD_L
+    for mark, text in items:
+        out.append(f'<g transform="translate({x},{PAD_T - 14})">{mark}'
+                   f'<text x="18" y="0" font-size="10">{html.escape(text)}</text></g>')
+        x += 26 + 5.6 * len(text)
     return "".join(out)
 
 
@@ -98,9 +142,39 @@ def _page(title: str, body: str) -> str:
             f"</body></html>\n")
 
 
-def _record_page(e: dict, fig: dict, kinds: dict) -> str:
-    rows = [f"<p>Record: {html.escape(e['record'])}<br>Axis {html.escape(e['axis'])}, "
+def _night_flags(axis: dict | None, date: str, kinds: dict) -> list[str]:
+    """What the fleet flagged on this record's night: the flags whose drift began this night (the
+    reason, from and to), then each parameter out of its band or past its threshold this night."""
+    if not axis or date not in axis.get("dates", []):
+        return []
+    i = axis["dates"].index(date)
+    out, named = [], set()
+    for f in axis.get("flags", []):
+        if f.get("since") == date:
+            kind = kinds.get(f["parameter"], "")
+            moved = (f": {_q(f['from'], kind)} -> {_q(f['to'], kind)}" if f.get("from") is not None
+                     and f.get("to") is not None else "")
+            out.append(f"{f['parameter']} {f['reason']}{moved} (flagged from this night on)")
+            named.add(f["parameter"])
+    for name, p in axis.get("params", {}).items():
+        st = p["status"][i] if i < len(p["status"]) else None
+        if st in ("out", "threshold") and name not in named:
+            why = "past its threshold" if st == "threshold" else "outside its control band"
+            out.append(f"{name} = {_q(p['values'][i], kinds.get(name, ''))}, {why}")
+    return out
+
+
+def _record_page(e: dict, fig: dict, kinds: dict, axis: dict | None = None) -> str:
+    back = f'<p><a href="../report.html#axis-{html.escape(e["axis"])}">back to axis {html.escape(e["axis"])} in the ' \
+           f'fleet report</a></p>'
+    rows = [back, f"<p>Record: {html.escape(e['record'])}<br>Axis {html.escape(e['axis'])}, "
             f"{html.escape(e['timestamp'])}</p>"]
+    flags = _night_flags(axis, e["timestamp"], kinds)
+    if flags:
+        rows.append('<p id="flags" class="flag">flagged this night: ' + "; ".join(html.escape(f) for f in flags)
+                    + "</p>")
+    elif axis is not None and "error" not in fig:
+        rows.append('<p id="flags" class="ok">nothing flagged this night</p>')
     if "error" in fig:
         rows.append(f'<p id="verdict" class="flag">error: {html.escape(fig["error"])}</p>')
         return "".join(rows)
@@ -138,11 +212,12 @@ def write_report(state: dict, out_dir) -> dict:
     entries = state["entries"]
     figures = state["figures"]
     pages = []
+    axes = {a["axis"]: a for a in state["axes"]}
     for e in entries:
         path = confined(out, _page_name(e))
         path.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(path, _page(f"{e['axis']} at {e['timestamp']}", _record_page(e, figures.get(
-            f"{e['axis']}@{e['timestamp']}", {"error": "not run"}), kinds)))
+            f"{e['axis']}@{e['timestamp']}", {"error": "not run"}), kinds, axes.get(e["axis"]))))
         pages.append(str(path))
     thresholds = state.get("settings", {}).get("thresholds", {})
     body = [f'<p id="verdict">{len(entries)} records of {len(state["axes"])} axes; '
