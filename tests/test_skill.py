@@ -66,3 +66,27 @@ def test_a_fit_at_the_edge_of_its_range_is_no_finding():
     assert at_range_edge(CATALOGUE["stiffness_along_travel"], {"k_start": 100 * k.lower}) == ""
     coulomb = CATALOGUE["coulomb_friction"]
     assert coulomb.param("level").lower == 0 and at_range_edge(coulomb, {"level": 0.0}) == ""
+
+
+def test_the_text_lists_the_first_candidates_and_all_of_them_with_all(record, capsys):
+    """Answers first: the ranking in the text is cut to what decides (--all for the rest); the
+    JSON always holds every candidate."""
+    import re
+
+    from hil.commands.diagnose import SHOWN_CANDIDATES
+
+    def numbered(text):
+        return [ln for ln in text.splitlines() if re.match(r"^\s*\d+[* ] ", ln)]
+    argv = ["diagnose", str(record), "--config", BENCH, "--no-chain", "--jobs", "1",
+            "--candidates", "coulomb_friction,viscous_friction,mass_change,backlash,torque_ripple,constant_force,"
+                            "force_offset,channel_skew,tip_skew,stribeck_friction,asymmetric_friction"]
+    capsys.readouterr()
+    assert main(argv) == 0
+    short = capsys.readouterr().out
+    assert len(numbered(short)) == SHOWN_CANDIDATES and "more, down to score" in short and "--all" in short
+    assert main([*argv, "--all"]) == 0
+    full = capsys.readouterr().out
+    assert main([*argv, "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    others = len(d["candidates"]) - 1 - len(d["also_missing"])       # less the verdict and what is named beside it
+    assert others > SHOWN_CANDIDATES and len(numbered(full)) == others and "more, down to score" not in full

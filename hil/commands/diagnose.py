@@ -247,8 +247,15 @@ JSON_KEYS = {
 }
 
 
+# the other candidates the text shows (the JSON and --all: every one)
+SHOWN_CANDIDATES = 8
+
+
 def add_arguments(parser) -> None:
     add_common(parser, records=True)
+    parser.add_argument("--all", dest="all_candidates", action="store_true",
+                        help=f"list every other candidate in the text (default: the first {SHOWN_CANDIDATES} by "
+                             f"score; the JSON always has them all)")
     parser.add_argument("--candidates", metavar="EFFECTS", default=None, help="comma-separated candidates (default: the whole catalogue)")
     parser.add_argument("--jobs", metavar="N", type=int, default=None, help="worker processes (default: this process, the fits on the idle cores' threads)")
     parser.add_argument("--max-steps", "--steps", dest="max_steps", type=int, default=4, metavar="N",
@@ -343,7 +350,7 @@ def run(args) -> int:
     said = skill_text(d["skill"], lambda c, v: fmt_si(v, rp.unit(c), 3))
     if not d["skill"]["has_skill"]:      # the answer before the candidates
         print(said.pop(0))
-    for line in ranking_text(d):
+    for line in ranking_text(d, None if args.all_candidates else SHOWN_CANDIDATES):
         print(line)
     if "chain" in d:
         for line in chain_text(d, rp):
@@ -392,11 +399,12 @@ def _chain_both_samplings(args, cfg, metas, rp, names, prog, vals=()):
     return d, used, replay_of(used), entry
 
 
-def ranking_text(d) -> list[str]:
+def ranking_text(d, limit: int | None = None) -> list[str]:
     """The diagnosis as a person reads it: the verdict first, with the score that decided it (a
     combination's when simpler effects fitted together were preferred to a richer one), the effects
-    also missing beside it with their own (marginal) scores, then every other candidate by its
-    score, best first, each listed once; a richer effect that a combination mimics says so."""
+    also missing beside it with their own (marginal) scores, then the other candidates by their
+    score, best first, each listed once (the first ``limit``, and how many more; None: all); a
+    richer effect that a combination mimics says so."""
     verdicts = {"none": "none (the model matches the record down to the noise floor)",
                 "unexplained": "unexplained (above the noise floor, and no catalogue effect explains it)"}
     verdict = d["verdict"]
@@ -434,6 +442,9 @@ def ranking_text(d) -> list[str]:
     if rest:
         lines.append("other candidates, by score (BIC fall; * significant):")
     for i, c in enumerate(rest):
+        if limit is not None and i >= limit:
+            lines.append(f"     ... {len(rest) - limit} more, down to score {rest[-1].score:.1f} (--all lists them)")
+            break
         mark = "*" if c.significant else " "
         note = ""
         cb = mimicked.get(c.effect)
