@@ -75,7 +75,7 @@ class RunRecord:
 def start_position(cfg, backend, fb) -> float:
     """The position a run starts from, of the measured ``fb``: the reading the position loop closes
     on (the drive's own, the motor's, where the backend closes both loops)."""
-    if backend.closes == "both" or cfg.get("control.position_feedback", "motor") == "motor":
+    if backend.closes == "both" or cfg.get("control.position_feedback", "table") == "motor":
         return float(fb.x_motor)
     return float(fb.x_table)
 
