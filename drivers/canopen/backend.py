@@ -5,7 +5,7 @@ thin backend that composes the parts, each with one job.
 part                                   its job
 =====================================  ===========================================================
 drivers.canopen.section            the ``[canopen]`` keys; the settings, read once
-drivers.canopen.codec              the PDO mapping and how each object is packed (both sides)
+drivers.canopen.codec              the PDO mapping, how each object is packed (both sides), the units (Scaling)
 drivers.canopen.startup            SDO configuration, guards and PDO mapping at start-up
 drivers.canopen.link               the bus: connect, send, the receiving thread, the barrier
 drivers.canopen.tracker            the SYNC and its answer: fresh, missed, late, latency
@@ -64,7 +64,7 @@ import canopen
 from drivers.base import Backend, Feedback, Setpoint
 from drivers.canopen import cia402
 from drivers.canopen import eds as eds_files
-from drivers.canopen.codec import RPDO_TARGET, TIP_KEY, TPDO_MAPS
+from drivers.canopen.codec import NM, RPDO_TARGET, TIP_KEY, TPDO_MAPS, Scaling
 from drivers.canopen.heartbeat import Heartbeats
 from drivers.canopen.link import AnswerEvent, BusErrors, CanLink, one_line, quiet_periodic_send_errors
 from drivers.canopen.section import SECTION, CanopenSettings
@@ -106,6 +106,7 @@ class CanopenBackend(Backend):
                                                         channel=channel, mode=mode, lockstep=lockstep,
                                                         node_id=node_id)
         self.closes, self.cycle_time, self.simulated = s.closes, s.cycle_time, s.lockstep
+        self.scale = Scaling(s.counts_per_m, s.rated, s.speed_scale)     # every drive unit <-> SI
         self._od = eds_files.load(cfg, "canopen.eds", s.node_id)
         self._tip_od = eds_files.load(cfg, "canopen.tip_eds", s.tip_id) if s.tip_id else None
         self.events: deque[str] = deque(maxlen=EVENTS_KEPT)
@@ -115,7 +116,7 @@ class CanopenBackend(Backend):
         self.heartbeats = Heartbeats(s, self.link)
         self.machine = DriveStateMachine(self)
         self.node = self.tip_node = None
-        self.tip_step = 1e-9             # m per count of the tip sensor node (0x6005.1)
+        self.tip_step = NM               # m per count of the tip sensor node (0x6005.1)
         self.started = False             # open() has begun: the drive is this backend's to stop and release
         self.enabled = False
         self._rpdo = None                # the RPDO's struct (controlword + target), from the mapping
@@ -220,12 +221,12 @@ class CanopenBackend(Backend):
         0x60E4.2)."""
         s, sdo = self.settings, self.node.sdo
         try:
-            x_motor = sdo[0x6064].raw / s.counts_per_m
-            x_table = sdo[0x60E4][1].raw * 1e-9
+            x_motor = self.scale.position(sdo[0x6064].raw)
+            x_table = self.scale.table(sdo[0x60E4][1].raw)
             if self.tip_node is not None:
                 x_tip = self.tip_node.sdo[0x6004].raw * self.tip_step
             else:
-                x_tip = sdo[0x60E4][2].raw * 1e-9 if s.tip else math.nan
+                x_tip = self.scale.table(sdo[0x60E4][2].raw) if s.tip else math.nan
         except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:
             raise BackendFault(f"lost communication: drive {s.node_id} does not answer SDO (position: "
                                f"{one_line(exc)})", StopKind.LINK) from None
@@ -280,15 +281,15 @@ class CanopenBackend(Backend):
             position, table, v, torque, sw = (rx.get(0x6064, 0), rx.get((0x60E4, 1), 0), rx.get(0x606C, 0),
                                               rx.get(0x6077, 0), rx.get(0x6041, 0))
             tip = rx.get(TIP_KEY, 0) if s.tip_id else rx.get((0x60E4, 2), 0)
-        cpm = s.counts_per_m
+        sc = self.scale
         if s.tip_id:
             x_tip = tip * self.tip_step
         else:
-            x_tip = tip * 1e-9 if s.tip else math.nan
+            x_tip = sc.table(tip) if s.tip else math.nan
         if not fault:
             fault, kind = self._fault(sw)
-        return Feedback(x_motor=position / cpm, x_table=table * 1e-9, v_motor=v / cpm, output=torque * 1e-3 * s.rated,
-                        x_tip=x_tip, fault=fault, stale=not fresh, fault_kind=kind)
+        return Feedback(x_motor=sc.position(position), x_table=sc.table(table), v_motor=sc.position(v),
+                        output=sc.torque(torque), x_tip=x_tip, fault=fault, stale=not fresh, fault_kind=kind)
 
     def _missed(self) -> tuple[str, StopKind | None]:
         """A cycle without its answer (real-time): logged; after ``canopen.pdo_miss_limit`` in a
@@ -316,14 +317,13 @@ class CanopenBackend(Backend):
 
     def write_setpoint(self, sp: Setpoint) -> None:
         """The target of the mode, in drive units, for the next RPDO (real-time)."""
-        s = self.settings
-        cpm = s.counts_per_m
-        if s.mode == "csp":
-            self._target = int(round(sp.position * cpm))
-        elif s.mode == "csv":
-            self._target = int(round(sp.speed / s.speed_scale * cpm))
+        mode, sc = self.settings.mode, self.scale
+        if mode == "csp":
+            self._target = sc.position_target(sp.position)
+        elif mode == "csv":
+            self._target = sc.speed_target(sp.speed)
         else:
-            self._target = max(-32768, min(32767, int(round(sp.output / s.rated * 1e3))))
+            self._target = sc.torque_target(sp.output)
 
     def sync(self) -> None:
         """RPDO (controlword + target), then SYNC: the drive applies the target and answers
@@ -425,12 +425,12 @@ class CanopenBackend(Backend):
         if nmt == "INITIALISING":       # python-canopen's state before a heartbeat: not what a node answering SDO is
             nmt = "unknown (no heartbeat seen; the node answers SDO)"
         out = {"node": s.node_id, "nmt": nmt, "state": cia402.state_from_statusword(sw),
-               "statusword": f"0x{sw:04X}", "mode": s.mode, "position_m": sdo[0x6064].raw / s.counts_per_m,
-               "table_m": sdo[0x60E4][1].raw * 1e-9, "error_code": f"0x{sdo[0x603F].raw:04X}",
+               "statusword": f"0x{sw:04X}", "mode": s.mode, "position_m": self.scale.position(sdo[0x6064].raw),
+               "table_m": self.scale.table(sdo[0x60E4][1].raw), "error_code": f"0x{sdo[0x603F].raw:04X}",
                "emcy": list(self.emcy_log)[-5:]}
         if self.tip_node is not None:
             try:
-                step = self.tip_node.sdo[0x6005][1].raw * 1e-9
+                step = self.tip_node.sdo[0x6005][1].raw * NM
                 out["tip_node"] = s.tip_id
                 out["tip_m"] = self.tip_node.sdo[0x6004].raw * step
             except (canopen.SdoCommunicationError, canopen.SdoAbortedError) as exc:

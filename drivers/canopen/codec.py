@@ -12,9 +12,10 @@ talks to a bus or allocates per cycle beyond what ``struct`` returns.
 from __future__ import annotations
 
 import struct
+from dataclasses import dataclass
 
 __all__ = ["RPDO_TARGET", "TPDO_MAPS", "SYNC_ECHO", "SYNC_OVERFLOW", "TIP_KEY", "TIP_FMT", "TIP_PROFILE",
-           "SIGNED", "struct_code", "pdo_struct", "pdo_plan", "stored_bytes", "store"]
+           "SIGNED", "struct_code", "pdo_struct", "pdo_plan", "stored_bytes", "store", "Scaling", "NM", "PER_MILLE"]
 
 # the target object of each mode in RPDO1 (after the controlword 0x6040)
 RPDO_TARGET = {"csp": (0x607A, 0, 32), "csv": (0x60FF, 0, 32), "cst": (0x6071, 0, 16)}
@@ -35,6 +36,45 @@ TIP_FMT = struct.Struct("<i")  # the tip sensor's TPDO1: position value 0x6004
 # the objects of the PDOs that are signed (positions, speeds, torques); every other one is unsigned
 SIGNED = frozenset({0x6064, 0x606C, 0x60E4, 0x6077, 0x6071, 0x607A, 0x60FF})
 _SIZE_CODE = {1: "b", 2: "h", 4: "i"}
+
+NM = 1e-9           # m per count of 0x60E4 (additional position actual values: the linear scales, nm)
+PER_MILLE = 1e-3    # 0x6071 / 0x6077 are per mille of the rated torque
+
+
+@dataclass(frozen=True)
+class Scaling:
+    """The drive's units against SI, the one place the host converts them (real-time: plain
+    arithmetic, nothing allocated beyond the float returned). ``counts_per_m``: motor encoder
+    counts per metre of the load (0x6064, 0x606C, 0x607A); ``rated``: the rated torque (N m, or N on
+    a linear motor), the unit of 0x6071/0x6077 in per mille; ``speed_scale``: controller speed units
+    per m/s (the velocity target of csv)."""
+    counts_per_m: float
+    rated: float
+    speed_scale: float
+
+    def position(self, counts) -> float:
+        """0x6064 / 0x606C (counts, counts/s) -> m, m/s."""
+        return counts / self.counts_per_m
+
+    def table(self, counts) -> float:
+        """0x60E4.1 / .2 (nm) -> m."""
+        return counts * NM
+
+    def torque(self, per_mille) -> float:
+        """0x6077 (per mille of the rated torque) -> N m (N)."""
+        return per_mille * PER_MILLE * self.rated
+
+    def position_target(self, position: float) -> int:
+        """m -> 0x607A (counts)."""
+        return int(round(position * self.counts_per_m))
+
+    def speed_target(self, speed: float) -> int:
+        """controller speed units -> 0x60FF (counts/s)."""
+        return int(round(speed / self.speed_scale * self.counts_per_m))
+
+    def torque_target(self, output: float) -> int:
+        """N m (N) -> 0x6071 (per mille of the rated torque, within its 16 bits)."""
+        return max(-32768, min(32767, int(round(output / self.rated * 1e3))))
 
 
 def struct_code(index: int, bits: int) -> str:
