@@ -30,7 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Shaper", "KINDS", "V_TOL", "residual_vibration", "parse_shaper", "ShapedTrajectory"]
+__all__ = ["Shaper", "KINDS", "V_TOL", "residual_vibration", "parse_shaper", "ShapedTrajectory", "model_modes",
+           "config_shaper", "shaped"]
 
 V_TOL = 0.05            # the EI shaper's residual vibration at its design mode (Klipper's 1/20)
 KINDS = ("zv", "zvd", "ei")
@@ -134,6 +135,33 @@ def parse_shaper(text: str, what: str = "--shaper", modes=()) -> Shaper | None:
         return Shaper.design(m.group("kind").lower(), f, z)
     except ValueError as exc:
         raise ValueError(f"{what} {text!r}: {exc}") from None
+
+
+def model_modes(cfg) -> list[tuple[float, float]]:
+    """(frequency Hz, damping ratio) of the config's elastic modes, the motor's viscous friction
+    included (as ``hil model`` reports them)."""
+    from hil.plant_config import plant_from_config
+    ch = plant_from_config(cfg).chain
+    if ch.n < 2:
+        return []
+    w, _ = ch.modes()
+    zeta = ch.modal_damping_ratios(include_ground=True)
+    return [(float(x / (2 * math.pi)), float(z)) for x, z in zip(w[1:], zeta)]
+
+
+def config_shaper(cfg, option: str | None = None) -> Shaper | None:
+    """The move's shaper: ``option`` (``--shaper``), else the config's ``nc.shaper``; None for none.
+    A ValueError names where the bad one came from."""
+    text = option if option is not None else cfg.get("nc.shaper", "none")
+    if str(text).strip().lower() in ("", "none", "off"):
+        return None
+    what = "--shaper" if option is not None else f"{cfg.source}: nc.shaper"
+    return parse_shaper(str(text), what, model_modes(cfg))
+
+
+def shaped(traj, shaper: Shaper | None):
+    """``traj`` through ``shaper`` (:class:`ShapedTrajectory`), or ``traj`` itself without one."""
+    return traj if shaper is None else ShapedTrajectory(traj, shaper)
 
 
 class ShapedTrajectory:

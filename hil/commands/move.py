@@ -161,33 +161,11 @@ def build_trajectory(args, cfg) -> Trajectory:
     if args.back:
         traj.move(MoveSpec(-spec.stroke, spec.feed, spec.t_acc, spec.g0, spec.a_max, spec.j_max))
         traj.dwell(dwell)
-    shaper = move_shaper(cfg, getattr(args, "shaper", None))
-    if shaper is not None:
-        from hil.shaping import ShapedTrajectory
-        return ShapedTrajectory(traj, shaper)
-    return traj
-
-
-def move_shaper(cfg, option: str | None):
-    """The input shaper of the move (hil.shaping): ``--shaper``, else the config's ``nc.shaper``;
-    None for none. A bad one is a UserError naming where it came from."""
-    from hil.shaping import parse_shaper
-    text = option if option is not None else cfg.get("nc.shaper", "none")
-    what = "--shaper" if option is not None else f"{cfg.source}: nc.shaper"
-    if str(text).strip().lower() in ("", "none", "off"):
-        return None
-    modes = _model_modes(cfg)
+    from hil.shaping import config_shaper, shaped
     try:
-        return parse_shaper(str(text), what, modes)
+        return shaped(traj, config_shaper(cfg, getattr(args, "shaper", None)))
     except ValueError as exc:
         raise UserError(str(exc)) from None
-
-
-def _model_modes(cfg) -> list[tuple[float, float]]:
-    """(frequency Hz, damping ratio with the motor's viscous friction) of the model's elastic modes."""
-    from hil.commands.model import model_report
-    r = model_report(cfg)
-    return list(zip(r["modes_hz"], r["damping_ratios_with_friction"]))
 
 
 def _no_move(cfg, stroke: float, option: str, as_json: bool) -> bool:

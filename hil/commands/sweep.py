@@ -338,6 +338,19 @@ def run(args) -> int:
             check_loop_stability(c)
     if s.analysis != "mechatronic" and cfg.n_masses < 2:
         raise UserError(f"--analysis {s.analysis}: the transmission analysis needs a chain of at least 2 masses")
+    # the configs' input shapers (nc.shaper: a sweep compares shaped and plain commands by --compare),
+    # checked before any run; the transmission analysis takes the plain profile
+    from hil.shaping import config_shaper
+    for c in (cfg, cmp_cfg):
+        if c is None:
+            continue
+        try:
+            sh = config_shaper(c)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        if sh is not None and s.analysis != "mechatronic":
+            raise UserError(f"{c.source}: nc.shaper {sh}: the transmission analysis takes the plain profile; "
+                            f"shaped commands are swept with --analysis mechatronic")
     if args.jobs is not None and args.jobs < 1:
         raise UserError(f"--jobs: must be >= 1, got {args.jobs}")
     out = Path(args.out)

@@ -40,6 +40,7 @@ from hil.backends import open_backend
 from hil.errors import RunStopped, UserError
 from hil.profiles import MoveSpec, Trajectory, plan_move
 from hil.runtime import run_trajectory
+from hil.shaping import config_shaper, shaped
 from hil.simulate import simulate
 from hil.sweep.model import model_of
 from hil.sweep.transmission import transmission_response
@@ -135,10 +136,11 @@ def dominant_frequency(t, x, t_from: float, fmin: float = 1.0) -> float | None:
     return float(f[i])
 
 
-def _figures(t, x_cmd, x_table, x_tip, u, move, spec: RunSpec, t_end=None, every: int = 1) -> dict:
+def _figures(t, x_cmd, x_table, x_tip, u, move, spec: RunSpec, t_end=None, every: int = 1, tail: float = 0.0) -> dict:
     """The run's figures from its samples; ``every``: the dominant frequency from every
-    ``every``-th sample only (the others take them all)."""
-    fig = move_figures(t, x_cmd, x_table, x_tip, u, move, t_end=t_end).as_dict()
+    ``every``-th sample only (the others take them all); ``tail``: the command ends this much after
+    the move (an input shaper's, hil.shaping)."""
+    fig = move_figures(t, x_cmd, x_table, x_tip, u, move, t_end=t_end, tail=tail).as_dict()
     fig.pop("settle_band_um", None)
     fig.pop("observed_after_s", None)
     if fig.get("t_acc") is None and spec.g0:
@@ -156,9 +158,11 @@ def _run_mechatronic(cfg, spec: RunSpec) -> dict:
     traj = Trajectory()
     move = traj.move(spec.move_spec())
     traj.dwell(spec.dwell)
-    _, x = traj.sample(ctrl.position_period)
+    shaper = config_shaper(cfg)           # the config's nc.shaper: a sweep compares shaped and plain by configs
+    _, x = shaped(traj, shaper).sample(ctrl.position_period)
     r = simulate(plant, ctrl, x, record_every=1)          # the velocity-loop grid (module docstring)
-    return _figures(r.t, r.x_cmd, r.x_table, r.x_tip, r.u, move, spec, every=spec.record_every)
+    return _figures(r.t, r.x_cmd, r.x_table, r.x_tip, r.u, move, spec, every=spec.record_every,
+                    tail=shaper.duration if shaper else 0.0)
 
 
 def _run_transmission(cfg, spec: RunSpec) -> dict:
@@ -217,8 +221,9 @@ def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float 
     ``hil.runtime.run_trajectory``); ``can_log``: the file this run's CAN bus is traced into (a
     backend on a CAN bus, ``drivers.open_backend``)."""
     traj, move = backend_trajectory(spec, 0.0 if start is None else start)
-    rec = run_trajectory(cfg, traj, backend=open_backend(cfg, backend, can_log=can_log), out_file=None, settle=0.0,
-                         start="follow" if start is None else "check", scope=scope)
+    shaper = config_shaper(cfg)
+    rec = run_trajectory(cfg, shaped(traj, shaper), backend=open_backend(cfg, backend, can_log=can_log), out_file=None,
+                         settle=0.0, start="follow" if start is None else "check", scope=scope)
     if len(rec.channels["t"]) < 2:       # the backend could not be opened or enabled: nothing moved
         raise UserError(f"the run at j_max {move.j_max:.4g} m/s^3 did not start on {backend}: {rec.status}: "
                         f"{rec.reason}")
@@ -232,6 +237,7 @@ def run_on_backend(cfg, spec: RunSpec, backend: str, out_dir=None, start: float 
     t = np.asarray(ch["t"], float)
     u = ch.get("torque", ch.get("command", np.zeros(0)))
     tip = ch.get("x_tip", ch["x_table"])
-    out = _figures(t, ch["x_cmd"], ch["x_table"], tip, u, move, spec, t_end=move.duration + spec.dwell)
+    out = _figures(t, ch["x_cmd"], ch["x_table"], tip, u, move, spec, t_end=move.duration + spec.dwell,
+                   tail=shaper.duration if shaper else 0.0)
     out["start_m"] = rec.start
     return out
