@@ -159,6 +159,9 @@ ALL = [c for p in PAGES for c in extract(p)]
 
 
 def _param(c: DocCommand):
+    # on several workers (pytest-xdist) this module runs on one, in order (--dist loadscope, as CI
+    # runs the slow set): a command builds on the files its page's earlier commands wrote (a fit's
+    # config, then the compare that reads it)
     marks = [pytest.mark.slow] if c.slow else []
     return pytest.param(c, id=c.id, marks=marks)
 
@@ -261,8 +264,10 @@ def _runnable(cmd: DocCommand) -> str | None:
     if any("DATA_EMPS.mat" in a for a in cmd.argv) and not (_shared() / "data" / "emps" / "DATA_EMPS.mat").is_file():
         return "needs the EMPS record, ../shared/data/emps/DATA_EMPS.mat (docs/how-to/emps-data.md)"
     for a in cmd.argv:
-        if a.startswith("../shared/") and not (_shared() / a.removeprefix("../shared/")).exists():
-            return f"needs {a}, a record of the project's shared folder, absent here"
+        # a record with its own map after a colon (--validate RECORD:MAP) needs the record alone
+        path = a.split(":", 1)[0] if a.startswith("../shared/") and ".mat:" in a else a
+        if path.startswith("../shared/") and not (_shared() / path.removeprefix("../shared/")).exists():
+            return f"needs {path}, a record of the project's shared folder, absent here"
     return None
 
 
