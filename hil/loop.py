@@ -45,6 +45,7 @@ import threading
 import time
 import warnings
 from dataclasses import dataclass, field
+from enum import IntEnum
 
 import numpy as np
 
@@ -62,8 +63,17 @@ from drivers.rt import CpuLatencyRequest, fine_timer_slack
 from hil.errors import ConfigError, RunStatus, StopKind
 from hil.scope.ring import ScopeRing
 
-__all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "Injection", "CYCLE_CHANNELS", "LoopCpu",
-           "check_loop_cpu", "cpu_list"]
+__all__ = ["RealTimeClock", "SimulatedClock", "ControlLoop", "LoopResult", "TickResult", "Injection",
+           "CYCLE_CHANNELS", "LoopCpu", "check_loop_cpu", "cpu_list"]
+
+
+class TickResult(IntEnum):
+    """What a position tick of the cycle returns (as Ruckig's ``Result``: the real-time path
+    compares no strings and raises nothing of its own): ``OK``, the run goes on; ``TRIPPED``, a
+    supervisor rule or a fault the backend reported stopped it (the controlled stop commanded,
+    the reason in ``ControlLoop.trip_reason``, its kind in ``ControlLoop.trip_kind``)."""
+    OK = 0
+    TRIPPED = 1
 
 # wake-ups whose lateness a real-time clock keeps by default (2 min at 1 kHz; a run asks for its own count)
 LATENESS_SAMPLES = 1 << 17
@@ -358,6 +368,10 @@ class ControlLoop:
                              f"(closes='none'), this one closes {backend.closes!r}")
         self.injection = injection
         self.progress = progress
+        # what the backend closes, bound once (the cycle compares no strings)
+        self._closes_both = backend.closes == "both"
+        self._closes_velocity = backend.closes == "velocity"
+        self._inject_torque = injection is not None and injection.into == "torque"
         if backend.closes == "none":
             self.per_tick = ctrl.substeps          # cycles per position tick
         else:
@@ -365,7 +379,8 @@ class ControlLoop:
         self._ring = np.zeros(int(ctrl.output_delay) + 1)     # outputs still in the computation delay
         self._s = new_velocity_state()
         self._w_ref = 0.0
-        self._trip_kind = StopKind.TRIP
+        self.trip_kind = StopKind.TRIP
+        self.trip_reason = ""
         self._setpoint = Setpoint()
         self._motor_feedback = ctrl.position_feedback == "motor"
         self._record_order = None if recorder is None else _record_order(recorder.names, rotary)
@@ -388,6 +403,7 @@ class ControlLoop:
         self._check_setpoint = getattr(sup, "check_setpoint", None)
         self._latch = getattr(sup, "trip", None)
         self._stop_how = getattr(sup, "stop", "quick_stop")
+        self._stop_disables = self._stop_how == "disable"
 
     def _record(self, k: int, x_cmd: float, v_cmd: float, fb: Feedback, output: float) -> None:
         """Record: one row of the recorder at position tick ``k``, in the recorder's column order
@@ -431,9 +447,8 @@ class ControlLoop:
         status, reason, kind = RunStatus.COMPLETE, "", StopKind.COMPLETE
         try:
             for k in range(K):
-                trip = self._tick(k, cmd)
-                if trip:
-                    return self._end(k, RunStatus.TRIPPED, trip, self._trip_kind)
+                if self._tick(k, cmd) is TickResult.TRIPPED:
+                    return self._end(k, RunStatus.TRIPPED, self.trip_reason, self.trip_kind)
                 if self.progress is not None and k % 1000 == 0:
                     try:
                         self.progress((k + 1) / K)
@@ -460,16 +475,16 @@ class ControlLoop:
                 gc.unfreeze()
                 if gc_was_on:
                     gc.enable()
-            if self.recorder is not None and status != "complete":
+            if self.recorder is not None and status is not RunStatus.COMPLETE:
                 self.recorder.close(status, reason)
-        if status == "complete":
+        if status is RunStatus.COMPLETE:
             self._event(K - 1, "complete", "")
         return self._end(K, status, reason, kind)
 
-    def _tick(self, k: int, cmd: np.ndarray) -> str:
-        """Position tick ``k``: its ``per_tick`` cycles, stage by stage (real-time). Returns the
-        reason of a trip (the controlled stop commanded, the event written, its kind in
-        ``_trip_kind``), '' while all is well."""
+    def _tick(self, k: int, cmd: np.ndarray) -> TickResult:
+        """Position tick ``k``: its ``per_tick`` cycles, stage by stage (real-time). Returns
+        ``TRIPPED`` on a trip (the controlled stop commanded, the event written, the reason in
+        ``trip_reason``, its kind in ``trip_kind``), ``OK`` while all is well."""
         b = self.backend
         v_cmd = (cmd[k + 1] - cmd[k]) / self.ctrl.position_period
         for j in range(self.per_tick):
@@ -478,29 +493,31 @@ class ControlLoop:
                 # supervise: the supervisor checks once a tick, a fault between ticks trips it here, the same way
                 if self._latch is None:
                     raise BackendFault(fb.fault, fb.fault_kind)
-                self._trip_kind = fault_kind(fb.fault_kind, StopKind.TRIP)
-                self._latch(k * self.ctrl.position_period, fb.fault, fb, self._trip_kind)
+                self.trip_kind = fault_kind(fb.fault_kind, StopKind.TRIP)
+                self.trip_reason = fb.fault
+                self._latch(k * self.ctrl.position_period, fb.fault, fb, self.trip_kind)
                 self._stop_after(k, "trip", fb.fault)
-                return fb.fault
+                return TickResult.TRIPPED
             out = self._command(k, j, cmd, fb)                      # profile, position law, velocity law
             if j == 0:
                 self._record(k, cmd[k], v_cmd, fb, out)             # record
                 trip = self._supervise(k, cmd, fb)                  # supervise, before the setpoint goes out
                 if trip:
                     self._stop_after(k, "trip", trip)
-                    self._trip_kind = getattr(self.supervisor, "trip_kind", None) or StopKind.TRIP
-                    return trip
+                    self.trip_kind = getattr(self.supervisor, "trip_kind", None) or StopKind.TRIP
+                    self.trip_reason = trip
+                    return TickResult.TRIPPED
             b.write_setpoint(self._setpoint)                        # write command
             b.sync()
             self.clock.wait()
-        return ""
+        return TickResult.OK
 
     def _command(self, k: int, j: int, cmd: np.ndarray, fb: Feedback) -> float:
         """Profile, position law and velocity law of cycle ``j`` of tick ``k`` (drivers.control's
         stages, as far as the backend does not close the loops itself): writes this cycle's
         setpoint in place; returns the output to record (real-time)."""
-        sp, b = self._setpoint, self.backend
-        if b.closes == "both":
+        sp = self._setpoint
+        if self._closes_both:
             sp.position = cmd[k + 1]
             return fb.output
         if j == 0:
@@ -508,7 +525,7 @@ class ControlLoop:
             if not math.isnan(fb.x_feedback):      # the feedback arrives late
                 xfb = fb.x_feedback
             self._w_ref = position_tick(self.p, self._s, cmd, k, xfb)
-        if b.closes == "velocity":
+        if self._closes_velocity:
             sp.speed = self._w_ref
             return fb.output
         inj = self.injection
@@ -517,7 +534,7 @@ class ControlLoop:
         else:
             i = k * self.per_tick + j
             u = injected_velocity_cycle(self.p, self._s, self._ring, fb.v_motor, fb.x_motor, inj.signal[i],
-                                        inj.into == "torque", inj.data, i)
+                                        self._inject_torque, inj.data, i)
             inj.data[i, 7], inj.data[i, 8], inj.data[i, 9] = fb.x_motor, fb.x_table, fb.x_tip
         sp.output = u
         return u
@@ -551,7 +568,7 @@ class ControlLoop:
         how = self._stop_how
         self._stopped = {"how": how, "ok": True, "error": ""}
         try:
-            if how == "disable":
+            if self._stop_disables:
                 backend.disable()
             else:
                 backend.quick_stop()

@@ -34,8 +34,7 @@ from drivers.control import controller_from_config
 from hil.backends import open_backend
 from hil.closed_loop import check_loop_stability
 from hil.errors import HilError, RunStatus, StopKind, UserError
-from hil.io.measurement import read as read_measurement
-from hil.io.recorder import Recorder
+from hil.io.recorder import Recorder, RowBuffer
 from hil.loop import ControlLoop, LoopResult, check_loop_cpu
 from hil.profiles import AxisLimits, Trajectory, check_limits, check_sampled
 from hil.scope.ring import ScopeRing
@@ -99,7 +98,8 @@ def plan_from_measured(cfg, traj: Trajectory, measured: float, start: str) -> Tr
 
 def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | None = None, settle: float = 1.0,
                    supervisor=None, meta: dict | None = None, check: bool = True, start: str = "check",
-                   scope: ScopeRing | None = None, realtime: bool = False) -> RunRecord:
+                   scope: ScopeRing | None = None, realtime: bool = False,
+                   samples: np.ndarray | None = None) -> RunRecord:
     """Check ``traj`` against the axis limits, run it (plus ``settle`` seconds standing at the end)
     and record every position tick.
 
@@ -110,14 +110,17 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
     ``scope``: a :class:`~hil.scope.ring.ScopeRing` the live scope reads. Cycle by cycle, the loop
     writes every position tick into it. A dry run is computed at once by the compiled loop: its
     rows go into the ring after it, at real-time pace with ``realtime`` (the call then takes the
-    run's duration), else all at once; the record is the same either way."""
+    run's duration), else all at once; the record is the same either way.
+
+    ``samples``: ``traj`` sampled already on the position clock with ``settle`` (a caller that
+    checked them keeps them: the trajectory is sampled once)."""
     if supervisor is None or not hasattr(supervisor, "arm"):
         refuse_if_tripped(cfg)           # a trip not reset refuses motion on every backend
     if check:
         check_limits(traj, AxisLimits.from_config(cfg))
         check_loop_stability(cfg)
     tp = cfg["control.position_period"]
-    t, x_cmd = traj.sample(tp, settle)
+    x_cmd = traj.sample(tp, settle)[1] if samples is None else np.asarray(samples, float)
     # the sequence as it will be sent, sample by sample, before the first setpoint (always)
     check_sampled(x_cmd, tp, AxisLimits.from_config(cfg))
     backend = backend if backend is not None else open_backend(cfg)
@@ -151,7 +154,8 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
                          stop=kind)
     # cycle by cycle, on the backend's clock
     ctrl = controller_from_config(cfg, getattr(backend, "plant", None) or _plant_scales(cfg))
-    rec = Recorder(out_file, names, info) if out_file is not None else _MemoryRecorder(names, x_cmd.size)
+    # the run's rows, preallocated: the cycle stores each into memory, a thread drains them to the file
+    rec = Recorder(out_file, names, info, rows=x_cmd.size) if out_file is not None else RowBuffer(names, x_cmd.size)
     backend.start_at(x_cmd[0])         # a simulated stand-in starts where the run does
     if supervisor is None:
         from hil.supervisor import Supervisor
@@ -166,7 +170,9 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
             fb = backend.read_position()
             if fb is not None:           # an axis: the run starts where it stands, or not at all
                 started["measured_m"] = measured = start_position(cfg, backend, fb)
-                x_cmd = plan_from_measured(cfg, traj, measured, start).sample(tp, settle)[1]
+                moved = plan_from_measured(cfg, traj, measured, start)
+                if moved is not traj:    # the same samples, every one moved by the offset
+                    x_cmd = x_cmd + (moved.start - traj.start)
             backend.enable()
             result: LoopResult = loop.run(x_cmd)
     except BackendFault as exc:          # open, read_position or enable failed: nothing moved
@@ -182,12 +188,9 @@ def run_trajectory(cfg, traj: Trajectory, backend=None, out_file: str | Path | N
                 f" ({result.reason})" if result.reason else "")
     rec.close(result.status, result.reason, {"loop": result.clock, "supervisor": getattr(supervisor, "record", {}),
                                              "start": started})
-    if isinstance(rec, _MemoryRecorder):
-        chans = rec.channels()
-    elif rec.rows >= 2:
-        chans = read_measurement(out_file).channels
-    else:                  # stopped before it moved (e.g. the drive did not answer at start-up)
-        chans = {n: np.zeros(0) for n in names}
+    # from memory (the file holds the same rows as text); a run stopped before it moved (e.g. the
+    # drive did not answer at start-up) has fewer than two rows: none is a record
+    chans = rec.channels() if rec.rows >= 2 else {n: np.zeros(0) for n in names}
     return RunRecord(chans, result.status, result.reason, Path(out_file) if out_file else None, result.clock,
                      start=float(x_cmd[0]), stop=result.stop, controlled_stop=result.controlled_stop)
 
@@ -196,29 +199,3 @@ def _plant_scales(cfg):
     """Speed and force scales for the controller when the backend has no model of its own."""
     from hil.plant_config import plant_from_config
     return plant_from_config(cfg)
-
-
-class _MemoryRecorder:
-    """The recorder's interface, kept in memory (runs that write no file): one preallocated row per
-    position tick of the run (:meth:`write_row` is real-time: it writes in place)."""
-
-    def __init__(self, names, rows: int = 0):
-        self.names = names
-        self.rows = 0
-        self._data = np.zeros((max(int(rows), 1), len(names)))
-
-    def append(self, **values):
-        self.write_row([values[n] for n in self.names])
-
-    def write_row(self, values):
-        if self.rows == self._data.shape[0]:          # a longer run than announced (not real-time then)
-            self._data = np.concatenate([self._data, np.zeros_like(self._data)])
-        self._data[self.rows] = values
-        self.rows += 1
-
-    def close(self, *args, **kw):
-        pass
-
-    def channels(self):
-        arr = self._data[:self.rows]
-        return {n: arr[:, i] for i, n in enumerate(self.names)}

@@ -106,7 +106,10 @@ class CanopenBackend(Backend):
                                                         channel=channel, mode=mode, lockstep=lockstep,
                                                         node_id=node_id)
         self.closes, self.cycle_time, self.simulated = s.closes, s.cycle_time, s.lockstep
-        self.scale = Scaling(s.counts_per_m, s.rated, s.speed_scale)     # every drive unit <-> SI
+        self.scale = sc = Scaling(s.counts_per_m, s.rated, s.speed_scale)     # every drive unit <-> SI
+        # the mode's target of a setpoint, bound once: the cycle compares no strings
+        self._target_of = {"csp": lambda sp: sc.position_target(sp.position),
+                           "csv": lambda sp: sc.speed_target(sp.speed)}.get(s.mode, lambda sp: sc.torque_target(sp.output))
         self._od = eds_files.load(cfg, "canopen.eds", s.node_id)
         self._tip_od = eds_files.load(cfg, "canopen.tip_eds", s.tip_id) if s.tip_id else None
         self.events: deque[str] = deque(maxlen=EVENTS_KEPT)
@@ -317,13 +320,7 @@ class CanopenBackend(Backend):
 
     def write_setpoint(self, sp: Setpoint) -> None:
         """The target of the mode, in drive units, for the next RPDO (real-time)."""
-        mode, sc = self.settings.mode, self.scale
-        if mode == "csp":
-            self._target = sc.position_target(sp.position)
-        elif mode == "csv":
-            self._target = sc.speed_target(sp.speed)
-        else:
-            self._target = sc.torque_target(sp.output)
+        self._target = self._target_of(sp)
 
     def sync(self) -> None:
         """RPDO (controlword + target), then SYNC: the drive applies the target and answers

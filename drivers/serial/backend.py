@@ -160,7 +160,8 @@ class SerialBackend(Backend):
         self._open_once = False      # the port opened once: a port that vanishes later is the link's fault
         self._faulted = ""
         self._last_fb: Feedback | None = None
-        self._set_op = "set_position" if self.closes == "both" else "set_speed"
+        self._sets_position = self.closes == "both"          # bound once: the cycle compares no strings
+        self._set_op = "set_position" if self._sets_position else "set_speed"
         # configuration mistakes now, as one line naming the key, before anything opens or moves
         src = cfg.source
         for op in ("enable", "disable", "read", self._set_op):
@@ -334,7 +335,7 @@ class SerialBackend(Backend):
 
     def write_setpoint(self, setpoint: Setpoint) -> None:
         """The setpoint, confirmed by the drive's echo (real-time)."""
-        if self.closes == "both":
+        if self._sets_position:
             self.transact("set_position", position=self._counts("set_position", setpoint.position * self.k_pos))
         else:
             self.transact("set_speed", speed=self._counts("set_speed", setpoint.speed * self.k_speed))

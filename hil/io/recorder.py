@@ -1,18 +1,23 @@
-"""The recorder: every position tick's channels, streamed to a measurement file as the run goes.
+"""The recorder: every position tick's channels, kept in memory in the cycle and streamed to a
+measurement file beside it.
 
-Each row reaches the file in the cycle it is recorded: one ``write()`` of the whole row to an
-unbuffered file (the operating system's page cache holds it; no ``fsync`` in the cycle, one at
-the end). A host killed outright (``kill -9``, a crash of the interpreter) leaves every row it
-recorded but possibly the last, cut in its ``write()``; the reader
-(:func:`hil.io.measurement.read`) drops a last line that is cut. A run that aborts in an orderly
-way (exception, Ctrl-C, fault) leaves a complete file.
+The cycle writes each row into a preallocated buffer (:meth:`Recorder.write_row`: one store of
+the row's values, no text, no file I/O, as LinuxCNC samples through a ring); a thread of the
+recorder's own drains the new rows to the file every ``drain_every`` seconds (10 ms): formatted
+there, one ``write()`` per batch to an unbuffered file (the operating system's page cache holds
+it; no ``fsync`` until the end). The run's result is built from the buffer
+(:meth:`Recorder.channels`), not read back from the file. A run that ends in an orderly way
+(complete, trip, fault, exception, Ctrl-C) drains every row before the file is closed: nothing
+recorded is lost. A host killed outright (``kill -9``, a crash of the interpreter) loses at most
+the rows of its last drain interval, and the last line may be cut in its ``write()``; the reader
+(:func:`hil.io.measurement.read`) drops a last line that is cut.
 
 A JSON file beside it (``<name>.json``, the status) says how the run ended and why. While the run
 goes it says ``"status": "running"`` with the rows recorded so far (``rows``), the record time of
 the last (``t_s``), the wall time (``time``) and the recording process (``pid``), rewritten
-every ``status_every`` seconds (0.5 s) by a thread of its own, outside the cycle, each time at
-once (hil.io.safe_write.write_atomic). A status still ``running`` whose process is gone is a run
-that did not end cleanly (:func:`status_of`).
+every ``status_every`` seconds (0.5 s) by the same thread, each time at once
+(hil.io.safe_write.write_atomic). A status still ``running`` whose process is gone is a run that
+did not end cleanly (:func:`status_of`).
 """
 from __future__ import annotations
 
@@ -20,7 +25,6 @@ import json
 import os
 import threading
 import time
-from operator import truediv
 from pathlib import Path
 
 import numpy as np
@@ -29,12 +33,75 @@ from hil.io.measurement import CHANNELS, UNITS, WRITE_UNIT, format_rows, header_
 from hil.io.record_status import status_of
 from hil.io.safe_write import open_new, write_atomic
 
-__all__ = ["Recorder", "status_of", "STATUS_EVERY"]
+__all__ = ["Recorder", "RowBuffer", "status_of", "STATUS_EVERY", "DRAIN_EVERY"]
 
 STATUS_EVERY = 0.5      # s between the status file's updates while a run goes
+DRAIN_EVERY = 0.01      # s between the drains of new rows to the file (what kill -9 can lose)
+_FIRST_ROWS = 4096      # rows preallocated when the run does not say how many it will record
 
 
-class Recorder:
+class RowBuffer:
+    """Rows of named channels (SI) in a preallocated buffer: what the cycle records into, the
+    run's result read from (``hil.runtime`` keeps a run that writes no file in one).
+
+    Parameters
+    ----------
+    channels : list of str
+        The columns, in order.
+    rows : int
+        The rows the run will record, preallocated (a longer run grows the buffer, outside
+        real time); 0: a first block of 4096.
+    """
+
+    def __init__(self, channels: list[str], rows: int = 0):
+        self.names = list(channels)
+        self._t_index = self.names.index("t") if "t" in self.names else None
+        self._data = np.zeros((int(rows) if rows and rows > 0 else _FIRST_ROWS, len(self.names)))
+        self._lock = threading.Lock()        # the buffer's growth against a drain reading it
+        self.rows = 0
+
+    @property
+    def last_t(self) -> float:
+        """The record time of the last row (NaN before the first)."""
+        n = self.rows
+        return float(self._data[n - 1, self._t_index]) if n and self._t_index is not None else float("nan")
+
+    def write_row(self, values) -> None:
+        """One row: a value (SI) for every channel, in their order (real-time: one store into the
+        preallocated buffer)."""
+        i = self.rows
+        if i == self._data.shape[0]:         # a longer run than announced (not real-time then)
+            with self._lock:
+                self._data = np.concatenate([self._data, np.zeros_like(self._data)])
+        self._data[i] = values
+        self.rows = i + 1
+
+    def append(self, **values: float) -> None:
+        """One row: a value (SI) for every channel, by name."""
+        self.write_row([values[n] for n in self.names])
+
+    def _put(self, columns: dict[str, np.ndarray]) -> None:
+        """Many rows at once (not real-time)."""
+        cols = [np.asarray(columns[n], float) for n in self.names]
+        n = len(cols[0]) if cols else 0
+        with self._lock:
+            need = self.rows + n
+            if need > self._data.shape[0]:
+                self._data = np.concatenate([self._data[:self.rows], np.zeros((need - self.rows, len(self.names)))])
+            for i, c in enumerate(cols):
+                self._data[self.rows:need, i] = c
+            self.rows = need
+
+    def channels(self) -> dict[str, np.ndarray]:
+        """The recorded channels (SI), from memory: one array per channel, a row per write."""
+        data = self._data[:self.rows]
+        return {n: data[:, i].copy() for i, n in enumerate(self.names)}
+
+    def close(self, status: str = "complete", reason: str = "", extra: dict | None = None) -> None:
+        """Nothing to close in memory (the recorder's interface)."""
+
+
+class Recorder(RowBuffer):
     """``with Recorder(path, channels, meta) as rec: rec.append(t=..., x_cmd=..., ...)``.
 
     Parameters
@@ -48,34 +115,38 @@ class Recorder:
     status_every : float or None
         Seconds between the status file's updates while rows come in (None: only at the start
         and at the end).
+    rows : int
+        The rows the run will record, preallocated (a longer run grows the buffer, outside
+        real time); 0: a first block of 4096.
+    drain_every : float or None
+        Seconds between the drains of new rows to the file (None: no thread; rows reach the
+        file when the record closes).
     """
 
     def __init__(self, path: str | Path, channels: list[str], meta: dict | None = None,
-                 status_every: float | None = STATUS_EVERY):
+                 status_every: float | None = STATUS_EVERY, rows: int = 0,
+                 drain_every: float | None = DRAIN_EVERY):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.names = list(channels)
+        super().__init__(channels, rows)
         kinds = [CHANNELS.get(n, "dimensionless") for n in self.names]
         self._factors = [float(UNITS[WRITE_UNIT[k]][1]) for k in kinds]
-        # one row as one string: "%.10g,%.10g,...\n" (the same text as format_rows writes)
-        self._row_format = ",".join(["%.10g"] * len(self.names)) + "\n"
-        self._t_index = self.names.index("t") if "t" in self.names else None
+        self._io_lock = threading.Lock()     # one writer of the file at a time (drain, extend, close)
+        self._written = 0                    # rows in the file
         # O_NOFOLLOW: a symbolic link planted at the record's name is refused, not followed;
         # unbuffered: every write() goes to the file at once (the page cache survives kill -9)
         self._fh = open_new(self.path, binary=True)
         head = "".join(f"# {k} = {_one_line(v)}\n" for k, v in (meta or {}).items())
         head += ",".join(header_name(n, k) for n, k in zip(self.names, kinds)) + "\n"
         self._write(head.encode("utf-8"))
-        self.rows = 0
-        self.last_t = float("nan")
         self.status = "running"
         self.reason = ""
         self._status_lock = threading.Lock()
         self._write_status()
-        self._updater = None
-        if status_every is not None and status_every > 0:
-            self._updater = _StatusUpdater(self, float(status_every))
-            self._updater.start()
+        self._drain = None
+        if drain_every is not None and drain_every > 0:
+            self._drain = _Drain(self, float(drain_every), status_every)
+            self._drain.start()
 
     @property
     def status_path(self) -> Path:
@@ -92,49 +163,58 @@ class Recorder:
         with self._status_lock:
             info = {"file": self.path.name, "status": self.status, "rows": self.rows, "reason": self.reason,
                     "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "pid": os.getpid()}
-            if self.last_t == self.last_t:             # not NaN: a row has been recorded
-                info["t_s"] = self.last_t
+            last_t = self.last_t
+            if last_t == last_t:             # not NaN: a row has been recorded
+                info["t_s"] = last_t
             if extra:
                 info.update(extra)
             # a fresh temporary name in the folder, renamed over the status (not a fixed .json.tmp)
             write_atomic(self.status_path, json.dumps(info, indent=2), sync=sync)
 
-    def write_row(self, values) -> None:
-        """One row: a value (SI) for every channel of the header, in its order (real-time: one
-        ``write()``, no flush to the disk)."""
-        self._write((self._row_format % tuple(map(truediv, values, self._factors))).encode("ascii"))
-        if self._t_index is not None:
-            self.last_t = values[self._t_index]
-        self.rows += 1
-
-    def append(self, **values: float) -> None:
-        """One row: a value (SI) for every channel of the header, by name."""
-        self.write_row([values[n] for n in self.names])
-
     def extend(self, columns: dict[str, np.ndarray]) -> None:
-        """Many rows at once (a simulated run recorded in one go)."""
-        cols = [np.asarray(columns[n], float) for n in self.names]
-        self._write(format_rows(cols, list(self._factors)).encode("ascii"))
-        self.rows += len(cols[0])
-        if self._t_index is not None and len(cols[0]):
-            self.last_t = float(cols[self._t_index][-1])
+        """Many rows at once (a simulated run recorded in one go), written to the file at once."""
+        self._put(columns)
+        self.drain()
+
+    def drain(self) -> None:
+        """The rows recorded since the last drain, to the file (not real-time: the drain thread,
+        :meth:`extend` and :meth:`close` call it)."""
+        with self._io_lock:
+            if self._fh.closed:
+                return
+            with self._lock:
+                n = self.rows
+                block = self._data[self._written:n]
+                if not block.shape[0]:
+                    return
+                block = block.copy()
+            self._write(format_rows(list(block.T), self._factors).encode("ascii"))
+            self._written = n
 
     def flush(self) -> None:
-        """Nothing is held back: every row is written as it comes (kept for callers that flush)."""
+        """Every row recorded so far, to the file now (the drain thread does it every 10 ms)."""
+        self.drain()
 
     def close(self, status: str = "complete", reason: str = "", extra: dict | None = None) -> None:
-        """Close the record with its status and reason. Once closed, a later call changes neither
-        (the first to close a run that stopped is the one that knows why: the cycle loop), but
-        its ``extra`` (loop statistics, the trip record, where the run started) is added."""
-        if self._updater is not None:
-            self._updater.finish()
-            self._updater = None
+        """Close the record with its status and reason, every row drained to the file first.
+        Once closed, a later call changes neither (the first to close a run that stopped is the
+        one that knows why: the cycle loop), but its ``extra`` (loop statistics, the trip
+        record, where the run started) is added."""
+        if self._drain is not None:
+            self._drain.finish()
+            self._drain = None
         if self._fh.closed:
             if extra:
                 self._write_status(extra)
             return
-        os.fsync(self._fh.fileno())           # the end of the run: on the disk, not only in the cache
-        self._fh.close()
+        try:
+            self.drain()
+            os.fsync(self._fh.fileno())       # the end of the run: on the disk, not only in the cache
+        except OSError as exc:                # a full disk, a removed folder: the status says what is missing
+            reason = (f"{reason}; " if reason else "") + \
+                f"{self.rows - self._written} row(s) not written to {self.path.name}: {exc}"
+        finally:
+            self._fh.close()
         self.status, self.reason = status, reason
         self._write_status(extra)
 
@@ -151,27 +231,37 @@ class Recorder:
         return False
 
 
-class _StatusUpdater(threading.Thread):
-    """Rewrites a running record's status every ``every`` seconds while rows come in: outside the
-    cycle (the loop only counts rows), without fsync (the page cache survives the process)."""
+class _Drain(threading.Thread):
+    """Outside the cycle: drains a running record's new rows to the file every ``every`` seconds,
+    and rewrites its status every ``status_every`` seconds while rows come in (without fsync: the
+    page cache survives the process)."""
 
-    def __init__(self, rec: Recorder, every: float):
-        super().__init__(name=f"status {rec.status_path.name}", daemon=True)
+    def __init__(self, rec: Recorder, every: float, status_every: float | None):
+        super().__init__(name=f"record {rec.path.name}", daemon=True)
         self.rec = rec
         self.every = every
+        self.status_every = status_every
         self._done = threading.Event()
 
     def run(self) -> None:
-        written = self.rec.rows
+        reported = self.rec.rows
+        next_status = time.monotonic() + (self.status_every or 0.0)
         while not self._done.wait(self.every):
+            try:
+                self.rec.drain()
+            except Exception:         # a full disk, a removed folder: the record goes on, the end tells
+                continue
+            if not self.status_every or time.monotonic() < next_status:
+                continue
+            next_status = time.monotonic() + self.status_every
             rows = self.rec.rows
-            if rows == written:
+            if rows == reported:
                 continue
             try:
                 self.rec._write_status(sync=False)
-            except Exception:         # a full disk, a removed folder: the record goes on, the end tells
+            except Exception:
                 continue
-            written = rows
+            reported = rows
 
     def finish(self) -> None:
         self._done.set()
