@@ -165,6 +165,8 @@ SCHEMA: dict[str, Field] = {
     # --- NC ------------------------------------------------------------------------------------
     "nc.g0": Field("speed", "rapid (G00) speed, the reference for the acceleration time t_acc", default=None,
                    positive=True),
+    "nc.t_acc": Field("time", "NC acceleration time to reach nc.g0, for a move that gives none of --tacc, --amax "
+                      "or --jmax (hil tune writes the one it chose)", default=None, positive=True),
     "nc.shaper": Field("str", "input shaper of the command (hil.shaping): KIND@FREQUENCY[:DAMPING] with KIND zv, zvd "
                        "or ei (e.g. 'zvd@14.94Hz'), 'auto' (ZVD at the model's lowest mode) or 'none'; hil move "
                        "--shaper overrides it", default="none"),
@@ -437,6 +439,7 @@ class Config:
         self.values = values
         self.source = source
         self.overrides: dict[str, Any] = {}     # the --set values it was loaded with, as given
+        self.file_keys: frozenset[str] = frozenset()   # the keys its file writes (not defaults, not --set)
 
     def command_line(self) -> str:
         """``--config FILE --set KEY=VALUE ...``: the options that load this config again, for a
@@ -654,6 +657,7 @@ def _depth(value) -> int:
 def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None = None) -> Config:
     table = _toml(text, source)
     raw = _flatten(table)
+    written = frozenset(raw)
     if overrides:
         for k, v in overrides.items():
             if field_for(k) is None:
@@ -662,6 +666,7 @@ def loads(text: str, source: str = "<string>", overrides: dict[str, Any] | None 
             raw[k] = v
     cfg = _validate(raw, source)
     cfg.overrides = dict(overrides or {})
+    cfg.file_keys = written
     return cfg
 
 

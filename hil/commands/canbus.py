@@ -28,17 +28,6 @@ def add_can_options(p) -> None:
                    help="record the bus (received and sent frames) with python-can's logger: FILE.asc or .blf")
 
 
-def _file_keys(path) -> set:
-    """The [canopen] keys the config file itself writes (not the schema's defaults)."""
-    import tomllib
-    from pathlib import Path
-    try:
-        table = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return set()
-    return {f"canopen.{k}" for k in (table.get("canopen") or {})}
-
-
 def _python_can_config() -> dict:
     """python-can's configuration (environment, ~/.canrc, can.ini), {} when it names no interface."""
     try:
@@ -49,13 +38,12 @@ def _python_can_config() -> dict:
     return {k: v for k, v in conf.items() if v is not None}
 
 
-def can_overrides(args, config_path) -> dict:
+def can_overrides(args, written) -> dict:
     """``canopen.*`` overrides: -i/-c/-b where given, else python-can's configuration for the keys
-    the config file does not write."""
+    the config file does not write (``written``: the keys it writes, ``Config.file_keys``)."""
     out = {}
     given = {"canopen.interface": getattr(args, "interface", None), "canopen.channel": getattr(args, "channel", None),
              "canopen.bitrate": getattr(args, "bitrate", None)}
-    written = _file_keys(config_path)
     pc = None
     for key, value in given.items():
         if value is not None:

@@ -107,9 +107,11 @@ def load_config(args):
     if given or (getattr(args, "backend", None) or cfg.get("backend.type", "sim")) == "canopen":
         # -i/-c/-b, then python-can's configuration for what the file does not write; --set wins
         from hil.commands.canbus import can_overrides
-        extra = can_overrides(args, cfg.source)
-        if extra:
-            cfg = config_mod.load(args.config, {**extra, **overrides})
+        extra = {k: v for k, v in can_overrides(args, cfg.file_keys).items() if k not in overrides}
+        if extra:                   # applied to the config loaded: the file is read once
+            changed = cfg.with_values(extra)
+            changed.overrides, changed.file_keys = {**extra, **overrides}, cfg.file_keys
+            cfg = changed
     return cfg
 
 
@@ -117,8 +119,9 @@ def add_arguments(p) -> None:
     add_common(p)
     p.add_argument("--stroke", metavar="LENGTH", required=True, help="signed stroke, e.g. 100mm or -0.1m")
     p.add_argument("--feed", metavar="SPEED", required=True, help="feed (peak speed), e.g. 7000mm/min")
-    g = p.add_mutually_exclusive_group(required=True)
-    g.add_argument("--tacc", metavar="TIME", help="NC acceleration time to reach G0, e.g. 200ms")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--tacc", metavar="TIME", help="NC acceleration time to reach G0, e.g. 200ms (one of --tacc, "
+                   "--amax, --jmax; default: the config's nc.t_acc)")
     g.add_argument("--amax", metavar="ACCELERATION", help="peak acceleration, e.g. 4m/s^2")
     g.add_argument("--jmax", metavar="JERK", help="peak jerk, e.g. 200m/s^3")
     p.add_argument("--g0", metavar="SPEED", help="rapid speed G0 (default: the config's nc.g0)")
@@ -146,10 +149,14 @@ def build_trajectory(args, cfg) -> Trajectory:
     from hil.profiles import MoveSpec, Trajectory
 
     g0 = parse_option(args.g0, "speed", "--g0") if args.g0 else cfg.get("nc.g0")
+    t_acc = parse_option(args.tacc, "time", "--tacc") if args.tacc else None
+    if not (args.tacc or args.amax or args.jmax):
+        t_acc = cfg.get("nc.t_acc")          # a tuned config carries its acceleration (hil tune)
+        if t_acc is None:
+            raise UserError(f"give one of --tacc, --amax or --jmax (e.g. --tacc 200ms), or nc.t_acc in {cfg.source}")
     try:
         spec = MoveSpec(stroke=parse_option(args.stroke, "length", "--stroke"), feed=parse_option(args.feed, "speed", "--feed"),
-                        t_acc=parse_option(args.tacc, "time", "--tacc") if args.tacc else None,
-                        g0=g0 if args.tacc else None,
+                        t_acc=t_acc, g0=g0 if t_acc is not None else None,
                         a_max=parse_option(args.amax, "acceleration", "--amax") if args.amax else None,
                         j_max=parse_option(args.jmax, "jerk", "--jmax") if args.jmax else None)
     except ValueError as exc:
@@ -209,7 +216,8 @@ def run(args) -> int:
         check_limits(traj, AxisLimits.from_config(cfg))
         # and the command as it will be sent, sample by sample (--check included)
         tp = cfg["control.position_period"]
-        check_sampled(traj.sample(tp)[1], tp, AxisLimits.from_config(cfg))
+        x_cmd = traj.sample(tp)[1]            # sampled once: checked here, run below
+        check_sampled(x_cmd, tp, AxisLimits.from_config(cfg))
         check_loop_stability(cfg)
     except (LimitError, UnstableLoopError) as exc:
         raise UserError(str(exc)) from None
@@ -235,7 +243,8 @@ def run(args) -> int:
     from hil.commands.scope import scope_for
     with scope_for(args, cfg, "move") as ring:
         rec = run_trajectory(cfg, traj, backend=backend, out_file=out / "move.csv", settle=0.0, check=False,
-                             start="check" if args.start else "follow", scope=ring, realtime=args.realtime)
+                             start="check" if args.start else "follow", scope=ring, realtime=args.realtime,
+                             samples=x_cmd)
     ch = rec.channels
     if len(ch["t"]) < 2:
         raise UserError(f"the move did not start on {backend.name}: {rec.status}: {rec.reason}")
