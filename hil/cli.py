@@ -49,6 +49,7 @@ COMMANDS = {
     "fleet": "hil.commands.fleet",
     "emps": "hil.commands.emps",
     "frf": "hil.commands.frf",
+    "tune": "hil.commands.tune",
     "drive-sim": "hil.commands.drive_sim",
     "home": "hil.commands.home",
     "jog": "hil.commands.jog",

@@ -390,6 +390,7 @@ _BASE = {
     "sweep": ["--config", BENCH, "--stroke", "590mm", "--feed", "15m/min", "--jmax", "50,100m/s^3", "--no-plot",
               "--no-progress"],
     "frf": ["--config", BENCH],
+    "tune": ["--config", BENCH, "--stroke", "100mm", "--feed", "7000mm/min"],
     "synth": ["--config", BENCH],
     "drive-sim": ["--config", CANOPEN, "--port", "0"],
     "serial-sim": ["--config", str(ROOT / "config" / "serial_ascii_example.toml")],

@@ -13,7 +13,7 @@ Layers, lowest first (a module may import its own layer and the layers below it,
 3. the configuration, the reading of a configuration into a plant, and the opening of a backend
    (``hil.backends``)
 4. the runtime core: simulator, cycle loop, runtime, supervisor, profiles and their shaping, measurement files
-5. the applications: identification, jerk sweeps, frequency responses
+5. the applications: identification, jerk sweeps, frequency responses, tuning (``hil.tune``)
 6. figures and reports, the live scope's server and page (``hil.scope.server``; its ring buffer,
    ``hil.scope.ring``, is of the runtime core: the cycle writes it)
 7. the command line
@@ -41,7 +41,7 @@ LAYERS = {
     "hil": 3, "hil.config": 3, "hil.plant_config": 3, "hil.backends": 3,
     "hil.simulate": 4, "hil.loop": 4, "hil.runtime": 4, "hil.supervisor": 4, "hil.profiles": 4, "hil.shaping": 4,
     "hil.closed_loop": 4, "hil.analysis": 4, "hil.io": 4, "hil.scope": 4,
-    "hil.ident": 5, "hil.sweep": 5, "hil.frf": 5, "hil.fleet": 5,
+    "hil.ident": 5, "hil.sweep": 5, "hil.frf": 5, "hil.fleet": 5, "hil.tune": 5,
     "hil.plots": 6, "hil.scope.server": 6,
     "hil.commands": 7, "hil.cli": 7,
 }

@@ -196,16 +196,17 @@ def _scope_feed(ring, rec, ctrl) -> None:
     feed(ring, ch, pace=None)
 
 
-def run(args) -> int:
+def measure_axis(args, cfg, pm_min: float, gm_min_db: float, ring=None):
+    """The measurement of ``hil frf`` on the backend ``args`` names (the simulated plant by
+    default): the drive opened in torque mode, the supervisor armed, the travel checked from where
+    the axis stands, the experiment, the drive shut down however it ends. Returns the
+    :class:`~hil.frf.FrfResult`, its settings and the controller (not real-time; ``hil tune``
+    calls it too)."""
     from drivers.control import controller_from_config
     from hil import frf
     from hil.backends import open_backend
-    from hil.commands.move import load_config
     from hil.plant_config import plant_from_config
-    pm_min, gm_min_db = parse_angle_deg(args.pm, "--pm"), parse_gain_db(args.gm, "--gm")
-    check_margins(pm_min, gm_min_db)
     overrides = dict(parse_assignment(s) for s in args.set)
-    cfg = load_config(args)            # --set, and -i/-c/-b or python-can's configuration for canopen
     plant_model = plant_from_config(cfg)
     ctrl = controller_from_config(cfg, plant_model)
     st = settings_from_args(args, cfg, ctrl)
@@ -217,54 +218,64 @@ def run(args) -> int:
     settle = frf.settle_time(plant_model, st)
     duration = st.lead_in + math.ceil(settle / st.period + st.periods) * st.period + 1.0
     _check_travel(cfg, st, duration, 0.0)
+    name = args.backend or cfg.get("backend.type", "sim")
+    backend = None
+    if name != "sim":
+        if args.sim_set:
+            raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
+        options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
+        try:
+            backend = open_backend(cfg, name, can_log=getattr(args, "can_log", None), **options)
+        except (BackendError, BackendFault, TypeError, ValueError) as exc:
+            raise UserError(str(exc)) from None
+        if backend.closes != "none":
+            raise UserError(f"backend {name}: frf closes both loops on the host and needs the drive in torque mode")
+        supervisor = Supervisor(cfg)
+        supervisor.arm()          # a latched trip refuses motion: one line, exit 2
+        try:
+            backend.open()
+            # where the axis stands, before the drive is enabled: the experiment starts there, and
+            # its travel is checked from there
+            fb = backend.read_position()
+            if fb is not None:
+                _check_travel(cfg, st, duration, fb.x_table)
+            backend.enable()
+        except BackendFault as exc:
+            backend.shutdown()
+            raise UserError(f"backend {name}: {exc.reason}") from None
+        except BaseException:
+            backend.shutdown()
+            raise
+    else:
+        refuse_if_tripped(cfg)
+        supervisor = None
+    from hil.commands.progress import shown
+    progress = frf.stderr_progress if shown(args) else None      # on a terminal (stderr: --json too)
+    try:
+        result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
+                             pm_min=pm_min, gm_min_db=gm_min_db, supervisor=supervisor, scope=ring)
+        if ring is not None and backend is None:   # the compiled run: its record into the scope at once
+            _scope_feed(ring, result.record, ctrl)
+    except RunStopped:
+        raise                     # stopped in the middle: the exit code of how (hil.errors.STOP_EXIT_CODES)
+    except (ValueError, RuntimeError) as exc:
+        raise UserError(str(exc)) from None
+    finally:
+        if backend is not None:
+            backend.shutdown()
+    return result, st, ctrl
+
+
+def run(args) -> int:
+    from hil.commands.move import load_config
+    pm_min, gm_min_db = parse_angle_deg(args.pm, "--pm"), parse_gain_db(args.gm, "--gm")
+    check_margins(pm_min, gm_min_db)
+    overrides = dict(parse_assignment(s) for s in args.set)
+    cfg = load_config(args)            # --set, and -i/-c/-b or python-can's configuration for canopen
     from hil.commands.scope import check_scope_options, scope_for
     check_scope_options(args)          # before anything moves
     with scope_for(args, cfg, "frf") as ring:     # the page before the drive is enabled; held after the run
-        name = args.backend or cfg.get("backend.type", "sim")
-        backend = None
-        if name != "sim":
-            if args.sim_set:
-                raise UserError("--sim-set changes the simulated plant only; it has no meaning with --backend " + name)
-            options = {"mode": "cst"} if name == "canopen" else {}     # the host closes both loops
-            try:
-                backend = open_backend(cfg, name, can_log=getattr(args, "can_log", None), **options)
-            except (BackendError, BackendFault, TypeError, ValueError) as exc:
-                raise UserError(str(exc)) from None
-            if backend.closes != "none":
-                raise UserError(f"backend {name}: frf closes both loops on the host and needs the drive in torque mode")
-            supervisor = Supervisor(cfg)
-            supervisor.arm()          # a latched trip refuses motion: one line, exit 2
-            try:
-                backend.open()
-                # where the axis stands, before the drive is enabled: the experiment starts there, and
-                # its travel is checked from there
-                fb = backend.read_position()
-                if fb is not None:
-                    _check_travel(cfg, st, duration, fb.x_table)
-                backend.enable()
-            except BackendFault as exc:
-                backend.shutdown()
-                raise UserError(f"backend {name}: {exc.reason}") from None
-            except BaseException:
-                backend.shutdown()
-                raise
-        else:
-            refuse_if_tripped(cfg)
-            supervisor = None
-        from hil.commands.progress import shown
-        progress = frf.stderr_progress if shown(args) else None      # on a terminal (stderr: --json too)
-        try:
-            result = frf.measure(plant_true, plant_model, ctrl, st, backend=backend, progress=progress,
-                                 pm_min=pm_min, gm_min_db=gm_min_db, supervisor=supervisor, scope=ring)
-            if ring is not None and backend is None:   # the compiled run: its record into the scope at once
-                _scope_feed(ring, result.record, ctrl)
-        except RunStopped:
-            raise                     # stopped in the middle: the exit code of how (hil.errors.STOP_EXIT_CODES)
-        except (ValueError, RuntimeError) as exc:
-            raise UserError(str(exc)) from None
-        finally:
-            if backend is not None:
-                backend.shutdown()
+        result, st, ctrl = measure_axis(args, cfg, pm_min, gm_min_db, ring)
     keep_stable_gains(result, lambda key, value: load(args.config, dict(overrides, **{key: value})))
     out = Path(args.out)
     report = result.as_dict()

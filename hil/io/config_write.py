@@ -118,7 +118,7 @@ def _table(doc, section: str, create: bool):
 
 
 def edit_config_text(text: str, new: Config, keys: list[str], *, stderr: dict[str, float] | None = None,
-                     note: str | None = None) -> str:
+                     note: str | dict[str, str] | None = None) -> str:
     """``text`` (a config file) with ``keys`` set to their values in ``new``, everything else as
     written.
 
@@ -132,8 +132,9 @@ def edit_config_text(text: str, new: Config, keys: list[str], *, stderr: dict[st
         Dotted keys to write (see :func:`changed_keys`); a key that ``new`` has as None is removed.
     stderr : dict, optional
         Standard error (SI) per key: the value is rounded to it and the error written in the comment.
-    note : str, optional
-        What changed the values, written in the comment beside each (e.g. ``"hil fit on c2.csv"``).
+    note : str or dict, optional
+        What changed the values, written in the comment beside each (e.g. ``"hil fit on c2.csv"``);
+        a dict: the note of each key (``hil tune``: each change with its reason).
     """
     try:
         doc = tomlkit.parse(text)
@@ -154,8 +155,9 @@ def edit_config_text(text: str, new: Config, keys: list[str], *, stderr: dict[st
         old_comment = old_comment.lstrip("#").strip()
         item, s_text = _new_item(key, value, new.values, old_item, stderr.get(key))
         parts = []
-        if note:
-            parts.append(note)
+        this = note.get(key) if isinstance(note, dict) else note
+        if this:
+            parts.append(this)
         if s_text:
             parts.append(f"+- {s_text} (standard error)")
         if old_item is not None and not isinstance(old_item, Table):
@@ -173,7 +175,8 @@ def _as_written(item) -> str:
     return f'"{v}"' if isinstance(v, str) else str(v)
 
 
-def write_config(path, source: str, new: Config, *, stderr: dict[str, float] | None = None, note: str | None = None,
+def write_config(path, source: str, new: Config, *, stderr: dict[str, float] | None = None,
+                 note: str | dict[str, str] | None = None,
                  inputs: tuple = ()) -> list[str]:
     """Write ``new`` to ``path`` as an edit of the config file ``source``: the keys where ``new``
     differs from the file (the --set values included) are written,
