@@ -166,13 +166,13 @@ def tune_gains(cfg, measure, pm_min: float, gm_min_db: float, changes: list[Chan
     return cfg, margins_of(first), margins_of(result), result
 
 
-def mode_error(mode: dict) -> float:
+def mode_error(mode: dict, least: float = MIN_MODE_ERROR) -> float:
     """The relative frequency error a shaper for ``mode`` (a fitted mode of ``hil frf``) must
-    tolerate: three standard errors of the fit, at least :data:`MIN_MODE_ERROR` (a load, a
-    position, a temperature move a mode by a few per cent from the day it was measured)."""
+    tolerate: three standard errors of the fit, at least ``least`` (:data:`MIN_MODE_ERROR`: a
+    load, a position, a temperature move a mode by a few per cent from the day it was measured)."""
     f = mode["measured"]["frequency_hz"]
     sigma = mode["measured"].get("frequency_std_hz") or 0.0
-    return float(max(MIN_MODE_ERROR, 3 * sigma / f))
+    return float(max(least, 3 * sigma / f))
 
 
 def matched(cfg, mode: dict):
@@ -249,7 +249,7 @@ def _traj(stroke: float, feed: float, t_acc: float, g0: float, dwell: float, sha
 
 
 def choose_command(cfg, mode: dict | None, stroke: float, feed: float, tol: float, dwell: float,
-                   progress=None) -> tuple[list[Candidate], Candidate | None, float]:
+                   progress=None, least_error: float = MIN_MODE_ERROR) -> tuple[list[Candidate], Candidate | None, float]:
     """Every NC acceleration time of :data:`T_ACC` the limits allow, unshaped and through each
     shaper for ``mode`` (none without a mode), run on the model of ``cfg`` with the mode where it
     was measured (:func:`matched`), and with its modes :func:`mode_error` away either side; the candidates, the one whose tip is within ``tol``
@@ -258,7 +258,7 @@ def choose_command(cfg, mode: dict | None, stroke: float, feed: float, tol: floa
     from hil.simulate import simulate_config
     limits = AxisLimits.from_config(cfg)
     g0 = cfg.get("nc.g0") or limits.speed
-    eps = mode_error(mode) if mode else 0.0
+    eps = mode_error(mode, least_error) if mode else 0.0
     shapers = [None] + ([Shaper.design(k, mode["measured"]["frequency_hz"], mode["measured"]["damping_ratio"])
                          for k in KINDS] if mode else [])
     centre = matched(cfg, mode) if mode else cfg

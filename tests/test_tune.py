@@ -121,6 +121,24 @@ def test_settle_time_and_mode_error_in_closed_form():
     assert mode_error(mode) == pytest.approx(0.15)
 
 
+def test_robustness_costs_time_and_buys_a_band():
+    """On the model with the tip's mode as fitted: asking no frequency error picks a faster
+    command than asking 5 %, and the robust choice still has its tip within the tolerance with
+    every mode 5 % off, where the fast one does not (the residual vibration of a ZV grows
+    linearly off its mode, a ZVD's quadratically)."""
+    from hil.tune import choose_command
+    cfg = config.load(BENCH)
+    f, z = min(model_modes(cfg))
+    mode = {"measured": {"frequency_hz": f, "damping_ratio": z, "frequency_std_hz": 0.0}}
+    _, fast, e0 = choose_command(cfg, mode, 0.1, 7 / 60, 15e-6, 0.6, least_error=0.0)
+    tried, robust, e5 = choose_command(cfg, mode, 0.1, 7 / 60, 15e-6, 0.6)
+    assert e0 == 0.0 and e5 == pytest.approx(0.05)
+    assert fast.settle_s < robust.settle_s <= robust.settle_worst_s < math.inf
+    assert fast.shaper.kind == "zv" and robust.shaper.kind in ("zvd", "ei")
+    same = next(c for c in tried if c.t_acc == fast.t_acc and c.shaper == fast.shaper)
+    assert same.settle_s == fast.settle_s and same.settle_worst_s > robust.settle_worst_s
+
+
 @pytest.mark.parametrize("scale", [0.85, 1.1])
 def test_the_matched_model_has_the_mode_where_it_was_measured(scale):
     """The model's tip mode moved to a measured frequency by its most sensitive stiffness: the
