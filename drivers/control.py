@@ -57,7 +57,7 @@ from sim_plant.kernel import (
 from sim_plant.plant import Plant
 
 __all__ = ["ControllerSettings", "controller_from_config", "position_law", "velocity_law",
-           "new_velocity_state", "measured_speed", "pi_law", "quantize", "delay_line", "history_push", "history_read", "LoopTerms",
+           "new_velocity_state", "measured_speed", "pi_law", "filter_path", "filter_sections", "quantize", "delay_line", "history_push", "history_read", "LoopTerms",
            "loop_terms",
            "lag_alpha", "P", "S", "T", "LOOP_STATE", "LOOP_TERMS", "velocity_step", "encoders", "feedback_position",
            "feedback_reading", "motor_feedback",
@@ -79,26 +79,36 @@ class P(IntEnum):
     N_TAPS = 9
     TAPS = 10            # taps follow, newest sample first (at most MAX_TAPS)
     MAX_TAPS = 8
-    SIZE = 18
+    N_TQ = 18            # filter sections on the torque setpoint (drivers.filters), then 5 numbers each
+    TQ = 19
+    N_SP = 39            # filter sections on the speed feedback, then 5 numbers each
+    SP = 40
+    SIZE = 60
 
 
-def _named_indices(name: str, fields: tuple, doc: str, tail: int = 1) -> type[IntEnum]:
-    """An IntEnum of the indices of ``fields`` (upper case) in a float array, one slot each, the
-    last field ``tail`` slots, and ``SIZE``: one list names a record's fields once (numba reads
+def _named_indices(name: str, fields: tuple, doc: str, sizes: dict | None = None) -> type[IntEnum]:
+    """An IntEnum of the indices of ``fields`` (upper case) in a float array, one slot each unless
+    ``sizes`` gives a field more, and ``SIZE``: one list names a record's fields once (numba reads
     the members as constants)."""
-    members = {f.upper(): i for i, f in enumerate(fields)}
-    members["SIZE"] = len(fields) - 1 + tail
+    members, at = {}, 0
+    for f in fields:
+        members[f.upper()] = at
+        at += (sizes or {}).get(f, 1)
+    members["SIZE"] = at
     enum = IntEnum(name, members)
     enum.__doc__ = doc
     enum.__module__ = __name__
     return enum
 
 
-#: the loop's state, one float each; ``hist``: the speed filter's motor positions, newest first
-LOOP_STATE = ("integral", "saturated", "qf_prev", "have_prev", "w_ref", "a_cmd", "hist")
+#: the loop's state, one float each; ``hist``: the speed filter's motor positions, newest first;
+#: ``tq_z``, ``sp_z``: the two states of each filter section on the torque and on the speed path
+LOOP_STATE = ("integral", "saturated", "qf_prev", "have_prev", "w_ref", "a_cmd", "hist", "tq_z", "sp_z")
+_MAX_SOS = 4              # drivers.filters.MAX_SECTIONS
 S = _named_indices("S", LOOP_STATE, "Indices into the loop's state array (:func:`new_velocity_state`): the "
                    "velocity PI's integral and anti-windup flag, the speed filter, the position tick's speed "
-                   "reference and commanded acceleration.", tail=P.MAX_TAPS)
+                   "reference and commanded acceleration, the filter sections' states.",
+                   {"hist": int(P.MAX_TAPS), "tq_z": 2 * _MAX_SOS, "sp_z": 2 * _MAX_SOS})
 
 #: the terms between the law and the plant of one loop, as numbers (:attr:`LoopTerms.array`)
 LOOP_TERMS = ("substeps", "force_gain", "lag_alpha", "delayed", "delay_int", "delay_frac", "feedback_late",
@@ -133,6 +143,9 @@ class ControllerSettings:
     velocity_feedback: str = "motor_speed"   # motor_speed | position_difference
     velocity_filter: tuple = (1.0,)
     output_delay: int = 0                # velocity periods
+    # second-order sections (b0, b1, b2, a1, a2) at the velocity period (drivers.filters)
+    torque_filters: tuple = ()
+    speed_filters: tuple = ()
 
     @property
     def substeps(self) -> int:
@@ -155,6 +168,12 @@ class ControllerSettings:
         taps = self.velocity_filter if self.velocity_feedback == "position_difference" else ()
         a[P.N_TAPS] = len(taps)
         a[P.TAPS:P.TAPS + len(taps)] = taps
+        for n_at, at, secs in ((P.N_TQ, P.TQ, self.torque_filters), (P.N_SP, P.SP, self.speed_filters)):
+            if len(secs) > _MAX_SOS:
+                raise ValueError(f"control.filters: at most {_MAX_SOS} sections on a path, got {len(secs)}")
+            a[n_at] = len(secs)
+            for i, sec in enumerate(secs):
+                a[at + 5 * i:at + 5 * i + 5] = sec
         return a
 
 
@@ -170,7 +189,26 @@ def controller_from_config(cfg, plant) -> ControllerSettings:
         position_feedback=cfg.get("control.position_feedback", "table"),
         velocity_feedback=cfg.get("control.velocity_feedback", "motor_speed"),
         velocity_filter=tuple(cfg.get("control.velocity_filter", [1.0])),
-        output_delay=int(cfg.get("control.output_delay", 0)))
+        output_delay=int(cfg.get("control.output_delay", 0)),
+        **filter_sections(cfg.get("control.filters") or (), cfg["control.velocity_period"]))
+
+
+def filter_sections(specs, tv: float) -> dict:
+    """``torque_filters`` and ``speed_filters`` of :class:`ControllerSettings` from the config's
+    ``control.filters`` (dicts of SI values, or :class:`drivers.filters.FilterSpec`), designed at
+    the velocity period ``tv`` (not real-time)."""
+    from drivers.filters import FilterSpec, sections
+
+    def spec(d):          # the config's entry: the depth in dB
+        d = dict(d)
+        if "depth" in d:
+            d["depth"] = 10.0 ** (d["depth"] / 20.0)
+        for k in ("b", "a"):
+            if k in d:
+                d[k] = tuple(d[k])
+        return FilterSpec(**d)
+    specs = [s if isinstance(s, FilterSpec) else spec(s) for s in specs]
+    return {"torque_filters": sections(specs, tv, "torque"), "speed_filters": sections(specs, tv, "speed")}
 
 
 @njit(cache=True, inline="always")
@@ -192,7 +230,7 @@ def measured_speed(p, s, v_motor, x_motor):
     backward difference of the FIR-filtered motor position (then the history in ``s`` advances)."""
     n = int(p[P.N_TAPS])
     if n == 0:
-        return v_motor * p[P.SPEED_SCALE]
+        return filter_path(p, s, P.N_SP, P.SP, S.SP_Z, v_motor * p[P.SPEED_SCALE])
     for i in range(n - 1, 0, -1):
         s[S.HIST + i] = s[S.HIST + i - 1]
     s[S.HIST] = x_motor
@@ -207,7 +245,22 @@ def measured_speed(p, s, v_motor, x_motor):
         w = (qf - s[S.QF_PREV]) / p[P.TV] * p[P.SPEED_SCALE]
     s[S.QF_PREV] = qf
     s[S.HAVE_PREV] = 1.0
-    return w
+    return filter_path(p, s, P.N_SP, P.SP, S.SP_Z, w)
+
+
+@njit(cache=True, inline="always")
+def filter_path(p, s, n_at, at, z_at, x):
+    """The filter sections on one path (real-time): ``p[n_at]`` sections of 5 numbers from
+    ``p[at]``, their states from ``s[z_at]`` (transposed direct form II); ``x`` through them all.
+    No section: ``x`` itself (the loop does not run)."""
+    n = int(p[n_at])
+    for i in range(n):
+        c, z = at + 5 * i, z_at + 2 * i
+        y = p[c] * x + s[z]
+        s[z] = p[c + 1] * x - p[c + 3] * y + s[z + 1]
+        s[z + 1] = p[c + 2] * x - p[c + 4] * y
+        x = y
+    return x
 
 
 @njit(cache=True, inline="always")
@@ -233,6 +286,9 @@ def velocity_step(p, s, w_ref, w_meas, feed_forward):
     u, s[S.INTEGRAL], sat = pi_law(p[P.KP], p[P.TI], p[P.TV], p[P.ULIM], s[S.INTEGRAL], s[S.SATURATED] != 0.0,
                                    w_ref, w_meas, feed_forward)
     s[S.SATURATED] = 1.0 if sat else 0.0
+    if p[P.N_TQ] > 0.0:          # the torque setpoint's filters, limited again after them
+        lim = p[P.ULIM]
+        u = min(max(filter_path(p, s, P.N_TQ, P.TQ, S.TQ_Z, u), -lim), lim)
     return u
 
 
@@ -357,7 +413,7 @@ def speed_feedback(p, s, speed_filter, v_motor, x_motor):
     compiles the filter away (the compiled loops' hot path), an array the filtered positions."""
     if speed_filter is not None:
         return measured_speed(p, s, v_motor, x_motor)
-    return v_motor * p[P.SPEED_SCALE]
+    return filter_path(p, s, P.N_SP, P.SP, S.SP_Z, v_motor * p[P.SPEED_SCALE])
 
 
 @njit(cache=True, inline="always")

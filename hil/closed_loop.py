@@ -142,11 +142,13 @@ def lifted_loop(plant, ctrl):
     position (``velocity_feedback = "position_difference"``) the motor positions of the last
     ``len(taps) - 1`` steps and the last filtered position, the outputs held in the delay line
     (``loop_terms(...).delay`` velocity periods: the computation delay and the plant's transport
-    delay, interpolated linearly when fractional), and the current loop's lagged output. One
-    velocity step::
+    delay, interpolated linearly when fractional), the current loop's lagged output, and two
+    states per filter section (``control.filters``: the torque path's, then the speed path's).
+    One velocity step::
 
         w = R v1                         or  (sum_i taps_i q_(j-i) - qf_(j-1)) R / Tv
-        e = w_ref - w;  I+ = I + Tv e;   u = Kp (e + I+ / Ti) + ff
+        w = S(w)                         (the speed path's sections, if any)
+        e = w_ref - w;  I+ = I + Tv e;   u = Q(Kp (e + I+ / Ti) + ff)   (Q: the torque path's)
         u_d = (1 - f) u_(j-d) + f u_(j-d-1)          (the delay line)
         u_a+ = u_a + alpha (u_d - u_a)                (the current loop)
         x+ = Ad x + b u_a+
@@ -178,7 +180,12 @@ def lifted_loop(plant, ctrl):
     i_qf = h0 + nh
     b0 = i_qf + (1 if taps.size else 0)
     i_lag = b0 + nd
-    ns = i_lag + 1
+    i_tq = i_lag + 1                       # the filter sections' states, two each (torque, then speed)
+    i_sp = i_tq + 2 * len(ctrl.torque_filters)
+    ns = i_sp + 2 * len(ctrl.speed_filters)
+    F = np.zeros((ns, ns))
+    G = np.zeros(ns)
+    Gf = np.zeros(ns)
     # each velocity step as affine rows in (state, w_ref, ff): value = row_s @ s + row_w w_ref + row_f ff
     w_s = np.zeros(ns)
     if taps.size:
@@ -188,12 +195,11 @@ def lifted_loop(plant, ctrl):
         w_s = (qf_s - np.eye(ns)[i_qf]) * R / Tv
     else:
         w_s[n] = R
+    w_s, _, _ = _sections(F, G, Gf, ctrl.speed_filters, i_sp, (w_s, 0.0, 0.0))
     e_s, e_w = -w_s, 1.0
     Ip_s, Ip_w = np.eye(ns)[i_I] + Tv * e_s, Tv * e_w
-    u_s, u_w, u_f = Kp * (e_s + inv_ti * Ip_s), Kp * (e_w + inv_ti * Ip_w), 1.0
-    F = np.zeros((ns, ns))
-    G = np.zeros(ns)
-    Gf = np.zeros(ns)
+    u_s, u_w, u_f = _sections(F, G, Gf, ctrl.torque_filters, i_tq,
+                              (Kp * (e_s + inv_ti * Ip_s), Kp * (e_w + inv_ti * Ip_w), 1.0))
     F[i_I], G[i_I] = Ip_s, Ip_w
     if taps.size:
         F[i_qf] = qf_s
@@ -228,8 +234,23 @@ def lifted_loop(plant, ctrl):
     for _ in range(ctrl.substeps):
         Phi, Gam, Gff = F @ Phi, F @ Gam + G, F @ Gff + Gf
     index = {"plant": slice(0, 2 * n), "integral": i_I, "history": slice(h0, h0 + nh),
-             "qf": i_qf if taps.size else None, "delay": slice(b0, b0 + nd), "lag": i_lag}
+             "qf": i_qf if taps.size else None, "delay": slice(b0, b0 + nd), "lag": i_lag,
+             "filters": slice(i_tq, ns)}
     return Phi, Gam, Gff, index
+
+
+def _sections(F, G, Gf, secs, z0: int, x):
+    """Filter sections (drivers.filters, transposed direct form II) on the affine row ``x`` =
+    (row_s, row_w, row_f): their states' rows into ``F``, ``G``, ``Gf`` from index ``z0``, two
+    per section; returns the output's row."""
+    ns = F.shape[0]
+    for i, (b0, b1, b2, a1, a2) in enumerate(secs):
+        z1, z2 = z0 + 2 * i, z0 + 2 * i + 1
+        y = (b0 * x[0] + np.eye(ns)[z1], b0 * x[1], b0 * x[2])
+        F[z1], G[z1], Gf[z1] = b1 * x[0] - a1 * y[0] + np.eye(ns)[z2], b1 * x[1] - a1 * y[1], b1 * x[2] - a1 * y[2]
+        F[z2], G[z2], Gf[z2] = b2 * x[0] - a2 * y[0], b2 * x[1] - a2 * y[1], b2 * x[2] - a2 * y[2]
+        x = y
+    return x
 
 
 def _extra_terms(cfg) -> list[str]:
@@ -239,6 +260,8 @@ def _extra_terms(cfg) -> list[str]:
         out.append("control.output_delay")
     if cfg.get("control.velocity_feedback", "motor_speed") != "motor_speed":
         out.append("control.velocity_feedback")
+    if cfg.get("control.filters"):
+        out.append("control.filters")
     if cfg.get("actuator.current_loop_time_constant", 0.0):
         out.append("actuator.current_loop_time_constant")
     from sim_plant.kernel import time_delay
@@ -296,6 +319,9 @@ def check_loop_stability(cfg) -> None:
         terms.append(f"control.velocity_feedback {cfg['control.velocity_feedback']}")
     if cfg.get("actuator.current_loop_time_constant", 0.0):
         terms.append(f"actuator.current_loop_time_constant {cfg['actuator.current_loop_time_constant'] * 1e3:g} ms")
+    for f in cfg.get("control.filters") or ():
+        terms.append(f"control.filters {f['kind']}" + (f" at {f['frequency']:g} Hz" if "frequency" in f else "")
+                     + f" on the {f['at']} path")
     raise UnstableLoopError(
         f"loop configuration refused: the model's closed loop is unstable (spectral radius {res[1]:.3g} > 1 "
         f"per position period) with {''.join(t + ', ' for t in terms)}control.velocity_period {tv * 1e3:g} ms, control.position_period "

@@ -30,7 +30,7 @@ from drivers.schema import Field
 from drivers.serial.schema import SECTION as SERIAL_SECTION
 from drivers.serial.schema import field as serial_field
 from hil.errors import ConfigError
-from hil.units import SI_UNIT, UnitError, parse
+from hil.units import SI_UNIT, UnitError, parse, parse_gain_db
 
 logger = logging.getLogger(__name__)
 
@@ -141,6 +141,12 @@ SCHEMA: dict[str, Field] = {
                                        choices=("motor_speed", "position_difference")),
     "control.velocity_filter": Field("floats", "FIR taps on the motor position before the difference "
                                      "(position_difference only), newest first", default=[1.0], max_items=8),
+    "control.filters": Field("filters", "second-order filters of the velocity loop, an array of tables "
+                             "([[control.filters]]): kind = notch (frequency, width, depth, e.g. \"86.6Hz\", "
+                             "\"20Hz\", \"-20dB\"), lowpass (frequency, damping, default 0.707) or biquad (b = [b0, "
+                             "b1, b2], a = [1, a1, a2] at the velocity period); at = torque (the velocity "
+                             "controller's output, default) or speed (the speed feedback); at most 4 on each",
+                             default=None),
     "control.output_delay": Field("int", "computation delay of the velocity-loop output, in velocity periods",
                                   default=0, nonnegative=True, maximum=1000),
     "control.output_limit": Field(_output_kind, "saturation of the velocity-loop output (torque for a rotary "
@@ -388,6 +394,8 @@ def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
         if f.minimum is not None and raw != 0 and raw < f.minimum:
             raise ConfigError(f"{what}: expected a whole number of at least {f.minimum:g}, got {raw!r}")
         return raw
+    if kind == "filters":
+        return _filters(raw, what)
     if kind == "floats":
         if not isinstance(raw, list) or not raw or not all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
@@ -415,6 +423,69 @@ def _convert(key: str, raw: Any, f: Field, values: dict, where: str) -> Any:
             zero = " (or 0)" if not f.positive else ""
             raise ConfigError(f"{what}: expected a {kind} of at least {low:g} {unit}{zero}, got {_short(raw)}")
     return value
+
+
+_FILTER_KEYS = {"notch": ("frequency", "width", "depth"), "lowpass": ("frequency", "damping"), "biquad": ("b", "a")}
+
+
+def _filters(raw: Any, what: str) -> list[dict]:
+    """``control.filters``: each table checked and in SI (frequencies in Hz, the depth in dB), in
+    the form :func:`drivers.control.filter_sections` designs from; one line naming the entry and
+    its key for anything else."""
+    if not isinstance(raw, list) or not all(isinstance(t, dict) for t in raw):
+        raise ConfigError(f"{what}: expected an array of tables ([[control.filters]] with kind = \"notch\", ...), "
+                          f"got {_short(raw)}")
+    out = []
+    for i, t in enumerate(raw, 1):
+        at = f"{what}[{i}]"
+        kind = t.get("kind")
+        if kind not in _FILTER_KEYS:
+            raise ConfigError(f"{at}.kind: expected one of {', '.join(_FILTER_KEYS)}, got {_short(kind)}")
+        place = t.get("at", "torque")
+        if place not in ("torque", "speed"):
+            raise ConfigError(f"{at}.at: expected torque or speed, got {_short(place)}")
+        extra = set(t) - set(_FILTER_KEYS[kind]) - {"kind", "at"}
+        if extra:
+            raise ConfigError(f"{at}: {', '.join(sorted(extra))}: not a key of a {kind} (its keys: kind, at, "
+                              f"{', '.join(_FILTER_KEYS[kind])})")
+        entry = {"kind": kind, "at": place}
+        for key in _FILTER_KEYS[kind]:
+            if key not in t and not (kind == "lowpass" and key == "damping"):
+                raise ConfigError(f"{at}.{key}: missing (a {kind} needs {', '.join(_FILTER_KEYS[kind])})")
+        try:
+            if kind == "biquad":
+                for key in ("b", "a"):
+                    v = t[key]
+                    if not (isinstance(v, list) and len(v) == 3 and all(
+                            isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+                        raise ConfigError(f"{at}.{key}: expected three numbers, got {_short(v)}")
+                    entry[key] = [float(x) for x in v]
+                if entry["a"][0] == 0:
+                    raise ConfigError(f"{at}.a: the first coefficient must not be 0")
+            else:
+                entry["frequency"] = parse(t["frequency"], "frequency", f"{at}.frequency")
+                if not entry["frequency"] > 0:
+                    raise ConfigError(f"{at}.frequency: expected a positive frequency, got {_short(t['frequency'])}")
+            if kind == "notch":
+                entry["width"] = parse(t["width"], "frequency", f"{at}.width")
+                if not 0 < entry["width"] < 2 * entry["frequency"]:
+                    raise ConfigError(f"{at}.width: expected a width between 0 and twice the frequency, got "
+                                      f"{_short(t['width'])}")
+                entry["depth"] = parse_gain_db(t["depth"], f"{at}.depth")
+                if not -120.0 <= entry["depth"] <= 0.0:
+                    raise ConfigError(f"{at}.depth: expected a depth from -120 dB to 0 dB, got {_short(t['depth'])}")
+            if kind == "lowpass":
+                entry["damping"] = float(parse(t.get("damping", math.sqrt(0.5)), "dimensionless", f"{at}.damping"))
+                if not 0 < entry["damping"] <= 10:
+                    raise ConfigError(f"{at}.damping: expected a damping ratio above 0 and at most 10, got "
+                                      f"{_short(t['damping'])}")
+        except UnitError as exc:
+            raise ConfigError(str(exc)) from None
+        out.append(entry)
+    for place in ("torque", "speed"):
+        if sum(e["at"] == place for e in out) > 4:
+            raise ConfigError(f"{what}: at most 4 filters on the {place} path")
+    return out
 
 
 def value_range(f: Field, kind: str) -> tuple[float | None, float]:
@@ -613,6 +684,10 @@ def _check_consistency(values: dict, where: str) -> None:
     if abs(ratio - round(ratio)) > 1e-6 * ratio or round(ratio) < 1:
         raise ConfigError(f"{where}: control.position_period: expected a whole multiple of "
                           f"control.velocity_period ({tv:g} s), got {tp:g} s (ratio {ratio:.6g})")
+    for i, flt in enumerate(values.get("control.filters") or (), 1):
+        if "frequency" in flt and not flt["frequency"] < 0.5 / tv:
+            raise ConfigError(f"{where}: control.filters[{i}].frequency: expected below the velocity loop's Nyquist "
+                              f"frequency {0.5 / tv:g} Hz, got {flt['frequency']:g} Hz")
     if values["limits.travel_min"] >= values["limits.travel_max"]:
         raise ConfigError(f"{where}: limits.travel_min: expected less than limits.travel_max "
                           f"({values['limits.travel_max']:g} m), got {values['limits.travel_min']:g} m")

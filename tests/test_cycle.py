@@ -31,10 +31,12 @@ from hil.supervisor import Supervisor
 
 def test_the_records_are_named_from_one_list():
     """Every field of the state and terms lists has its own slot, in the list's order, and SIZE
-    covers them (the speed filter's history last, P.MAX_TAPS slots)."""
-    assert [S[f.upper()] for f in LOOP_STATE] == list(range(len(LOOP_STATE)))
+    covers them (the speed filter's history P.MAX_TAPS slots, each filter path's states two per
+    section)."""
+    sizes = {"hist": 8, "tq_z": 8, "sp_z": 8}
+    assert [S[f.upper()] for f in LOOP_STATE] == list(np.cumsum([0] + [sizes.get(f, 1) for f in LOOP_STATE]))[:-1]
     assert [T[f.upper()] for f in LOOP_TERMS] == list(range(len(LOOP_TERMS)))
-    assert S.SIZE == S.HIST + 8 and T.SIZE == len(LOOP_TERMS)
+    assert S.SIZE == S.SP_Z + 8 and T.SIZE == len(LOOP_TERMS)
 
 
 def test_loop_terms_array_holds_the_plant_and_controller_numbers(bench):

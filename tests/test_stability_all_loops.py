@@ -26,6 +26,14 @@ CASES = [
      "actuator.current_loop_time_constant": 1e-3, "control.velocity_feedback": "position_difference",
      "control.velocity_filter": [0.25, 0.5, 0.25]},
     {"control.position_feedback": "motor", "control.output_delay": 3, "control.ti": "inf"},
+    # the filter sections of the velocity loop (issue 52): a notch on the torque setpoint, a
+    # low-pass on the speed feedback, a general biquad, with the other terms
+    {"control.filters": [{"kind": "notch", "frequency": "86.6Hz", "width": "20Hz", "depth": "-20dB"}]},
+    {"control.filters": [{"kind": "lowpass", "frequency": "600Hz", "at": "speed"},
+                         {"kind": "notch", "frequency": "300Hz", "width": "60Hz", "depth": "-30dB"}],
+     "control.output_delay": 2, "actuator.current_loop_time_constant": 0.2e-3},
+    {"control.filters": [{"kind": "biquad", "b": [0.2, 0.3, 0.1], "a": [1.0, -0.5, 0.1]}],
+     "control.velocity_feedback": "position_difference", "control.velocity_filter": [0.5, 0.5]},
 ]
 
 

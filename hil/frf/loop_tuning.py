@@ -148,7 +148,8 @@ def tuning(responses: dict, ctrl, modes: list[dict], pm_min: float = 45.0, gm_mi
                 diff.append(f"# velocity loop: |Lv| = {peak_db:+.1f} dB at the {fm:.1f} Hz mode (above crossover "
                             f"{fc:.1f} Hz): a notch at {fm:.1f} Hz, width {width:.1f} Hz, depth {depth:.0f} dB"
                             + (f", or a low-pass at {fm / 3:.0f} Hz" if fm / 3 > 2 * fc else "")
-                            + " (no filter key in the config schema yet)")
+                            + f'; in the config: [[control.filters]] kind = "notch", frequency = "{fm:.1f}Hz", '
+                              f'width = "{width:.1f}Hz", depth = "-{depth:.0f}dB"')
             elif fm < fc and peak_db < 20:
                 filters.append({"mode_hz": fm, "loop_gain_db": peak_db, "note": "below the crossover: the loop "
                                 "acts on it; a notch would cost phase margin"})
