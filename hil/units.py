@@ -68,9 +68,26 @@ def _finite_or_nan(value: float, what: str, kind: str) -> float:
     return value
 
 
+def _import_pint():
+    """pint, without the dask import its compatibility module does when dask is installed (0.14 s
+    of every command's start, only to recognise dask arrays, which no quantity here is); dask itself
+    stays importable (the fleet's scheduler imports it later)."""
+    import sys
+    if "pint" in sys.modules or "dask" in sys.modules:
+        import pint
+        return pint
+    sys.modules["dask"] = None            # find_spec sees no dask: pint.compat leaves it alone
+    try:
+        import pint
+    finally:
+        if sys.modules.get("dask", 0) is None:
+            del sys.modules["dask"]
+    return pint
+
+
 @lru_cache(maxsize=1)
 def _registry():
-    import pint
+    pint = _import_pint()
 
     try:
         # pint's parsed definitions cached on disk (the user's cache folder): a tenth of the time
