@@ -82,6 +82,8 @@ def test_the_config_designs_them_at_the_velocity_period():
 
 @pytest.mark.parametrize("entry, words", [
     ({"kind": "notc", "frequency": "86.6Hz"}, "control.filters[1].kind: expected one of notch, lowpass, biquad"),
+    ({"kind": ["notch"]}, "control.filters[1].kind: expected one of notch, lowpass, biquad"),
+    ({"kind": "lowpass", "frequency": "nan Hz"}, "control.filters[1].frequency"),
     ({"kind": "notch", "frequency": "86.6Hz", "depth": "-20dB"}, "control.filters[1].width: missing"),
     ({"kind": "notch", "frequency": "86.6Hz", "width": "200Hz", "depth": "-20dB"}, "control.filters[1].width: expected"),
     ({"kind": "notch", "frequency": "86.6 m", "width": "20Hz", "depth": "-20dB"}, "control.filters[1].frequency"),

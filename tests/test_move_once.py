@@ -4,7 +4,6 @@ against the limits are the ones run."""
 import argparse
 from pathlib import Path
 
-from hil import config as config_mod
 from hil import profiles
 from hil.cli import main
 from hil.commands.move import add_arguments, load_config
@@ -22,9 +21,10 @@ def _args(*argv):
 def test_can_options_apply_to_the_config_read_once(monkeypatch):
     """``-i``/``-c``/``-b`` on a CANopen config: the file is read once; the options are in the
     config; ``--set`` wins over an option naming the same key; the file's own keys are known."""
+    from hil.config import loader
     reads = []
-    real = config_mod.loads
-    monkeypatch.setattr(config_mod, "loads", lambda *a, **k: reads.append(a[1]) or real(*a, **k))
+    real = loader.loads
+    monkeypatch.setattr(loader, "loads", lambda *a, **k: reads.append(a[1]) or real(*a, **k))
     cfg = load_config(_args("--config", CANOPEN, "-i", "virtual", "-c", "c7", "-b", "500000",
                             "--set", "canopen.channel=from_set"))
     assert len(reads) == 1
