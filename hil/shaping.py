@@ -16,7 +16,11 @@ Each shaper is designed for a mode of frequency ``f`` and damping ratio ``zeta``
 - ``zvd``: 3 impulses over ``T_d``, zero vibration and zero slope there: robust to about +-15 %
   of frequency error (5 % residual);
 - ``ei``: 3 impulses over ``T_d``, a residual of ``V_TOL`` (5 %) at the design mode, traded for a
-  wider band (about +-20 %).
+  wider band (about +-20 %);
+- ``si``: specified insensitivity: impulses every ``T_d / 2``, as few as keep the residual within
+  ``V_TOL`` over the whole band ``SI_BAND`` (+-30 %) around the design mode, their amplitudes the
+  solution of a linear programme (the residual's in-phase and quadrature parts bounded at every
+  frequency of the band; Singhose, Seering and Singer 1994): the longest, and the widest.
 
 :func:`residual_vibration` is the shaper's sensitivity: the vibration left, as a share of the
 unshaped command's, at any frequency and damping (the curve that shows how far a mode may lie
@@ -30,11 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Shaper", "KINDS", "V_TOL", "residual_vibration", "parse_shaper", "ShapedTrajectory", "model_modes",
+__all__ = ["Shaper", "KINDS", "ALL_KINDS", "SI_BAND", "V_TOL", "residual_vibration", "parse_shaper", "ShapedTrajectory", "model_modes",
            "config_shaper", "shaped"]
 
 V_TOL = 0.05            # the EI shaper's residual vibration at its design mode (Klipper's 1/20)
-KINDS = ("zv", "zvd", "ei")
+KINDS = ("zv", "zvd", "ei")          # the closed forms
+ALL_KINDS = KINDS + ("si",)          # and the specified-insensitivity shaper, designed numerically
+SI_BAND = 0.3                        # the SI shaper's band: +-30 % of its frequency
+SI_MAX_IMPULSES = 9
 
 
 @dataclass(frozen=True)
@@ -49,9 +56,9 @@ class Shaper:
 
     @classmethod
     def design(cls, kind: str, frequency: float, damping: float = 0.0) -> "Shaper":
-        """The ``kind`` shaper (:data:`KINDS`) for a mode at ``frequency`` Hz, ``damping`` ratio."""
-        if kind not in KINDS:
-            raise ValueError(f"shaper {kind!r}: one of {', '.join(KINDS)}")
+        """The ``kind`` shaper (:data:`ALL_KINDS`) for a mode at ``frequency`` Hz, ``damping`` ratio."""
+        if kind not in ALL_KINDS:
+            raise ValueError(f"shaper {kind!r}: one of {', '.join(ALL_KINDS)}")
         if not (frequency > 0 and math.isfinite(frequency)):
             raise ValueError(f"shaper frequency must be positive and finite, got {frequency!r} Hz")
         if not 0 <= damping < 1:
@@ -59,7 +66,9 @@ class Shaper:
         df = math.sqrt(1.0 - damping * damping)
         k = math.exp(-damping * math.pi / df)
         td = 1.0 / (frequency * df)
-        if kind == "zv":
+        if kind == "si":
+            a, t = _specified_insensitivity(frequency, damping)
+        elif kind == "zv":
             a, t = [1.0, k], [0.0, 0.5 * td]
         elif kind == "zvd":
             a, t = [1.0, 2.0 * k, k * k], [0.0, 0.5 * td, td]
@@ -80,6 +89,45 @@ class Shaper:
     def as_json(self) -> dict:
         return {"kind": self.kind, "frequency_hz": self.frequency, "damping_ratio": self.damping,
                 "amplitudes": list(self.amplitudes), "times_s": list(self.times), "duration_s": self.duration}
+
+
+def _specified_insensitivity(frequency: float, damping: float, band: float = SI_BAND,
+                              v_tol: float = V_TOL) -> tuple[list, list]:
+    """Amplitudes and times of the shortest shaper with impulses every half damped period whose
+    residual vibration stays within ``v_tol`` from ``(1 - band)`` to ``(1 + band)`` times
+    ``frequency``: for 3, 4, ... impulses, the amplitudes (>= 0, summing to 1) that minimise the
+    largest of the residual's in-phase and quadrature parts over the band (scipy's linprog), the
+    first whose exact residual is within the tolerance."""
+    from scipy.optimize import linprog
+    df = math.sqrt(1.0 - damping * damping)
+    td = 1.0 / (frequency * df)
+    w = 2.0 * np.pi * frequency * np.linspace(1.0 - band, 1.0 + band, 61)
+    best = None
+    for n in range(3, SI_MAX_IMPULSES + 1):
+        t = 0.5 * td * np.arange(n)
+        # the residual at w: exp(-zeta w t_n) sum_i A_i exp(zeta w t_i) (cos, sin)(w_d t_i)
+        e = np.exp(damping * np.outer(w, t - t[-1]))
+        rows = np.vstack([e * np.cos(np.outer(w * df, t)), e * np.sin(np.outer(w * df, t))])
+        # variables (A_1..A_n, s): minimise s with -s <= rows A <= s, sum A = 1, A >= 0
+        m = rows.shape[0]
+        a_ub = np.vstack([np.hstack([rows, -np.ones((m, 1))]), np.hstack([-rows, -np.ones((m, 1))])])
+        res = linprog(np.r_[np.zeros(n), 1.0], A_ub=a_ub, b_ub=np.zeros(2 * m),
+                      A_eq=np.r_[np.ones(n), 0.0][None, :], b_eq=[1.0], bounds=[(0, None)] * (n + 1),
+                      method="highs")
+        if not res.success:
+            continue
+        amps = np.clip(res.x[:n], 0.0, None)
+        amps /= amps.sum()
+        keep = amps > 1e-9                     # an impulse the programme left at zero is none
+        cand = (list(amps[keep]), list(t[keep] - t[keep][0]))
+        shaper = Shaper("si", float(frequency), float(damping), tuple(cand[0]), tuple(cand[1]))
+        worst = float(np.max(residual_vibration(shaper, w / (2 * np.pi))))
+        best = cand
+        if worst <= v_tol:
+            return cand
+    if best is None:
+        raise ValueError(f"no specified-insensitivity shaper found for {frequency:g} Hz, damping {damping:g}")
+    return best
 
 
 def residual_vibration(shaper: Shaper, frequency, damping: float | None = None):
@@ -115,9 +163,9 @@ def parse_shaper(text: str, what: str = "--shaper", modes=()) -> Shaper | None:
         f, z = min(modes)
         return Shaper.design("zvd", f, z)
     m = _SPEC.match(text)
-    if not m or m.group("kind").lower() not in KINDS:
+    if not m or m.group("kind").lower() not in ALL_KINDS:
         raise ValueError(f"{what} {text!r}: expected KIND@FREQUENCY[:DAMPING] with KIND one of "
-                         f"{', '.join(KINDS)} (e.g. zvd@14.94Hz, ei@86.6Hz:0.09), auto, or none")
+                         f"{', '.join(ALL_KINDS)} (e.g. zvd@14.94Hz, ei@86.6Hz:0.09), auto, or none")
     try:
         f = float(parse(m.group("freq"), "frequency"))
     except ValueError as exc:

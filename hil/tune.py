@@ -11,7 +11,7 @@ The stages, each a function of its own, in the order they run:
    reaches), measured again; the position gain ``control.kv`` likewise on the measured position
    loop; measured a third time, and backed off while a margin is short;
 3. :func:`choose_command`: for the move asked (stroke, feed), every NC acceleration time of
-   :data:`T_ACC` the limits allow, each unshaped and through the ZV, ZVD and EI shapers designed
+   :data:`T_ACC` the limits allow, each unshaped and through the ZV, ZVD, EI and SI shapers designed
    for the tip's mode *as measured*, is run on the model with the tuned gains and the mode where it
    was measured (:func:`matched`), and with the plant's modes :func:`mode_error` away on either side; the option whose tip is within the
    tolerance earliest in the worst of the three is chosen (robustness taken from the fit, as the
@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.shaping import KINDS, Shaper, shaped
+from hil.shaping import ALL_KINDS, Shaper, shaped
 
 __all__ = ["Change", "Candidate", "TuneResult", "stable_start", "tune_gains", "choose_command", "mode_error",
            "tip_settle_time", "margins_of", "matched", "BACKOFF", "T_ACC"]
@@ -260,7 +260,7 @@ def choose_command(cfg, mode: dict | None, stroke: float, feed: float, tol: floa
     g0 = cfg.get("nc.g0") or limits.speed
     eps = mode_error(mode, least_error) if mode else 0.0
     shapers = [None] + ([Shaper.design(k, mode["measured"]["frequency_hz"], mode["measured"]["damping_ratio"])
-                         for k in KINDS] if mode else [])
+                         for k in ALL_KINDS] if mode else [])
     centre = matched(cfg, mode) if mode else cfg
     plants = [centre] + ([_stiffer(centre, 1 - eps), _stiffer(centre, 1 + eps)] if mode else [])
     tp = cfg["control.position_period"]

@@ -12,7 +12,7 @@ from scipy import signal
 
 from hil.cli import main
 from hil.profiles import MoveSpec, Trajectory
-from hil.shaping import KINDS, V_TOL, ShapedTrajectory, Shaper, parse_shaper, residual_vibration
+from hil.shaping import ALL_KINDS, KINDS, SI_BAND, V_TOL, ShapedTrajectory, Shaper, parse_shaper, residual_vibration
 
 BENCH = str(CONFIG / "paper_bench.toml")
 
@@ -40,6 +40,24 @@ def test_the_impulses_are_the_closed_forms(kind, zeta):
         assert 0.5 * V_TOL < left <= V_TOL
 
 
+@pytest.mark.parametrize("zeta", [0.0, 0.015, 0.1])
+def test_the_specified_insensitivity_shaper_keeps_its_band(zeta):
+    """The SI shaper: positive impulses summing to 1 every half damped period, its residual within
+    V_TOL over the whole +-30 % band (where EI leaves more than three times as much), and longer
+    than EI by the price of that band."""
+    f = 14.94
+    si, ei = Shaper.design("si", f, zeta), Shaper.design("ei", f, zeta)
+    td = 1 / (f * math.sqrt(1 - zeta ** 2))
+    assert sum(si.amplitudes) == pytest.approx(1.0, rel=1e-12) and min(si.amplitudes) > 0
+    steps = np.asarray(si.times) / (0.5 * td)
+    assert np.allclose(steps, np.round(steps), atol=1e-9) and si.times[0] == 0.0
+    band = np.linspace(f * (1 - SI_BAND), f * (1 + SI_BAND), 241)
+    assert np.max(residual_vibration(si, band)) <= V_TOL
+    assert np.max(residual_vibration(ei, band)) > 3 * np.max(residual_vibration(si, band))
+    assert si.duration > ei.duration
+    assert parse_shaper(f"si@{f}Hz:{zeta}") == si
+
+
 def test_zvd_is_flat_at_its_mode_and_wider_than_zv():
     zv, zvd = Shaper.design("zv", 10.0, 0.02), Shaper.design("zvd", 10.0, 0.02)
     h = 1e-4
@@ -50,7 +68,7 @@ def test_zvd_is_flat_at_its_mode_and_wider_than_zv():
     assert np.max(residual_vibration(zvd, band)) < 0.12
 
 
-@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("kind", ALL_KINDS)
 @pytest.mark.parametrize("f_true", [10.0, 11.0])
 def test_the_residual_vibration_is_what_a_damped_mode_keeps(kind, f_true):
     """A second-order mode (f_true, zeta) driven by the shaped unit step and by the plain one given

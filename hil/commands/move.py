@@ -130,7 +130,7 @@ def add_arguments(p) -> None:
                    "default: the move starts where the axis stands")
     p.add_argument("--back", action="store_true", help="return to the start after the dwell")
     p.add_argument("--shaper", metavar="KIND@FREQ[:DAMPING]", default=None,
-                   help="shape the command for a mode so that the tool tip arrives still: zv, zvd or ei at a "
+                   help="shape the command for a mode so that the tool tip arrives still: zv, zvd, ei or si at a "
                         "frequency (zvd@14.94Hz; the damping ratio of the model's nearest mode unless given), auto "
                         "(ZVD at the model's lowest mode) or none; default: the config's nc.shaper (none)")
     p.add_argument("--dwell", metavar="TIME", default="1s", help="standstill after each move (default 1s)")

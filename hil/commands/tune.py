@@ -19,7 +19,7 @@ Commissioning in one command, on any backend (the simulated plant by default):
      position gain, set to 0.9 x the largest that keeps --pm and --gm on the loop as measured,
      each measured again (backed off while a margin is short);
   3. for the move given (--stroke, --feed): NC acceleration times from 100 to 400 ms, each
-     without a shaper and through ZV, ZVD and EI shapers for the tip's mode as measured, run on
+     without a shaper and through ZV, ZVD, EI and SI shapers for the tip's mode as measured, run on
      the model (its mode moved to where it was measured) and with its modes off by the fit's
      uncertainty, at least --mode-error (5 %); the one whose tip is within --tolerance earliest
      in the worst case is chosen;

@@ -154,8 +154,8 @@ SCHEMA: dict[str, Field] = {
                    positive=True),
     "nc.t_acc": Field("time", "NC acceleration time to reach nc.g0, for a move that gives none of --tacc, --amax "
                       "or --jmax (hil tune writes the one it chose)", default=None, positive=True),
-    "nc.shaper": Field("str", "input shaper of the command (hil.shaping): KIND@FREQUENCY[:DAMPING] with KIND zv, zvd "
-                       "or ei (e.g. 'zvd@14.94Hz'), 'auto' (ZVD at the model's lowest mode) or 'none'; hil move "
+    "nc.shaper": Field("str", "input shaper of the command (hil.shaping): KIND@FREQUENCY[:DAMPING] with KIND zv, zvd, "
+                       "ei or si (e.g. 'zvd@14.94Hz'), 'auto' (ZVD at the model's lowest mode) or 'none'; hil move "
                        "--shaper overrides it", default="none"),
     # --- sensors (what the controller and the recorder see) ----------------------------------
     "sensors.table_resolution": Field("length", "linear-encoder quantum; 0 = ideal", default=0.0,

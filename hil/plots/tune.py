@@ -10,7 +10,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hil.io.safe_write import save_figure  # noqa: E402
-from hil.shaping import KINDS, Shaper, residual_vibration  # noqa: E402
+from hil.shaping import ALL_KINDS, Shaper, residual_vibration  # noqa: E402
 
 __all__ = ["plot_tune"]
 
@@ -20,7 +20,7 @@ def plot_tune(path: Path, tol: float, given: dict | None, tuned: dict | None, mo
     """``path`` (PNG): left, the tip's distance from its target against the time since the start of
     the move, for the move as given and the tuned one (records' channels ``t``, ``x_tip`` and the
     target under ``target``), the tolerance band and when each is within it for good (``settle``:
-    label -> s or None); right, the residual vibration of the ZV, ZVD and EI shapers for the mode
+    label -> s or None); right, the residual vibration of the ZV, ZVD, EI and SI shapers for the mode
     against the frequency error, the band the choice was made to tolerate shaded."""
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 4.5), layout="constrained")
     for label, rec, style in (("as given", given, dict(color="0.5", lw=1)), ("tuned", tuned, dict(color="C0", lw=1.5))):
@@ -43,7 +43,7 @@ def plot_tune(path: Path, tol: float, given: dict | None, tuned: dict | None, mo
     if mode is not None:
         f0, z = mode["measured"]["frequency_hz"], mode["measured"]["damping_ratio"]
         ratio = np.linspace(0.6, 1.4, 401)
-        for kind in KINDS:
+        for kind in ALL_KINDS:
             sh = Shaper.design(kind, f0, z)
             ax2.plot(ratio * 100 - 100, residual_vibration(sh, ratio * f0, z) * 100, label=f"{kind.upper()} "
                      f"({sh.duration * 1e3:.0f} ms longer)")
