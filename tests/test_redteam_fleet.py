@@ -272,3 +272,32 @@ def test_a_normal_effects_strength_is_judged_without_tracking_it():
     tracked = {e.id: dict(_night(v), values={"coulomb_friction.level": 0.3}, stderr={"coulomb_friction.level": 0.001})
                for e, v in zip(es, [0.3, 0.3, 0.3, 0.9, 2.2])}
     assert judge_axis("B", es, tracked, {})["params"]["coulomb_friction.level"]["source"] == "tracked"
+
+
+def test_a_weak_effect_named_late_is_judged_by_its_strength_on_every_night():
+    """Issue 53: a steady axis with a weak friction (0.3 N m every night) that the chain names on
+    the last two nights only was flagged "named by the chain, not in the axis's normal". Its
+    strength fitted on every night (hil.fleet.batch.confirm_findings) decides: as in the baseline,
+    no flag (the finding kept, its series in params); risen beyond the baseline's limits, a flag
+    that says so; not fitted, a flag as before."""
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import judge_axis
+    dates = [f"2026-03-{d:02d}" for d in (2, 9, 16, 23, 30)]
+    es = [Entry(f"A_{d}.csv", "A", d) for d in dates]
+    named = [["backlash"]] * 3 + [["backlash", "coulomb_friction"]] * 2
+    figs = {e.id: {"values": {}, "stderr": {}, "named": n, "chain": []} for e, n in zip(es, named)}
+
+    def strengths(levels):
+        return {e.id: {"values": {"coulomb_friction.level": v}, "stderr": {"coulomb_friction.level": 0.004}}
+                for e, v in zip(es, levels)}
+    steady = judge_axis("A", es, figs, {}, confirm=strengths([0.30, 0.305, 0.296, 0.302, 0.299]))
+    assert steady["verdict"] == "ok"
+    assert steady["findings"] == [{"effect": "coulomb_friction", "since": "2026-03-23", "strength": "as in the baseline"}]
+    assert steady["params"]["coulomb_friction.level"]["source"] == "confirmed"
+    grown = judge_axis("A", es, figs, {}, confirm=strengths([0.30, 0.305, 0.296, 0.9, 1.5]))
+    assert grown["verdict"] == "drift: coulomb_friction since 2026-03-23"
+    assert "its strength beyond the baseline's" in grown["flags"][0]["reason"]
+    assert grown["findings"][0]["strength"] == "moved"
+    unknown = judge_axis("A", es, figs, {})
+    assert unknown["verdict"] == "drift: coulomb_friction since 2026-03-23"
+    assert unknown["findings"][0]["strength"] == "not fitted"

@@ -40,7 +40,10 @@ JSON_KEYS = {
     "axes[].worst": JsonKey("SI", "the tracked parameter furthest from its centre: parameter, sigma (in units of the "
                                   "baseline's spread), from, to"),
     "axes[].normal": JsonKey("", "effects the chain names on every baseline record (the axis's normal)"),
-    "axes[].findings": JsonKey("", "effects named after the baseline and not in the normal: effect, since"),
+    "axes[].findings": JsonKey("", "effects named after the baseline and not in the normal: effect, since, strength "
+                                   "(`moved`: fitted on every night, beyond the baseline's limits: a flag; `as in the "
+                                   "baseline`: there all along, too weak to be named every night: no flag; `not "
+                                   "fitted`: a flag)"),
     "axes[].params": JsonKey("SI", "per tracked parameter: centre, sigma, values, stderr, lower, upper, status per "
                                    "record, flagged, first_moved, reasons, threshold, drift_sigma"),
     "axes[].records": JsonKey("", "the axis's readable records (AXIS@DATE), in time order"),
@@ -124,7 +127,7 @@ def _run(args) -> int:
     from pathlib import Path
 
     from hil.config import parse_assignment
-    from hil.fleet.batch import load_configs, run_fleet
+    from hil.fleet.batch import confirm_findings, load_configs, run_fleet
     from hil.fleet.manifest import read_manifest
     from hil.fleet.run import Settings, tracked_kinds
     from hil.fleet.spc import parse_threshold
@@ -161,19 +164,27 @@ def _run(args) -> int:
     def progress(done, total, record):
         print(f"fleet: {done}/{total} diagnosed: {Path(record).name}", file=sys.stderr, flush=True)
 
+    def progress_confirm(done, total, record):
+        print(f"fleet: {done}/{total} strengths of new findings fitted: {Path(record).name}", file=sys.stderr,
+              flush=True)
+
     from hil.commands.record_inputs import prompt_interrupt
     with prompt_interrupt():
         res = run_fleet(entries, configs, args.config, settings, args.out, scheduler=args.scheduler, jobs=args.jobs,
                         progress=progress)
-    axes = judge_fleet(entries, res.figures, thresholds, args.baseline, scatter)
+        # an effect named after the baseline: its strength on every night of its axis, before it is a flag
+        confirm = confirm_findings(entries, configs, args.config, settings, res, args.out, args.baseline,
+                                   scheduler=args.scheduler, jobs=args.jobs, progress=progress_confirm)
+    axes = judge_fleet(entries, res.figures, thresholds, args.baseline, scatter, confirm)
     # the units of the normal effects' strengths, judged beside the tracked ones
-    normal = sorted({n for a in axes for n in a["normal"]})
+    normal = sorted({n for a in axes for n in a["normal"]} | {f["effect"] for a in axes for f in a["findings"]})
     try:
         kinds = {**tracked_kinds(first, normal), **kinds}
     except HilError:
         pass                    # a normal effect of a name this config does not know: printed without a unit
     errors = [er for a in axes for er in a["errors"]]
-    state = {"entries": [e.__dict__ for e in entries], "figures": res.figures, "axes": axes, "kinds": kinds,
+    state = {"entries": [e.__dict__ for e in entries], "figures": res.figures, "confirm": confirm, "axes": axes,
+             "kinds": kinds,
              "settings": {"track": list(track), "candidates": list(cands or []), "max_steps": args.max_steps,
                           "baseline": args.baseline, "scatter": scatter,
                           "thresholds": {k: t.text for k, t in thresholds.items()}}}

@@ -15,7 +15,7 @@ from hil.fleet.manifest import Entry
 from hil.fleet.run import Settings, Task, executor, record_key
 from hil.sweep.store import ResultStore
 
-__all__ = ["FleetRun", "run_fleet", "STORE_NAME", "load_configs"]
+__all__ = ["FleetRun", "run_fleet", "confirm_findings", "STORE_NAME", "load_configs"]
 
 STORE_NAME = "results.jsonl"
 
@@ -82,3 +82,33 @@ def run_fleet(entries: list[Entry], configs: dict, default: str | None, settings
     finally:
         ex.close()
     return result
+
+
+def confirm_findings(entries: list[Entry], configs: dict, default: str | None, settings: Settings, first: FleetRun,
+                     out_dir, n_baseline: int, scheduler=None, jobs: int | None = None, progress=None) -> dict:
+    """The strength of every effect the chain named after an axis's baseline outside its normal,
+    fitted on every record of that axis (as ``--track`` fits it: on the night's plant, no chain),
+    so that a weak effect present all along, which the chain names on some nights and not on
+    others, is told from one that appeared or grew. Record id -> figures (``values``,
+    ``stderr``); stored and reused like the first pass (its own key: the settings differ)."""
+    from dataclasses import replace
+
+    from hil.fleet.spc import new_effects, normal_effects
+    from hil.fleet.summary import _baseline
+    axes: dict[str, list[Entry]] = {}
+    for e in entries:
+        axes.setdefault(e.axis, []).append(e)
+    out: dict = {}
+    for axis, es in sorted(axes.items()):
+        good = [e for e in es if "error" not in first.figures.get(e.id, {"error": ""})]
+        if not good:
+            continue
+        base = _baseline(good, n_baseline)
+        named = [set(first.figures[e.id].get("named", [])) for e in good]
+        found = new_effects(named, base, normal_effects(named, base))
+        if not found:
+            continue
+        confirm = replace(settings, track=tuple(sorted(found)), candidates=None, max_steps=0)
+        res = run_fleet(good, configs, default, confirm, out_dir, scheduler=scheduler, jobs=jobs, progress=progress)
+        out.update(res.figures)
+    return out

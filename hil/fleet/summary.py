@@ -23,12 +23,18 @@ def _baseline(entries: list[Entry], n_baseline: int) -> list[int]:
 
 
 def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict, n_baseline: int = N_BASELINE,
-               scatter: float = SCATTER) -> dict:
+               scatter: float = SCATTER, confirm: dict | None = None) -> dict:
     """One axis: ``params`` (per tracked parameter, and per parameter of an effect of the axis's
     normal that is not tracked, its strength as the chain fitted it each night (``source``
     "chain"): centre, sigma, status per record, flagged, first_moved date, reasons), ``normal`` (effects of every baseline record), ``findings``
     (effects named after the baseline outside the normal, with their first date), ``errors``,
-    ``verdict`` of the latest record and ``worst`` (the parameter that moved most, in sigma)."""
+    ``verdict`` of the latest record and ``worst`` (the parameter that moved most, in sigma).
+
+    ``confirm``: record id -> the strengths of the findings fitted on every record of the axis
+    (:func:`hil.fleet.batch.confirm_findings`). A finding whose every strength stays within the
+    limits of the baseline nights (and within its thresholds) was there all along, too weak for the
+    chain to name every night: it is kept in ``findings`` (``strength``: "as in the baseline") and
+    its strengths in ``params`` (``source`` "confirmed"), but it is no flag."""
     good = [e for e in entries if "error" not in figures.get(e.id, {"error": "not run"})]
     errors = [{"record": e.id, "error": figures.get(e.id, {}).get("error", "not run")}
               for e in entries if e not in good]
@@ -72,8 +78,14 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
     out["normal"] = sorted(normal)
     out["findings"] = [{"effect": k, "since": good[i].timestamp} for k, i in new_effects(named, base, normal).items()]
     for f in out["findings"]:
+        moved = _confirmed(f, good, base, confirm, thresholds, scatter, out["params"])
+        if moved is False:
+            f["strength"] = "as in the baseline"
+            continue
+        f["strength"] = "moved" if moved else "not fitted"
         out["flags"].append({"parameter": f["effect"], "since": f["since"], "reason": "named by the chain, "
-                             "not in the axis's normal", "from": None, "to": None})
+                             "not in the axis's normal" + (", its strength beyond the baseline's" if moved else ""),
+                             "from": None, "to": None})
     if out["flags"]:
         out["verdict"] = "drift: " + ", ".join(f"{fl['parameter']} since {fl['since']}" for fl in out["flags"])
         if errors:
@@ -84,6 +96,39 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
     else:
         out["verdict"] = "ok"
     return out
+
+
+def _confirmed(finding: dict, good: list[Entry], base: list[int], confirm: dict | None, thresholds: dict,
+               scatter: float, params: dict) -> bool | None:
+    """Whether a finding's strength, fitted on every record (``confirm``), left the baseline's limits
+    (True), stayed within them on every parameter (False), or could not be judged (None: no fit,
+    a record's fit in error, no baseline value). The judged series go into ``params``."""
+    if not confirm:
+        return None
+    figs = [confirm.get(e.id) for e in good]
+    if any(f is None or "error" in f for f in figs):
+        return None
+    prefix = finding["effect"] + "."
+    names = sorted({k for f in figs for k in f.get("values", {}) if k.startswith(prefix)})
+    if not names:
+        return None
+    moved = False
+    for name in names:
+        vals = [f.get("values", {}).get(name, float("nan")) for f in figs]
+        ses = [f.get("stderr", {}).get(name) for f in figs]
+        try:
+            j = judge_series(vals, ses, base, thresholds.get(name), scatter)
+        except ValueError:
+            return None
+        moved = moved or j.flagged
+        params.setdefault(name, {"centre": j.limits.centre, "sigma": j.limits.sigma, "values": vals, "stderr": ses,
+                                 "lower": j.lower, "upper": j.upper, "status": j.status, "flagged": j.flagged,
+                                 "first_moved": good[j.first_moved].timestamp if j.first_moved is not None
+                                 else None, "reasons": j.reasons, "source": "confirmed",
+                                 "threshold": thresholds[name].text if name in thresholds else None,
+                                 "drift_sigma": abs(vals[-1] - j.limits.centre) / j.limits.sigma
+                                 if j.limits.sigma > 0 else 0.0})
+    return moved
 
 
 def _tracked_series(figs: list[dict]) -> dict:
@@ -111,12 +156,12 @@ def _normal_series(figs: list[dict], normal) -> dict:
 
 
 def judge_fleet(entries: list[Entry], figures: dict, thresholds: dict, n_baseline: int = N_BASELINE,
-                scatter: float = SCATTER) -> list[dict]:
+                scatter: float = SCATTER, confirm: dict | None = None) -> list[dict]:
     """Every axis judged (see :func:`judge_axis`), in axis order."""
     axes: dict[str, list[Entry]] = {}
     for e in entries:
         axes.setdefault(e.axis, []).append(e)
-    return [judge_axis(a, es, figures, thresholds, n_baseline, scatter) for a, es in sorted(axes.items())]
+    return [judge_axis(a, es, figures, thresholds, n_baseline, scatter, confirm) for a, es in sorted(axes.items())]
 
 
 def rows(entries: list[Entry], figures: dict) -> list[dict]:
