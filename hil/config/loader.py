@@ -51,7 +51,7 @@ from hil.config.schema import (  # noqa: F401
 from hil.errors import ConfigError
 from hil.units import SI_UNIT
 
-logger = logging.getLogger(__name__)
+logger = logging.getLogger("hil.config")      # the name users filter on (--log-level), as before the split
 
 
 class Config:

@@ -4,7 +4,6 @@ checks of each kind). Data and pure functions: the loader (:mod:`hil.config.load
 documentation (:mod:`hil.config.docs`) read it."""
 from __future__ import annotations
 
-import logging
 import math
 import re
 from typing import Any, Callable
@@ -15,8 +14,6 @@ from drivers.serial.schema import SECTION as SERIAL_SECTION
 from drivers.serial.schema import field as serial_field
 from hil.errors import ConfigError
 from hil.units import SI_UNIT, UnitError, parse, parse_gain_db
-
-logger = logging.getLogger(__name__)
 
 
 def _rotary(values: dict) -> bool:
