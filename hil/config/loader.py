@@ -12,41 +12,20 @@ from pathlib import Path
 from typing import Any
 
 from drivers.schema import Field
-from hil.config.schema import (  # noqa: F401
+from hil.config.schema import (
     _CHAIN_KEYS,
-    _FILTER_KEYS,
     _NUMBERED,
     _NUMBERED_RE,
-    _SECTION_KEYS,
-    _SECTIONS,
-    LOOP_PERIOD_RANGE,
     MAX_CONFIG_BYTES,
     MAX_CONFIG_DEPTH,
-    MAX_MAGNITUDE,
-    MAX_STRING_CHARS,
-    NOISE_KINDS,
     SCHEMA,
-    SECTION_NAMES,
-    SUPERVISOR_SECTION,
-    TIME_RANGE,
     _convert,
-    _effects_field,
-    _effects_keys,
-    _filters,
     _flatten,
     _known_in_section,
     _known_sections,
-    _noise_field,
-    _output_kind,
-    _param_kind,
-    _rot_or_lin_damping,
-    _rotary,
     _short,
-    _torque_or_force,
-    _velocity_gain_kind,
     did_you_mean,
     field_for,
-    value_range,
 )
 from hil.errors import ConfigError
 from hil.units import SI_UNIT
