@@ -30,7 +30,7 @@ import numpy as np
 from hil.shaping import ALL_KINDS, Shaper, shaped
 
 __all__ = ["Change", "Candidate", "TuneResult", "stable_start", "tune_gains", "choose_command", "mode_error",
-           "tip_settle_time", "margins_of", "matched", "BACKOFF", "T_ACC"]
+           "tip_settle_time", "margins_of", "matched", "command_trajectory", "BACKOFF", "T_ACC"]
 
 BACKOFF = 0.9        # share of the largest gain that keeps the margins (the measurement has its error)
 T_ACC = (0.1, 0.125, 0.15, 0.175, 0.2, 0.25, 0.3, 0.4)     # NC acceleration times tried (s)
@@ -240,7 +240,10 @@ def _stiffer(cfg, scale: float):
     return cfg.with_values(changes) if changes else cfg
 
 
-def _traj(stroke: float, feed: float, t_acc: float, g0: float, dwell: float, shaper: Shaper | None):
+def command_trajectory(stroke: float, feed: float, t_acc: float, g0: float, dwell: float, shaper: Shaper | None):
+    """The move of ``stroke`` at ``feed`` (SI) with the NC acceleration time ``t_acc`` and the rapid
+    ``g0``, then ``dwell``, through ``shaper`` (None: unshaped): what :func:`choose_command` tries
+    and the verification move runs."""
     from hil.profiles import MoveSpec, Trajectory
     tr = Trajectory()
     tr.move(MoveSpec(stroke, feed, t_acc=t_acc, g0=g0))
@@ -267,7 +270,7 @@ def choose_command(cfg, mode: dict | None, stroke: float, feed: float, tol: floa
     out = []
     for i, t_acc in enumerate(T_ACC):
         for sh in shapers:
-            traj = _traj(stroke, feed, t_acc, g0, dwell, sh)
+            traj = command_trajectory(stroke, feed, t_acc, g0, dwell, sh)
             try:
                 check_limits(traj, limits)
             except LimitError:

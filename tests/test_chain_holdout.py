@@ -237,7 +237,9 @@ def test_the_one_key_beyond_the_tolerance_is_the_step():
         for k in ("m1", "m2", "m3", "k1", "k2", "c1", "c2"):
             x = float(CFG[f"plant.{k}"])
             ch, se = changes.get(k, (0.01, 0.002))
-            params[f"plant.{k}"] = {"config": x, "value": x * (1 + ch), "change": ch, "stderr": se * x}
+            # the decision's margin: two white standard errors, relative (none where NaN)
+            params[f"plant.{k}"] = {"config": x, "value": x * (1 + ch), "change": ch, "stderr": se * x,
+                                    "margin": 2.0 * se if math.isfinite(se) else 0.0}
         return {"tolerance": 0.05, "within": False, "params": params}
     got = _beyond_tolerance(rp, d, fitted(k1=(-0.178, 0.01)), ["parameter:plant.m3"], set())
     assert got["effect"] == "parameter:plant.k1" and got["key"] == "plant.k1" and got["verdict"] == "parameter:plant.m3"

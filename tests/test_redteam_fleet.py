@@ -301,3 +301,65 @@ def test_a_weak_effect_named_late_is_judged_by_its_strength_on_every_night():
     unknown = judge_axis("A", es, figs, {})
     assert unknown["verdict"] == "drift: coulomb_friction since 2026-03-23"
     assert unknown["findings"][0]["strength"] == "not fitted"
+
+
+def test_the_normal_is_judged_from_one_model_fitted_every_night():
+    """Issue 53: a steady axis (independent fleet, axis D: friction 0.3 N m and a 4 um backlash every
+    night) was flagged because the chain left the backlash out on the last night and its friction
+    took the backlash up (0.266 N m). Fitted together on every night (the confirm pass: here the
+    figures it gave on those records), the friction is steady and the axis ok; the normal's series
+    then comes from that fit; a normal fit in error falls back to the chain's values."""
+    from hil.fleet.batch import _merge
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import judge_axis
+    dates = [f"2026-03-{d:02d}" for d in (2, 9, 16, 23, 30)]
+    es = [Entry(f"D_{d}.csv", "D", d) for d in dates]
+    figs = {e.id: _night(v) for e, v in zip(es, [0.2987, 0.2843, 0.3018, 0.2948, 0.2656])}
+    assert judge_axis("D", es, figs, {})["verdict"] == "drift: coulomb_friction.level since 2026-03-30"
+    confirm = {}
+    for e, lvl, gap in zip(es, [0.3021, 0.3041, 0.2999, 0.3027, 0.3004], [4.04e-6, 3.91e-6, 4.01e-6, 3.97e-6, 3.90e-6]):
+        fit = {"values": {"coulomb_friction.level": lvl, "backlash.gap": gap},
+               "stderr": {"coulomb_friction.level": 2e-4, "backlash.gap": 3e-9}}
+        _merge(confirm.setdefault(e.id, {"values": {}, "stderr": {}}), fit, "normal")
+        # a finding's fit keeps its own parameters only
+        _merge(confirm[e.id], {"values": {"coulomb_friction.level": 9.0, "pitch_error.amplitude": 2e-6},
+                               "stderr": {}}, "pitch_error")
+    d = judge_axis("D", es, figs, {}, confirm=confirm)
+    p = d["params"]["coulomb_friction.level"]
+    assert d["verdict"] == "ok" and p["source"] == "confirmed" and p["values"][-1] == 0.3004
+    assert confirm[es[0].id]["values"]["pitch_error.amplitude"] == 2e-6
+    _merge(confirm[es[-1].id], {"error": "D_2026-03-30.csv: no fit"}, "normal")
+    assert confirm[es[-1].id]["failed"] == {"normal": "D_2026-03-30.csv: no fit"}
+    assert judge_axis("D", es, figs, {}, confirm=confirm)["params"]["coulomb_friction.level"]["source"] == "chain"
+
+
+def test_a_parameter_that_moved_without_what_its_effect_does_is_no_flag():
+    """Issue 53: on a steady axis (independent fleet, axis D) the confirm pass fitted a pitch error
+    of 5 nm every night; its period wandered (3.5 -> 1.9 ms on the last night, 7 sigma of the
+    baseline's scatter by its linearised errors) and flagged the axis. What the effect does to the
+    record (its contribution per channel, the figures measured on those records) stayed within the
+    baseline's spread: no flag. Where that grows as well (a pitch error tenfold), the flag stays;
+    without contributions (not computed) the parameters alone decide, as before."""
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import judge_axis
+    dates = [f"2026-03-{d:02d}" for d in (2, 9, 16, 23, 30)]
+    es = [Entry(f"D_{d}.csv", "D", d) for d in dates]
+    figs = {e.id: _night(0.3, named=["coulomb_friction"] + (["pitch_error"] if i >= 3 else []))
+            for i, e in enumerate(es)}
+    period = [0.00348, 0.003925, 0.003924, 0.003824, 0.001898]
+    ses = [3.07e-06, 1.04e-05, 1.02e-06, 1.21e-06, 2.7e-07]
+    x_tip = [4.885e-07, 6.715e-06, 3.486e-07, 3.134e-06, 2.39e-06]
+    torque = [0.00331, 0.05201, 0.008398, 0.02797, 0.008469]
+
+    def confirm(grow=1.0, contributions=True):
+        return {e.id: {"values": {"pitch_error.period": p}, "stderr": {"pitch_error.period": s},
+                       **({"contribution": {"pitch_error": {"x_tip": xt * (grow if i == 4 else 1.0),
+                                                            "torque": tq * (grow if i == 4 else 1.0)}}}
+                          if contributions else {})}
+                for i, (e, p, s, xt, tq) in enumerate(zip(es, period, ses, x_tip, torque))}
+    drift = "drift: pitch_error since 2026-03-23"
+    assert judge_axis("D", es, figs, {}, confirm=confirm(contributions=False))["verdict"] == drift
+    steady = judge_axis("D", es, figs, {}, confirm=confirm())
+    assert steady["verdict"] == "ok" and steady["findings"][0]["strength"] == "as in the baseline"
+    assert steady["params"]["pitch_error.period"]["status"][-1] == "ok"
+    assert judge_axis("D", es, figs, {}, confirm=confirm(grow=10.0))["verdict"] == drift

@@ -136,7 +136,7 @@ JSON_KEYS = {
                                           "the config at an earlier step, that drift fitted again beside the step's "
                                           "effects (final.tolerance.again_after), the config's masses, stiffnesses and "
                                           "dampings within plant.tolerance: effects, tolerance, params (per key: "
-                                          "config, value, change, stderr), stderr (effect.param), "
+                                          "config, value, change, stderr, margin: the relative margin of the decision), stderr (effect.param), "
                                           "error_on_config_plant (the step's error before), estimation_error, "
                                           "held_out; the step's params and error_after are then the night's",
                                     when="a step with such an effect or after such a drift, refitted there, "

@@ -165,16 +165,17 @@ def _run(args) -> int:
         print(f"fleet: {done}/{total} diagnosed: {Path(record).name}", file=sys.stderr, flush=True)
 
     def progress_confirm(done, total, record):
-        print(f"fleet: {done}/{total} strengths of new findings fitted: {Path(record).name}", file=sys.stderr,
-              flush=True)
+        print(f"fleet: {done}/{total} strengths fitted with one model every night: {Path(record).name}",
+              file=sys.stderr, flush=True)
 
     from hil.commands.record_inputs import prompt_interrupt
     with prompt_interrupt():
         res = run_fleet(entries, configs, args.config, settings, args.out, scheduler=args.scheduler, jobs=args.jobs,
                         progress=progress)
-        # an effect named after the baseline: its strength on every night of its axis, before it is a flag
+        # an axis with a finding or a flag: its strengths fitted with one model every night, before it is flagged
         confirm = confirm_findings(entries, configs, args.config, settings, res, args.out, args.baseline,
-                                   scheduler=args.scheduler, jobs=args.jobs, progress=progress_confirm)
+                                   scheduler=args.scheduler, jobs=args.jobs, progress=progress_confirm,
+                                   thresholds=thresholds, scatter=scatter)
     axes = judge_fleet(entries, res.figures, thresholds, args.baseline, scatter, confirm)
     # the units of the normal effects' strengths, judged beside the tracked ones
     normal = sorted({n for a in axes for n in a["normal"]} | {f["effect"] for a in axes for f in a["findings"]})

@@ -159,7 +159,8 @@ def run(args) -> int:
     cfg, before, after, last = tune.tune_gains(cfg, measure, pm_min, gm_min_db, changes, steps)
     mode = tune.tip_mode(last.modes)
     say("choosing the command: acceleration times and shapers on the model")
-    cands, choice, eps = tune.choose_command(cfg, mode, stroke, feed, tol, dwell, least_error=least)
+    cands, choice, eps = tune.choose_command(cfg, mode, stroke, feed, tol, dwell, least_error=least,
+                                             progress=lambda f: say(f"{f:.0%} of the acceleration times tried"))
     if choice is not None:
         new = {"nc.t_acc": choice.t_acc, "nc.shaper": str(choice.shaper) if choice.shaper else "none"}
         if cfg.get("nc.g0") is None:
@@ -181,7 +182,7 @@ def run(args) -> int:
     true = (lambda c: c.with_values(plant)) if plant else (lambda c: c)      # the plant the moves run on
     verified, tuned_rec = {}, None
     if choice is not None:
-        traj = tune._traj(stroke, feed, choice.t_acc, cfg.get("nc.g0") or g0, dwell, choice.shaper)
+        traj = tune.command_trajectory(stroke, feed, choice.t_acc, cfg.get("nc.g0") or g0, dwell, choice.shaper)
         verified, tuned_rec = _settle_on_backend(true(cfg), backend_name, traj, stroke, tol, out, "tuned_move", can_log)
     ref, given_rec = _settle_on_backend(true(cfg0), backend_name, given, stroke, tol, out, "given_move", can_log)
     verified["given_settle_s"] = ref.get("settle_s")

@@ -11,11 +11,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from hil.fleet.manifest import Entry
 from hil.fleet.run import Settings, Task, executor, record_key
 from hil.sweep.store import ResultStore
 
-__all__ = ["FleetRun", "run_fleet", "confirm_findings", "STORE_NAME", "load_configs"]
+__all__ = ["FleetRun", "run_fleet", "confirm_findings", "contribution", "STORE_NAME", "load_configs"]
 
 STORE_NAME = "results.jsonl"
 
@@ -85,30 +87,115 @@ def run_fleet(entries: list[Entry], configs: dict, default: str | None, settings
 
 
 def confirm_findings(entries: list[Entry], configs: dict, default: str | None, settings: Settings, first: FleetRun,
-                     out_dir, n_baseline: int, scheduler=None, jobs: int | None = None, progress=None) -> dict:
-    """The strength of every effect the chain named after an axis's baseline outside its normal,
-    fitted on every record of that axis (as ``--track`` fits it: on the night's plant, no chain),
-    so that a weak effect present all along, which the chain names on some nights and not on
-    others, is told from one that appeared or grew. Record id -> figures (``values``,
-    ``stderr``); stored and reused like the first pass (its own key: the settings differ)."""
+                     out_dir, n_baseline: int, scheduler=None, jobs: int | None = None, progress=None,
+                     thresholds: dict | None = None, scatter: float | None = None) -> dict:
+    """Before an axis is flagged, its strengths fitted with one model on every night (as ``--track``
+    fits them: on the night's plant, no chain). The chain's own values come from whatever it named
+    that night: a friction fitted on a night without the backlash took the backlash up, and a weak
+    effect present all along is named on some nights and not on others. For each axis with a
+    finding (an effect named after its baseline outside its normal) or a flag on the chain's values:
+
+    * its normal effects together (their strengths judged instead of the chain's);
+    * each finding with the normal effects beside it, one finding a fit: findings fitted together
+      take up each other's share (a table mass beside the plant's mass scale), and one spurious
+      finding must not move another.
+
+    Record id -> figures: ``values`` and ``stderr`` ({effect.param: SI}, the normal fit's and each
+    finding's own parameters), and ``failed`` ({effect or "normal": error line}) for a fit that
+    ended in an error. Stored and reused like the first pass (each track set its own key)."""
     from dataclasses import replace
 
-    from hil.fleet.spc import new_effects, normal_effects
-    from hil.fleet.summary import _baseline
+    from hil.fleet.spc import SCATTER, new_effects, normal_effects
+    from hil.fleet.summary import _baseline, judge_axis
     axes: dict[str, list[Entry]] = {}
     for e in entries:
         axes.setdefault(e.axis, []).append(e)
-    out: dict = {}
+    plans: dict[tuple, list[tuple[Entry, str]]] = {}     # track set -> [(entry, model)]
     for axis, es in sorted(axes.items()):
         good = [e for e in es if "error" not in first.figures.get(e.id, {"error": ""})]
         if not good:
             continue
         base = _baseline(good, n_baseline)
         named = [set(first.figures[e.id].get("named", [])) for e in good]
-        found = new_effects(named, base, normal_effects(named, base))
-        if not found:
+        normal = normal_effects(named, base)
+        found = new_effects(named, base, normal)
+        flagged = judge_axis(axis, good, first.figures, thresholds or {}, n_baseline,
+                             SCATTER if scatter is None else scatter)["flags"]
+        if not found and not flagged:
             continue
-        confirm = replace(settings, track=tuple(sorted(found)), candidates=None, max_steps=0)
-        res = run_fleet(good, configs, default, confirm, out_dir, scheduler=scheduler, jobs=jobs, progress=progress)
-        out.update(res.figures)
+        # beside the tracked effects (the user's model of the axis); the normal needs no fit of its
+        # own where all of it is tracked
+        own = set(normal) | set(settings.track)
+        models = ([("normal", tuple(sorted(own)))] if not set(normal) <= set(settings.track) else []) + \
+                 [(f, tuple(sorted(own | {f}))) for f in sorted(found)]
+        for model, track in models:
+            plans.setdefault(track, []).extend((e, model) for e in good)
+    out: dict = {}
+    for track, items in plans.items():
+        run = replace(settings, track=track, candidates=None, max_steps=0)
+        res = run_fleet([e for e, _ in items], configs, default, run, out_dir, scheduler=scheduler, jobs=jobs,
+                        progress=progress)
+        for e, model in items:
+            _merge(out.setdefault(e.id, {"values": {}, "stderr": {}}), res.figures.get(e.id, {"error": "not run"}),
+                   model)
+    for axis, es in sorted(axes.items()):
+        _tell_apart(es, configs, default, settings, first, out, n_baseline, thresholds or {},
+                    SCATTER if scatter is None else scatter)
     return out
+
+
+def _tell_apart(es: list[Entry], configs: dict, default: str | None, settings: Settings, first: FleetRun,
+                confirm: dict, n_baseline: int, thresholds: dict, scatter: float) -> None:
+    """For every effect whose confirmed parameters left their limits on the axis ``es``, its
+    :func:`contribution` on every night, into each record's ``contribution`` ({effect: value}):
+    the judgement (hil.fleet.summary.judge_axis) keeps the flag only where that series leaves its
+    limits too. A linearised standard error does not see a fit that wandered along a direction
+    the record hardly sees (the period of a pitch error of 5 nm, a viscous share traded against a
+    level); what the effect does to the record does. (Not real-time: two replays a record.)"""
+    from hil.fleet.summary import judge_axis
+    good = [e for e in es if "error" not in first.figures.get(e.id, {"error": ""})]
+    if not good or not all(e.id in confirm for e in good):
+        return
+    judged = judge_axis(good[0].axis, good, first.figures, thresholds, n_baseline, scatter, confirm)
+    flagged = sorted({n.rsplit(".", 1)[0] for n, p in judged["params"].items()
+                      if p["source"] == "confirmed" and p["flagged"]})
+    for effect in flagged:
+        model = "normal" if effect in judged["normal"] else effect
+        for e in good:
+            fit = confirm[e.id].get("models", {}).get(model)
+            got = {} if fit is None else contribution(e, configs[e.config or default], settings.mapping, fit, effect)
+            confirm[e.id].setdefault("contribution", {})[effect] = got
+
+
+def contribution(entry: Entry, cfg, mapping, fit: dict, effect: str) -> dict:
+    """What the effect ``effect`` does to the record ``entry`` in the night's model of ``fit``
+    (``values`` {effect.param: SI} on its ``plant`` {key: SI}): per measured channel, the RMS of
+    the change of the simulated channel when the effect is taken out, every other effect kept
+    ({channel: SI}); a figure per night whatever the effect's parametrisation ({} where the record
+    cannot be replayed)."""
+    from hil.errors import HilError
+    from hil.fleet.run import _read
+    from hil.ident.replay import Replay
+    from hil.ident.tracking import _configured
+    try:
+        rp = Replay(_read(Path(entry.record).read_bytes(), entry.record, cfg, mapping), cfg)
+        plant = cfg.with_values(fit.get("plant") or {})
+        others = {k: v for k, v in fit["values"].items() if not k.startswith(effect + ".")}
+        with_it = rp.residuals(_configured(plant, fit["values"]))
+        without = rp.residuals(_configured(plant, others))
+    except (HilError, OSError, ValueError, ArithmeticError):
+        return {}
+    return {c: float(np.sqrt(np.mean((with_it[c] - without[c]) ** 2))) for c in with_it if with_it[c].size}
+
+
+def _merge(into: dict, fig: dict, model: str) -> None:
+    """One fit's figures into a record's confirmed ones: a finding's own parameters, or every
+    parameter of the normal fit, and the fit itself under ``models`` (values, standard errors, the
+    night's plant); a fit in error under ``failed``."""
+    if "error" in fig:
+        into.setdefault("failed", {})[model] = fig["error"]
+        return
+    into.setdefault("models", {})[model] = {k: fig[k] for k in ("values", "stderr", "plant") if k in fig}
+    keep = (lambda k: True) if model == "normal" else (lambda k: k.startswith(model + "."))
+    for part in ("values", "stderr"):
+        into[part].update({k: v for k, v in fig.get(part, {}).items() if keep(k)})

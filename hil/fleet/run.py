@@ -125,9 +125,11 @@ def _read(data: bytes, name: str, cfg, mapping):
 
 def _tracked(rp, track, fit_nfev):
     """The tracked effects fitted on the night's plant (hil.ident.tracking): ({effect.param: value},
-    {effect.param: standard error})."""
+    {effect.param: standard error}, the night's plant {config key: value}; {} when nothing is tracked)."""
     from hil.ident.tracking import fit_tracked
-    return fit_tracked(rp, track, max_nfev=fit_nfev)
+    plant: dict = {}
+    vals, ses = fit_tracked(rp, track, max_nfev=fit_nfev, plant=plant)
+    return vals, ses, plant
 
 
 def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) -> tuple[str, dict]:
@@ -146,9 +148,11 @@ def diagnose_record(key: str, task: Task, data: bytes, cfg, settings: Settings) 
         except BaseException:
             tracked.wait()
             raise
-        vals, ses = tracked.result()
+        vals, ses, plant = tracked.result()
         fig["values"] = {k: float(v) for k, v in vals.items()}
         fig["stderr"] = {k: (float(v) if v is not None and math.isfinite(v) else None) for k, v in ses.items()}
+        if plant:
+            fig["plant"] = plant
         return key, fig
     except (HilError, ValueError, OSError, ArithmeticError, KeyError, IndexError) as exc:
         # one record's failure is its own line in the summary; the fleet goes on

@@ -152,13 +152,16 @@ def change_point(z: list[float], start: int, latest: int) -> int:
 
 
 def judge_series(values: list[float], stderrs: list[float | None], baseline: list[int],
-                 threshold: Threshold | None = None, scatter: float = SCATTER, k: float = K_SIGMA) -> SeriesJudgement:
+                 threshold: Threshold | None = None, scatter: float = SCATTER, k: float = K_SIGMA,
+                 within=()) -> SeriesJudgement:
     """Judge one series (time order) against the limits of its ``baseline`` indices.
 
     A record after the baseline is ``out`` when it is beyond centre +- k sigma_i; the series is
     flagged when a record is out or the CUSUM alarms after the baseline (``first_alarm``: the
     earlier); ``first_moved`` is :func:`change_point` up to that alarm (never a baseline record).
-    ``threshold`` flags any record beyond it (``threshold_first``).
+    ``within``: indices of records that cannot tell their value from the baseline's centre (the
+    record itself, replayed: hil.fleet.batch.told_apart): never out, and no deviation in the
+    CUSUM. ``threshold`` flags any record beyond it (``threshold_first``).
     """
     lim = control_limits([values[i] for i in baseline], scatter)
     status, lower, upper, z = [], [], [], []
@@ -170,10 +173,10 @@ def judge_series(values: list[float], stderrs: list[float | None], baseline: lis
         lower.append(lo)
         upper.append(hi)
         s = lim.sigma_for(se)
-        z.append((x - lim.centre) / s if _finite(x) and s > 0 else float("nan"))
+        z.append((x - lim.centre) / s if _finite(x) and s > 0 and i not in within else float("nan"))
         if i in base:
             status.append("baseline")
-        elif _finite(x) and not lo <= x <= hi:
+        elif _finite(x) and not lo <= x <= hi and i not in within:
             status.append("out")
             if first_out is None and i >= after:
                 first_out = i

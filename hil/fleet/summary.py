@@ -30,8 +30,9 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
     (effects named after the baseline outside the normal, with their first date), ``errors``,
     ``verdict`` of the latest record and ``worst`` (the parameter that moved most, in sigma).
 
-    ``confirm``: record id -> the strengths of the findings fitted on every record of the axis
-    (:func:`hil.fleet.batch.confirm_findings`). A finding whose every strength stays within the
+    ``confirm``: record id -> the strengths of the normal effects and of each finding fitted on
+    every record of the axis (:func:`hil.fleet.batch.confirm_findings`); the normal's, where there,
+    are judged instead of the chain's (``source`` "confirmed"). A finding whose every strength stays within the
     limits of the baseline nights (and within its thresholds) was there all along, too weak for the
     chain to name every night: it is kept in ``findings`` (``strength``: "as in the baseline") and
     its strengths in ``params`` (``source`` "confirmed"), but it is no flag."""
@@ -48,15 +49,20 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
     named = [set(f.get("named", [])) for f in figs]
     normal = normal_effects(named, base)
     series = _tracked_series(figs)
-    # every effect of the axis's normal has its strength judged as a tracked one, from the values the
-    # chain fitted each night, where the user did not track it (--track fits it on the night's plant)
+    # every effect of the axis's normal has its strength judged as a tracked one, where the user did
+    # not track it: from the normal fitted together on every night where the axis was confirmed
+    # (hil.fleet.batch.confirm_findings), else from the values the chain fitted each night
+    for name, (vals, ses) in _confirmed_normal(good, confirm, normal).items():
+        series.setdefault(name, (vals, ses, "confirmed"))
     for name, vals in _normal_series(figs, normal).items():
         if name not in series:
             series[name] = (vals, [None] * len(vals), "chain")
     worst = None
     for name, (vals, ses, source) in sorted(series.items()):
         try:
-            j = judge_series(vals, ses, base, thresholds.get(name), scatter)
+            j = judge_series(vals, ses, base, thresholds.get(name), scatter,
+                             within=_unconfirmed_moves(good, confirm, name, base, scatter) if source == "confirmed"
+                             else ())
         except ValueError:
             continue            # no baseline value: nothing to judge against
         p = {"centre": j.limits.centre, "sigma": j.limits.sigma, "values": vals, "stderr": ses,
@@ -106,7 +112,7 @@ def _confirmed(finding: dict, good: list[Entry], base: list[int], confirm: dict 
     if not confirm:
         return None
     figs = [confirm.get(e.id) for e in good]
-    if any(f is None or "error" in f for f in figs):
+    if any(f is None or "error" in f or finding["effect"] in f.get("failed", {}) for f in figs):
         return None
     prefix = finding["effect"] + "."
     names = sorted({k for f in figs for k in f.get("values", {}) if k.startswith(prefix)})
@@ -117,7 +123,8 @@ def _confirmed(finding: dict, good: list[Entry], base: list[int], confirm: dict 
         vals = [f.get("values", {}).get(name, float("nan")) for f in figs]
         ses = [f.get("stderr", {}).get(name) for f in figs]
         try:
-            j = judge_series(vals, ses, base, thresholds.get(name), scatter)
+            j = judge_series(vals, ses, base, thresholds.get(name), scatter,
+                             within=_unconfirmed_moves(good, confirm, name, base, scatter))
         except ValueError:
             return None
         moved = moved or j.flagged
@@ -129,6 +136,45 @@ def _confirmed(finding: dict, good: list[Entry], base: list[int], confirm: dict 
                                  "drift_sigma": abs(vals[-1] - j.limits.centre) / j.limits.sigma
                                  if j.limits.sigma > 0 else 0.0})
     return moved
+
+
+def _unconfirmed_moves(good: list[Entry], confirm: dict | None, name: str, base: list[int], scatter: float) -> set[int]:
+    """The records (indices) at which the move of ``name``'s effect is not confirmed by what the
+    effect does to the record: its ``contribution`` per channel (hil.fleet.batch.contribution),
+    each relative to the channel's baseline mean, averaged over the channels, judged as a series
+    of its own. Every record after the baseline where that series stays within its limits; none
+    where a record has no such figures. One channel alone can follow the night's plant (the tip's
+    ringing moves with its stiffness); an effect that grew does more in all of them."""
+    effect = name.rsplit(".", 1)[0]
+    per = [((confirm or {}).get(e.id) or {}).get("contribution", {}).get(effect) for e in good]
+    if not per or any(not c for c in per):
+        return set()
+    rel = []
+    for chan in per[0]:
+        vals = [c.get(chan, math.nan) for c in per]
+        centre = [vals[i] for i in base if math.isfinite(vals[i])]
+        if centre and sum(centre) > 0:
+            rel.append([v * len(centre) / sum(centre) for v in vals])
+    if not rel:
+        return set()
+    series = [sum(r[i] for r in rel) / len(rel) for i in range(len(good))]
+    try:
+        if judge_series(series, [None] * len(series), base, None, scatter).flagged:
+            return set()
+    except ValueError:
+        return set()
+    return set(range(max(base) + 1, len(good)))
+
+
+def _confirmed_normal(good: list[Entry], confirm: dict | None, normal) -> dict:
+    """The normal effects' strengths fitted together on every record (``confirm``'s normal fit):
+    ``effect.param`` -> (values, standard errors); {} where a record has none or its fit failed."""
+    figs = [(confirm or {}).get(e.id) for e in good]
+    if not normal or any(f is None or "error" in f or "normal" in f.get("failed", {}) for f in figs):
+        return {}
+    names = sorted({k for f in figs for k in f.get("values", {}) if any(k.startswith(n + ".") for n in normal)})
+    return {n: ([f["values"].get(n, float("nan")) for f in figs], [f.get("stderr", {}).get(n) for f in figs])
+            for n in names}
 
 
 def _tracked_series(figs: list[dict]) -> dict:

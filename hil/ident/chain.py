@@ -715,15 +715,13 @@ def _beyond_tolerance(cur, d, test, add, have, found=()) -> dict | None:
     the diagnosis names the tip's mass, whose drift is within the tolerance, and the fit of every
     key puts the stiffness alone beyond it. Returns {"verdict" (the diagnosis's), "effect", "key",
     "change", "tolerance", "params" (the fit's relative changes)}, or None."""
-    from hil.ident.tolerance import Z_WITHIN
-
     def key_of(name):
         return getattr(candidate(name, cur.cfg), "drifted_key", lambda p: None)(cur.plant)
     tol = test["tolerance"]
     # (a key the model names already, beyond the tolerance before, is free in the fit: not counted)
     named = {key_of(n) for n in found}
-    beyond = [k for k, p in test["params"].items() if k not in named and abs(p["change"]) - Z_WITHIN * (
-        abs(p["stderr"]) / abs(p["config"]) if math.isfinite(p["stderr"]) else 0.0) > tol * (1.0 + 1e-9)]
+    beyond = [k for k, p in test["params"].items() if k not in named and abs(p["change"]) - p["margin"]
+              > tol * (1.0 + 1e-9)]
     if len(beyond) != 1:
         return None
     key = beyond[0]

@@ -361,17 +361,21 @@ def on_nights_plant(replay, cfg, names, profiled=None, anchored: bool = False, v
     return cfg, cost, kept
 
 
-def fit_tracked(replay, names, max_nfev: int = 40) -> tuple[dict, dict]:
+def fit_tracked(replay, names, max_nfev: int = 40, plant: dict | None = None) -> tuple[dict, dict]:
     """The tracked effects ``names`` fitted on the night's plant (the module's stages):
     ({effect.param: value}, {effect.param: standard error}), SI. A standard error is NaN where the
     fit gives none; where a later stage moved the values and the joint fit was not kept, it is the
     linearised one at the values reported, the plant held. A combination (``a+b``) is fitted by
-    stage 1 alone."""
+    stage 1 alone. ``plant`` (a dict, when given) receives the night's plant the values were
+    fitted on ({config key: value} of hil.ident.tolerance.tolerance_keys), so that the night's
+    model can be rebuilt from the config."""
     names = list(names)
     if not names:
         return {}, {}
     values, stderr = _greedy(replay, names, max_nfev)
     if any(isinstance(candidate(n, replay.cfg), Combination) for n in names):
+        if plant is not None:
+            plant.update({k: float(replay.cfg[k]) for k in tolerance_keys(replay.cfg)})
         return values, stderr
     start = _configured(replay.cfg, values)
     cfg, _, test = on_nights_plant(replay, start, names, values=values)
@@ -385,4 +389,6 @@ def fit_tracked(replay, names, max_nfev: int = 40) -> tuple[dict, dict]:
     got = dict(values, **_values(cfg, names, values))
     if cfg is not start:        # moved after the standard errors were had: those at the values reported
         stderr = dict(stderr, **_stderr_at(replay, cfg, names, got))
+    if plant is not None:
+        plant.update({k: float(cfg[k]) for k in tolerance_keys(cfg)})
     return got, stderr

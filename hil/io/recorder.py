@@ -13,8 +13,8 @@ the rows of its last drain interval, and the last line may be cut in its ``write
 (:func:`hil.io.measurement.read`) drops a last line that is cut.
 
 A JSON file beside it (``<name>.json``, the status) says how the run ended and why. While the run
-goes it says ``"status": "running"`` with the rows recorded so far (``rows``), the record time of
-the last (``t_s``), the wall time (``time``) and the recording process (``pid``), rewritten
+goes it says ``"status": "running"`` with the rows written to the file so far (``rows``), the record
+time of the last (``t_s``), the wall time (``time``) and the recording process (``pid``), rewritten
 every ``status_every`` seconds (0.5 s) by the same thread, each time at once
 (hil.io.safe_write.write_atomic). A status still ``running`` whose process is gone is a run that
 did not end cleanly (:func:`status_of`).
@@ -161,11 +161,13 @@ class Recorder(RowBuffer):
 
     def _write_status(self, extra: dict | None = None, sync: bool = True) -> None:
         with self._status_lock:
-            info = {"file": self.path.name, "status": self.status, "rows": self.rows, "reason": self.reason,
+            # what the file holds (a row recorded is in it within a drain interval): after a kill,
+            # the status and the record agree
+            n = self._written
+            info = {"file": self.path.name, "status": self.status, "rows": n, "reason": self.reason,
                     "time": time.strftime("%Y-%m-%dT%H:%M:%S"), "pid": os.getpid()}
-            last_t = self.last_t
-            if last_t == last_t:             # not NaN: a row has been recorded
-                info["t_s"] = last_t
+            if n and self._t_index is not None:
+                info["t_s"] = float(self._data[n - 1, self._t_index])
             if extra:
                 info.update(extra)
             # a fresh temporary name in the folder, renamed over the status (not a fixed .json.tmp)
