@@ -32,6 +32,7 @@ from hil.fleet.spc import (
     new_effects,
     normal_effects,
     parse_threshold,
+    usual_effects,
 )
 
 BENCH = str(CONFIG / "paper_bench.toml")
@@ -105,6 +106,16 @@ def test_an_effect_named_on_every_baseline_record_is_the_axis_normal():
     later = named[:3] + [{"backlash", "pitch_error"}, {"backlash"}, {"backlash", "feedback_delay"},
                          {"backlash", "feedback_delay"}, {"backlash", "constant_force"}]
     assert new_effects(later, [0, 1, 2], {"backlash"}) == {"feedback_delay": 5, "constant_force": 7}
+
+
+def test_the_usual_model_is_what_the_chain_names_on_most_baseline_records():
+    # a friction named Coulomb on two nights of three (load-dependent on the other) is no normal
+    # effect, but the axis's strengths are fitted with it (hil.fleet.batch.confirm_findings)
+    named = [{"backlash", "coulomb_friction"}, {"backlash", "load_dependent_friction"},
+             {"backlash", "coulomb_friction", "x"}, {"backlash"}]
+    assert normal_effects(named, [0, 1, 2]) == {"backlash"}
+    assert usual_effects(named, [0, 1, 2]) == {"backlash", "coulomb_friction"}
+    assert usual_effects(named, [0, 1]) == {"backlash"} and usual_effects(named, []) == set()
 
 
 # --- the manifest -------------------------------------------------------------------------------------

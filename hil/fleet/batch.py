@@ -95,53 +95,81 @@ def confirm_findings(entries: list[Entry], configs: dict, default: str | None, s
     effect present all along is named on some nights and not on others. For each axis with a
     finding (an effect named after its baseline outside its normal) or a flag on the chain's values:
 
-    * its normal effects together (their strengths judged instead of the chain's);
-    * each finding with the normal effects beside it, one finding a fit: findings fitted together
+    * its usual model (hil.fleet.spc.usual_effects, the normal and the tracked effects) together:
+      the strengths of its effects judged instead of the chain's;
+    * each finding with that model beside it, one finding a fit: findings fitted together
       take up each other's share (a table mass beside the plant's mass scale), and one spurious
-      finding must not move another.
+      finding must not move another;
+    * where a parameter's move is judged (hil.fleet.summary.judge_axis), what its effect does to
+      each record (:func:`contribution`);
+    * where several findings of an axis moved, each again beside the others that moved: a torque
+      ripple that appeared is taken up by a friction fitted without it, whose levels then move too.
 
-    Record id -> figures: ``values`` and ``stderr`` ({effect.param: SI}, the normal fit's and each
-    finding's own parameters), and ``failed`` ({effect or "normal": error line}) for a fit that
-    ended in an error. Stored and reused like the first pass (each track set its own key)."""
-    from dataclasses import replace
-
-    from hil.fleet.spc import SCATTER, new_effects, normal_effects
+    Record id -> figures: ``values`` and ``stderr`` ({effect.param: SI}, the usual model's and each
+    finding's own parameters), ``models`` (each fit's values, standard errors and night's plant),
+    ``contribution`` ({effect: {channel: SI}}) and ``failed`` ({effect or "normal": error line})
+    for a fit that ended in an error. Stored and reused like the first pass (each track set its own
+    key)."""
+    from hil.fleet.spc import SCATTER, new_effects, normal_effects, usual_effects
     from hil.fleet.summary import _baseline, judge_axis
+    scatter = SCATTER if scatter is None else scatter
+    thresholds = thresholds or {}
     axes: dict[str, list[Entry]] = {}
     for e in entries:
-        axes.setdefault(e.axis, []).append(e)
+        if "error" not in first.figures.get(e.id, {"error": ""}):
+            axes.setdefault(e.axis, []).append(e)
     plans: dict[tuple, list[tuple[Entry, str]]] = {}     # track set -> [(entry, model)]
-    for axis, es in sorted(axes.items()):
-        good = [e for e in es if "error" not in first.figures.get(e.id, {"error": ""})]
-        if not good:
-            continue
+    usual: dict[str, set] = {}
+    for axis, good in sorted(axes.items()):
         base = _baseline(good, n_baseline)
         named = [set(first.figures[e.id].get("named", [])) for e in good]
         normal = normal_effects(named, base)
         found = new_effects(named, base, normal)
-        flagged = judge_axis(axis, good, first.figures, thresholds or {}, n_baseline,
-                             SCATTER if scatter is None else scatter)["flags"]
-        if not found and not flagged:
+        if not found and not judge_axis(axis, good, first.figures, thresholds, n_baseline, scatter)["flags"]:
             continue
-        # beside the tracked effects (the user's model of the axis); the normal needs no fit of its
-        # own where all of it is tracked
-        own = set(normal) | set(settings.track)
-        models = ([("normal", tuple(sorted(own)))] if not set(normal) <= set(settings.track) else []) + \
+        # the axis's usual model: the effects named on most baseline nights, and the tracked ones
+        # (the user's model of the axis); no fit of its own where all of it is tracked
+        own = usual[axis] = normal | usual_effects(named, base) | set(settings.track)
+        models = ([("normal", tuple(sorted(own)))] if not own <= set(settings.track) else []) + \
                  [(f, tuple(sorted(own | {f}))) for f in sorted(found)]
         for model, track in models:
             plans.setdefault(track, []).extend((e, model) for e in good)
     out: dict = {}
+    fit = (lambda plans: _fit_plans(plans, configs, default, settings, out_dir, out, scheduler, jobs, progress))
+    fit(plans)
+    for axis in usual:
+        _unexplained(axes[axis], configs, default, settings, out)
+        _tell_apart(axes[axis], configs, default, settings, first, out, n_baseline, thresholds, scatter)
+    again: dict[tuple, list[tuple[Entry, str]]] = {}
+    for axis, own in usual.items():
+        good = axes[axis]
+        judged = judge_axis(axis, good, first.figures, thresholds, n_baseline, scatter, out)
+        moved = [f["effect"] for f in judged["findings"] if f.get("strength") == "moved"]
+        if len(moved) < 2:
+            continue
+        for e in good:
+            for f in moved:                 # judged afresh on the joint fit's figures
+                out[e.id].get("contribution", {}).pop(f, None)
+        again.setdefault(tuple(sorted(own | set(moved))), []).extend((e, f) for e in good for f in moved)
+    if again:
+        fit(again)
+        for axis in {e.axis for items in again.values() for e, _ in items}:
+            _tell_apart(axes[axis], configs, default, settings, first, out, n_baseline, thresholds, scatter)
+    return out
+
+
+def _fit_plans(plans: dict, configs: dict, default, settings: Settings, out_dir, out: dict, scheduler, jobs,
+               progress) -> None:
+    """Each track set's fit on its records (:func:`run_fleet`, no chain), merged into ``out`` under
+    the model each record's entry names."""
+    from dataclasses import replace
     for track, items in plans.items():
         run = replace(settings, track=track, candidates=None, max_steps=0)
-        res = run_fleet([e for e, _ in items], configs, default, run, out_dir, scheduler=scheduler, jobs=jobs,
-                        progress=progress)
+        uniq = list({e.id: e for e, _ in items}.values())
+        res = run_fleet(uniq, configs, default, run, out_dir, scheduler=scheduler, jobs=jobs, progress=progress)
         for e, model in items:
             _merge(out.setdefault(e.id, {"values": {}, "stderr": {}}), res.figures.get(e.id, {"error": "not run"}),
                    model)
-    for axis, es in sorted(axes.items()):
-        _tell_apart(es, configs, default, settings, first, out, n_baseline, thresholds or {},
-                    SCATTER if scatter is None else scatter)
-    return out
 
 
 def _tell_apart(es: list[Entry], configs: dict, default: str | None, settings: Settings, first: FleetRun,
@@ -160,19 +188,45 @@ def _tell_apart(es: list[Entry], configs: dict, default: str | None, settings: S
     flagged = sorted({n.rsplit(".", 1)[0] for n, p in judged["params"].items()
                       if p["source"] == "confirmed" and p["flagged"]})
     for effect in flagged:
-        model = "normal" if effect in judged["normal"] else effect
         for e in good:
-            fit = confirm[e.id].get("models", {}).get(model)
-            got = {} if fit is None else contribution(e, configs[e.config or default], settings.mapping, fit, effect)
+            models = confirm[e.id].get("models", {})
+            fit = models.get(effect, models.get("normal"))      # a finding's own fit, else the usual model's
+            got, floor = ({}, {}) if fit is None else contribution(e, configs[e.config or default], settings.mapping,
+                                                                    fit, effect)
             confirm[e.id].setdefault("contribution", {})[effect] = got
+            if floor:
+                confirm[e.id]["floor"] = floor
 
 
-def contribution(entry: Entry, cfg, mapping, fit: dict, effect: str) -> dict:
+def _unexplained(good: list[Entry], configs: dict, default: str | None, settings: Settings, confirm: dict) -> None:
+    """Each record's residual under the axis's usual model as fitted that night (the ``normal``
+    fit): its RMS over the record's noise floor per channel, into ``unexplained`` (1: explained
+    down to the noise). Not real-time: a replay a record."""
+    from hil.errors import HilError
+    from hil.fleet.run import _read
+    from hil.ident.replay import Replay
+    from hil.ident.tracking import _configured
+    for e in good:
+        fit = confirm.get(e.id, {}).get("models", {}).get("normal")
+        if fit is None:
+            continue
+        cfg = configs[e.config or default]
+        try:
+            rp = Replay(_read(Path(e.record).read_bytes(), e.record, cfg, settings.mapping), cfg)
+            res = rp.residuals(_configured(cfg.with_values(fit.get("plant") or {}), fit["values"]))
+        except (HilError, OSError, ValueError, ArithmeticError):
+            continue
+        confirm[e.id]["unexplained"] = {c: float(np.sqrt(np.mean(r * r)) / rp.noise[c]) for c, r in res.items()
+                                        if r.size and rp.noise.get(c, 0.0) > 0}
+
+
+def contribution(entry: Entry, cfg, mapping, fit: dict, effect: str) -> tuple[dict, dict]:
     """What the effect ``effect`` does to the record ``entry`` in the night's model of ``fit``
     (``values`` {effect.param: SI} on its ``plant`` {key: SI}): per measured channel, the RMS of
     the change of the simulated channel when the effect is taken out, every other effect kept
-    ({channel: SI}); a figure per night whatever the effect's parametrisation ({} where the record
-    cannot be replayed)."""
+    ({channel: SI}; a figure per night whatever the effect's parametrisation), and the record's
+    noise floor per channel (hil.ident.noise, RMS SI: what the record cannot resolve); ({}, {})
+    where the record cannot be replayed."""
     from hil.errors import HilError
     from hil.fleet.run import _read
     from hil.ident.replay import Replay
@@ -184,8 +238,9 @@ def contribution(entry: Entry, cfg, mapping, fit: dict, effect: str) -> dict:
         with_it = rp.residuals(_configured(plant, fit["values"]))
         without = rp.residuals(_configured(plant, others))
     except (HilError, OSError, ValueError, ArithmeticError):
-        return {}
-    return {c: float(np.sqrt(np.mean((with_it[c] - without[c]) ** 2))) for c in with_it if with_it[c].size}
+        return {}, {}
+    return ({c: float(np.sqrt(np.mean((with_it[c] - without[c]) ** 2))) for c in with_it if with_it[c].size},
+            {c: float(v) for c, v in rp.noise.items()})
 
 
 def _merge(into: dict, fig: dict, model: str) -> None:

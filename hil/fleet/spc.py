@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from hil.errors import ConfigError
 
 __all__ = ["Limits", "Threshold", "control_limits", "judge_series", "change_point", "cusum_alarm", "parse_threshold", "normal_effects",
-           "new_effects", "K_SIGMA", "CUSUM_K", "CUSUM_H", "SCATTER"]
+           "usual_effects", "new_effects", "K_SIGMA", "CUSUM_K", "CUSUM_H", "SCATTER"]
 
 K_SIGMA = 3.0          # Shewhart limits: centre +- 3 sigma
 CUSUM_K = 0.5          # CUSUM reference value (in sigma): detects a shift of about 1 sigma
@@ -237,6 +237,15 @@ def normal_effects(named: list[set[str]], baseline: list[int]) -> set[str]:
     """The effects the chain names on every baseline record of an axis (its normal)."""
     sets = [named[i] for i in baseline if i < len(named)]
     return set.intersection(*sets) if sets else set()
+
+
+def usual_effects(named: list[set[str]], baseline: list[int]) -> set[str]:
+    """The effects the chain names on more than half of an axis's baseline records: the model its
+    strengths are fitted in (hil.fleet.batch.confirm_findings). A friction the chain calls
+    load-dependent on one night and Coulomb on the others is no normal effect, yet a backlash
+    fitted without it takes it up."""
+    sets = [named[i] for i in baseline if i < len(named)]
+    return {e for e in set().union(*sets) if 2 * sum(e in s for s in sets) > len(sets)} if sets else set()
 
 
 def new_effects(named: list[set[str]], baseline: list[int], normal: set[str]) -> dict[str, int]:

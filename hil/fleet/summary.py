@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 from hil.fleet.manifest import Entry
-from hil.fleet.spc import SCATTER, judge_series, new_effects, normal_effects
+from hil.fleet.spc import K_SIGMA, SCATTER, cusum_alarm, judge_series, new_effects, normal_effects
 
 __all__ = ["judge_fleet", "rows", "N_BASELINE"]
 
@@ -50,9 +50,9 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
     normal = normal_effects(named, base)
     series = _tracked_series(figs)
     # every effect of the axis's normal has its strength judged as a tracked one, where the user did
-    # not track it: from the normal fitted together on every night where the axis was confirmed
-    # (hil.fleet.batch.confirm_findings), else from the values the chain fitted each night
-    for name, (vals, ses) in _confirmed_normal(good, confirm, normal).items():
+    # not track it: from the axis's usual model fitted together on every night where the axis was
+    # confirmed (hil.fleet.batch.confirm_findings), else from the values the chain fitted each night
+    for name, (vals, ses) in _usual_series(good, confirm).items():
         series.setdefault(name, (vals, ses, "confirmed"))
     for name, vals in _normal_series(figs, normal).items():
         if name not in series:
@@ -124,7 +124,7 @@ def _confirmed(finding: dict, good: list[Entry], base: list[int], confirm: dict 
         ses = [f.get("stderr", {}).get(name) for f in figs]
         try:
             j = judge_series(vals, ses, base, thresholds.get(name), scatter,
-                             within=_unconfirmed_moves(good, confirm, name, base, scatter))
+                             within=_unconfirmed_moves(good, confirm, name, base, scatter, finding=True))
         except ValueError:
             return None
         moved = moved or j.flagged
@@ -138,42 +138,66 @@ def _confirmed(finding: dict, good: list[Entry], base: list[int], confirm: dict 
     return moved
 
 
-def _unconfirmed_moves(good: list[Entry], confirm: dict | None, name: str, base: list[int], scatter: float) -> set[int]:
-    """The records (indices) at which the move of ``name``'s effect is not confirmed by what the
-    effect does to the record: its ``contribution`` per channel (hil.fleet.batch.contribution),
-    each relative to the channel's baseline mean, averaged over the channels, judged as a series
-    of its own. Every record after the baseline where that series stays within its limits; none
-    where a record has no such figures. One channel alone can follow the night's plant (the tip's
-    ringing moves with its stiffness); an effect that grew does more in all of them."""
+def _unconfirmed_moves(good: list[Entry], confirm: dict | None, name: str, base: list[int], scatter: float,
+                       finding: bool = False) -> set[int]:
+    """The records (indices) after the baseline at which the move of ``name``'s effect is not
+    confirmed (all of them, or none): by what the effect does to the record, its ``contribution``
+    per channel (hil.fleet.batch.contribution), :func:`_channels_moved` with the records' noise
+    floors (a change the record cannot resolve is none); and for a ``finding``, by the axis's usual
+    model's ``unexplained`` residual (its RMS over the noise floor, per channel): a new effect is
+    one the usual model needs, where it stops explaining the record as it did the baseline's. One
+    channel alone can follow the night's plant (the tip's ringing moves with its stiffness); an
+    effect that grew does more in all of them."""
     effect = name.rsplit(".", 1)[0]
-    per = [((confirm or {}).get(e.id) or {}).get("contribution", {}).get(effect) for e in good]
-    if not per or any(not c for c in per):
+    figs = [((confirm or {}).get(e.id) or {}) for e in good]
+    if not base:
         return set()
-    rel = []
+    rest = set(range(max(base) + 1, len(good)))
+    unexplained = [f.get("unexplained") for f in figs]
+    if finding and all(unexplained) and _channels_moved(unexplained, [{}] * len(good), base, scatter) is False:
+        return rest
+    per = [f.get("contribution", {}).get(effect) for f in figs]
+    moved = _channels_moved(per, [f.get("floor", {}) for f in figs], base, scatter)
+    return rest if moved is False else set()
+
+
+def _channels_moved(per: list, floors: list[dict], base: list[int], scatter: float) -> bool | None:
+    """Whether figures per channel ({channel: SI} per record) left the baseline's: each channel
+    standardised by the larger of the baseline's standard deviation, ``scatter`` of its centre
+    and the record's ``floors``, the mean over the channels beyond :data:`K_SIGMA` on a record
+    after the baseline or alarming the CUSUM; None where a record has no figures."""
+    if not per or any(not c for c in per):
+        return None
+    z = [[] for _ in per]
     for chan in per[0]:
         vals = [c.get(chan, math.nan) for c in per]
-        centre = [vals[i] for i in base if math.isfinite(vals[i])]
-        if centre and sum(centre) > 0:
-            rel.append([v * len(centre) / sum(centre) for v in vals])
-    if not rel:
-        return set()
-    series = [sum(r[i] for r in rel) / len(rel) for i in range(len(good))]
-    try:
-        if judge_series(series, [None] * len(series), base, None, scatter).flagged:
-            return set()
-    except ValueError:
-        return set()
-    return set(range(max(base) + 1, len(good)))
+        ref = [vals[i] for i in base if math.isfinite(vals[i])]
+        if not ref:
+            continue
+        centre = sum(ref) / len(ref)
+        sd = math.sqrt(sum((v - centre) ** 2 for v in ref) / (len(ref) - 1)) if len(ref) > 1 else 0.0
+        for i, v in enumerate(vals):
+            s = max(sd, scatter * abs(centre), float(floors[i].get(chan, 0.0)))
+            if math.isfinite(v) and s > 0:
+                z[i].append((v - centre) / s)
+    mean = [sum(zi) / len(zi) if zi else math.nan for zi in z]
+    after = max(base) + 1
+    alarm, _ = cusum_alarm(mean[after:])
+    return alarm is not None or any(math.isfinite(m) and abs(m) > K_SIGMA for m in mean[after:])
 
 
-def _confirmed_normal(good: list[Entry], confirm: dict | None, normal) -> dict:
-    """The normal effects' strengths fitted together on every record (``confirm``'s normal fit):
-    ``effect.param`` -> (values, standard errors); {} where a record has none or its fit failed."""
+def _usual_series(good: list[Entry], confirm: dict | None) -> dict:
+    """The strengths of the axis's usual model (its normal effects among them) fitted together on
+    every record (``confirm``'s ``normal`` fit): ``effect.param`` -> (values, standard errors); {}
+    where a record has none or its fit failed."""
     figs = [(confirm or {}).get(e.id) for e in good]
-    if not normal or any(f is None or "error" in f or "normal" in f.get("failed", {}) for f in figs):
+    if any(f is None or "error" in f or "normal" in f.get("failed", {}) for f in figs):
         return {}
-    names = sorted({k for f in figs for k in f.get("values", {}) if any(k.startswith(n + ".") for n in normal)})
-    return {n: ([f["values"].get(n, float("nan")) for f in figs], [f.get("stderr", {}).get(n) for f in figs])
+    fits = [f.get("models", {}).get("normal") for f in figs]
+    if any(fit is None for fit in fits):
+        return {}
+    names = sorted({k for fit in fits for k in fit.get("values", {})})
+    return {n: ([fit["values"].get(n, float("nan")) for fit in fits], [fit.get("stderr", {}).get(n) for fit in fits])
             for n in names}
 
 
