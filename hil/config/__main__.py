@@ -9,8 +9,7 @@ from hil.config.loader import examples_dir
 path = examples_dir() / "SCHEMA.md"
 text = path.read_text(encoding="utf-8").split("| key |")[0] + schema_markdown()
 if sys.argv[1:] == ["--write"]:
-    from hil.io.safe_write import write_atomic
-    write_atomic(path, text)
+    path.write_text(text, encoding="utf-8")       # read in full above: nothing is lost
 elif sys.argv[1:]:
     sys.exit(f"python -m hil.config: unknown arguments {' '.join(sys.argv[1:])} (expected --write or none)")
 else:
