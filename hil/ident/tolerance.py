@@ -151,8 +151,8 @@ def within_tolerance(replay, tol: float, rounds: int = ROUNDS, max_nfev: int = M
     err = rms(at.base_residuals)
     scales = np.concatenate([x0, [f.scale for f in free]])
     white = standard_errors(sol, scales, correlated=False)[:n]
-    # the errors published (hil fit, the fleet's limits) count the residual's correlation time: the
-    # white ones are up to a few hundred times too small
+    # the errors published (hil fit, the fleet's limits) count the residual's correlation time, as
+    # every fit's do (hil.ident.fit): white ones understate them by its square root
     se_all = standard_errors(sol, scales)
     # within the tolerance: each change, less Z_WITHIN of its white standard errors (a drift at the
     # edge that the fit puts a little beyond it), at most the tolerance; white: the margin is a
