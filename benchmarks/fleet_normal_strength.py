@@ -8,7 +8,13 @@ night, Coulomb friction 0.3 N m and backlash 4 um (scattered too) on every axis;
 rises 0.3 -> 0.3 -> 0.9 -> 1.5 -> 2.2 N m. The chain names the friction on every night of B, so it
 is B's normal; its strength must still be judged.
 
+A second fleet (``--fleet second``, other seeds, dates and places): P's backlash 4 -> 9 -> 14 um
+from night 4; a torque ripple of 0.3 N m (period 5 mm) appears on Q on night 4; R has a weak
+ripple (0.05 N m) every night; S is steady with a friction of 0.6 N m. No axis but P and Q may be
+flagged, each in its own effect on night 4.
+
     python benchmarks/fleet_normal_strength.py --out out/fleet53              (the defaults: every candidate)
+    python benchmarks/fleet_normal_strength.py --out out/fleet53b --fleet second
     python benchmarks/fleet_normal_strength.py --out out/fleet53 --candidates backlash,coulomb_friction,viscous_friction --max-steps 2
 
 Prints each axis's verdict, its normal and the strengths judged (the chain's values per night),
@@ -30,8 +36,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "independent"))
 
-LEVELS = {"B": [0.3, 0.3, 0.9, 1.5, 2.2]}       # N m per night; every other axis 0.3
+LEVELS = {"B": [0.3, 0.3, 0.9, 1.5, 2.2], "S": [0.6] * 5}       # N m per night; every other axis 0.3
+GAPS = {"P": [4e-6, 4e-6, 4e-6, 9e-6, 14e-6]}                     # m per night; every other axis 4 um
+RIPPLES = {"Q": [0, 0, 0, 0.3, 0.3], "R": [0.05] * 5}             # N m per night (period 5 mm)
 STEADY_LEVEL, GAP, SCATTER, NIGHTS = 0.3, 4e-6, 0.01, 5
+FLEETS = {"first": ("ABCD", dt.date(2026, 3, 2), ""), "second": ("PQRS", dt.date(2026, 5, 4), "f54|")}
 
 
 def _record(args):
@@ -40,19 +49,23 @@ def _record(args):
 
     from hil.config import load
     from hil.io.measurement import write
-    out, axis, night = args
+    out, axis, night, fleet = args
     bench = ivp.bench_from_config(load(ROOT / "config" / "paper_bench.toml"))
-    date = (dt.date(2026, 3, 2) + dt.timedelta(days=7 * night)).isoformat()
-    seed = int.from_bytes(hashlib.sha256(f"{axis}|{date}".encode()).digest()[:4], "little")
+    _, start, salt = FLEETS[fleet]
+    date = (start + dt.timedelta(days=7 * night)).isoformat()
+    seed = int.from_bytes(hashlib.sha256(f"{salt}{axis}|{date}".encode()).digest()[:4], "little")
     rng = np.random.default_rng(seed)
 
     def scattered(v):
         return v * (1.0 + SCATTER * rng.standard_normal())
     b = bench.changed(m=tuple(scattered(v) for v in bench.m), k=tuple(scattered(v) for v in bench.k),
                       c=tuple(scattered(v) for v in bench.c))
-    level, gap = scattered(LEVELS.get(axis, [STEADY_LEVEL] * NIGHTS)[night]), scattered(GAP)
+    level, gap = scattered(LEVELS.get(axis, [STEADY_LEVEL] * NIGHTS)[night]), scattered(GAPS.get(axis, [GAP] * NIGHTS)[night])
+    amp = RIPPLES.get(axis, [0] * NIGHTS)[night]
+    ripple = ((scattered(amp), 0.005, 0.7),) if amp else ()
     x = ivp.command_sequence(2.0, bench.tp, seed=0)
-    ch = ivp.measure(ivp.simulate(b, x, ivp.Hidden(coulomb_pos=level, coulomb_neg=level, gap=gap)), seed % 100000)
+    ch = ivp.measure(ivp.simulate(b, x, ivp.Hidden(coulomb_pos=level, coulomb_neg=level, gap=gap, ripple=ripple)),
+                     seed % 100000)
     write(Path(out) / f"{axis}_{date}.csv", ch, {"sample_period": f"{bench.tp:g} s", "source": "plant_ivp"})
 
 
@@ -61,13 +74,15 @@ def main() -> int:
     ap.add_argument("--out", default="out/fleet53", help="folder of the records and of the run")
     ap.add_argument("--candidates", default=None, help="hil fleet run's --candidates (default: every one)")
     ap.add_argument("--max-steps", default=None, help="hil fleet run's --max-steps (default: its own)")
+    ap.add_argument("--fleet", choices=sorted(FLEETS), default="first", help="which fleet (see above)")
     args = ap.parse_args()
     out = Path(args.out)
     records = out / "records"
     if not records.is_dir():
         records.mkdir(parents=True)
         with ProcessPoolExecutor(2) as pool:
-            list(pool.map(_record, [(str(records), a, n) for a in "ABCD" for n in range(NIGHTS)]))
+            list(pool.map(_record, [(str(records), a, n, args.fleet) for a in FLEETS[args.fleet][0]
+                                    for n in range(NIGHTS)]))
     argv = [sys.executable, "-m", "hil.cli", "fleet", "run", str(records), "--config",
             str(ROOT / "config" / "paper_bench.toml"), "--out", str(out / "run"), "--json"]
     if args.candidates:
