@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.errors import HilError
 from hil.fleet.manifest import Entry
 from hil.fleet.run import Settings, Task, executor, record_key
 from hil.sweep.store import ResultStore
@@ -137,9 +138,11 @@ def confirm_findings(entries: list[Entry], configs: dict, default: str | None, s
     out: dict = {}
     fit = (lambda plans: _fit_plans(plans, configs, default, settings, out_dir, out, scheduler, jobs, progress))
     fit(plans)
+    replays: dict = {}          # each record read and replayed once for the figures below
+    replay = (lambda e: _replay(e, configs[e.config or default], settings.mapping, replays))
     for axis in usual:
-        _unexplained(axes[axis], configs, default, settings, out)
-        _tell_apart(axes[axis], configs, default, settings, first, out, n_baseline, thresholds, scatter)
+        _unexplained(axes[axis], replay, out)
+        _contributions(axes[axis], replay, first, out, n_baseline, thresholds, scatter)
     again: dict[tuple, list[tuple[Entry, str]]] = {}
     for axis, own in usual.items():
         good = axes[axis]
@@ -154,7 +157,7 @@ def confirm_findings(entries: list[Entry], configs: dict, default: str | None, s
     if again:
         fit(again)
         for axis in {e.axis for items in again.values() for e, _ in items}:
-            _tell_apart(axes[axis], configs, default, settings, first, out, n_baseline, thresholds, scatter)
+            _contributions(axes[axis], replay, first, out, n_baseline, thresholds, scatter)
     return out
 
 
@@ -172,16 +175,29 @@ def _fit_plans(plans: dict, configs: dict, default, settings: Settings, out_dir,
                    model)
 
 
-def _tell_apart(es: list[Entry], configs: dict, default: str | None, settings: Settings, first: FleetRun,
-                confirm: dict, n_baseline: int, thresholds: dict, scatter: float) -> None:
-    """For every effect whose confirmed parameters left their limits on the axis ``es``, its
-    :func:`contribution` on every night, into each record's ``contribution`` ({effect: value}):
-    the judgement (hil.fleet.summary.judge_axis) keeps the flag only where that series leaves its
-    limits too. A linearised standard error does not see a fit that wandered along a direction
-    the record hardly sees (the period of a pitch error of 5 nm, a viscous share traded against a
-    level); what the effect does to the record does. (Not real-time: two replays a record.)"""
+def _replay(entry: Entry, cfg, mapping, cache: dict):
+    """The record of ``entry`` replayed through ``cfg`` (hil.ident.replay.Replay), kept in ``cache``;
+    None where it cannot be read."""
+    if entry.id not in cache:
+        from hil.fleet.run import _read
+        from hil.ident.replay import Replay
+        try:
+            cache[entry.id] = Replay(_read(Path(entry.record).read_bytes(), entry.record, cfg, mapping), cfg)
+        except (HilError, OSError, ValueError, ArithmeticError):
+            cache[entry.id] = None
+    return cache[entry.id]
+
+
+def _contributions(good: list[Entry], replay, first: FleetRun, confirm: dict, n_baseline: int, thresholds: dict,
+                   scatter: float) -> None:
+    """For every effect whose confirmed parameters left their limits on the axis of the records
+    ``good``, its :func:`contribution` on every night (``replay(entry)``: the night's replay), into
+    each record's ``contribution`` ({effect: {channel: SI}}) and its noise floor into ``floor``:
+    the judgement (hil.fleet.summary.judge_axis) keeps the flag only where what the effect does
+    moved too. A linearised standard error does not see a fit that wandered along a direction the
+    record hardly sees (the period of a pitch error of 5 nm, a viscous share traded against a
+    level); what the effect does to the record does. (Not real-time: two simulations a record.)"""
     from hil.fleet.summary import judge_axis
-    good = [e for e in es if "error" not in first.figures.get(e.id, {"error": ""})]
     if not good or not all(e.id in confirm for e in good):
         return
     judged = judge_axis(good[0].axis, good, first.figures, thresholds, n_baseline, scatter, confirm)
@@ -191,56 +207,48 @@ def _tell_apart(es: list[Entry], configs: dict, default: str | None, settings: S
         for e in good:
             models = confirm[e.id].get("models", {})
             fit = models.get(effect, models.get("normal"))      # a finding's own fit, else the usual model's
-            got, floor = ({}, {}) if fit is None else contribution(e, configs[e.config or default], settings.mapping,
-                                                                    fit, effect)
-            confirm[e.id].setdefault("contribution", {})[effect] = got
-            if floor:
-                confirm[e.id]["floor"] = floor
+            rp = replay(e) if fit is not None else None
+            confirm[e.id].setdefault("contribution", {})[effect] = {} if rp is None else contribution(rp, fit, effect)
+            if rp is not None:
+                confirm[e.id]["floor"] = {c: float(v) for c, v in rp.noise.items()}
 
 
-def _unexplained(good: list[Entry], configs: dict, default: str | None, settings: Settings, confirm: dict) -> None:
+def _unexplained(good: list[Entry], replay, confirm: dict) -> None:
     """Each record's residual under the axis's usual model as fitted that night (the ``normal``
     fit): its RMS over the record's noise floor per channel, into ``unexplained`` (1: explained
-    down to the noise). Not real-time: a replay a record."""
-    from hil.errors import HilError
-    from hil.fleet.run import _read
-    from hil.ident.replay import Replay
-    from hil.ident.tracking import _configured
+    down to the noise). Not real-time: a simulation a record."""
     for e in good:
         fit = confirm.get(e.id, {}).get("models", {}).get("normal")
-        if fit is None:
+        rp = replay(e) if fit is not None else None
+        if rp is None:
             continue
-        cfg = configs[e.config or default]
         try:
-            rp = Replay(_read(Path(e.record).read_bytes(), e.record, cfg, settings.mapping), cfg)
-            res = rp.residuals(_configured(cfg.with_values(fit.get("plant") or {}), fit["values"]))
-        except (HilError, OSError, ValueError, ArithmeticError):
+            res = rp.residuals(_night_model(rp.cfg, fit, fit["values"]))
+        except (HilError, ValueError, ArithmeticError):     # a value the config cannot hold
             continue
         confirm[e.id]["unexplained"] = {c: float(np.sqrt(np.mean(r * r)) / rp.noise[c]) for c, r in res.items()
                                         if r.size and rp.noise.get(c, 0.0) > 0}
 
 
-def contribution(entry: Entry, cfg, mapping, fit: dict, effect: str) -> tuple[dict, dict]:
-    """What the effect ``effect`` does to the record ``entry`` in the night's model of ``fit``
-    (``values`` {effect.param: SI} on its ``plant`` {key: SI}): per measured channel, the RMS of
-    the change of the simulated channel when the effect is taken out, every other effect kept
-    ({channel: SI}; a figure per night whatever the effect's parametrisation), and the record's
-    noise floor per channel (hil.ident.noise, RMS SI: what the record cannot resolve); ({}, {})
-    where the record cannot be replayed."""
-    from hil.errors import HilError
-    from hil.fleet.run import _read
-    from hil.ident.replay import Replay
+def _night_model(cfg, fit: dict, values: dict):
+    """``cfg`` on the night's plant of ``fit`` with the effects of ``values`` ({effect.param: SI})."""
     from hil.ident.tracking import _configured
+    return _configured(cfg.with_values(fit.get("plant") or {}), values)
+
+
+def contribution(rp, fit: dict, effect: str) -> dict:
+    """What the effect ``effect`` does to the record of the replay ``rp`` in the night's model of
+    ``fit`` (``values`` {effect.param: SI} on its ``plant`` {key: SI}): per measured channel, the RMS
+    of the change of the simulated channel when the effect is taken out, every other effect kept
+    ({channel: SI}; a figure per night whatever the effect's parametrisation); {} where the model
+    cannot be simulated."""
+    others = {k: v for k, v in fit["values"].items() if not k.startswith(effect + ".")}
     try:
-        rp = Replay(_read(Path(entry.record).read_bytes(), entry.record, cfg, mapping), cfg)
-        plant = cfg.with_values(fit.get("plant") or {})
-        others = {k: v for k, v in fit["values"].items() if not k.startswith(effect + ".")}
-        with_it = rp.residuals(_configured(plant, fit["values"]))
-        without = rp.residuals(_configured(plant, others))
-    except (HilError, OSError, ValueError, ArithmeticError):
-        return {}, {}
-    return ({c: float(np.sqrt(np.mean((with_it[c] - without[c]) ** 2))) for c in with_it if with_it[c].size},
-            {c: float(v) for c, v in rp.noise.items()})
+        with_it = rp.residuals(_night_model(rp.cfg, fit, fit["values"]))
+        without = rp.residuals(_night_model(rp.cfg, fit, others))
+    except (HilError, ValueError, ArithmeticError):     # a value the config cannot hold
+        return {}
+    return {c: float(np.sqrt(np.mean((with_it[c] - without[c]) ** 2))) for c in with_it if with_it[c].size}
 
 
 def _merge(into: dict, fig: dict, model: str) -> None:

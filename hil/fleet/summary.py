@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 
 from hil.fleet.manifest import Entry
-from hil.fleet.spc import K_SIGMA, SCATTER, cusum_alarm, judge_series, new_effects, normal_effects
+from hil.fleet.spc import K_SIGMA, SCATTER, control_limits, cusum_alarm, judge_series, new_effects, normal_effects
 
 __all__ = ["judge_fleet", "rows", "N_BASELINE"]
 
@@ -163,23 +163,22 @@ def _unconfirmed_moves(good: list[Entry], confirm: dict | None, name: str, base:
 
 def _channels_moved(per: list, floors: list[dict], base: list[int], scatter: float) -> bool | None:
     """Whether figures per channel ({channel: SI} per record) left the baseline's: each channel
-    standardised by the larger of the baseline's standard deviation, ``scatter`` of its centre
-    and the record's ``floors``, the mean over the channels beyond :data:`K_SIGMA` on a record
+    standardised by the larger of its control limits' spread (hil.fleet.spc.control_limits) and
+    the record's ``floors``, the mean over the channels beyond :data:`K_SIGMA` on a record
     after the baseline or alarming the CUSUM; None where a record has no figures."""
     if not per or any(not c for c in per):
         return None
     z = [[] for _ in per]
     for chan in per[0]:
         vals = [c.get(chan, math.nan) for c in per]
-        ref = [vals[i] for i in base if math.isfinite(vals[i])]
-        if not ref:
-            continue
-        centre = sum(ref) / len(ref)
-        sd = math.sqrt(sum((v - centre) ** 2 for v in ref) / (len(ref) - 1)) if len(ref) > 1 else 0.0
+        try:
+            lim = control_limits([vals[i] for i in base], scatter)
+        except ValueError:
+            continue                # no baseline figure of this channel
         for i, v in enumerate(vals):
-            s = max(sd, scatter * abs(centre), float(floors[i].get(chan, 0.0)))
+            s = max(lim.sigma, float(floors[i].get(chan, 0.0)))
             if math.isfinite(v) and s > 0:
-                z[i].append((v - centre) / s)
+                z[i].append((v - lim.centre) / s)
     mean = [sum(zi) / len(zi) if zi else math.nan for zi in z]
     after = max(base) + 1
     alarm, _ = cusum_alarm(mean[after:])
