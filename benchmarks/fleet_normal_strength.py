@@ -54,12 +54,7 @@ def _record(args):
     _, start, salt = FLEETS[fleet]
     date = (start + dt.timedelta(days=7 * night)).isoformat()
     seed = int.from_bytes(hashlib.sha256(f"{salt}{axis}|{date}".encode()).digest()[:4], "little")
-    rng = np.random.default_rng(seed)
-
-    def scattered(v):
-        return v * (1.0 + SCATTER * rng.standard_normal())
-    b = bench.changed(m=tuple(scattered(v) for v in bench.m), k=tuple(scattered(v) for v in bench.k),
-                      c=tuple(scattered(v) for v in bench.c))
+    b, scattered = ivp.scattered(bench, np.random.default_rng(seed), SCATTER)
     level, gap = scattered(LEVELS.get(axis, [STEADY_LEVEL] * NIGHTS)[night]), scattered(GAPS.get(axis, [GAP] * NIGHTS)[night])
     amp = RIPPLES.get(axis, [0] * NIGHTS)[night]
     ripple = ((scattered(amp), 0.005, 0.7),) if amp else ()

@@ -135,6 +135,16 @@ def sine_square_move(t, stroke: float, v_max: float, a_max: float):
     return s * x, T
 
 
+def scattered(bench: Bench, rng, scatter: float):
+    """A night of a healthy axis: (``bench`` with every mass, stiffness and damping times
+    1 + ``scatter`` N(0, 1), drawn from ``rng`` in that order, and the function that scatters any
+    other value the same way, from the same ``rng``)."""
+    def night(v):
+        return v * (1.0 + scatter * rng.standard_normal())
+    return bench.changed(m=tuple(night(v) for v in bench.m), k=tuple(night(v) for v in bench.k),
+                         c=tuple(night(v) for v in bench.c)), night
+
+
 def command_sequence(duration: float, tp: float, seed: int, travel: float = 0.08, v_max: float = 0.2,
                      a_max: float = 6.0) -> np.ndarray:
     """A varied command on the tick clock (one more sample than ticks, for the last tick's

@@ -40,12 +40,7 @@ DATES = [(dt.date(2026, 9, 7) + dt.timedelta(days=7 * i)).isoformat() for i in r
 def _record(args):
     out, axis, i = args
     seed = int.from_bytes(hashlib.sha256(f"default|{axis}|{DATES[i]}".encode()).digest()[:4], "little")
-    rng = np.random.default_rng(seed)
-
-    def night(v):
-        return v * (1.0 + SCATTER * rng.standard_normal())
-    bench = BENCH.changed(m=tuple(night(v) for v in BENCH.m), k=tuple(night(v) for v in BENCH.k),
-                          c=tuple(night(v) for v in BENCH.c))
+    bench, night = ivp.scattered(BENCH, np.random.default_rng(seed), SCATTER)
     level, gap = 0.3, 4e-6
     if i == NIGHTS - 1 and axis in DRIFT:
         effect, size = DRIFT[axis]

@@ -47,12 +47,7 @@ def _record(args):
     """One night of one axis: (file name, true gap, true level)."""
     out, axis, date, drift, salt = args
     seed = int.from_bytes(hashlib.sha256(f"{axis}|{date}|{salt}".encode()).digest()[:4], "little")
-    rng = np.random.default_rng(seed)
-
-    def night(v):
-        return v * (1.0 + SCATTER * rng.standard_normal())
-    bench = BENCH.changed(m=tuple(night(v) for v in BENCH.m), k=tuple(night(v) for v in BENCH.k),
-                          c=tuple(night(v) for v in BENCH.c))
+    bench, night = ivp.scattered(BENCH, np.random.default_rng(seed), SCATTER)
     gap, level = GAP, LEVEL
     if drift and date >= drift[1]:
         gap, level = (gap + drift[2], level) if drift[0] == "backlash.gap" else (gap, level + drift[2])
