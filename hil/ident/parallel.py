@@ -42,7 +42,12 @@ def _start_worker(replay, res0) -> None:
 
 
 def _work(args):
-    c = _safe_eval(_worker_inputs["replay"], _worker_inputs["res0"], *args)
+    try:
+        c = _safe_eval(_worker_inputs["replay"], _worker_inputs["res0"], *args)
+    except Exception as exc:
+        # handed back as a value, raised by the parent once every reply is in: a pool terminated
+        # while a worker is mid-reply (it holds the result queue's lock) deadlocks its task handler
+        return exc
     if c is not None:
         c.cfg = None            # configs stay in the parent (rebuilt there)
     return c
@@ -121,16 +126,21 @@ def evaluate_many(replay, work, res0, jobs, progress):
         except ValueError:
             ctx = None
         if ctx is not None:
-            out = []
+            out, failed = [], None
             from hil.pool import die_with_parent
             with ctx.Pool(min(jobs, len(work)), initializer=die_with_parent,
                           initargs=(os.getpid(), _start_worker, replay, res0)) as pool:
                 for c in pool.imap(_work, work):
+                    if isinstance(c, Exception):
+                        failed = failed or c
+                        continue
                     if progress:
                         progress(c.effect if c else "?")
-                    if c is not None:
+                    if c is not None and failed is None:
                         c.cfg = configure(candidate(c.effect, replay.cfg), replay.cfg, c.params)
                     out.append(c)
+            if failed is not None:
+                raise failed
             return out
     return in_threads(lambda item: _safe_eval(replay, res0, *item), work,
                       (lambda item: progress(item[0])) if progress else None)
