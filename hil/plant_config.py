@@ -69,7 +69,8 @@ def plant_from_config(cfg: Config) -> Plant:
         table_resolution=cfg.get("sensors.table_resolution", 0.0),
         motor_resolution=cfg.get("sensors.motor_resolution", 0.0),
         pitch=pitch,
-        current_loop_time_constant=cfg.get("actuator.current_loop_time_constant", 0.0))
+        current_loop_time_constant=cfg.get("actuator.current_loop_time_constant", 0.0),
+        endless=cfg.get("plant.endless"))
     return apply_effects(plant, cfg)
 
 
@@ -154,6 +155,8 @@ def without_replaced(cfg: Config) -> Config:
 def apply_effects(plant: Plant, cfg: Config) -> Plant:
     """The plant with every effect the config switches on (sections ``[effects.<name>]``)."""
     for name, eff, values in _configured_effects(cfg):
+        if why := eff.unsuited(plant):
+            raise ConfigError(f"{cfg.source}: effects.{name}: this axis cannot have it: {why}")
         try:
             plant = eff.apply(plant, values)
         except ValueError as exc:        # the physics names the effect; the key says it here

@@ -46,7 +46,8 @@ class Plant:
     the drive gain for a linear actuator). ``speed_scale``: controller speed units per m/s of
     mass 1 (2 pi/p: rad/s of the motor; 1 for a linear actuator). ``table``, ``tip``: 0-based
     mass indices of the linear encoder and the tool tip. ``effects``: kernel terms of the plant
-    effects (see :mod:`sim_plant.effects`)."""
+    effects (see :mod:`sim_plant.effects`). ``endless``: the axis turns without end (a motor alone,
+    a rotary table): no travel along which a force or a stiffness can change."""
     chain: Chain
     force_gain: float
     speed_scale: float
@@ -58,6 +59,7 @@ class Plant:
     pitch: float | None = None
     current_loop_time_constant: float = 0.0
     effects: tuple = field(default=())
+    endless: bool = False
 
     @property
     def n(self) -> int:

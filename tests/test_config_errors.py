@@ -19,7 +19,7 @@ def write(tmp_path, text):
 
 CASES = {
     "unknown key": (BASE.replace("[plant]\n", "[plant]\nm9x = 1\n"),
-                    "unknown key 'plant.m9x' (known keys in [plant]: plant.cN, plant.kN, plant.mN, plant.pitch, "
+                    "unknown key 'plant.m9x' (known keys in [plant]: plant.cN, plant.endless, plant.kN, plant.mN, plant.pitch, "
                     "plant.table_mass, plant.tip_mass, plant.tolerance)"),
     "unknown section": (BASE + "\n[foo]\nbar = 1\n", "unknown key 'foo.bar' (known sections: actuator, backend, canopen, control, effects, fleet, friction, "
                        "limits, measurement, meta, nc, noise, plant, runtime, sensors, serial, supervisor"),

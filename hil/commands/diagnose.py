@@ -1,7 +1,7 @@
 """``hil diagnose``: which physical effect is the model missing?"""
 from __future__ import annotations
 
-from hil.commands.record_inputs import add_common, load_records, make_records, make_replay
+from hil.commands.record_inputs import add_common, check_candidates, load_records, make_records, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
 
@@ -66,6 +66,13 @@ JSON_KEYS = {
     "shown_together": JsonKey("", "two effects that show only together: no single effect closed half the gap, the best "
                                   "fit with the next verdict on top of it did (the chain's first step adds both)",
                               when="the chain found such a pair"),
+    "alternatives": JsonKey("", "the candidates this record cannot tell from the first diagnosis's verdict (a mass on "
+                                "the table or on the motor side): of (that verdict), effect, score, evidence, "
+                                "against_verdict and verdict_against (each fit's BIC score with the other's residual "
+                                "as before; both at most 6); [] when none"),
+    "not_tried": JsonKey("", "the catalogue effects this axis cannot have, each with the reason (a cable carrier on an "
+                             "axis that turns without end, plant.endless; backlash without a transmission link): "
+                             "`{effect: reason}`, never candidates; `{}` where --candidates names them"),
     "also_missing": JsonKey("", "effects missing beside the verdict (a preferred combination's other members): "
                                 "effect, params (SI), score (the BIC fall when it is left out), significant, "
                                 "evidence"),
@@ -280,7 +287,7 @@ def candidates_json(d, unit=None):
     out["units"] = {"noise_floor": per_channel, "error_before": per_channel}
     if "residual" in d:
         out["residual"] = d["residual"]
-    for k in ("shown_together", "estimation", "validation", "run_to_run", "skill"):
+    for k in ("shown_together", "estimation", "validation", "run_to_run", "skill", "not_tried", "alternatives"):
         if k in d:
             out[k] = d[k]
     if "chain" in d:
@@ -291,9 +298,8 @@ def candidates_json(d, unit=None):
 
 
 def run(args) -> int:
-    from hil.ident.diagnosis import diagnose
+    from hil.ident.diagnosis import diagnose, not_tried
     from hil.ident.unexplained import HALF_GAP, describe
-    from hil.plant_config import candidate
     if args.out and (args.no_chain or args.max_steps <= 1):
         # the single diagnosis adds nothing to the model: there is no config to write (it wrote
         # nothing and said nothing)
@@ -303,11 +309,7 @@ def run(args) -> int:
     rp = make_records(args, cfg, metas)     # the floor: the estimation records' alone, never --validate's
     sampling = None
     names = args.candidates.split(",") if args.candidates else None
-    for n in names or []:
-        try:
-            candidate(n, cfg)
-        except KeyError as exc:
-            raise UserError(str(exc).strip("'\"")) from None
+    check_candidates(names, cfg, rp.plant, "--candidates")
     from hil.commands.progress import bar
     from hil.commands.record_inputs import prompt_interrupt
     val_rps = None
@@ -318,6 +320,8 @@ def run(args) -> int:
         else:
             d, cfg, rp, sampling = _chain_both_samplings(args, cfg, metas, rp, names, prog, vals)
             val_rps = [make_replay(args, cfg, m) for m in vals] or None
+    # what the catalogue holds but this axis cannot have, and why (asked for by name, it was refused above)
+    d["not_tried"] = {} if names else not_tried(rp.plant)
     rr = run_to_run(d, rp)
     if rr is not None:
         d["run_to_run"] = rr
@@ -432,6 +436,15 @@ def ranking_text(d, limit: int | None = None) -> list[str]:
     if d.get("shown_together"):
         lines.append(f"    {d['shown_together']}")
     shown = {verdict}
+    from hil.ident.scores import MIN_SCORE
+    for a in d.get("alternatives", []):
+        if a["of"] != verdict:      # the chain named another verdict than the first diagnosis's
+            continue
+        lines.append(f"or {a['effect']} (score {a['score']:.1f}): this record cannot tell it from {verdict}, neither "
+                     f"fit's residual beats the other's by a BIC of {MIN_SCORE:g}; a record that excites them "
+                     f"differently would")
+        lines.append(f"    {a['evidence']}")
+        shown.add(a["effect"])
     for m in d.get("also_missing", []):
         lines.append(f"also missing: {m['effect']} (score {m['score']:.1f} in the joint fit beside {verdict}: "
                      f"the fall of the BIC when it is left out)")
@@ -464,7 +477,14 @@ def ranking_text(d, limit: int | None = None) -> list[str]:
         lines.append(f"joint candidate {' + '.join(j['effects'])} ({how}): score {j['score']:.1f}, "
                      f"{100 * j['gain']:.0f} % of the weighted error removed, the second member "
                      f"{j['second_member_score']:.1f} on top -> {'named first' if j['preferred'] else 'not named'}")
-    return lines
+    return lines + not_tried_text(d.get("not_tried"))
+
+
+def not_tried_text(not_tried: dict | None) -> list[str]:
+    """The catalogue effects this axis cannot have, one line per reason."""
+    from hil.ident.diagnosis import by_reason
+    return [f"not tried, cannot act on this axis: {', '.join(names)} ({why})"
+            for why, names in by_reason(not_tried).items()]
 
 
 def write_html_report(path, d, rp, cfg, args, record) -> None:

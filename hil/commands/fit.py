@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from hil.commands.record_inputs import add_common, load_records, make_records, make_replay
+from hil.commands.record_inputs import add_common, check_candidates, load_records, make_records, make_replay
 from hil.errors import UserError
 from hil.io.jsonout import JsonKey, dumps
 
@@ -117,17 +117,12 @@ def run(args) -> int:
         return _run_frequency(args)
     from hil.ident.fit import fit_effects, joint_refit
     from hil.ident.records import errors_text, estimation_validation
-    from hil.plant_config import candidate
     cfg, metas, vals = load_records(args)
     _check_out(args)
-    for n in args.add:
-        try:
-            candidate(n, cfg)
-        except KeyError as exc:
-            raise UserError(str(exc).strip("'\"")) from None
     refit = _refit_keys(args.refit)
     refit_se: dict = {}
     rp = make_records(args, cfg, metas)
+    check_candidates(args.add, cfg, rp.plant, "--add")
     before = {c: float((rp.base_residuals[c] ** 2).mean() ** 0.5) for c in rp.channels}
     from hil.commands.progress import bar
     with bar("fit", args) as prog:          # fit_effects tells it the total (hil.ident.progress.expect)

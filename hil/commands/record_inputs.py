@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from contextlib import contextmanager
 
-__all__ = ["add_common", "load_inputs", "load_records", "make_records", "make_replay", "prompt_interrupt"]
+__all__ = ["add_common", "check_candidates", "load_inputs", "load_records", "make_records", "make_replay", "prompt_interrupt"]
 
 
 def add_common(parser, records: bool = False) -> None:
@@ -142,6 +142,20 @@ def make_records(args, cfg, measurements):
         parts = [Replay(m, cfg, chans, align=getattr(args, "align", False),
                         open_loop=getattr(args, "open_loop", False)) for m in measurements]
     return Records(parts)
+
+
+def check_candidates(names, cfg, plant, option: str) -> None:
+    """Refuse, in one line, a candidate name the catalogue and the config do not know, or an effect
+    this axis cannot have (with the reason: backlash without a transmission link)."""
+    from hil.errors import UserError
+    from hil.plant_config import candidate
+    for n in names or ():
+        try:
+            why = candidate(n, cfg).unsuited(plant)
+        except KeyError as exc:
+            raise UserError(str(exc).strip("'\"")) from None
+        if why:
+            raise UserError(f"{option} {n}: cannot act on this axis: {why}")
 
 
 def make_replay(args, cfg, meas):

@@ -84,6 +84,9 @@ SCHEMA: dict[str, Field] = {
                              default=0.05, nonnegative=True, maximum=0.5),
     "plant.tip_mass": Field("int", "which mass is the tool tip (x_tip); 0 = the last mass", default=0,
                             nonnegative=True),
+    "plant.endless": Field("bool", "true: the axis turns without end (a motor alone on a bench, a rotary table), "
+                           "so nothing can change along its travel: hil diagnose tries no cable carrier, no "
+                           "stiffness along the travel and no screw elongation (and says so)", default=False),
     # --- friction on the motor (Eq. 11) ----------------------------------------------------
     "friction.viscous": Field(_rot_or_lin_damping, "viscous friction on the motor, c_m (Eq. 11)", default=0.0,
                               nonnegative=True),

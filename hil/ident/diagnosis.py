@@ -51,7 +51,7 @@ from sim_plant.effects import CATALOGUE
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["diagnose", "candidate_names", "is_open_loop", "Combo", "Joint", "pair_score", "EXPLAINED"]
+__all__ = ["diagnose", "candidate_names", "not_tried", "by_reason", "look_alikes", "is_open_loop", "Combo", "Joint", "pair_score", "EXPLAINED"]
 
 EXPLAINED = 0.8          # a combination of simpler effects explaining this share of a richer one's gain goes first
 
@@ -64,6 +64,20 @@ def candidate_names(cfg, plant, include_parameters: bool = True, open_loop: bool
     if include_parameters:
         names += default_parameters(cfg, closed_loop=not open_loop)
     return names
+
+
+def not_tried(plant) -> dict[str, str]:
+    """The catalogue effects that cannot act on ``plant``, each with the reason (Effect.unsuited):
+    a cable carrier on an axis that turns without end is not a candidate, never a finding."""
+    return {n: why for n, e in CATALOGUE.items() if (why := e.unsuited(plant))}
+
+
+def by_reason(not_tried: dict[str, str] | None) -> dict[str, list[str]]:
+    """{reason: [effects]} of :func:`not_tried`'s answer, the reasons in catalogue order."""
+    out: dict[str, list[str]] = {}
+    for name, why in (not_tried or {}).items():
+        out.setdefault(why, []).append(name)
+    return out
 
 
 def is_open_loop(replay) -> bool:
@@ -142,10 +156,45 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
          "noise_floor_source": {c: replay.noise_sources[c]["source"] for c in replay.noise}}
     if verdict == "unexplained":
         d["residual"] = residual_evidence(replay, res0, best)
+    d["alternatives"] = look_alikes(next((c for c in ranked if c.effect == verdict), None), ranked,
+                                    list(replay.objective.weights), replay.noise, replay.plant)
     for c in ranked:
         logger.debug("candidate %s: score %.1f, params %s", c.effect, c.score, c.params)
     logger.info("diagnosis: verdict %s (%d candidates; gap closed %.2f)", verdict, len(ranked), closed)
     return d
+
+
+def look_alikes(lead: Candidate | None, ranked: list, chans, floor=None, plant=None) -> list[dict]:
+    """The candidates this record cannot tell from the verdict ``lead``: significant, neither nested
+    in the other nor the config key the other changes, and neither fit's residual beating the other's by :data:`MIN_SCORE` (the same BIC
+    as a score, each fit's residual as the other's "before", the richer paying for its extra
+    parameters). A mass on the table and one on the
+    motor side, on a record that barely excites the mode between them: one finding, two places.
+    Each: of (the verdict), effect, score, evidence, and the two pair scores (the alternative against the verdict,
+    the verdict against it)."""
+    if lead is None or lead.res is None:
+        return []
+    out = []
+    for c in ranked:
+        if c is lead or isinstance(c, Combo) or not c.significant or c.res is None or getattr(c, "degenerate", ""):
+            continue
+        if _same_physics(lead.effect, c.effect, plant) or _same_physics(c.effect, lead.effect, plant):
+            continue
+        k = len(c.params) - len(lead.params)      # the richer one pays for its extra parameters
+        ahead = bic_score(lead.res, c.res, chans, max(k, 0), floor)
+        behind = bic_score(c.res, lead.res, chans, max(-k, 0), floor)
+        if max(ahead, behind) <= MIN_SCORE:
+            out.append({"of": lead.effect, "effect": c.effect, "score": float(c.score), "evidence": c.evidence,
+                        "against_verdict": float(ahead), "verdict_against": float(behind)})
+    return out
+
+
+def _same_physics(a: str, b: str, plant) -> bool:
+    """``b`` is nested in effect ``a`` (Coulomb friction in Stribeck's), or is the config key that
+    ``a`` is a change of (mass_change is parameter:plant.m<table>)."""
+    eff = CATALOGUE.get(a)
+    return eff is not None and (b in getattr(eff, "nests", ())
+                                or (plant is not None and b == f"parameter:{eff.drifted_key(plant)}"))
 
 
 def _cost_hint(name, cfg) -> float:

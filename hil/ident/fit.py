@@ -373,8 +373,8 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
     cfg = replay.cfg
     res0 = res0 if res0 is not None else replay.residuals(cfg)
     eff = candidate(name, cfg)
-    if not eff.applicable(replay.plant):
-        raise ValueError(f"{name}: not applicable to this plant")
+    if why := eff.unsuited(replay.plant):
+        raise ValueError(f"{name}: cannot act on this axis: {why}")
     obj = replay.objective
     scale = record_scales(replay, res0)
     starts = [dict(start)] if start else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)]

@@ -364,8 +364,12 @@ def _diagnosis_context(d: dict, cfg=None) -> dict:
     if res:
         from hil.ident.unexplained import describe
         lines = [engineering_text(x) for x in describe(res)]
+    from hil.ident.diagnosis import by_reason
+    not_tried = _table(["not tried", "why this axis cannot have them"],
+                       [[", ".join(names), why] for why, names in by_reason(d.get("not_tried")).items()])
     return dict(ranking=ranking, also_missing=also if also["rows"] else None,
-                combinations=combos if combos["rows"] else None, chain=chain, chain_end=end, unexplained=lines,
+                combinations=combos if combos["rows"] else None, not_tried=not_tried if not_tried["rows"] else None,
+                chain=chain, chain_end=end, unexplained=lines,
                 min_score=f"{MIN_SCORE:g}", verdict=_diagnosis_verdict(d, u),
                 verdict_label="Verdict (the effect the model misses)")
 

@@ -147,9 +147,14 @@ class Effect(ABC):
         (hil.ident.tolerance)."""
         return None
 
+    def unsuited(self, plant: Plant) -> str:
+        """Why the effect cannot act on this plant (backlash needs a transmission link; a cable
+        carrier needs a travel with ends), or "" where it can. The one hook subclasses implement."""
+        return ""
+
     def applicable(self, plant: Plant) -> bool:
-        """Whether the effect can act on this plant (e.g. backlash needs a transmission link)."""
-        return True
+        """Whether the effect can act on this plant (:meth:`unsuited` gives no reason against it)."""
+        return not self.unsuited(plant)
 
     def guess(self, plant: Plant, scale: dict) -> dict[str, float]:
         """Starting values for a fit; ``scale`` gives typical magnitudes of the record (force N,
@@ -234,6 +239,22 @@ CATALOGUE: dict[str, Effect] = {}
 ALIASES: dict[str, str] = {"time_delay": "actuator_delay"}
 
 
+def no_link(plant: Plant) -> str:
+    """Why an effect of the transmission (link 1) cannot act on ``plant``, or ""."""
+    return "" if plant.n >= 2 else f"no transmission link: the chain has {plant.n} mass"
+
+
+def no_travel(plant: Plant) -> str:
+    """Why an effect that changes along the travel cannot act on ``plant``, or ""."""
+    return ("the axis turns without end (plant.endless): no travel for it to change along"
+            if plant.endless else "")
+
+
+def no_tip(plant: Plant) -> str:
+    """Why an artefact of the tool tip's own instrument cannot act on ``plant``, or ""."""
+    return "" if plant.tip != plant.table else "no tool tip apart from the table: x_tip is x_table"
+
+
 def register(cls):
     """Class decorator: add an effect to the catalogue under its name."""
     inst = cls()
@@ -302,8 +323,8 @@ class Combination(Effect):
         return [{p.name: values[f"{n}.{p.name}"] for p in m.params if f"{n}.{p.name}" in values}
                 for n, m in zip(self.names, self.members)]
 
-    def applicable(self, plant):
-        return all(m.applicable(plant) for m in self.members)
+    def unsuited(self, plant):
+        return next((why for why in (m.unsuited(plant) for m in self.members) if why), "")
 
     def apply(self, plant, values):
         for m, v in zip(self.members, self.split(values)):

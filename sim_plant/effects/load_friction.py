@@ -37,7 +37,7 @@ import dataclasses
 import numpy as np
 
 from sim_plant import kernel
-from sim_plant.effects.base import Effect, Param, level_guess, motor_force_kind, register, to_linear
+from sim_plant.effects.base import Effect, Param, level_guess, motor_force_kind, no_link, register, to_linear
 from sim_plant.effects.friction import MIN_MOVING
 from sim_plant.plant import Friction
 
@@ -70,8 +70,8 @@ class LoadDependentFriction(Effect):
     mimicked_by = (("coulomb_friction", "mass_change"),)
     synth_strength = {"preload": 1.0, "coefficient": 0.15}
 
-    def applicable(self, plant):
-        return plant.n >= 2
+    def unsuited(self, plant):
+        return no_link(plant)
 
     def apply(self, plant, values):
         self._need_link(plant)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim_plant.effects.base import Param, RecordEffect, motor_force_kind, register, to_linear
+from sim_plant.effects.base import Param, RecordEffect, motor_force_kind, no_tip, register, to_linear
 
 __all__ = ["ChannelSkew", "TipSkew", "ForceOffset", "PositionOffset"]
 
@@ -64,8 +64,8 @@ class TipSkew(ChannelSkew):
     channels = ("x_tip",)
     synth_strength = {"skew": 8e-3}
 
-    def applicable(self, plant):
-        return plant.tip != plant.table
+    def unsuited(self, plant):
+        return no_tip(plant)
 
 
 @register
@@ -121,8 +121,8 @@ class PositionOffset(RecordEffect):
     params = (Param("offset", "length", -1.0, 1.0, 0.0, "offset of the recorded x_tip channel"),)
     channels = ("x_tip",)
 
-    def applicable(self, plant):
-        return plant.tip != plant.table
+    def unsuited(self, plant):
+        return no_tip(plant)
 
     def apply_record(self, t, channels, values):
         out = dict(channels)

@@ -20,7 +20,7 @@ import math
 import numpy as np
 
 from sim_plant import kernel
-from sim_plant.effects.base import Effect, Param, register
+from sim_plant.effects.base import Effect, Param, no_link, no_travel, register
 from sim_plant.modal import transmission_mode
 
 __all__ = ["Backlash", "StiffnessAlongTravel", "StiffnessFixedFixed", "PitchError"]
@@ -32,8 +32,8 @@ class Backlash(Effect):
     description = "backlash: a dead zone of +-gap/2 in the transmission between motor and table (link 1)"
     params = (Param("gap", "length", 0.0, 2e-3, 5e-6, "total play of the transmission"),)
 
-    def applicable(self, plant):
-        return plant.n >= 2
+    def unsuited(self, plant):
+        return no_link(plant)
 
     def apply(self, plant, values):
         self._need_link(plant)
@@ -99,8 +99,8 @@ class StiffnessAlongTravel(Effect):
     # variation (a uniform drift of k1 is not a stiffness along the travel)
     nests = ("parameter:plant.k1",)
 
-    def applicable(self, plant):
-        return plant.n >= 2
+    def unsuited(self, plant):
+        return no_travel(plant) or no_link(plant)
 
     def apply(self, plant, values):
         self._need_link(plant)
@@ -170,8 +170,8 @@ class PitchError(Effect):
               Param("phase", "dimensionless", -4 * math.pi, 4 * math.pi, 0.0, "phase at x1 = 0 (rad)"))
     periodic = True
 
-    def applicable(self, plant):
-        return plant.n >= 2
+    def unsuited(self, plant):
+        return no_link(plant)
 
     def apply(self, plant, values):
         self._need_link(plant)

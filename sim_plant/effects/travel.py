@@ -19,7 +19,7 @@ import dataclasses
 import numpy as np
 
 from sim_plant import kernel
-from sim_plant.effects.base import Effect, Param, register
+from sim_plant.effects.base import Effect, Param, no_link, no_travel, register
 
 __all__ = ["ScrewElongation", "CableCarrier", "STEEL_EXPANSION"]
 
@@ -51,8 +51,8 @@ class ScrewElongation(Effect):
                     fit=False))
     synth_strength = {"strain": 60e-6, "x_ref": 0.0}
 
-    def applicable(self, plant):
-        return plant.n >= 2
+    def unsuited(self, plant):
+        return no_travel(plant) or no_link(plant)
 
     def apply(self, plant, values):
         self._need_link(plant)
@@ -86,6 +86,9 @@ class CableCarrier(Effect):
               Param("slope", "stiffness", -1e7, 1e7, 0.0, "its change per m of travel"))
     nests = ("constant_force",)
     synth_strength = {"force": 200.0, "slope": -3000.0}
+
+    def unsuited(self, plant):
+        return no_travel(plant)
 
     def apply(self, plant, values):
         return dataclasses.replace(plant, effects=plant.effects + (
