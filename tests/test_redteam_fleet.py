@@ -363,3 +363,23 @@ def test_a_parameter_that_moved_without_what_its_effect_does_is_no_flag():
     assert steady["verdict"] == "ok" and steady["findings"][0]["strength"] == "as in the baseline"
     assert steady["params"]["pitch_error.period"]["status"][-1] == "ok"
     assert judge_axis("D", es, figs, {}, confirm=confirm(grow=10.0))["verdict"] == drift
+
+
+def test_the_confirm_pass_counts_its_progress_over_the_whole_pass(monkeypatch):
+    """Each track set was counted on its own ("3/5", then "2/10"); one count over the pass now."""
+    from hil.fleet import batch
+    from hil.fleet.manifest import Entry
+    from hil.fleet.run import Settings
+
+    def fake_run(entries, configs, default, settings, out_dir, scheduler=None, jobs=None, progress=None):
+        for i, e in enumerate(entries):
+            progress(i + 1, len(entries), e.record)
+        return batch.FleetRun()
+
+    monkeypatch.setattr(batch, "run_fleet", fake_run)
+    es = [Entry(f"r{i}.csv", "A", f"2026-01-0{i + 1}") for i in range(3)]
+    plans = {("coulomb_friction",): [(e, "normal") for e in es],
+             ("backlash", "coulomb_friction"): [(e, "backlash") for e in es] + [(es[0], "backlash")]}
+    seen = []
+    batch._fit_plans(plans, {}, None, Settings(), None, {}, None, None, lambda *a: seen.append(a))
+    assert seen == [(i + 1, 6, f"r{i % 3}.csv") for i in range(6)]

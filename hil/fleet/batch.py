@@ -166,10 +166,14 @@ def _fit_plans(plans: dict, configs: dict, default, settings: Settings, out_dir,
     """Each track set's fit on its records (:func:`run_fleet`, no chain), merged into ``out`` under
     the model each record's entry names."""
     from dataclasses import replace
+    total, before = sum(len({e.id for e, _ in items}) for items in plans.values()), 0
     for track, items in plans.items():
         run = replace(settings, track=track, candidates=None, max_steps=0)
         uniq = list({e.id: e for e, _ in items}.values())
-        res = run_fleet(uniq, configs, default, run, out_dir, scheduler=scheduler, jobs=jobs, progress=progress)
+        # counted over the whole pass, not per track set ("3/5", then "2/10")
+        step = None if progress is None else (lambda done, _n, rid, at=before: progress(at + done, total, rid))
+        res = run_fleet(uniq, configs, default, run, out_dir, scheduler=scheduler, jobs=jobs, progress=step)
+        before += len(uniq)
         for e, model in items:
             _merge(out.setdefault(e.id, {"values": {}, "stderr": {}}), res.figures.get(e.id, {"error": "not run"}),
                    model)
@@ -232,8 +236,8 @@ def _unexplained(good: list[Entry], replay, confirm: dict) -> None:
 
 def _night_model(cfg, fit: dict, values: dict):
     """``cfg`` on the night's plant of ``fit`` with the effects of ``values`` ({effect.param: SI})."""
-    from hil.ident.tracking import _configured
-    return _configured(cfg.with_values(fit.get("plant") or {}), values)
+    from hil.ident.tracking import with_effects
+    return with_effects(cfg.with_values(fit.get("plant") or {}), values)
 
 
 def contribution(rp, fit: dict, effect: str) -> dict:

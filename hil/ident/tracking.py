@@ -59,7 +59,7 @@ from sim_plant.effects import Combination
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["light_mode_keys", "fit_tracked", "on_nights_plant", "LIGHT_ZETA"]
+__all__ = ["light_mode_keys", "fit_tracked", "on_nights_plant", "with_effects", "LIGHT_ZETA"]
 
 LIGHT_ZETA = 0.05       # a mode damped below this rings through the record's moves
 SCREEN, KEEP = 4.0, 8   # the profile refits the grid's points within SCREEN times the cheapest, at least KEEP
@@ -115,7 +115,7 @@ def _param_keys(name: str, cfg) -> dict[str, str]:
     return {p.name: f"effects.{eff.name}.{p.name}" for p in eff.fitted_params if not p.choices}
 
 
-def _configured(cfg, values: dict):
+def with_effects(cfg, values: dict):
     """``cfg`` with the effects of ``values`` ({effect.param: value}) switched on."""
     by: dict[str, dict] = {}
     for k, v in values.items():
@@ -377,7 +377,7 @@ def fit_tracked(replay, names, max_nfev: int = 40, plant: dict | None = None) ->
         if plant is not None:
             plant.update({k: float(replay.cfg[k]) for k in tolerance_keys(replay.cfg)})
         return values, stderr
-    start = _configured(replay.cfg, values)
+    start = with_effects(replay.cfg, values)
     cfg, _, test = on_nights_plant(replay, start, names, values=values)
     if test is not None:
         start = test["_config"]
