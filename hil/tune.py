@@ -30,7 +30,7 @@ import numpy as np
 from hil.shaping import ALL_KINDS, Shaper, shaped
 
 __all__ = ["Change", "Candidate", "TuneResult", "stable_start", "tune_gains", "choose_command", "mode_error",
-           "tip_settle_time", "margins_of", "matched", "command_trajectory", "BACKOFF", "T_ACC"]
+           "tip_settle_time", "margins_of", "value_text", "matched", "command_trajectory", "BACKOFF", "T_ACC"]
 
 BACKOFF = 0.9        # share of the largest gain that keeps the margins (the measurement has its error)
 T_ACC = (0.1, 0.125, 0.15, 0.175, 0.2, 0.25, 0.3, 0.4)     # NC acceleration times tried (s)
@@ -96,6 +96,18 @@ class TuneResult:
                 "steps": self.steps}
 
 
+def value_text(key: str, value) -> str:
+    """A config value as the user reads it: in an engineering unit where the key has one."""
+    from hil.config import field_for
+    from hil.units import DIMENSIONS, fmt
+    if value is None:
+        return "none"
+    kind = getattr(field_for(key), "kind", None)
+    if isinstance(value, float) and isinstance(kind, str) and kind in DIMENSIONS:
+        return fmt(value, kind)
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
 def margins_of(result) -> dict:
     """The measured loops' margins of an :class:`~hil.frf.FrfResult`: phase margin (deg), gain margin
     (dB; None: no phase crossover in the band), crossover (Hz), for the velocity and the position
@@ -134,8 +146,8 @@ def stable_start(cfg, changes: list[Change], limit: int = 8):
 def tune_gains(cfg, measure, pm_min: float, gm_min_db: float, changes: list[Change], steps: list[str]):
     """The velocity gain, then the position gain, each :data:`BACKOFF` of the largest that keeps
     the margins on the loop as measured (``measure(cfg) -> FrfResult``), then measured again and
-    backed off by 20 % while a margin is short (at most twice). Returns the tuned config, the
-    margins measured first and last, and the last measurement."""
+    backed off by 20 % while a margin is short (at most twice). Returns the tuned config and the
+    first and the last measurement (their margins: :func:`margins_of`)."""
     first = result = measure(cfg)
     steps.append("measured the frequency responses with the gains as given")
     for loop, key, name in (("velocity_loop", "control.kp", "kp_max"), ("position_loop", "control.kv", "kv_max")):
@@ -163,7 +175,7 @@ def tune_gains(cfg, measure, pm_min: float, gm_min_db: float, changes: list[Chan
                                   f"20 % less"))
         result = measure(cfg)
         steps.append("measured again after backing off")
-    return cfg, margins_of(first), margins_of(result), result
+    return cfg, first, result
 
 
 def mode_error(mode: dict, least: float = MIN_MODE_ERROR) -> float:

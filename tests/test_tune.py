@@ -69,6 +69,24 @@ def test_the_answer_comes_first_and_the_verification_is_the_record(tuned):
     assert d["choice"]["shaper"] != "none"
 
 
+def test_the_report_opens_with_the_answer_and_shows_the_choice_among_the_others(tuned):
+    """tune.html: the answer first, every command tried with the one chosen first, both figures."""
+    import re
+    d, out = tuned
+    page = (out / "tune.html").read_text()
+    assert d["report"] == str(out / "tune.html")
+    body = re.sub(r"<[^>]+>", " ", page[page.index("<body>"):])
+    assert body.index("Answer:") < body.index("What changed") < body.index("The command")
+    assert d["answer"] in " ".join(body.split())
+    rows = re.findall(r"<tr>(.*?)</tr>", page[page.index('id="commands-table"'):], re.S)
+    cells = [re.findall(r"<td[^>]*>(.*?)</td>", r, re.S) for r in rows]
+    cells = [c for c in cells if c][:len(d["candidates"])]
+    assert len(cells) == len(d["candidates"]) and cells[0][-1] == "yes" and all(c[-1] == "" for c in cells[1:])
+    c = d["choice"]
+    assert cells[0][0] == f"t_acc {c['t_acc_s'] * 1e3:.0f} ms, shaper {c['shaper']}"
+    assert page.count("data:image/png;base64,") == 2          # tune.png and tune_loops.png, embedded
+
+
 def test_the_gains_keep_the_margins_measured_afterwards(tuned, capsys, tmp_path):
     """A fresh ``hil frf`` of the tuned config (a measurement of its own) has PM >= 45 deg and
     GM >= 8 dB where a phase crossover is in the band, as the tune reported."""

@@ -27,7 +27,9 @@ Commissioning in one command, on any backend (the simulated plant by default):
      tolerance.
 Writes DIR/tuned.toml (the input config with every changed key, each with its reason: the
 gains, nc.t_acc, nc.g0, nc.shaper), so that 'hil move --config DIR/tuned.toml --stroke ...
---feed ...' alone makes the tuned move, and DIR/tune.json. Nothing is written to a drive.
+--feed ...' alone makes the tuned move, DIR/tune.json, and DIR/tune.html, the report (the answer
+first, the margins and the tip's arrival before and after, every command tried). Nothing is
+written to a drive.
 
   hil tune --config config/paper_bench.toml --stroke 100mm --feed 7000mm/min --tolerance 5um --out out/tune
 """
@@ -52,6 +54,9 @@ JSON_KEYS = {
     "tuned_config": JsonKey("", "path of the tuned config"),
     "plot": JsonKey("", "path of tune.png: the tip's arrival before and after, the shapers' residual vibration "
                         "against the mode's frequency error", when="without --no-plot"),
+    "report": JsonKey("", "path of tune.html: the answer, the changes and their reasons, the margins before and "
+                          "after, every command tried with the one chosen first, the verification, the figures "
+                          "(tune.png and tune_loops.png, the open loops as measured before and after)"),
 }
 
 
@@ -156,7 +161,8 @@ def run(args) -> int:
     def measure(c):
         say(f"measuring the frequency responses (kp {c['control.kp']:.4g}, kv {c['control.kv']:.4g})")
         return measure_axis(frf_args, c, pm_min, gm_min_db)[0]
-    cfg, before, after, last = tune.tune_gains(cfg, measure, pm_min, gm_min_db, changes, steps)
+    cfg, first, last = tune.tune_gains(cfg, measure, pm_min, gm_min_db, changes, steps)
+    before, after = tune.margins_of(first), tune.margins_of(last)
     mode = tune.tip_mode(last.modes)
     say("choosing the command: acceleration times and shapers on the model")
     cands, choice, eps = tune.choose_command(cfg, mode, stroke, feed, tol, dwell, least_error=least,
@@ -194,18 +200,22 @@ def run(args) -> int:
     write_config(tuned_path, cfg0.source, cfg, note=notes)
     res = tune.TuneResult(_answer(tol, verified, choice), changes, before, after, last.modes, eps, cands, choice,
                           verified, steps)
-    report = dict(res.as_json(), tuned_config=str(tuned_path))
+    report = dict(res.as_json(), tuned_config=str(tuned_path), report=str(out / "tune.html"))
+    figures = []
     if not args.no_plot:
-        from hil.plots.tune import plot_tune
+        from hil.plots.tune import plot_loops, plot_tune
         report["plot"] = str(plot_tune(out / "tune.png", tol, given_rec, tuned_rec, mode, eps,
                                        {"as given": verified.get("given_settle_s"),
                                         "tuned": verified.get("settle_s")}))
+        figures = [report["plot"], plot_loops(out / "tune_loops.png", first, last)]
     from hil.io.safe_write import write_atomic
+    from hil.plots.report import write_tune_report
+    write_tune_report(out / "tune.html", report, figures, config=str(args.config), tolerance=tol)
     write_atomic(out / "tune.json", dumps(report, indent=2))
     if args.json:
         print(dumps(report, indent=2))
     else:
-        _print(res, tuned_path, report.get("plot"))
+        _print(res, tuned_path, report.get("plot"), report["report"])
     return 0
 
 
@@ -230,19 +240,8 @@ def _answer(tol: float, verified: dict, choice) -> str:
     return f"the tuned move has the tool tip within {um} {t * 1e3:.0f} ms after its start ({ref})"
 
 
-def _value(key: str, value) -> str:
-    """A config value as the user reads it: in an engineering unit where the key has one."""
-    from hil.config import field_for
-    from hil.units import DIMENSIONS, fmt
-    if value is None:
-        return "none"
-    kind = getattr(field_for(key), "kind", None)
-    if isinstance(value, float) and isinstance(kind, str) and kind in DIMENSIONS:
-        return fmt(value, kind)
-    return f"{value:.4g}" if isinstance(value, float) else str(value)
-
-
-def _print(res, tuned_path, plot=None) -> None:
+def _print(res, tuned_path, plot=None, html=None) -> None:
+    from hil.tune import value_text as _value
     print(res.answer)
     for c in res.changes:
         print(f"  {c.key}: {_value(c.key, c.before)} -> {_value(c.key, c.after)}   ({c.reason})")
@@ -256,4 +255,4 @@ def _print(res, tuned_path, plot=None) -> None:
         print(f"  command: {res.choice.label}; on the model with the mode as measured {res.choice.settle_s * 1e3:.0f} "
               f"ms, worst with the modes {res.mode_error:.0%} off {res.choice.settle_worst_s * 1e3:.0f} ms "
               f"({len(res.candidates)} commands tried)")
-    print(f"  tuned config {tuned_path}" + (f", plot {plot}" if plot else ""))
+    print(f"  tuned config {tuned_path}" + (f", plot {plot}" if plot else "") + (f", report {html}" if html else ""))

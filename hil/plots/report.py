@@ -47,6 +47,12 @@ CAPTIONS = {
     "bode_plant": "Measured frequency responses of the plant against the model (magnitude and phase).",
     "bode_loops": "Measured frequency responses of the velocity and position loops against the model.",
     "coherence": "Coherence of the measured responses (1: noise-free and linear).",
+    "tune_loops": "The open velocity and position loops as measured, with the gains as given (grey) and as tuned: "
+                  "the phase margin is read where the magnitude crosses 0 dB, the gain margin where the phase "
+                  "crosses -180 deg.",
+    "tune": "Left: the tool tip's distance from its target after the start of the move, as given and tuned, with "
+            "the tolerance band (dotted: within it for good). Right: each shaper's residual vibration against the "
+            "tip mode's frequency error, the error the choice tolerates shaded.",
 }
 
 
@@ -603,3 +609,58 @@ def write_frf_report(path: Path, report: dict, figures=(), *, config: str | None
                config_diff=config_diff or "(none)",
                figures=[embed_png(f) for f in figures], validation=validation or [])
     return _write(path, render("frf.html.j2", **ctx))
+
+
+# --- hil tune ------------------------------------------------------------------------------------
+
+def write_tune_report(path: Path, report: dict, figures=(), *, config: str | None = None,
+                      tolerance: float | None = None) -> Path:
+    """The report of ``hil tune`` (``report``: its JSON, hil.tune.TuneResult.as_json): the answer,
+    the changes with their reasons, the margins before and after, the commands tried with the one
+    chosen first, the verification on the backend, the steps, the figures."""
+    from hil.tune import value_text
+
+    def ms(v, never="-"):
+        return never if v is None else f"{v * 1e3:.0f} ms"
+
+    def deg_db(v, unit):
+        return "none in the band" if v is None else f"{v:.1f} {unit}"
+
+    changes = _table(["key", "before", "after", "why"],
+                     [[c["key"], value_text(c["key"], c["before"]), value_text(c["key"], c["after"]),
+                       engineering_text(c["reason"])] for c in report.get("changes", [])])
+    rows = []
+    for loop, after in (report.get("margins_after") or {}).items():
+        before = (report.get("margins_before") or {}).get(loop, {})
+        rows.append([loop.replace("_", " ")] + [
+            f"{deg_db(before.get(k), u)} -> {deg_db(after.get(k), u)}"
+            for k, u in (("phase_margin_deg", "deg"), ("gain_margin_db", "dB"), ("crossover_hz", "Hz"))])
+    margins = _table(["loop", "phase margin", "gain margin", "crossover"], rows, numeric=(1, 2, 3))
+    choice = report.get("choice")
+    same = (lambda c: choice is not None and c["t_acc_s"] == choice["t_acc_s"] and c["shaper"] == choice["shaper"])
+    worst = (lambda c: math.inf if c["settle_worst_s"] is None else c["settle_worst_s"])
+    cands = sorted(report.get("candidates", []), key=lambda c: (not same(c), worst(c), c["move_s"]))
+    commands = _table(["command", "tip within the tolerance, mode as measured", "worst with the mode off",
+                       "move", "chosen"],
+                      [[f"t_acc {c['t_acc_s'] * 1e3:.0f} ms, shaper {c['shaper']}", ms(c["settle_s"], "not within"),
+                        ms(c["settle_worst_s"], "not within"), ms(c["move_s"]), "yes" if same(c) else ""]
+                       for c in cands],
+                      numeric=(1, 2, 3))
+    v = report.get("verified") or {}
+    verified = _table(["backend", "status", "tuned move: tip within the tolerance", "move as given"],
+                      [[v.get("backend", "-"), v.get("status", "-"), ms(v.get("settle_s"), "not within"),
+                        ms(v.get("given_settle_s"), "not within")]], numeric=(2, 3)) if v else None
+    modes = _table(["mode", "frequency", "damping ratio"],
+                   [[m.get("mode", ""), _opt(m["measured"]["frequency_hz"], "Hz", 4),
+                     fmt(m["measured"]["damping_ratio"], 3)] for m in report.get("modes") or []], numeric=(1, 2))
+    tol = f"{tolerance * 1e6:g} um" if tolerance else None
+    ctx = dict(title=f"Tuning: {config or 'model'}", verdict=engineering_text(report["answer"]),
+               verdict_label="Answer", meta=report_meta(None, [("config", config), ("tuned config",
+                                                                   report.get("tuned_config"))],
+                                                        [("tolerance", tol)] if tol else ()),
+               notes=[], changes=changes if changes["rows"] else None, margins=margins,
+               modes=modes if modes["rows"] else None,
+               mode_error=f"{100 * report.get('mode_error', 0.0):.3g} %", commands=commands, verified=verified,
+               steps=report.get("steps", []), figures=[embed_png(f) for f in figures if f])
+    return _write(path, render("tune.html.j2", **ctx))
+

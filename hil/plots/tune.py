@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 from hil.io.safe_write import save_figure  # noqa: E402
 from hil.shaping import ALL_KINDS, Shaper, residual_vibration  # noqa: E402
 
-__all__ = ["plot_tune"]
+__all__ = ["plot_tune", "plot_loops"]
 
 
 def plot_tune(path: Path, tol: float, given: dict | None, tuned: dict | None, mode: dict | None,
@@ -56,6 +56,43 @@ def plot_tune(path: Path, tol: float, given: dict | None, tuned: dict | None, mo
     ax2.set_xlabel("the mode's frequency error [%]")
     ax2.set_ylabel("residual vibration [% of the unshaped]")
     ax2.grid(True, alpha=0.3)
+    try:
+        return save_figure(fig, path)
+    finally:
+        plt.close(fig)
+
+
+LOOPS = (("Lv", "open velocity loop"), ("Lp", "open position loop"))
+
+
+def plot_loops(path: Path, before, after) -> Path | None:
+    """``path`` (PNG): the open velocity and position loops as measured (hil.frf.FrfResult) with
+    the gains as given and as tuned, magnitude and phase, the 0 dB and -180 deg lines (where the
+    margins are read); None where neither measurement holds a loop."""
+    names = [(n, t) for n, t in LOOPS if any(r is not None and n in r.responses for r in (before, after))]
+    if not names:
+        return None
+    fig, axes = plt.subplots(2, len(names), figsize=(6 * len(names), 6), squeeze=False, layout="constrained")
+    for j, (name, title) in enumerate(names):
+        mag, ph = axes[0, j], axes[1, j]
+        for label, res, style in (("as given", before, dict(color="0.5", lw=1)),
+                                  ("tuned", after, dict(color="C0", lw=1.5))):
+            r = res.responses.get(name) if res is not None else None
+            if r is None:
+                continue
+            mag.semilogx(r.f, 20 * np.log10(np.abs(r.h)), label=label, **style)
+            phase = np.degrees(np.unwrap(np.angle(r.h)))
+            phase -= 360 * np.round(phase[0] / 360)       # the branch that starts near 0 deg
+            ph.semilogx(r.f, phase, **style)
+        mag.axhline(0.0, color="C3", lw=0.8, ls="--", label="0 dB (crossover: phase margin)")
+        ph.axhline(-180.0, color="C3", lw=0.8, ls="--", label="-180 deg (gain margin)")
+        mag.set_title(f"{title}, as measured")
+        mag.set_ylabel("magnitude [dB]")
+        ph.set_ylabel("phase [deg]")
+        ph.set_xlabel("frequency [Hz]")
+        for ax in (mag, ph):
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend(loc="lower left", fontsize=8)
     try:
         return save_figure(fig, path)
     finally:
