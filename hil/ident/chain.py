@@ -164,6 +164,7 @@ from __future__ import annotations
 
 import logging
 import math
+from enum import Enum
 
 import numpy as np
 
@@ -180,10 +181,30 @@ from sim_plant.blas_threads import one_blas_thread
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["diagnose_chain", "chain_json", "floor_parts", "floor_parts_text", "MAX_STEPS", "effect_values", "split_moves", "held_out_fall",
-           "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV", "REFUSALS"]
+__all__ = ["diagnose_chain", "chain_json", "chain_verdict", "End", "floor_parts", "floor_parts_text", "MAX_STEPS",
+           "effect_values", "split_moves", "held_out_fall", "HOLDOUT_MIN", "HOLDOUT_Z", "HOLDOUT_NFEV", "REFUSALS"]
 
 MAX_STEPS = 4
+
+
+class End(Enum):
+    """Why the chain ended; ``final["end"]`` is its text (:meth:`text`)."""
+    NOISE_FLOOR = "noise floor reached"
+    WITHIN_TOLERANCE = "noise floor reached within the config's tolerance"
+    NO_CANDIDATE = "no candidate left"
+    UNEXPLAINED = "unexplained"
+    UNPAID = "no effect pays for its parameters"
+    NOT_EARNED = "no step earns its place on the held-out data"
+    TANGLED = "no step left that the record tells apart from the effects found"
+    MAX_STEPS = "max steps"
+
+    def text(self, max_steps: int) -> str:
+        return f"max steps ({max_steps})" if self is End.MAX_STEPS else self.value
+
+    @property
+    def at_floor(self) -> bool:
+        return self in (End.NOISE_FLOOR, End.WITHIN_TOLERANCE)
+
 REFUSALS = 2            # a chain ends at its second refused step (the next candidate tried after the first)
 HOLDOUT_MIN = 64        # samples each half needs at least
 HOLDOUT_Z = 2.0         # the held-out fall must stand this many standard errors above zero
@@ -1018,7 +1039,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
     found: list[str] = []
     steps, diags = [], []
     first = None
-    end = f"max steps ({max_steps})"
+    end = End.MAX_STEPS
     split = _holdout_parts(replay, holdout)
     rejected = within = None
     gone: list[str] = []        # effects dropped by a later step (no candidates again)
@@ -1037,7 +1058,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             refused[-1]["next_tried"], rejected = True, None
         err0 = rms(cur.base_residuals)
         if at_noise_floor(err0, floor):
-            end = "noise floor reached"
+            end = End.NOISE_FLOOR
             if first is None:
                 first = diagnose(cur, names, progress=progress, jobs=jobs, max_nfev=max_nfev, **kw)
                 diags.append(first)
@@ -1048,7 +1069,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if within is not None or no_drift:      # the config's drifts are in the model, or were refused
             cands = [n for n in cands if not is_drift([candidate(n, cur.cfg)], cur.plant, cur.cfg)]
         if not cands:
-            end = end if retry else "no candidate left"
+            end = end if retry else End.NO_CANDIDATE
             break
         d = diagnose(cur, cands, progress=progress, jobs=jobs, max_nfev=max_nfev,
                      min_gap=HALF_GAP if i == 0 else 0.0, **kw)
@@ -1080,8 +1101,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                     # one member left: the step is that effect's, as a single verdict's would be
                     verdict, together, alone = add[0], None, True
         elif verdict in ("none", "unexplained"):
-            end = (end if retry else "noise floor reached" if verdict == "none" else
-                   "unexplained" if i == 0 else "no effect pays for its parameters")
+            end = (end if retry else End.NOISE_FLOOR if verdict == "none" else
+                   End.UNEXPLAINED if i == 0 else End.UNPAID)
             break
         else:
             add = [verdict] + [m["effect"] for m in d["also_missing"] if _same(m["effect"], cur.cfg) not in have]
@@ -1097,7 +1118,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 if held is not None and not held["earned"] and "in_place_of" in test:
                     test = None             # the step's own effect is judged as any step is
                 elif held is not None and not held["earned"]:
-                    end = "no step earns its place on the held-out data"
+                    end = End.NOT_EARNED
                     res_t = cur.residuals(test["_config"])
                     rejected = {"effects": list(add), "tolerance": tol,
                                 "score": float(bic_score(cur.base_residuals, res_t, list(floor), len(test["params"]),
@@ -1137,9 +1158,9 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                                       refitted={n: v for n, v in within.get("refitted", {}).items() if n not in unpaid})
                 cur = cur.with_config(within["_config"])
                 logger.info("chain step %d: %s is a drift within the config's tolerance", i + 1, " + ".join(add))
-                i, end = i + 1, f"max steps ({max_steps})"
+                i, end = i + 1, End.MAX_STEPS
                 if at_noise_floor(rms(cur.base_residuals), floor):
-                    end = "noise floor reached within the config's tolerance"
+                    end = End.WITHIN_TOLERANCE
                     break
                 continue
             beyond = _beyond_tolerance(cur, d, test, add, have, found) if test is not None and not test["within"] else None
@@ -1177,7 +1198,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 verdict, add, fits, members = rival["effect"], [rival["effect"]], rfits, {}
                 cfg1, res1, joint, paid = r
         if (i > 0 or retry) and paid <= MIN_SCORE:
-            end = end if retry else "no effect pays for its parameters"
+            end = end if retry else End.UNPAID
             break
         err1 = rms(res1)
         se, conf = _stderr_of(joint if joint is not None else fits[-1], found + add)
@@ -1187,7 +1208,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         tangled = confounded_with_found(conf, aliases, add, found)
         if tangled:
             # the record cannot tell the step from what was found: adding both only splits one finding
-            end = "no step left that the record tells apart from the effects found"
+            end = End.TANGLED
             rejected = {"effects": list(add), "score": float(paid), "error_after": err1, "stderr": se,
                         "confounded": conf, "confounded_with": tangled}
             refused.append(rejected)
@@ -1203,7 +1224,7 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         if together is not None:
             lead = None
         if held is not None and not held["earned"]:
-            end = "no step earns its place on the held-out data"
+            end = End.NOT_EARNED
             rejected = {"effects": list(add), "score": float(paid), "error_after": err1, "stderr": se,
                         "confounded": conf, "estimation_error": held.pop("estimation"), "held_out": held}
             logger.info("chain step %d: %s refused by the held-out data (fall %.3g, uncertainty %.3g)", i + 1,
@@ -1238,13 +1259,13 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
             # the first diagnosis names the key beyond the tolerance once its step is kept
             first = dict(first, verdict=verdict, also_missing=[])
         logger.info("chain step %d: + %s (score %.1f)", i + 1, " + ".join(add), paid)
-        i, end = i + 1, f"max steps ({max_steps})"
+        i, end = i + 1, End.MAX_STEPS
         cur = cur.with_config(cfg1)
         if first_nights is not None:
             steps[-1].nights_plant = first_nights["nights_plant"]
             ref = {k: float(replay.cfg[k]) for k in first_nights["nights_plant"]["params"]}
             if at_noise_floor(err1, floor):
-                end = "noise floor reached within the config's tolerance"
+                end = End.WITHIN_TOLERANCE
                 break
         elif nights_plant and not at_noise_floor(err1, floor):
             # an effect whose error jumps with its parameter, fitted on the config's plant, follows the plant's
@@ -1272,22 +1293,20 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
                 ref = {k: float(replay.cfg[k]) for k in nights["params"]}
                 cur = cur.with_config(cfg_n)
                 if at_noise_floor(err_n, floor):
-                    end = "noise floor reached within the config's tolerance"
+                    end = End.WITHIN_TOLERANCE
                     break
-    if len(steps) > 1 and not end.startswith("noise floor"):
+    if len(steps) > 1 and not end.at_floor:
         swap = _swap(replay, cur, steps, found, gone, split, fit_nfev, progress)
         if swap is not None:
-            if first.get("verdict") == swap.swapped:
-                first = dict(first, verdict=swap.effect)      # the first diagnosis's verdict, set right
             steps.append(swap)
             found = list(swap.params)
             cur = cur.with_config(swap.config)
             if at_noise_floor(rms(cur.base_residuals), floor):
-                end = "noise floor reached"
+                end = End.NOISE_FLOOR
     errf = rms(cur.base_residuals)
     final = {"error": errf, "noise_floor": dict(floor),
              "above_floor": {c: errf[c] / max(floor[c], 1e-300) for c in errf},
-             "at_noise_floor": at_noise_floor(errf, floor), "end": end, "steps": len(steps)}
+             "at_noise_floor": at_noise_floor(errf, floor), "end": end.text(max_steps), "steps": len(steps)}
     if split is not None:
         final["held_out"] = ("the validation records" if split[0] != "moves" else
                              "the record's moves cut at the middle of their travel, the halves alternately estimation "
@@ -1307,8 +1326,39 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         last = diags[-1] if diags else None
         best = last["candidates"][0] if last and last["candidates"] else None
         final["residual"] = residual_evidence(cur, cur.base_residuals, best)
-    out = dict(first)
+    out = dict(first, **chain_verdict(first, steps, refused, within, found, gone, barred, replay.cfg))
+    # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
+    out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
+    return out
+
+
+def chain_verdict(first: dict, steps: list, refused: list, within: dict | None, found: list, gone: list,
+                  barred: set, cfg) -> dict:
+    """The chain's answer, ``verdict`` and ``also_missing``: the first diagnosis's, set right by
+    what the chain did (a pure function of the first diagnosis and the chain's outcome).
+
+    Parameters
+    ----------
+    first : dict
+        The first diagnosis (its verdict as the steps that kept it named it: a pair shown together,
+        the key beyond the tolerance, the night's plant's backlash).
+    steps : list of ChainStep
+        The steps kept, the look-alike swap (``swapped``) last.
+    refused : list of dict
+        The steps the held-out data or a confounding refused.
+    within : dict or None
+        The drift of the config within its tolerance the model took (its ``step``), or None.
+    found, gone : list of str
+        The effects in the final model, and those a later step dropped.
+    barred : set of str
+        The refused steps' effects.
+    cfg : Config
+        The start model's config.
+    """
+    out = {"verdict": first.get("verdict"), "also_missing": first.get("also_missing", [])}
     swap = next((x for x in steps if x.swapped), None)
+    if swap is not None and out["verdict"] == swap.swapped:
+        out["verdict"] = swap.effect            # the first diagnosis's look-alike, set right
 
     def chain_first(named):
         # the chain's first finding, as the look-alike swap set it right
@@ -1322,8 +1372,8 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         # the first diagnosis's verdict was refused and the next one kept: the verdict is the chain's first
         out["verdict"] = chain_first(steps[0].effect)
         out["also_missing"] = [m for m in out.get("also_missing", [])
-                               if _same(m["effect"], replay.cfg) not in barred and m["effect"] != out["verdict"]]
-    refined = any(out.get("verdict") in getattr(candidate(n, replay.cfg), "replaces", ()) for n in found)
+                               if _same(m["effect"], cfg) not in barred and m["effect"] != out["verdict"]]
+    refined = any(out.get("verdict") in getattr(candidate(n, cfg), "replaces", ()) for n in found)
     if steps and out.get("verdict") in gone and out["verdict"] not in found and not refined:
         # the verdict left the model at a later step (a drift within the tolerance took its place, or
         # it no longer paid beside a later step's effects): the verdict is the chain's first finding
@@ -1336,8 +1386,6 @@ def diagnose_chain(replay, names: list[str] | None = None, max_steps: int = MAX_
         elif within is not None:
             # the drift within the tolerance left nothing of what was found: no finding
             out["verdict"], out["also_missing"] = "none", []
-    # the config as written: an effect a later one sets anew leaves (the same plant, no dead value)
-    out.update(chain=steps, final=final, diagnoses=diags, config=without_replaced(cur.cfg))
     return out
 
 
