@@ -374,3 +374,13 @@ def test_tip_sensor_preset_at_homing_and_wrong_node():
     finally:
         be.close()
         sim.close()
+
+
+def test_the_cycles_statusword_tests_agree_with_the_state_names():
+    """The real-time cycle tests the statusword's bits against (mask, value) pairs bound once; over
+    every statusword they classify as the state names do (the names no longer made per cycle)."""
+    from drivers.canopen.backend import _ENABLED_WORD, _FAULT_WORDS
+    for sw in range(1 << 16):
+        st = cia402.state_from_statusword(sw)
+        assert any(sw & m == v for m, v in _FAULT_WORDS) == (st in ("FAULT", "FAULT REACTION ACTIVE")), hex(sw)
+        assert (sw & _ENABLED_WORD[0] == _ENABLED_WORD[1]) == (st == "OPERATION ENABLED"), hex(sw)

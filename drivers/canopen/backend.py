@@ -77,7 +77,10 @@ from drivers.rt import SampleBuffer
 __all__ = ["CanopenBackend", "SECTION", "EVENTS_KEPT"]
 
 EVENTS_KEPT = 1000           # the events (misses, faults, stops) and EMCYs a backend keeps: the latest
-_FAULTED = ("FAULT", "FAULT REACTION ACTIVE")
+# the statuswords' (mask, value) the real-time cycle tests, bound once: no state name made or
+# compared while the drive is well (the CiA 402 states are mutually exclusive under their masks)
+_FAULT_WORDS = tuple(cia402.STATUSWORD[s] for s in ("FAULT", "FAULT REACTION ACTIVE"))
+_ENABLED_WORD = cia402.STATUSWORD["OPERATION ENABLED"]
 _WELL = ("", None)          # no fault, no kind: what a healthy cycle reports (nothing built per cycle)
 
 
@@ -310,11 +313,12 @@ class CanopenBackend(Backend):
         None)`` while all is well."""
         if self.link.rx_error:
             return self.link.rx_error, StopKind.LINK
-        st = cia402.state_from_statusword(sw)
-        if st in _FAULTED:
-            return f"drive fault: {self.fault_text()}", StopKind.DRIVE_FAULT
-        if self.enabled and st != "OPERATION ENABLED":
-            return f"drive fault: the drive left OPERATION ENABLED ({st})", StopKind.DRIVE_FAULT
+        for mask, value in _FAULT_WORDS:
+            if sw & mask == value:
+                return f"drive fault: {self.fault_text()}", StopKind.DRIVE_FAULT
+        if self.enabled and sw & _ENABLED_WORD[0] != _ENABLED_WORD[1]:
+            return (f"drive fault: the drive left OPERATION ENABLED ({cia402.state_from_statusword(sw)})",
+                    StopKind.DRIVE_FAULT)
         lost = self.heartbeats.lost()
         return (lost, StopKind.LINK) if lost else _WELL
 
