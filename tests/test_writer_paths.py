@@ -5,7 +5,8 @@ one of those names (and at the names of the temporary files beside them). The fi
 never written, whatever the command does: it replaces the link with a file of its own, or it
 refuses in one line (exit 2) without a traceback.
 
-The commands run through ``hil.cli.main`` on the simulated plant and a short synthetic record."""
+The commands run through ``hil.cli.main`` on the simulated plant and a short synthetic record (the
+fleet's: two nights of it; hil emps: the EMPS record it ships with)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -20,9 +21,17 @@ MOVE = ["--stroke", "10mm", "--feed", "7000mm/min", "--tacc", "200ms"]
 
 
 def _record(root: Path) -> Path:
+    """The synthetic record, and beside it a fleet of it (one axis, two nights: rec/fleet) and that
+    fleet's run (rec/fleet-run), which hil fleet report reads."""
     rec = root / "rec" / "friction.csv"
     assert main(["synth", "--config", BENCH, "--effect", "coulomb_friction", "--out", str(rec)]) == 0
+    for night in ("2026-03-02", "2026-03-09"):
+        (rec.parent / "fleet" / "A").mkdir(parents=True, exist_ok=True)
+        (rec.parent / "fleet" / "A" / f"{night}.csv").write_bytes(rec.read_bytes())
     return rec
+
+
+FLEET = ["--config", BENCH, "--max-steps", "0", "--baseline", "1", "--jobs", "1"]
 
 
 # command -> argv given the output folder and the synthetic record
@@ -37,6 +46,10 @@ COMMANDS = {
     "synth": lambda out, rec: ["synth", "--config", BENCH, "--effect", "backlash", "--out", Path(out) / "s.csv"],
     "frf": lambda out, rec: ["frf", "--config", BENCH, "--periods", "2", "--out", out],
     "tune": lambda out, rec: ["tune", "--config", BENCH, "--stroke", "100mm", "--feed", "7000mm/min", "--out", out],
+    "model": lambda out, rec: ["model", "--config", BENCH, "--out", out],
+    "emps": lambda out, rec: ["emps", "--quick", "--no-diagnose", "--out", out],
+    "fleet_run": lambda out, rec: ["fleet", "run", rec.parent / "fleet", *FLEET, "--out", out],
+    "fleet_report": lambda out, rec: ["fleet", "report", rec.parent / "fleet-run", "--out", out],
 }
 
 
@@ -48,6 +61,8 @@ def _written(folder: Path) -> list[Path]:
 @pytest.mark.parametrize("command", sorted(COMMANDS))
 def test_no_writer_follows_a_planted_link(command, tmp_path, capsys):
     rec = _record(tmp_path)
+    if command == "fleet_report":
+        assert main([str(a) for a in ["fleet", "run", rec.parent / "fleet", *FLEET, "--out", rec.parent / "fleet-run"]]) == 0
     capsys.readouterr()
     clean = tmp_path / "clean"
     assert main([str(a) for a in COMMANDS[command](clean, rec)]) == 0, capsys.readouterr().err

@@ -45,7 +45,8 @@ def confined(folder: str | Path, relative: str | Path) -> Path:
     base = Path(folder).resolve()
     path = (base / relative).resolve()
     if path != base and base not in path.parents:
-        raise UserError(f"{relative}: resolves outside the output folder {folder}; refusing to write there")
+        how = "is a link to" if (base / relative).is_symlink() else "resolves to"
+        raise UserError(f"{relative}: {how} {path}, outside the output folder {folder}; refusing to write there")
     return Path(folder) / relative
 
 
