@@ -70,7 +70,7 @@ def plant_from_config(cfg: Config) -> Plant:
         motor_resolution=cfg.get("sensors.motor_resolution", 0.0),
         pitch=pitch,
         current_loop_time_constant=cfg.get("actuator.current_loop_time_constant", 0.0),
-        endless=cfg.get("plant.endless"))
+        endless=bool(cfg.get("plant.endless", False)))
     return apply_effects(plant, cfg)
 
 
@@ -156,7 +156,7 @@ def apply_effects(plant: Plant, cfg: Config) -> Plant:
     """The plant with every effect the config switches on (sections ``[effects.<name>]``)."""
     for name, eff, values in _configured_effects(cfg):
         if why := eff.unsuited(plant):
-            raise ConfigError(f"{cfg.source}: effects.{name}: this axis cannot have it: {why}")
+            raise ConfigError(f"{cfg.source}: effects.{name}: cannot act on this axis: {why}")
         try:
             plant = eff.apply(plant, values)
         except ValueError as exc:        # the physics names the effect; the key says it here
@@ -199,9 +199,6 @@ class ParameterEffect(Effect):
             lo, hi = bounds
             g = min(max(g, lo), hi)
         self.params = (Param("value", kind, lo, hi, g, f"new value of {key}"),)
-
-    def applicable(self, plant):
-        return True
 
     def drifted_key(self, plant):
         return self.key

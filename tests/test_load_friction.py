@@ -191,5 +191,5 @@ def test_a_rigid_axis_has_no_link_to_load():
     from hil.errors import ConfigError
     emps = load(CONFIG / "emps.toml")
     assert not candidate(NAME).applicable(plant_from_config(emps))
-    with pytest.raises(ConfigError, match=r"effects\.load_dependent_friction: this axis cannot have it: no transmission link"):
+    with pytest.raises(ConfigError, match=r"effects\.load_dependent_friction: cannot act on this axis: no transmission link"):
         plant_from_config(_with({"preload": 1.0, "coefficient": 0.1}, emps))

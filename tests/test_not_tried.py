@@ -45,7 +45,7 @@ def test_the_motor_alone_says_why_each_effect_is_not_tried():
 
 def test_a_config_that_puts_a_cable_carrier_on_an_endless_axis_is_refused():
     cfg = load(HSM, overrides={"effects.cable_carrier.force": 1.0})
-    with pytest.raises(ConfigError, match=r"hsm150\.toml: effects\.cable_carrier: this axis cannot have it: "
+    with pytest.raises(ConfigError, match=r"hsm150\.toml: effects\.cable_carrier: cannot act on this axis: "
                                           r"the axis turns without end \(plant\.endless\)"):
         plant_from_config(cfg)
 

@@ -371,10 +371,13 @@ def test_the_confirm_pass_counts_its_progress_over_the_whole_pass(monkeypatch):
     from hil.fleet.manifest import Entry
     from hil.fleet.run import Settings
 
+    stored = set()
+
     def fake_run(entries, configs, default, settings, out_dir, scheduler=None, jobs=None, progress=None):
-        for i, e in enumerate(entries):
-            progress(i + 1, len(entries), e.record)
-        return batch.FleetRun()
+        todo = [e for e in entries if (settings.track, e.record) not in stored]
+        for i, e in enumerate(todo):
+            progress(i + 1, len(todo), e.record)
+        return batch.FleetRun(computed=len(todo))
 
     monkeypatch.setattr(batch, "run_fleet", fake_run)
     es = [Entry(f"r{i}.csv", "A", f"2026-01-0{i + 1}") for i in range(3)]
@@ -383,3 +386,8 @@ def test_the_confirm_pass_counts_its_progress_over_the_whole_pass(monkeypatch):
     seen = []
     batch._fit_plans(plans, {}, None, Settings(), None, {}, None, None, lambda *a: seen.append(a))
     assert seen == [(i + 1, 6, f"r{i % 3}.csv") for i in range(6)]
+    # a rerun whose first set the store holds: counted at once, the second set's records after it
+    stored.update((("coulomb_friction",), e.record) for e in es)
+    seen.clear()
+    batch._fit_plans(plans, {}, None, Settings(), None, {}, None, None, lambda *a: seen.append(a))
+    assert seen == [(3, 6, "3 from the store")] + [(i + 4, 6, f"r{i}.csv") for i in range(3)]

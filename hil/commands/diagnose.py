@@ -66,10 +66,10 @@ JSON_KEYS = {
     "shown_together": JsonKey("", "two effects that show only together: no single effect closed half the gap, the best "
                                   "fit with the next verdict on top of it did (the chain's first step adds both)",
                               when="the chain found such a pair"),
-    "alternatives": JsonKey("", "the candidates this record cannot tell from the first diagnosis's verdict (a mass on "
-                                "the table or on the motor side): of (that verdict), effect, score, evidence, "
-                                "against_verdict and verdict_against (each fit's BIC score with the other's residual "
-                                "as before; both at most 6); [] when none"),
+    "alternatives": JsonKey("", "the candidates this record cannot tell from the verdict (a mass on the table or on "
+                                "the motor side): of (the verdict), effect, score, evidence, against_verdict and "
+                                "verdict_against (each fit's BIC score with the other's residual as before; both at "
+                                "most 6); none named beside the verdict or found by the chain; [] when none"),
     "not_tried": JsonKey("", "the catalogue effects this axis cannot have, each with the reason (a cable carrier on an "
                              "axis that turns without end, plant.endless; backlash without a transmission link): "
                              "`{effect: reason}`, never candidates; `{}` where --candidates names them"),
@@ -306,10 +306,10 @@ def run(args) -> int:
         raise UserError(f"--out {args.out}: the single diagnosis ({'--no-chain' if args.no_chain else '--max-steps 1'}) "
                         f"adds nothing to the model, so there is no config to write; drop --out, or let the chain run")
     cfg, metas, vals = load_records(args)
+    names = args.candidates.split(",") if args.candidates else None
+    check_candidates(names, cfg, "--candidates")
     rp = make_records(args, cfg, metas)     # the floor: the estimation records' alone, never --validate's
     sampling = None
-    names = args.candidates.split(",") if args.candidates else None
-    check_candidates(names, cfg, rp.plant, "--candidates")
     from hil.commands.progress import bar
     from hil.commands.record_inputs import prompt_interrupt
     val_rps = None
@@ -322,6 +322,9 @@ def run(args) -> int:
             val_rps = [make_replay(args, cfg, m) for m in vals] or None
     # what the catalogue holds but this axis cannot have, and why (asked for by name, it was refused above)
     d["not_tried"] = {} if names else not_tried(rp.plant)
+    # the first diagnosis's look-alikes, while the chain kept its verdict and found none of them itself
+    added = {e for s in d.get("chain") or [] for e in s.effects}
+    d["alternatives"] = [a for a in d.get("alternatives", []) if a["of"] == d["verdict"] and a["effect"] not in added]
     rr = run_to_run(d, rp)
     if rr is not None:
         d["run_to_run"] = rr
@@ -438,8 +441,6 @@ def ranking_text(d, limit: int | None = None) -> list[str]:
     shown = {verdict}
     from hil.ident.scores import MIN_SCORE
     for a in d.get("alternatives", []):
-        if a["of"] != verdict:      # the chain named another verdict than the first diagnosis's
-            continue
         lines.append(f"or {a['effect']} (score {a['score']:.1f}): this record cannot tell it from {verdict}, neither "
                      f"fit's residual beats the other's by a BIC of {MIN_SCORE:g}; a record that excites them "
                      f"differently would")

@@ -119,10 +119,10 @@ def run(args) -> int:
     from hil.ident.records import errors_text, estimation_validation
     cfg, metas, vals = load_records(args)
     _check_out(args)
+    check_candidates(args.add, cfg, "--add")
     refit = _refit_keys(args.refit)
     refit_se: dict = {}
     rp = make_records(args, cfg, metas)
-    check_candidates(args.add, cfg, rp.plant, "--add")
     before = {c: float((rp.base_residuals[c] ** 2).mean() ** 0.5) for c in rp.channels}
     from hil.commands.progress import bar
     with bar("fit", args) as prog:          # fit_effects tells it the total (hil.ident.progress.expect)

@@ -153,12 +153,9 @@ def _run(args) -> int:
         thresholds[th.name] = th
     cands = tuple(_split(args.candidates)) if args.candidates else None
     if cands:
-        from hil.plant_config import candidate
-        for n in cands:
-            try:
-                candidate(n, first)
-            except KeyError as exc:
-                raise UserError(f"--candidates: {str(exc).strip(chr(39) + chr(34))}") from None
+        from hil.commands.record_inputs import check_candidates
+        for cfg in configs.values():
+            check_candidates(cands, cfg, "--candidates")
     settings = Settings(track=track, candidates=cands, max_steps=args.max_steps, mapping=tuple(args.map))
 
     def progress(done, total, record):

@@ -144,16 +144,18 @@ def make_records(args, cfg, measurements):
     return Records(parts)
 
 
-def check_candidates(names, cfg, plant, option: str) -> None:
-    """Refuse, in one line, a candidate name the catalogue and the config do not know, or an effect
-    this axis cannot have (with the reason: backlash without a transmission link)."""
+def check_candidates(names, cfg, option: str) -> None:
+    """Refuse, in one line naming ``option``, a candidate name the catalogue and the config do not
+    know, or an effect this axis cannot have (with the reason: backlash without a transmission
+    link), before any record is read."""
     from hil.errors import UserError
-    from hil.plant_config import candidate
+    from hil.plant_config import candidate, plant_from_config
+    plant = plant_from_config(cfg) if names else None
     for n in names or ():
         try:
             why = candidate(n, cfg).unsuited(plant)
         except KeyError as exc:
-            raise UserError(str(exc).strip("'\"")) from None
+            raise UserError(f"{option}: {str(exc).strip(chr(39) + chr(34))}") from None
         if why:
             raise UserError(f"{option} {n}: cannot act on this axis: {why}")
 

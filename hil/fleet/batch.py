@@ -170,10 +170,13 @@ def _fit_plans(plans: dict, configs: dict, default, settings: Settings, out_dir,
     for track, items in plans.items():
         run = replace(settings, track=track, candidates=None, max_steps=0)
         uniq = list({e.id: e for e, _ in items}.values())
-        # counted over the whole pass, not per track set ("3/5", then "2/10")
+        # counted over the pass, not per track set ("3/5", then "2/10"); records the store already
+        # holds are counted when their set is done
         step = None if progress is None else (lambda done, _n, rid, at=before: progress(at + done, total, rid))
         res = run_fleet(uniq, configs, default, run, out_dir, scheduler=scheduler, jobs=jobs, progress=step)
         before += len(uniq)
+        if progress is not None and res.computed < len(uniq):
+            progress(before, total, f"{len(uniq) - res.computed} from the store")
         for e, model in items:
             _merge(out.setdefault(e.id, {"values": {}, "stderr": {}}), res.figures.get(e.id, {"error": "not run"}),
                    model)

@@ -156,8 +156,10 @@ def diagnose(replay: Replay, names: list[str] | None = None, progress=None, max_
          "noise_floor_source": {c: replay.noise_sources[c]["source"] for c in replay.noise}}
     if verdict == "unexplained":
         d["residual"] = residual_evidence(replay, res0, best)
-    d["alternatives"] = look_alikes(next((c for c in ranked if c.effect == verdict), None), ranked,
-                                    list(replay.objective.weights), replay.noise, replay.plant)
+    beside = {m["effect"] for m in also}         # named beside the verdict: no alternative to it
+    d["alternatives"] = [a for a in look_alikes(next((c for c in ranked if c.effect == verdict), None), ranked,
+                                                list(replay.objective.weights), replay.noise, replay.plant)
+                         if a["effect"] not in beside]
     for c in ranked:
         logger.debug("candidate %s: score %.1f, params %s", c.effect, c.score, c.params)
     logger.info("diagnosis: verdict %s (%d candidates; gap closed %.2f)", verdict, len(ranked), closed)

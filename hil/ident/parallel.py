@@ -45,9 +45,11 @@ def _work(args):
     try:
         c = _safe_eval(_worker_inputs["replay"], _worker_inputs["res0"], *args)
     except Exception as exc:
-        # handed back as a value, raised by the parent once every reply is in: a pool terminated
-        # while a worker is mid-reply (it holds the result queue's lock) deadlocks its task handler
-        return exc
+        # handed back as a value (with the worker's traceback, as the pool would attach it), raised
+        # by the parent once every reply is in: a pool terminated while a worker is mid-reply (it
+        # holds the result queue's lock) deadlocks its task handler
+        from multiprocessing.pool import ExceptionWithTraceback
+        return ExceptionWithTraceback(exc, exc.__traceback__)
     if c is not None:
         c.cfg = None            # configs stay in the parent (rebuilt there)
     return c
@@ -117,7 +119,8 @@ class Beside:
 
 def evaluate_many(replay, work, res0, jobs, progress):
     """Evaluate the (name, max_nfev, start, n_starts) items, in ``jobs`` processes; with one job, in
-    this process (:func:`in_threads`)."""
+    this process (:func:`in_threads`). A fit's error (other than a ValueError, a fit that failed)
+    is raised; from the processes, once the others are in."""
     from hil.ident.progress import expect
     expect(progress, len(work))
     if jobs > 1 and len(work) > 1:

@@ -1,4 +1,4 @@
-"""The HTML reports of hil compare, diagnose, emps, sweep and frf: one self-contained file each,
+"""The HTML reports of hil compare, diagnose, emps, sweep, frf and tune: one self-contained file each,
 read top to bottom, that travels (mailed, attached to a ticket, opened years later).
 
 * One file: the style is inline and every figure is embedded as a base64 PNG ``data:`` URI;
@@ -26,8 +26,8 @@ from hil.ident.scores import fmt_fit
 from hil.io.safe_write import write_atomic
 from hil.plots.engineering import display_unit, eng, engineering_text, fmt, unit_label
 
-__all__ = ["write_report", "write_diagnosis_report", "write_sweep_report", "write_frf_report", "render",
-           "report_meta", "embed_png"]
+__all__ = ["write_report", "write_diagnosis_report", "write_sweep_report", "write_frf_report", "write_tune_report",
+           "render", "report_meta", "embed_png"]
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"
 
@@ -370,11 +370,16 @@ def _diagnosis_context(d: dict, cfg=None) -> dict:
     if res:
         from hil.ident.unexplained import describe
         lines = [engineering_text(x) for x in describe(res)]
+    alternatives = _table(["effect", "score (BIC fall)", "it against the verdict", "the verdict against it", "evidence"],
+                          [[a["effect"], f"{a['score']:.1f}", f"{a['against_verdict']:.1f}",
+                            f"{a['verdict_against']:.1f}", engineering_text(a.get("evidence", ""))]
+                           for a in d.get("alternatives") or []], numeric=(1, 2, 3))
     from hil.ident.diagnosis import by_reason
     not_tried = _table(["not tried", "why this axis cannot have them"],
                        [[", ".join(names), why] for why, names in by_reason(d.get("not_tried")).items()])
     return dict(ranking=ranking, also_missing=also if also["rows"] else None,
                 combinations=combos if combos["rows"] else None, not_tried=not_tried if not_tried["rows"] else None,
+                alternatives=alternatives if alternatives["rows"] else None,
                 chain=chain, chain_end=end, unexplained=lines,
                 min_score=f"{MIN_SCORE:g}", verdict=_diagnosis_verdict(d, u),
                 verdict_label="Verdict (the effect the model misses)")
@@ -650,9 +655,9 @@ def write_tune_report(path: Path, report: dict, figures=(), *, config: str | Non
     verified = _table(["backend", "status", "tuned move: tip within the tolerance", "move as given"],
                       [[v.get("backend", "-"), v.get("status", "-"), ms(v.get("settle_s"), "not within"),
                         ms(v.get("given_settle_s"), "not within")]], numeric=(2, 3)) if v else None
-    modes = _table(["mode", "frequency", "damping ratio"],
-                   [[m.get("mode", ""), _opt(m["measured"]["frequency_hz"], "Hz", 4),
-                     fmt(m["measured"]["damping_ratio"], 3)] for m in report.get("modes") or []], numeric=(1, 2))
+    modes = _table(["mode", "response", "frequency", "damping ratio"],
+                   [[m.get("mode", ""), m.get("response", ""), _opt(m["measured"]["frequency_hz"], "Hz", 4),
+                     fmt(m["measured"]["damping_ratio"], 3)] for m in report.get("modes") or []], numeric=(2, 3))
     tol = f"{tolerance * 1e6:g} um" if tolerance else None
     ctx = dict(title=f"Tuning: {config or 'model'}", verdict=engineering_text(report["answer"]),
                verdict_label="Answer", meta=report_meta(None, [("config", config), ("tuned config",

@@ -169,8 +169,8 @@ class Effect(ABC):
         return []
 
     def _need_link(self, plant: Plant) -> None:
-        if plant.n < 2:
-            raise ValueError(f"{self.name}: needs a chain of at least 2 masses (a transmission link)")
+        if why := no_link(plant):
+            raise ValueError(f"{self.name}: cannot act on this axis: {why}")
 
     def param(self, name: str) -> Param:
         for p in self.params:
