@@ -59,13 +59,15 @@ def hsm_record(tmp_path_factory):
 
 
 @pytest.mark.parametrize("argv", [["diagnose", "--candidates", "coulomb_friction,cable_carrier"],
-                                  ["fit", "--add", "cable_carrier", "--out", "never.toml"]])
+                                  ["fit", "--add", "cable_carrier", "--out", "never.toml"],
+                                  ["synth", "--effect", "cable_carrier", "--out", "never.csv"]])
 def test_asking_for_it_by_name_is_one_line(hsm_record, argv, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert main([argv[0], hsm_record, "--config", HSM, "--open-loop", *argv[1:]]) == 2
+    record = [] if argv[0] == "synth" else [hsm_record]
+    assert main([argv[0], *record, "--config", HSM, "--open-loop", *argv[1:]]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cable_carrier: cannot act on this axis: the axis turns without end" in err[0], err
-    assert not (tmp_path / "never.toml").exists()
+    assert not (tmp_path / "never.toml").exists() and not (tmp_path / "never.csv").exists()
 
 
 @pytest.mark.slow         # a full diagnosis: 11 s at load 2

@@ -136,10 +136,9 @@ def _param_values(args, cfg) -> tuple[dict | None, dict]:
     from hil.units import parse_option
     kinds = {}
     if args.effect:
-        try:
-            eff = candidate(args.effect, cfg)
-        except KeyError as exc:
-            raise UserError(str(exc).strip("'\"")) from None
+        from hil.commands.record_inputs import check_candidates
+        check_candidates([args.effect], cfg, "--effect")      # one line: unknown, or not for this axis
+        eff = candidate(args.effect, cfg)
         kinds = {p.name: p.kind_for(cfg.rotary) for p in eff.params}
     if not args.param:
         return None, kinds
