@@ -37,6 +37,17 @@ def bench():
     return config.load(CONFIG / "paper_bench.toml")
 
 
+@pytest.fixture(scope="session")
+def hsm_record(tmp_path_factory):
+    """An open-loop record of the HSM150 motor (config/hsm150.toml: 1 m = 1 rad, no screw): torque
+    pulses of 0.05 N m, 2 s."""
+    from hil.cli import main
+    out = tmp_path_factory.mktemp("hsm") / "steps.csv"
+    assert main(["synth", "--config", str(CONFIG / "hsm150.toml"), "--open-loop", "--pulses", "0.05Nm",
+                 "--duration", "2s", "--out", str(out)]) == 0
+    return str(out)
+
+
 @pytest.fixture(autouse=True)
 def state_dir(tmp_path_factory, monkeypatch):
     """Every test its own state directory (the supervisor's latch): a test never touches the real

@@ -50,14 +50,6 @@ def test_a_config_that_puts_a_cable_carrier_on_an_endless_axis_is_refused():
         plant_from_config(cfg)
 
 
-@pytest.fixture(scope="module")
-def hsm_record(tmp_path_factory):
-    out = tmp_path_factory.mktemp("hsm") / "steps.csv"
-    assert main(["synth", "--config", HSM, "--open-loop", "--pulses", "0.05Nm", "--duration", "1s",
-                 "--out", str(out)]) == 0
-    return str(out)
-
-
 @pytest.mark.parametrize("argv", [["diagnose", "--candidates", "coulomb_friction,cable_carrier"],
                                   ["fit", "--add", "cable_carrier", "--out", "never.toml"],
                                   ["synth", "--effect", "cable_carrier", "--out", "never.csv"]])

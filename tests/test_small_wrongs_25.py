@@ -28,15 +28,6 @@ def test_fmt_si_writes_an_angle_in_rad_mrad_urad():
     assert fmt_si(0.0123, "rad", 3) == "12.3 mrad"
 
 
-@pytest.fixture(scope="module")
-def hsm_record(tmp_path_factory):
-    """An open-loop record of the HSM150 motor (config/hsm150.toml: 1 m = 1 rad, no screw)."""
-    out = tmp_path_factory.mktemp("hsm") / "steps.csv"
-    assert main(["synth", "--config", HSM, "--open-loop", "--pulses", "0.05Nm", "--duration", "2s",
-                 "--out", str(out)]) == 0
-    return str(out)
-
-
 @pytest.mark.slow
 def test_a_motor_without_a_screw_prints_its_positions_in_rad(hsm_record, tmp_path, capsys):
     """The HSM150's positions are the motor's angle: 'x_motor RMS 5866 m' was printed."""
