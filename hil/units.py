@@ -143,6 +143,18 @@ def plain_text(text: str) -> str:
     return "".join(_plain_character(ch) for ch in text)
 
 
+def _shown(text: str, limit: int = 80) -> str:
+    """``text`` as a message quotes it, cut to about ``limit`` characters of its repr (a long run of
+    escaped characters would fill a screen and hide the key it belongs to)."""
+    r = repr(text)
+    if len(r) <= limit:
+        return r
+    cut = text
+    while len(repr(cut)) > limit - 15 and cut:
+        cut = cut[:-1]
+    return f"{cut!r}... ({len(text)} characters)"
+
+
 def _check_characters(text: str, original: str, what: str) -> None:
     """Refuse, in one line, what pint would read wrongly rather than not at all: a character it
     does not know (it drops it), digits apart (``1 000 mm`` is 1 x 000 mm to it) and a decimal
@@ -150,21 +162,21 @@ def _check_characters(text: str, original: str, what: str) -> None:
     for ch in text:
         if not ch.isascii() and ch not in _KNOWN:
             name = unicodedata.name(ch, "unnamed")
-            raise UnitError(f"{what}: cannot read {original!r}: the character {ch!r} (U+{ord(ch):04X} {name}) "
+            raise UnitError(f"{what}: cannot read {_shown(original)}: the character {ch!r} (U+{ord(ch):04X} {name}) "
                             f"is not part of a quantity, expected {_QUANTITY_EXAMPLE}")
     if _THOUSANDS_COMMA.search(text):          # "1,000 mm": a thousand, or one with a decimal comma?
         whole = _THOUSANDS_COMMA.sub(lambda m: m.group(0).replace(",", ""), text)
         point = _THOUSANDS_COMMA.sub(lambda m: m.group(0).replace(",", "."), text)
-        raise UnitError(f"{what}: cannot read {original!r}: a comma between digits is a thousands separator "
+        raise UnitError(f"{what}: cannot read {_shown(original)}: a comma between digits is a thousands separator "
                         f"({whole!r}) or a decimal comma ({point!r}); write the one meant, with a point for decimals")
     if _DECIMAL_COMMA.search(text):
         hint = _DECIMAL_COMMA.sub(lambda m: m.group(0).replace(",", "."), text)
-        raise UnitError(f"{what}: cannot read {original!r}: a decimal comma; write a point ({hint!r})")
+        raise UnitError(f"{what}: cannot read {_shown(original)}: a decimal comma; write a point ({hint!r})")
     if "," in text:
-        raise UnitError(f"{what}: cannot read {original!r}: a comma inside one quantity, expected "
+        raise UnitError(f"{what}: cannot read {_shown(original)}: a comma inside one quantity, expected "
                         f"{_QUANTITY_EXAMPLE}")
     if _DIGITS_SPACED.search(text):
-        raise UnitError(f"{what}: cannot read {original!r}: digits separated by a space (a thousands "
+        raise UnitError(f"{what}: cannot read {_shown(original)}: digits separated by a space (a thousands "
                         f"separator?); write the number whole, e.g. 1000 mm")
 
 
