@@ -143,16 +143,9 @@ def plain_text(text: str) -> str:
     return "".join(_plain_character(ch) for ch in text)
 
 
-def _shown(text: str, limit: int = 80) -> str:
-    """``text`` as a message quotes it, cut to about ``limit`` characters of its repr (a long run of
-    escaped characters would fill a screen and hide the key it belongs to)."""
-    r = repr(text)
-    if len(r) <= limit:
-        return r
-    cut = text
-    while len(repr(cut)) > limit - 15 and cut:
-        cut = cut[:-1]
-    return f"{cut!r}... ({len(text)} characters)"
+def _cut(text: str, n: int = 40) -> str:
+    """A text as a one-line message quotes it: its first ``n`` characters, "..." after a longer one."""
+    return text if len(text) <= n else text[:n] + "..."
 
 
 def _check_characters(text: str, original: str, what: str) -> None:
@@ -162,21 +155,21 @@ def _check_characters(text: str, original: str, what: str) -> None:
     for ch in text:
         if not ch.isascii() and ch not in _KNOWN:
             name = unicodedata.name(ch, "unnamed")
-            raise UnitError(f"{what}: cannot read {_shown(original)}: the character {ch!r} (U+{ord(ch):04X} {name}) "
+            raise UnitError(f"{what}: cannot read {_cut(original)!r}: the character {ch!r} (U+{ord(ch):04X} {name}) "
                             f"is not part of a quantity, expected {_QUANTITY_EXAMPLE}")
     if _THOUSANDS_COMMA.search(text):          # "1,000 mm": a thousand, or one with a decimal comma?
         whole = _THOUSANDS_COMMA.sub(lambda m: m.group(0).replace(",", ""), text)
         point = _THOUSANDS_COMMA.sub(lambda m: m.group(0).replace(",", "."), text)
-        raise UnitError(f"{what}: cannot read {_shown(original)}: a comma between digits is a thousands separator "
+        raise UnitError(f"{what}: cannot read {_cut(original)!r}: a comma between digits is a thousands separator "
                         f"({whole!r}) or a decimal comma ({point!r}); write the one meant, with a point for decimals")
     if _DECIMAL_COMMA.search(text):
         hint = _DECIMAL_COMMA.sub(lambda m: m.group(0).replace(",", "."), text)
-        raise UnitError(f"{what}: cannot read {_shown(original)}: a decimal comma; write a point ({hint!r})")
+        raise UnitError(f"{what}: cannot read {_cut(original)!r}: a decimal comma; write a point ({hint!r})")
     if "," in text:
-        raise UnitError(f"{what}: cannot read {_shown(original)}: a comma inside one quantity, expected "
+        raise UnitError(f"{what}: cannot read {_cut(original)!r}: a comma inside one quantity, expected "
                         f"{_QUANTITY_EXAMPLE}")
     if _DIGITS_SPACED.search(text):
-        raise UnitError(f"{what}: cannot read {_shown(original)}: digits separated by a space (a thousands "
+        raise UnitError(f"{what}: cannot read {_cut(original)!r}: digits separated by a space (a thousands "
                         f"separator?); write the number whole, e.g. 1000 mm")
 
 
@@ -204,7 +197,7 @@ def check_quantity_text(text: str, kind: str, what: str = "value") -> None:
     more than a quantity may: longer than :data:`MAX_QUANTITY_CHARS`, a power of a power
     (``10**10**10``, ``(2^3)^4``), an exponent that is not a plain number or beyond
     :data:`MAX_EXPONENT` in size."""
-    shown = text if len(text) <= 40 else text[:40] + "..."
+    shown = _cut(text)
     if len(text) > MAX_QUANTITY_CHARS:
         raise UnitError(f"{what}: {shown!r} ({len(text)} characters): expected a {kind} of at most "
                         f"{MAX_QUANTITY_CHARS} characters, {_QUANTITY_EXAMPLE}")
