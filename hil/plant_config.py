@@ -282,11 +282,13 @@ def effect_values(name: str, cfg) -> dict:
     if key is not None and cfg.get(key) is not None:      # a recording artefact: [measurement]
         return {eff.params[0].name: float(cfg[key])}
     # an alias (time_delay) configures its effect's own section
-    out = {}
-    for p in eff.params:
-        v = cfg.get(f"effects.{eff.name}.{p.name}")
-        out[p.name] = p.number(v if v is not None else cfg[f"effects.{name}.{p.name}"])
-    return out
+    given = {p.name: next((v for v in (cfg.get(f"effects.{n}.{p.name}") for n in (eff.name, name)) if v is not None),
+                          None) for p in eff.params}
+    if all(v is None for v in given.values()):
+        return {p.name: p.number(cfg[f"effects.{name}.{p.name}"]) for p in eff.params}   # not configured
+    # a parameter the section does not write has its default, as the plant takes it (a section
+    # written before the parameter existed: compliant_mode's lumped)
+    return {p.name: p.number(v if v is not None else p.guess) for p, v in zip(eff.params, given.values())}
 
 
 def candidate(name: str, cfg: Config | None = None) -> Effect:

@@ -377,7 +377,10 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
         raise ValueError(f"{name}: cannot act on this axis: {why}")
     obj = replay.objective
     scale = record_scales(replay, res0)
-    starts = [dict(start)] if start else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)]
+    # a given start that leaves a fitted parameter out starts it at its default (a caller's start
+    # written before the effect had it: compliant_mode's lumped)
+    starts = ([{**{p.name: p.guess for p in eff.fitted_params}, **start}] if start
+              else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)])
     se: dict = {}
     vals, cfg1, res1, nfev = _fit_one(obj, cfg, eff, starts, max_nfev=max_nfev, stderr=se)
     confounded = se.pop("_confounded", [])

@@ -1,9 +1,12 @@
 """Effects of the structure: a mode the model lacks at the tool tip, a change of the moving mass.
 
-An added mode's starts (:meth:`CompliantMode.starts`): coupled to the chain, the new mode does not
+An added mode hangs on the chain's last body, and its mass is new or split off that body
+(``lumped``: the share of the modal mass the model held there rigidly; a 2-dof model of a
+column lumps the column's mass into the table's, and the mode found splits it off, the moving
+mass kept). Its starts (:meth:`CompliantMode.starts`): coupled to the chain, the new mode does not
 show at its own frequency (the measured resonances move), so for modal masses of 0.05 to 1.5
-times the tip mass the natural frequency that puts a mode of the coupled chain within 3 % of a
-peak of the residual spectrum (``ctx.mode_targets()``: the residual's own peaks, not the
+times the tip mass (and, split off the last body, 0.01 to 0.5 of it) the natural frequency that
+puts a mode of the coupled chain within 3 % of a peak of the residual spectrum (``ctx.mode_targets()``: the residual's own peaks, not the
 command's lines); beside those, a coarse grid over the physical range at damping ratio
 :attr:`CompliantMode.GRID_DAMPING`: the modal mass first (:attr:`CompliantMode.GRID_MASSES`
 log-spaced over :attr:`CompliantMode.GRID_RATIOS` of the tip mass, the mode stiff at the grid's
@@ -31,17 +34,25 @@ __all__ = ["CompliantMode", "MassChange"]
 class CompliantMode(Effect):
     name = "compliant_mode"
     description = ("an extra mass-spring-damper at the tool tip (a structural mode the model lacks); the "
-                   "new mass becomes the tool tip")
+                   "new mass becomes the tool tip, new or split off the mass the model held rigidly there")
     params = (Param("mass", "mass", 1e-3, 1e4, 5.0, "modal mass of the extra mode"),
               Param("frequency", "frequency", 0.5, 1e3, 20.0, "natural frequency of the extra mode (Hz)"),
-              Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"))
+              Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"),
+              Param("lumped", "dimensionless", 0.0, 1.0, 0.0,
+                    "share of the modal mass the model held rigidly in the body it hangs on, taken from it "
+                    "(0: the mass is new; 1: the model lumped it there, the moving mass is kept)"))
 
     def apply(self, plant, values):
         m, f, z = values["mass"], values["frequency"], values["damping_ratio"]
         w = 2 * math.pi * f
         k, c = m * w * w, 2 * z * m * w
         ch = plant.chain
-        chain = Chain(ch.m + (m,), ch.k + (k,), ch.c + (c,), ch.c_ground + (0.0,))
+        # a model that lumps the structure rigidly holds the mode's mass in its last body already
+        host = ch.m[-1] - values.get("lumped", 0.0) * m
+        if host <= 0:
+            raise ValueError(f"compliant_mode: {values.get('lumped', 0.0):g} of {m:g} kg taken from the "
+                             f"{ch.m[-1]:g} kg it hangs on leaves {host:g} kg")
+        chain = Chain(ch.m[:-1] + (host, m), ch.k + (k,), ch.c + (c,), ch.c_ground + (0.0,))
         return dataclasses.replace(plant, chain=chain, tip=ch.n)
 
     synth_strength = {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02}
@@ -51,6 +62,8 @@ class CompliantMode(Effect):
     GRID_RATIOS = (0.02, 2.0)  # the grid's modal masses, relative to the tip mass: lowest, highest
     GRID_MASSES = 7            # modal masses of the grid
     GRID_DAMPING = 0.02        # damping ratio of the grid's points
+    PEAK_RATIOS = (0.05, 0.15, 0.5, 1.5)     # modal masses of the peaks' starts, relative to the tip mass
+    LUMPED_RATIOS = (0.01, 0.05, 0.15, 0.5)  # the same split off the tip (a rigid model's tip holds the mode)
 
     @property
     def cost_factor(self) -> int:
@@ -75,38 +88,45 @@ class CompliantMode(Effect):
         f = values.get("frequency", 0.0)
         near = [fm for fm in ctx.base_modes if abs(fm - f) < 0.1 * f]
         tail = "not a mode of the model" if not near else f"near the model's {near[0]:.1f} Hz mode"
-        return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}; "
+        share = values.get("lumped", 0.0)
+        split = (f"; {100 * share:.0f} % of its {values.get('mass', 0.0):.3g} kg split off the "
+                 f"{ctx.plant.chain.m[-1]:.4g} kg the model held rigidly" if share >= 0.05 else "")
+        return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}; "
 
     def starts(self, ctx, guess):
-        # the best start from the residual's peaks and the best of the grid, then the next of each:
-        # the cheapest start is not always in the deepest basin
-        near = ctx.prefilter(self, self.peak_starts(ctx, guess))
+        # the best start from the residual's peaks (the mode's mass new, or split off the body it
+        # hangs on) and the best of the grid, then the next of each: the cheapest start is not
+        # always in the deepest basin
+        near = ctx.prefilter(self, self.peak_starts(ctx, guess) + self.peak_starts(ctx, guess, lumped=1.0))
         grid = ctx.prefilter(self, self.grid_starts(ctx))
         return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
 
-    def peak_starts(self, ctx, guess) -> list[dict]:
-        """For each modal mass (relative to the tip mass) the natural frequency that puts one of the
-        coupled chain's modes on a peak of the residual spectrum, with a low damping."""
+    def peak_starts(self, ctx, guess, lumped: float = 0.0) -> list[dict]:
+        """For each modal mass (relative to the tip mass; split off the last body, :attr:`LUMPED_RATIOS`
+        of it, where ``lumped``) the natural frequency that puts one of the coupled chain's modes on a peak of the
+        residual spectrum, with a low damping."""
         fmax = 0.45 / ctx.sample_period
         targets = ctx.mode_targets()[:2] or [guess["frequency"]]
         plant = ctx.plant
-        m_tip = plant.chain.m[plant.tip]
+        # split off, relative to the body the mode hangs on (the tip is the last body but for a tip
+        # mode that measures the table)
+        m_ref = plant.chain.m[-1] if lumped else plant.chain.m[plant.tip]
         f_grid = np.geomspace(0.5, fmax, 240)
         starts = []
-        for ratio in (0.05, 0.15, 0.5, 1.5):
-            m = ratio * m_tip
+        for ratio in (self.LUMPED_RATIOS if lumped else self.PEAK_RATIOS):
+            m = ratio * m_ref
             for ft in targets:
                 best = None
                 for fn in f_grid:
-                    ch = self.apply(plant, {"mass": m, "frequency": fn, "damping_ratio": 0.0}).chain
+                    ch = self.apply(plant, {"mass": m, "frequency": fn, "damping_ratio": 0.0, "lumped": lumped}).chain
                     ev = np.linalg.eigvals(np.linalg.solve(ch.M, ch.K)).real
                     fm = np.sqrt(np.maximum(ev, 0.0)) / (2 * np.pi)
                     d = float(np.min(np.abs(fm - ft))) / ft
                     if best is None or d < best[0]:
                         best = (d, fn)
                 if best[0] < 0.03:
-                    starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01})
-            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01})
+                    starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01, "lumped": lumped})
+            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "lumped": lumped})
         return starts
 
     def grid_starts(self, ctx) -> list[dict]:
@@ -116,7 +136,7 @@ class CompliantMode(Effect):
         p = self.param("frequency")
         fmax = min(0.45 / ctx.sample_period, p.upper)
         freqs = np.geomspace(max(self.GRID_FMIN, p.lower), fmax, self.GRID_FREQS)
-        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING}
+        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "lumped": 0.0}
                   for r in np.geomspace(self.GRID_RATIOS[0], self.GRID_RATIOS[1], self.GRID_MASSES)]
         out = ctx.grid_starts(self, masses, keep=2, fine=3)
         for best in list(out):
