@@ -291,6 +291,23 @@ def effect_values(name: str, cfg) -> dict:
     return {p.name: p.number(v if v is not None else p.guess) for p, v in zip(eff.params, given.values())}
 
 
+def values_text(name: str, values: dict) -> str:
+    """An effect's values as the chain's text writes them: "level 2.2, x0 0.001" (4 digits, SI; a
+    setting by its name, as a configuration writes it: "encoder table")."""
+    try:
+        eff = candidate(name)
+    except (KeyError, ValueError):
+        eff = None
+
+    def one(k, v):
+        try:
+            p = eff.param(k) if eff is not None else None
+        except KeyError:
+            p = None
+        return f"{k} {p.written(v)}" if p is not None and p.choices else f"{k} {v:.4g}"
+    return ", ".join(one(k, v) for k, v in values.items())
+
+
 def candidate(name: str, cfg: Config | None = None) -> Effect:
     """The effect of a catalogue name or ``parameter:<dotted name>``, or several joined by ``+``
     (a :class:`~sim_plant.effects.Combination`, fitted together)."""

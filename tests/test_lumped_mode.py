@@ -1,6 +1,7 @@
 """A structural mode the model held rigidly (``compliant_mode``'s ``lumped``): the mode's mass is
 split off the body it hangs on, so the moving mass is kept; against the closed form of the free
-2-mass system."""
+2-mass system. And what the tool tip's channel reads (``sensor``): the mode's mass, or the tip the
+model had."""
 import math
 
 import pytest
@@ -47,3 +48,12 @@ def test_a_config_written_before_the_key_adds_the_mass_as_it_did(tmp_path):
     assert effect_values("compliant_mode", cfg)["lumped"] == 0.0
     plant = apply_effects(plant_from_config(CFG), cfg)
     assert plant.chain.m == pytest.approx((CFG["plant.m1"], 7.0), rel=1e-15)
+
+
+@pytest.mark.parametrize("sensor,tip", [("mode", 1), ("tip", 0)])
+def test_the_tip_channel_reads_the_mode_or_the_tip_the_model_had(sensor, tip):
+    eff = candidate("compliant_mode")
+    plant = plant_from_config(CFG)
+    out = eff.apply(plant, {"mass": 2.0, "frequency": 40.0, "damping_ratio": 0.02, "lumped": 0.0,
+                            "sensor": eff.param("sensor").number(sensor)})
+    assert out.tip == tip and out.chain.n == 2

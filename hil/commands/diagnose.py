@@ -536,6 +536,7 @@ def chain_text(d, rp) -> list[str]:
     """The error falling step by step: per step the effects added and the RMS error of each channel
     (before -> after, and its ratio to the noise floor), then the end."""
     from hil.ident.unexplained import describe
+    from hil.plant_config import values_text
     from hil.units import fmt_si
     floor = {c: max(v, 1e-300) for c, v in d["noise_floor"].items()}
     chans = list(floor)
@@ -548,8 +549,7 @@ def chain_text(d, rp) -> list[str]:
             lines += [_tolerance_line(tol)] + _held_out_lines(tol, rp)
             tol = None
         added = " + ".join(s.effects)
-        par = "; ".join(f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in s.params.items()
-                        if n in s.effects)
+        par = "; ".join(f"{n}: " + values_text(n, p) for n, p in s.params.items() if n in s.effects)
         lines.append(f"  step {s.step}: + {added}{' (all refitted together)' if s.refitted_together else ''}"
                      f" [{par}]")
         if s.recording_artefacts:
@@ -573,7 +573,7 @@ def chain_text(d, rp) -> list[str]:
             lines += [x.replace("          estimation", f"          {where.split(' beside')[0]}: estimation", 1)
                       for x in _held_out_lines(n, rp)]
         for e in s.dropped or []:
-            par = ", ".join(f"{k} {v:.4g}" for k, v in e["params"].items())
+            par = values_text(e["effect"], e["params"])
             why = (f"replaced: {added} pays more in its place" if s.swapped == e["effect"] else
                    "no longer pays beside this step's effects")
             lines.append(f"          - {e['effect']} [{par}]: {why} (BIC score {e['score']:.1f}): dropped from the model")
@@ -605,6 +605,7 @@ def chain_text(d, rp) -> list[str]:
 
 
 def _tolerance_line(t) -> str:
+    from hil.plant_config import values_text
     line = (f"  step {t['step']}: a drift within the config's tolerance (plant.tolerance {100 * t['tolerance']:.3g} %), "
             f"no finding; the config's values fitted within it: " +
             ", ".join(f"{k.split('.')[-1]} {100 * p['change']:+.2f} %" for k, p in t["params"].items()))
@@ -616,7 +617,7 @@ def _tolerance_line(t) -> str:
         line += " (fitted again after step " + ", ".join(str(n) for n in t["again_after"]) + ")"
     if t.get("refitted"):
         line += ("; refitted with them: " + "; ".join(
-            f"{n}: " + ", ".join(f"{k} {v:.4g}" for k, v in p.items()) for n, p in t["refitted"].items()))
+            f"{n}: " + values_text(n, p) for n, p in t["refitted"].items()))
     return line
 
 
