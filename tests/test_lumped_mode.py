@@ -57,3 +57,12 @@ def test_the_tip_channel_reads_the_mode_or_the_tip_the_model_had(sensor, tip):
     out = eff.apply(plant, {"mass": 2.0, "frequency": 40.0, "damping_ratio": 0.02, "lumped": 0.0,
                             "sensor": eff.param("sensor").number(sensor)})
     assert out.tip == tip and out.chain.n == 2
+
+
+def test_a_mode_wholly_lumped_is_a_finding_not_an_effect_at_its_bound():
+    from hil.ident.fit import at_range_edge
+    mode = {"mass": 4.2, "frequency": 14.9, "damping_ratio": 0.015, "sensor": 0.0}
+    assert at_range_edge(candidate("compliant_mode"), dict(mode, lumped=1.0)) == ""
+    assert at_range_edge(candidate("compliant_mode"), dict(mode, lumped=0.0)) == ""
+    assert "frequency ended at the bound" in at_range_edge(candidate("compliant_mode"),
+                                                           dict(mode, lumped=1.0, frequency=1e3))

@@ -591,7 +591,7 @@ def _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress):
         # mode moved from 65 to 60 Hz), and an effect riding on it (a backlash of 0.6 nm) takes the
         # credit (stepwise selection's backward step, on the step's own effects)
         alone = cfg1
-        for n in add:
+        for n in (m for a in add for m in a.split("+")):     # a combination's members, each
             alone = _without(n, alone, cur.cfg)
         score = min(score, bic_score(cur.residuals(alone), res1, list(floor), k, floor))
     return cfg1, res1, joint, score

@@ -414,11 +414,13 @@ def at_range_edge(eff, vals: dict) -> str:
     """Why a fit that ends at a bound of a parameter's range is no finding ("" where none does):
     no value the effect can take explains the record, only the edge of what it may, so it stands
     for something else (HSM150: a torque constant at its lower bound 0.5). A bound at zero is left
-    alone: there the effect, or that part of it, is absent."""
+    alone: there the effect, or that part of it, is absent; so is a range whose ends the physics
+    takes (``Param.ends_physical``: compliant_mode's lumped share, from none to all)."""
     edges = []
     for p in getattr(eff, "fitted_params", ()):
         v = vals.get(p.name)
-        if v is None or not (math.isfinite(p.lower) and math.isfinite(p.upper)) or p.upper <= p.lower:
+        if v is None or not (math.isfinite(p.lower) and math.isfinite(p.upper)) or p.upper <= p.lower \
+                or p.ends_physical:
             continue
         # close to the bound on its own scale too: a range over decades (a stiffness from 1000 N/m)
         # puts a tenth of a percent of its span far above the lower bound

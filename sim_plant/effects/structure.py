@@ -48,7 +48,7 @@ class CompliantMode(Effect):
               Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"),
               Param("lumped", "dimensionless", 0.0, 1.0, 0.0,
                     "share of the modal mass the model held rigidly in the body it hangs on, taken from it "
-                    "(0: the mass is new; 1: the model lumped it there, the moving mass is kept)"),
+                    "(0: the mass is new; 1: the model lumped it there, the moving mass is kept)", ends_physical=True),
               Param("sensor", "dimensionless", 0.0, 1.0, 0.0,
                     "what the tool tip's channel reads: the mode's mass (the new tool tip) or the tip as the model "
                     "has it (a mode beside the tip, felt through its reaction) (a setting)",
@@ -103,11 +103,12 @@ class CompliantMode(Effect):
         f = values.get("frequency", 0.0)
         near = [fm for fm in ctx.base_modes if abs(fm - f) < 0.1 * f]
         tail = "not a mode of the model" if not near else f"near the model's {near[0]:.1f} Hz mode"
-        share = values.get("lumped", 0.0)
-        split = (f"; {100 * share:.0f} % of its {values.get('mass', 0.0):.3g} kg split off the "
-                 f"{ctx.plant.chain.m[-1]:.4g} kg the model held rigidly" if share >= 0.05 else "")
-        beside = "; beside the tool tip, which the tip's channel reads" if self.SENSORS[
-            int(round(values.get("sensor", 0.0)))] == "tip" else ""
+        share, m = values.get("lumped", 0.0), values.get("mass", 0.0)
+        host = ctx.plant.chain.m[-1]
+        split = (f"; {share * m:.3g} kg of its {m:.3g} kg taken off the {host:.4g} kg body it hangs on, which "
+                 f"held it rigidly (now {host - share * m:.4g} kg)" if share >= 0.05 else "")
+        beside = ("; beside the tool tip: x_tip reads the tip as modelled, not the mode" if self.SENSORS[
+            int(round(values.get("sensor", 0.0)))] == "tip" else "")
         return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}{beside}; "
 
     def starts(self, ctx, guess):
@@ -116,8 +117,8 @@ class CompliantMode(Effect):
         # always in the deepest basin
         given = ctx.given(self.name, "sensor")
         sensors = [float(given)] if given is not None else [0.0, 1.0]
-        near = ctx.prefilter(self, [dict(s, sensor=r) for r in sensors for s in
-                                    self.peak_starts(ctx, guess) + self.peak_starts(ctx, guess, lumped=1.0)])
+        peaks = self.peak_starts(ctx, guess) + self.peak_starts(ctx, guess, lumped=1.0)
+        near = ctx.prefilter(self, [dict(s, sensor=r) for r in sensors for s in peaks])
         grid = ctx.prefilter(self, self.grid_starts(ctx, sensors))
         return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
 
