@@ -1,7 +1,6 @@
 """A structural mode the model held rigidly (``compliant_mode``'s ``lumped``): the mode's mass is
 split off the body it hangs on, so the moving mass is kept; against the closed form of the free
-2-mass system. And what the tool tip's channel reads (``sensor``): the mode's mass, or the tip the
-model had."""
+2-mass system."""
 import math
 
 import pytest
@@ -50,18 +49,9 @@ def test_a_config_written_before_the_key_adds_the_mass_as_it_did(tmp_path):
     assert plant.chain.m == pytest.approx((CFG["plant.m1"], 7.0), rel=1e-15)
 
 
-@pytest.mark.parametrize("sensor,tip", [("mode", 1), ("tip", 0)])
-def test_the_tip_channel_reads_the_mode_or_the_tip_the_model_had(sensor, tip):
-    eff = candidate("compliant_mode")
-    plant = plant_from_config(CFG)
-    out = eff.apply(plant, {"mass": 2.0, "frequency": 40.0, "damping_ratio": 0.02, "lumped": 0.0,
-                            "sensor": eff.param("sensor").number(sensor)})
-    assert out.tip == tip and out.chain.n == 2
-
-
 def test_a_mode_wholly_lumped_is_a_finding_not_an_effect_at_its_bound():
     from hil.ident.fit import at_range_edge
-    mode = {"mass": 4.2, "frequency": 14.9, "damping_ratio": 0.015, "sensor": 0.0}
+    mode = {"mass": 4.2, "frequency": 14.9, "damping_ratio": 0.015}
     assert at_range_edge(candidate("compliant_mode"), dict(mode, lumped=1.0)) == ""
     assert at_range_edge(candidate("compliant_mode"), dict(mode, lumped=0.0)) == ""
     assert "frequency ended at the bound" in at_range_edge(candidate("compliant_mode"),

@@ -3,13 +3,12 @@
 An added mode hangs on the chain's last body, and its mass is new or split off that body
 (``lumped``: the share of the modal mass the model held there rigidly; a 2-dof model of a
 column lumps the column's mass into the table's, and the mode found splits it off, the moving
-mass kept). The tool tip's channel reads the mode's mass (``sensor`` "mode": the new tool tip) or
-the tip the model had (``sensor`` "tip": a light mode beside the tip, a tool holder or a cover,
-which the tip's instrument feels only through its reaction). Its starts (:meth:`CompliantMode.starts`): coupled to the chain, the new mode does not
-show at its own frequency (the measured resonances move), so for modal masses of 0.05 to 1.5
-times the tip mass (and, split off the last body, 0.01 to 0.5 of it) the natural frequency that
-puts a mode of the coupled chain within 3 % of a peak of the residual spectrum (``ctx.mode_targets()``: the residual's own peaks, not the
-command's lines); beside those, a coarse grid over the physical range at damping ratio
+mass kept); the new mass becomes the tool tip. Its starts (:meth:`CompliantMode.starts`): coupled
+to the chain, the new mode does not show at its own frequency (the measured resonances move), so
+for modal masses of 0.05 to 1.5 times the tip mass (and, split off the last body, 0.01 to 0.5 of
+it) the natural frequency that puts a mode of the coupled chain within 3 % of a peak of the
+residual spectrum (``ctx.mode_targets()``: the residual's own peaks, not the command's lines);
+beside those, a coarse grid over the physical range at damping ratio
 :attr:`CompliantMode.GRID_DAMPING`: the modal mass first (:attr:`CompliantMode.GRID_MASSES`
 log-spaced over :attr:`CompliantMode.GRID_RATIOS` of the tip mass, the mode stiff at the grid's
 top frequency, where it acts as a mass on the tip), then at the two best masses the natural
@@ -17,9 +16,7 @@ frequency (:attr:`CompliantMode.GRID_FREQS` log-spaced from :attr:`CompliantMode
 the record's 0.45 / sample period); each line refined between its best point's neighbours
 (``ctx.grid_starts``); the local fit starts from the cheapest start of the residual's peaks and
 the cheapest of the grid (then the second of each): a light fast mode and a heavy slow one shift
-the chain's own resonance alike, the grid tells them apart. Both readings of the tip's channel
-are tried (the frequency lines of the grid for each), unless the config gives ``sensor``. Two
-starts in the brief screen.
+the chain's own resonance alike, the grid tells them apart. Two starts in the brief screen.
 """
 from __future__ import annotations
 
@@ -33,28 +30,18 @@ from sim_plant.effects.base import Effect, Param, register
 
 __all__ = ["CompliantMode", "MassChange"]
 
-# what the tool tip's channel reads with a mode added: the mode's mass, or the tip the model had
-SENSORS = ("mode", "tip")
-
 
 @register
 class CompliantMode(Effect):
     name = "compliant_mode"
     description = ("an extra mass-spring-damper at the tool tip (a structural mode the model lacks), new or "
-                   "split off the mass the model held rigidly there; the tip's channel reads the new mass or, "
-                   "for a light mode beside the tip, the tip as it was")
+                   "split off the mass the model held rigidly there; the new mass becomes the tool tip")
     params = (Param("mass", "mass", 1e-3, 1e4, 5.0, "modal mass of the extra mode"),
               Param("frequency", "frequency", 0.5, 1e3, 20.0, "natural frequency of the extra mode (Hz)"),
               Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"),
               Param("lumped", "dimensionless", 0.0, 1.0, 0.0,
                     "share of the modal mass the model held rigidly in the body it hangs on, taken from it "
-                    "(0: the mass is new; 1: the model lumped it there, the moving mass is kept)", ends_physical=True),
-              Param("sensor", "dimensionless", 0.0, 1.0, 0.0,
-                    "what the tool tip's channel reads: the mode's mass (the new tool tip) or the tip as the model "
-                    "has it (a mode beside the tip, felt through its reaction) (a setting)",
-                    fit=False, choices=SENSORS))
-
-    SENSORS = SENSORS
+                    "(0: the mass is new; 1: the model lumped it there, the moving mass is kept)", ends_physical=True))
 
     def apply(self, plant, values):
         m, f, z = values["mass"], values["frequency"], values["damping_ratio"]
@@ -67,8 +54,7 @@ class CompliantMode(Effect):
             raise ValueError(f"compliant_mode: {values.get('lumped', 0.0):g} of {m:g} kg taken from the "
                              f"{ch.m[-1]:g} kg it hangs on leaves {host:g} kg")
         chain = Chain(ch.m[:-1] + (host, m), ch.k + (k,), ch.c + (c,), ch.c_ground + (0.0,))
-        return dataclasses.replace(plant, chain=chain, tip=ch.n if self.SENSORS[int(round(values.get("sensor", 0.0)))]
-                                   == "mode" else plant.tip)
+        return dataclasses.replace(plant, chain=chain, tip=ch.n)
 
     synth_strength = {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02}
     screen_starts = 2          # the residual's peaks and the grid: two basins apart, both screened
@@ -107,19 +93,14 @@ class CompliantMode(Effect):
         host = ctx.plant.chain.m[-1]
         split = (f"; {share * m:.3g} kg of its {m:.3g} kg taken off the {host:.4g} kg body it hangs on, which "
                  f"held it rigidly (now {host - share * m:.4g} kg)" if share >= 0.05 else "")
-        beside = ("; beside the tool tip: x_tip reads the tip as modelled, not the mode" if self.SENSORS[
-            int(round(values.get("sensor", 0.0)))] == "tip" else "")
-        return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}{beside}; "
+        return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}; "
 
     def starts(self, ctx, guess):
         # the best start from the residual's peaks (the mode's mass new, or split off the body it
         # hangs on) and the best of the grid, then the next of each: the cheapest start is not
         # always in the deepest basin
-        given = ctx.given(self.name, "sensor")
-        sensors = [float(given)] if given is not None else [0.0, 1.0]
-        peaks = self.peak_starts(ctx, guess) + self.peak_starts(ctx, guess, lumped=1.0)
-        near = ctx.prefilter(self, [dict(s, sensor=r) for r in sensors for s in peaks])
-        grid = ctx.prefilter(self, self.grid_starts(ctx, sensors))
+        near = ctx.prefilter(self, self.peak_starts(ctx, guess) + self.peak_starts(ctx, guess, lumped=1.0))
+        grid = ctx.prefilter(self, self.grid_starts(ctx))
         return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
 
     def peak_starts(self, ctx, guess, lumped: float = 0.0) -> list[dict]:
@@ -150,21 +131,18 @@ class CompliantMode(Effect):
             starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "lumped": lumped})
         return starts
 
-    def grid_starts(self, ctx, sensors=(0.0,)) -> list[dict]:
+    def grid_starts(self, ctx) -> list[dict]:
         """The coarse grid (the module's definition): the modal mass with the mode stiff, then the
-        natural frequency at the best masses, for each of ``sensors``; the cheapest two of each line
-        (stiff, the mode is a rigid mass on the tip whichever body the channel reads)."""
+        natural frequency at the best masses; the cheapest two of each line."""
         m_tip = ctx.plant.chain.m[ctx.plant.tip]
         p = self.param("frequency")
         fmax = min(0.45 / ctx.sample_period, p.upper)
         freqs = np.geomspace(max(self.GRID_FMIN, p.lower), fmax, self.GRID_FREQS)
-        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "lumped": 0.0,
-                   "sensor": sensors[0]}
+        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "lumped": 0.0}
                   for r in np.geomspace(self.GRID_RATIOS[0], self.GRID_RATIOS[1], self.GRID_MASSES)]
         out = ctx.grid_starts(self, masses, keep=2, fine=3)
         for best in list(out):
-            for r in sensors:
-                out += ctx.grid_starts(self, [dict(best, frequency=float(f), sensor=r) for f in freqs], keep=2, fine=3)
+            out += ctx.grid_starts(self, [dict(best, frequency=float(f)) for f in freqs], keep=2, fine=3)
         return out
 
 
