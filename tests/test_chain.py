@@ -231,13 +231,7 @@ def test_feedback_delay_and_coulomb_both_named(level, delay, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("mass,freq", [
-    (0.5, 60.0),
-    # named right (0.299 kg, 44.6 Hz) but its damping left at 0.038 for 0.02, the tip 6 x its floor:
-    # the joint refit that moves it to its floor came only with a step whose own effect does not pay
-    # beside it, and such a step is refused with the refit (an open finding: keep the refit alone)
-    pytest.param(0.3, 45.0, marks=pytest.mark.xfail(reason="the refit that reaches the floor is refused with "
-                                                           "the rider it came with", strict=False))])
+@pytest.mark.parametrize("mass,freq", [(0.5, 60.0), (0.3, 45.0)])
 def test_light_second_mode_named(mass, freq):
     # a light mode above the first on the tool side: its residual is not noise (the floor comes
     # from standstills and the encoder grid, not from the residual that holds the mode)

@@ -377,10 +377,7 @@ def evaluate(replay: Replay, name: str, res0: dict | None = None, max_nfev: int 
         raise ValueError(f"{name}: cannot act on this axis: {why}")
     obj = replay.objective
     scale = record_scales(replay, res0)
-    # a given start that leaves a fitted parameter out starts it at its default (a caller's start
-    # written before the effect had it: compliant_mode's lumped)
-    starts = ([{**{p.name: p.guess for p in eff.fitted_params}, **start}] if start
-              else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)])
+    starts = [dict(start)] if start else starting_values(eff, replay, res0, scale, cfg)[:max(1, n_starts)]
     se: dict = {}
     vals, cfg1, res1, nfev = _fit_one(obj, cfg, eff, starts, max_nfev=max_nfev, stderr=se)
     confounded = se.pop("_confounded", [])
@@ -414,13 +411,11 @@ def at_range_edge(eff, vals: dict) -> str:
     """Why a fit that ends at a bound of a parameter's range is no finding ("" where none does):
     no value the effect can take explains the record, only the edge of what it may, so it stands
     for something else (HSM150: a torque constant at its lower bound 0.5). A bound at zero is left
-    alone: there the effect, or that part of it, is absent; so is a range whose ends the physics
-    takes (``Param.ends_physical``: compliant_mode's lumped share, from none to all)."""
+    alone: there the effect, or that part of it, is absent."""
     edges = []
     for p in getattr(eff, "fitted_params", ()):
         v = vals.get(p.name)
-        if v is None or not (math.isfinite(p.lower) and math.isfinite(p.upper)) or p.upper <= p.lower \
-                or p.ends_physical:
+        if v is None or not (math.isfinite(p.lower) and math.isfinite(p.upper)) or p.upper <= p.lower:
             continue
         # close to the bound on its own scale too: a range over decades (a stiffness from 1000 N/m)
         # puts a tenth of a percent of its span far above the lower bound

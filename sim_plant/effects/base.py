@@ -88,9 +88,6 @@ class Param:
     # names of a setting's whole values 0, 1, ... (``encoder``: "motor", "table"): a configuration
     # writes the name, the physics takes the number (:meth:`number`, :meth:`written`)
     choices: tuple = ()
-    # True: both ends of the range are values the physics takes (a share from none to all), so a
-    # fit that ends there is a finding, not an effect pressed against the edge of what it may be
-    ends_physical: bool = False
 
     def kind_for(self, rotary: bool) -> str:
         """The unit kind on a rotary (motor and screw) or a linear actuator."""

@@ -1,9 +1,9 @@
 """Effects of the structure: a mode the model lacks at the tool tip, a change of the moving mass.
 
 An added mode hangs on the chain's last body, and its mass is new or split off that body
-(``lumped``: the share of the modal mass the model held there rigidly; a 2-dof model of a
-column lumps the column's mass into the table's, and the mode found splits it off, the moving
-mass kept); the new mass becomes the tool tip. Its starts (:meth:`CompliantMode.starts`): coupled
+(``origin`` "new" or "lumped": a 2-dof model of a column lumps the column's mass into the
+table's, and the mode found splits it off, the moving mass kept; a setting, not a share, which
+the record could not tell from the mass beside a heavy body); the new mass becomes the tool tip. Its starts (:meth:`CompliantMode.starts`): coupled
 to the chain, the new mode does not show at its own frequency (the measured resonances move), so
 for modal masses of 0.05 to 1.5 times the tip mass (and, split off the last body, 0.01 to 0.5 of
 it) the natural frequency that puts a mode of the coupled chain within 3 % of a peak of the
@@ -16,7 +16,9 @@ frequency (:attr:`CompliantMode.GRID_FREQS` log-spaced from :attr:`CompliantMode
 the record's 0.45 / sample period); each line refined between its best point's neighbours
 (``ctx.grid_starts``); the local fit starts from the cheapest start of the residual's peaks and
 the cheapest of the grid (then the second of each): a light fast mode and a heavy slow one shift
-the chain's own resonance alike, the grid tells them apart. Two starts in the brief screen.
+the chain's own resonance alike, the grid tells them apart. The fits start from the cheapest of
+each: the peaks, the grid and, where the mode hangs on the table (:meth:`CompliantMode.may_split`),
+the peaks with the mass split off.
 """
 from __future__ import annotations
 
@@ -30,6 +32,9 @@ from sim_plant.effects.base import Effect, Param, register
 
 __all__ = ["CompliantMode", "MassChange"]
 
+# where an added mode's mass comes from: new on the axis, or split off the body it hangs on
+ORIGINS = ("new", "lumped")
+
 
 @register
 class CompliantMode(Effect):
@@ -39,9 +44,12 @@ class CompliantMode(Effect):
     params = (Param("mass", "mass", 1e-3, 1e4, 5.0, "modal mass of the extra mode"),
               Param("frequency", "frequency", 0.5, 1e3, 20.0, "natural frequency of the extra mode (Hz)"),
               Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"),
-              Param("lumped", "dimensionless", 0.0, 1.0, 0.0,
-                    "share of the modal mass the model held rigidly in the body it hangs on, taken from it "
-                    "(0: the mass is new; 1: the model lumped it there, the moving mass is kept)", ends_physical=True))
+              Param("origin", "dimensionless", 0.0, 1.0, 0.0,
+                    "where the modal mass comes from: new on the axis, or lumped (the model held it rigidly in "
+                    "the body the mode hangs on; split off it, the moving mass is kept) (a setting)",
+                    fit=False, choices=ORIGINS))
+
+    ORIGINS = ORIGINS
 
     def apply(self, plant, values):
         m, f, z = values["mass"], values["frequency"], values["damping_ratio"]
@@ -49,15 +57,17 @@ class CompliantMode(Effect):
         k, c = m * w * w, 2 * z * m * w
         ch = plant.chain
         # a model that lumps the structure rigidly holds the mode's mass in its last body already
-        host = ch.m[-1] - values.get("lumped", 0.0) * m
+        host = ch.m[-1] - m * self._lumped(values)
         if host <= 0:
-            raise ValueError(f"compliant_mode: {values.get('lumped', 0.0):g} of {m:g} kg taken from the "
-                             f"{ch.m[-1]:g} kg it hangs on leaves {host:g} kg")
+            raise ValueError(f"compliant_mode: {m:g} kg split off the {ch.m[-1]:g} kg it hangs on leaves {host:g} kg")
         chain = Chain(ch.m[:-1] + (host, m), ch.k + (k,), ch.c + (c,), ch.c_ground + (0.0,))
         return dataclasses.replace(plant, chain=chain, tip=ch.n)
 
+    def _lumped(self, values) -> bool:
+        return self.ORIGINS[int(round(values.get("origin", 0.0)))] == "lumped"
+
     synth_strength = {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02}
-    screen_starts = 2          # the residual's peaks and the grid: two basins apart, both screened
+    screen_starts = 3          # the residual's peaks, the grid, the peaks split off: basins apart, each screened
     GRID_FREQS = 12            # natural frequencies of the grid
     GRID_FMIN = 2.0            # Hz, the grid's lower end
     GRID_RATIOS = (0.02, 2.0)  # the grid's modal masses, relative to the tip mass: lowest, highest
@@ -89,21 +99,30 @@ class CompliantMode(Effect):
         f = values.get("frequency", 0.0)
         near = [fm for fm in ctx.base_modes if abs(fm - f) < 0.1 * f]
         tail = "not a mode of the model" if not near else f"near the model's {near[0]:.1f} Hz mode"
-        share, m = values.get("lumped", 0.0), values.get("mass", 0.0)
-        host = ctx.plant.chain.m[-1]
-        split = (f"; {share * m:.3g} kg of its {m:.3g} kg taken off the {host:.4g} kg body it hangs on, which "
-                 f"held it rigidly (now {host - share * m:.4g} kg)" if share >= 0.05 else "")
+        m, host = values.get("mass", 0.0), ctx.plant.chain.m[-1]
+        split = (f"; its {m:.3g} kg split off the {host:.4g} kg body it hangs on, which held it rigidly (now "
+                 f"{host - m:.4g} kg)" if self._lumped(values) else "")
         return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}; "
 
     def starts(self, ctx, guess):
-        # the best start from the residual's peaks (the mode's mass new, or split off the body it
-        # hangs on) and the best of the grid, then the next of each: the cheapest start is not
-        # always in the deepest basin
-        near = ctx.prefilter(self, self.peak_starts(ctx, guess) + self.peak_starts(ctx, guess, lumped=1.0))
-        grid = ctx.prefilter(self, self.grid_starts(ctx))
-        return [s for pair in zip(near, grid) for s in pair] + near[len(grid):] + grid[len(near):]
+        # the cheapest start from the residual's peaks, of the grid and, where the mode may be split
+        # off, of the peaks with the mass split off: the cheapest start is not always in the deepest
+        # basin, and a split start cheaper than a new mass's must not take its place
+        lines = [self.peak_starts(ctx, guess), self.grid_starts(ctx)]
+        if self.may_split(ctx.plant):
+            lines.append(self.peak_starts(ctx, guess, lumped=True))
+        return [s for line in lines for s in ctx.prefilter(self, line, keep=1)]
 
-    def peak_starts(self, ctx, guess, lumped: float = 0.0) -> list[dict]:
+    @staticmethod
+    def may_split(plant) -> bool:
+        """Whether a mode's mass may be split off the body it would hang on: only where that body is
+        the table (a rigid axis's one mass, a 2-dof model's table), which a model that lumps the
+        structure holds it in. A tip body the model already hangs on a spring of its own has its
+        mode; split, it stood for a softer spring (a 2 kg tool-side mode at 98 Hz was fitted as half
+        the tip's mass at 22 Hz)."""
+        return plant.table == plant.chain.n - 1
+
+    def peak_starts(self, ctx, guess, lumped: bool = False) -> list[dict]:
         """For each modal mass (relative to the tip mass; split off the last body, :attr:`LUMPED_RATIOS`
         of it, where ``lumped``) the natural frequency that puts one of the coupled chain's modes on a peak of the
         residual spectrum, with a low damping."""
@@ -114,21 +133,22 @@ class CompliantMode(Effect):
         # mode that measures the table)
         m_ref = plant.chain.m[-1] if lumped else plant.chain.m[plant.tip]
         f_grid = np.geomspace(0.5, fmax, 240)
+        origin = float(self.ORIGINS.index("lumped" if lumped else "new"))
         starts = []
         for ratio in (self.LUMPED_RATIOS if lumped else self.PEAK_RATIOS):
             m = ratio * m_ref
             for ft in targets:
                 best = None
                 for fn in f_grid:
-                    ch = self.apply(plant, {"mass": m, "frequency": fn, "damping_ratio": 0.0, "lumped": lumped}).chain
+                    ch = self.apply(plant, {"mass": m, "frequency": fn, "damping_ratio": 0.0, "origin": origin}).chain
                     ev = np.linalg.eigvals(np.linalg.solve(ch.M, ch.K)).real
                     fm = np.sqrt(np.maximum(ev, 0.0)) / (2 * np.pi)
                     d = float(np.min(np.abs(fm - ft))) / ft
                     if best is None or d < best[0]:
                         best = (d, fn)
                 if best[0] < 0.03:
-                    starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01, "lumped": lumped})
-            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "lumped": lumped})
+                    starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01, "origin": origin})
+            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "origin": origin})
         return starts
 
     def grid_starts(self, ctx) -> list[dict]:
@@ -138,7 +158,7 @@ class CompliantMode(Effect):
         p = self.param("frequency")
         fmax = min(0.45 / ctx.sample_period, p.upper)
         freqs = np.geomspace(max(self.GRID_FMIN, p.lower), fmax, self.GRID_FREQS)
-        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "lumped": 0.0}
+        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "origin": 0.0}
                   for r in np.geomspace(self.GRID_RATIOS[0], self.GRID_RATIOS[1], self.GRID_MASSES)]
         out = ctx.grid_starts(self, masses, keep=2, fine=3)
         for best in list(out):

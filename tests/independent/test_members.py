@@ -80,10 +80,6 @@ def test_the_text_names_each_member_and_the_one_taken_out():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="since compliant_mode's starts try the mode's mass split off the tip (lumped) and "
-                          "read beside the tip (sensor), its brief fit here lands outside the top six and the "
-                          "first diagnosis names c2, the chain the tip's mass (parameter:plant.m3): an open "
-                          "finding", strict=False)
 def test_the_members_of_a_pair_shown_together_earn_their_own_place():
     # the drifted matrix's seed 1 record 8 (bench_diagnose --matrix --drift 3%): a 2 kg mode at
     # 98 Hz on the tip with every mass, stiffness and damping drifted by up to 3 %. The first
