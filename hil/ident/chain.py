@@ -23,10 +23,7 @@ Each step:
 3. every effect found so far refitted together from those values (one
    :class:`~sim_plant.effects.Combination`, bounded and scaled as any candidate's fit), kept when
    it lowers the weighted error; the step is kept when its BIC score on the record pays for the
-   parameters it added, against the model as it stood and, after the refit, against the refit
-   with the step's effects taken out (the refit may find a better basin for an earlier effect,
-   and an effect riding on it would take the credit: a backlash of 0.6 nm beside a tool-side mode
-   moved from 65 to 60 Hz).
+   parameters it added.
 
 The polishing fits weight each channel by the residual the step's first fit left (1 / max(RMS,
 floor)), not by the residual before it: a channel the fit brought to its floor no longer drowns
@@ -563,8 +560,7 @@ RIVAL_GAIN = 0.8
 def _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress):
     """(config, residuals, joint fit or None, BIC score) of a step: everything found so far refitted
     together with ``add`` from the values it has now (kept when it lowers the weighted error), and
-    the step's score on the record (BIC, as every candidate's): against the model as it stood and,
-    after a joint refit, against the refit with ``add`` taken out, the lower of the two."""
+    the step's score on the record (BIC, as every candidate's)."""
     floor = replay.noise
     res1 = cur.residuals(cfg1)
     joint = None
@@ -584,17 +580,7 @@ def _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress):
         else:
             joint = None
     k = sum(len(candidate(n, cur.cfg).params) for n in add)
-    score = bic_score(cur.base_residuals, res1, list(floor), k, floor)
-    if joint is not None:
-        # the step pays only for what its own effects do beside everything found as refitted with
-        # them: the refit alone may have found a better basin for an earlier effect (a tool-side
-        # mode moved from 65 to 60 Hz), and an effect riding on it (a backlash of 0.6 nm) takes the
-        # credit (stepwise selection's backward step, on the step's own effects)
-        alone = cfg1
-        for n in (m for a in add for m in a.split("+")):     # a combination's members, each
-            alone = _without(n, alone, cur.cfg)
-        score = min(score, bic_score(cur.residuals(alone), res1, list(floor), k, floor))
-    return cfg1, res1, joint, score
+    return cfg1, res1, joint, bic_score(cur.base_residuals, res1, list(floor), k, floor)
 
 
 def _without(name: str, cfg, base):

@@ -3,21 +3,21 @@
 An added mode hangs on the chain's last body, and its mass is new or split off that body
 (``origin`` "new" or "lumped": a 2-dof model of a column lumps the column's mass into the
 table's, and the mode found splits it off, the moving mass kept; a setting, not a share, which
-the record could not tell from the mass beside a heavy body); the new mass becomes the tool tip. Its starts (:meth:`CompliantMode.starts`): coupled
-to the chain, the new mode does not show at its own frequency (the measured resonances move), so
-for modal masses of 0.05 to 1.5 times the tip mass (and, split off the last body, 0.01 to 0.5 of
-it) the natural frequency that puts a mode of the coupled chain within 3 % of a peak of the
-residual spectrum (``ctx.mode_targets()``: the residual's own peaks, not the command's lines);
-beside those, a coarse grid over the physical range at damping ratio
-:attr:`CompliantMode.GRID_DAMPING`: the modal mass first (:attr:`CompliantMode.GRID_MASSES`
-log-spaced over :attr:`CompliantMode.GRID_RATIOS` of the tip mass, the mode stiff at the grid's
-top frequency, where it acts as a mass on the tip), then at the two best masses the natural
-frequency (:attr:`CompliantMode.GRID_FREQS` log-spaced from :attr:`CompliantMode.GRID_FMIN` to
-the record's 0.45 / sample period); each line refined between its best point's neighbours
-(``ctx.grid_starts``); the local fit starts from the cheapest start of the residual's peaks and
-the cheapest of the grid (then the second of each): a light fast mode and a heavy slow one shift
-the chain's own resonance alike, the grid tells them apart. The fits start from the cheapest of
-each: the peaks, the grid and, where the mode hangs on the table (:meth:`CompliantMode.may_split`),
+the record could not tell from the mass beside a heavy body); the new mass becomes the tool tip.
+
+Its starts (:meth:`CompliantMode.starts`): coupled to the chain, the new mode does not show at its
+own frequency (the measured resonances move), so for modal masses of 0.05 to 1.5 times the tip
+mass (and, split off the table, 0.01 to 0.5 of it) the natural frequency that puts a mode of the
+coupled chain within 3 % of a peak of the residual spectrum (``ctx.mode_targets()``: the
+residual's own peaks, not the command's lines); beside those, a coarse grid over the physical
+range at damping ratio :attr:`CompliantMode.GRID_DAMPING`: the modal mass first
+(:attr:`CompliantMode.GRID_MASSES` log-spaced over :attr:`CompliantMode.GRID_RATIOS` of the tip
+mass, the mode stiff at the grid's top frequency, where it acts as a mass on the tip), then at the
+two best masses the natural frequency (:attr:`CompliantMode.GRID_FREQS` log-spaced from
+:attr:`CompliantMode.GRID_FMIN` to the record's 0.45 / sample period); each line refined between
+its best point's neighbours (``ctx.grid_starts``). The fits start from the cheapest of each: the
+peaks, the grid (a light fast mode and a heavy slow one shift the chain's own resonance alike, the
+grid tells them apart) and, where the mode hangs on the table (:meth:`CompliantMode.may_split`),
 the peaks with the mass split off.
 """
 from __future__ import annotations
@@ -74,7 +74,7 @@ class CompliantMode(Effect):
     GRID_MASSES = 7            # modal masses of the grid
     GRID_DAMPING = 0.02        # damping ratio of the grid's points
     PEAK_RATIOS = (0.05, 0.15, 0.5, 1.5)     # modal masses of the peaks' starts, relative to the tip mass
-    LUMPED_RATIOS = (0.01, 0.05, 0.15, 0.5)  # the same split off the tip (a rigid model's tip holds the mode)
+    LUMPED_RATIOS = (0.01, 0.05, 0.15, 0.5)  # the same split off the table, relative to it
 
     @property
     def cost_factor(self) -> int:
@@ -129,8 +129,7 @@ class CompliantMode(Effect):
         fmax = 0.45 / ctx.sample_period
         targets = ctx.mode_targets()[:2] or [guess["frequency"]]
         plant = ctx.plant
-        # split off, relative to the body the mode hangs on (the tip is the last body but for a tip
-        # mode that measures the table)
+        # split off, relative to the body the mode hangs on
         m_ref = plant.chain.m[-1] if lumped else plant.chain.m[plant.tip]
         f_grid = np.geomspace(0.5, fmax, 240)
         origin = float(self.ORIGINS.index("lumped" if lumped else "new"))
