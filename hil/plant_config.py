@@ -287,7 +287,7 @@ def effect_values(name: str, cfg) -> dict:
     if all(v is None for v in given.values()):
         return {p.name: p.number(cfg[f"effects.{name}.{p.name}"]) for p in eff.params}   # not configured
     # a parameter the section does not write has its default, as the plant takes it (a section
-    # written before the parameter existed: compliant_mode's lumped)
+    # written before the parameter existed: compliant_mode's origin)
     return {p.name: p.number(v if v is not None else p.guess) for p, v in zip(eff.params, given.values())}
 
 
