@@ -32,10 +32,6 @@ from sim_plant.effects.base import Effect, Param, register
 
 __all__ = ["CompliantMode", "MassChange"]
 
-# where an added mode's mass comes from: new on the axis, or split off the body it hangs on
-ORIGINS = ("new", "lumped")
-
-
 @register
 class CompliantMode(Effect):
     name = "compliant_mode"
@@ -47,9 +43,7 @@ class CompliantMode(Effect):
               Param("origin", "dimensionless", 0.0, 1.0, 0.0,
                     "where the modal mass comes from: new on the axis, or lumped (the model held it rigidly in "
                     "the body the mode hangs on; split off it, the moving mass is kept) (a setting)",
-                    fit=False, choices=ORIGINS))
-
-    ORIGINS = ORIGINS
+                    fit=False, choices=("new", "lumped")))
 
     def apply(self, plant, values):
         m, f, z = values["mass"], values["frequency"], values["damping_ratio"]
@@ -64,7 +58,7 @@ class CompliantMode(Effect):
         return dataclasses.replace(plant, chain=chain, tip=ch.n)
 
     def _lumped(self, values) -> bool:
-        return self.ORIGINS[int(round(values.get("origin", 0.0)))] == "lumped"
+        return self.param("origin").written(values.get("origin", 0.0)) == "lumped"
 
     synth_strength = {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02}
     screen_starts = 3          # the residual's peaks, the grid, the peaks split off: basins apart, each screened
@@ -132,7 +126,7 @@ class CompliantMode(Effect):
         # split off, relative to the body the mode hangs on
         m_ref = plant.chain.m[-1] if lumped else plant.chain.m[plant.tip]
         f_grid = np.geomspace(0.5, fmax, 240)
-        origin = float(self.ORIGINS.index("lumped" if lumped else "new"))
+        origin = self.param("origin").number("lumped" if lumped else "new")
         starts = []
         for ratio in (self.LUMPED_RATIOS if lumped else self.PEAK_RATIOS):
             m = ratio * m_ref
