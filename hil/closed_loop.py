@@ -301,6 +301,12 @@ def loop_stability(cfg) -> tuple[bool, float] | None:
     if not np.all(np.isfinite(A)):
         # the loop grows beyond the floating-point range within one position period
         return False, math.inf
+    if math.isinf(ctrl.ti):
+        # no integral action (a P velocity loop): the integral still sums the error, but nothing
+        # reads it, so its eigenvalue is 1 exactly and says nothing about the loop (its column is
+        # zero but for itself: the other eigenvalues are those of the loop without it)
+        i_I = 2 * plant.n
+        A = np.delete(np.delete(A, i_I, axis=0), i_I, axis=1)
     rho = float(np.max(np.abs(np.linalg.eigvals(A))))
     return rho < 1.0, rho
 

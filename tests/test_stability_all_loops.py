@@ -2,11 +2,14 @@
 with delays, speed from filtered positions and the current loop's lag, checked against the
 compiled simulator sample by sample, its spectral radius against the simulated growth, and the
 refusals (exit 2, one line naming the term) and schema bounds."""
+import math
+
 import numpy as np
 import pytest
 from conftest import CONFIG
 
 from drivers.control import controller_from_config
+from hil import config
 from hil.closed_loop import closed_loop_response, lifted_loop, loop_stability
 from hil.errors import ConfigError
 from hil.plant_config import plant_from_config
@@ -123,7 +126,6 @@ def test_unstable_settings_are_refused_in_one_line(capsys, tmp_path, setting, te
     ("control.position_period", "100 s", "at most 1 s"),
 ])
 def test_schema_bounds(bench, key, value, word):
-    from hil import config
     with pytest.raises(ConfigError, match=word):
         config.load(CONFIG / "paper_bench.toml", {key: value})
 
@@ -134,3 +136,30 @@ def test_model_report_judges_the_whole_loop(bench):
     cfg = bench.with_values({"control.output_delay": 40})
     r = closed_loop_response(cfg, [1.0])
     assert r.stable is False and r.spectral_radius == loop_stability(cfg)[1]
+
+
+def test_a_p_velocity_loop_is_judged_without_its_idle_integral(bench, capsys, tmp_path):
+    """control.ti = inf (no integral action, a P velocity loop: the schema's own spelling) was
+    refused as unstable with "spectral radius 1 > 1": the integral still sums the error, but
+    nothing reads it, so its eigenvalue is 1 exactly. The loop is judged by the rest: the radius
+    is the one of the same loop with the longest integral time the schema allows (3600 s, whose
+    integral's own eigenvalue 1 - 1e-6 set apart), and the move runs."""
+    from hil.cli import main
+    from hil.closed_loop import closed_loop_matrix
+    for changes in ({}, {"control.position_feedback": "motor", "control.output_delay": 3}):
+        stable, rho = loop_stability(bench.with_values({**changes, "control.ti": "inf"}))
+        slow = bench.with_values({**changes, "control.ti": 3600.0})
+        plant = plant_from_config(slow)
+        ev = sorted(np.linalg.eigvals(closed_loop_matrix(plant, controller_from_config(slow, plant))),
+                    key=lambda z: abs(z - 1))
+        assert abs(ev[0] - 1) < 1e-5                        # the slow integral's own eigenvalue
+        assert stable and rho == pytest.approx(max(abs(z) for z in ev[1:]), abs=1e-8)
+    assert main(["move", "--config", str(CONFIG / "paper_bench.toml"), "--set", "control.ti=inf", "--stroke", "10mm",
+                 "--feed", "7000mm/min", "--tacc", "200ms", "--out", str(tmp_path)]) == 0
+    assert "refused" not in capsys.readouterr().err
+    # the shipped P-only axes: each was refused ("spectral radius 1 > 1"), the EMPS dry run included
+    for name in ("emps.toml", "emps_2mass.toml", "hsm150.toml"):
+        cfg = config.load(CONFIG / name)
+        assert math.isinf(cfg["control.ti"]) and loop_stability(cfg)[0], name
+    assert main(["move", "--config", str(CONFIG / "emps.toml"), "--stroke", "10mm", "--feed", "3000mm/min",
+                 "--amax", "1m/s^2", "--check"]) == 0
