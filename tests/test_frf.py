@@ -160,6 +160,20 @@ def test_cli_json(tmp_path, capsys):
     assert "plant.c2" in (tmp_path / "config_diff.txt").read_text()
 
 
+def test_a_rigid_axis_has_no_mode_to_fit(tmp_path, capsys):
+    """A one-mass model (config/emps.toml, with its P-only velocity loop) has no elastic mode: the
+    mode fit crashed on the empty list of the model's modes ("zero-size array to reduction
+    operation maximum"), and 'hil tune' with it. Now no mode is fitted and the loops are measured."""
+    from hil.frf.modes import model_modes
+    from hil.plant_config import plant_from_config
+    emps = load(BENCH.parent / "emps.toml")
+    assert plant_from_config(emps).n == 1 and model_modes(plant_from_config(emps))[0] == []
+    rc = main(["frf", "--config", str(BENCH.parent / "emps.toml"), "--periods", "2", "--out", str(tmp_path), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["modes"] == []
+    assert out["tuning"]["velocity_loop"]["phase_margin_deg"] > 45
+
+
 def test_cli_user_errors(tmp_path, capsys):
     assert main(["frf", "--config", str(BENCH), "--band", "1Hz..9000Hz"]) == 2
     assert "Nyquist" in capsys.readouterr().err

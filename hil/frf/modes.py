@@ -87,6 +87,8 @@ def model_modes(plant):
     ch = plant.chain
     w, phi = ch.modes()
     wd, zd = ch.damped_modes(include_ground=True)
+    if ch.n < 2 or wd.size == 0:        # a rigid axis (one mass): no elastic mode to fit
+        return [], w[1:], phi[:, 1:]
     keep = wd > 1e-6 * max(wd.max(), 1.0)
     wd, zd = wd[keep][-(ch.n - 1):], zd[keep][-(ch.n - 1):]
     return [(float(a / 2 / np.pi), float(b)) for a, b in zip(wd, zd)], w[1:], phi[:, 1:]
