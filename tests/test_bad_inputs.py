@@ -139,3 +139,18 @@ def test_sweep_refuses_an_unstable_loop(capsys, tmp_path):
     _one_line(capsys, ["sweep", "--config", BENCH, "--stroke", "50mm", "--feed", "6m/min", "--jmax", "20..1500m/s^3",
                        "--points", "3", "--set", "control.output_delay=40", "--out", str(tmp_path / "sw"),
                        "--no-plot", "--no-progress"], "unstable")
+
+
+def test_synth_samples_a_slow_loop_on_its_ticks_by_default(capsys, tmp_path):
+    """hil synth without --sample-period on config/serial_ascii_example.toml (a 10 ms position loop)
+    refused its own default of 4 ms ("must be a whole multiple of the position period"). The
+    default is 4 ms where the loop's period divides it (the records of every other example stay
+    as they were), else the shortest whole multiple of the period above it."""
+    from hil.commands.synth import default_sample_period
+    assert [default_sample_period(t) for t in (1e-3, 4e-3, 62.5e-6, 3e-3, 5e-3, 10e-3)] == \
+        [0.004, 0.004, 0.004, 0.006, 0.005, 0.01]
+    out = tmp_path / "s.csv"
+    assert main(["synth", "--config", str(CONFIG / "serial_ascii_example.toml"), "--duration", "1s",
+                 "--out", str(out), "--json"]) == 0
+    import json
+    assert json.loads(capsys.readouterr().out)["sample_period"] == 0.01

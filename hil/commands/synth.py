@@ -55,7 +55,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                         help="a parameter of the effect, with its unit (level=2Nm; repeatable)")
     parser.add_argument("--duration", default="12s", metavar="TIME", help="length of the record (default 12s)")
-    parser.add_argument("--sample-period", default="4ms", metavar="TIME", help="sampling period (default 4ms)")
+    parser.add_argument("--sample-period", metavar="TIME",
+                        help="sampling period (default 4ms, or the shortest whole multiple of the config's "
+                             "control.position_period above it, as the record must be)")
     parser.add_argument("--seed", type=int, default=0, metavar="N", help="random seed of the moves and the noise")
     parser.add_argument("--pulses", default=None, metavar="AMPLITUDE",
                         help="u_add pulses after the controller (N*m on a rotary axis; V or N on a linear one)")
@@ -98,6 +100,13 @@ def _fleet(args) -> int:
         for d in spec["drift"]:
             print(f"  {d['axis']}: {d['effect']}.{d['param']} moves from {d['from']}")
     return 0
+
+
+def default_sample_period(position_period: float, least: float = 4e-3) -> float:
+    """4 ms, or the shortest whole multiple of the position period at or above it (a record is
+    sampled on the position loop's ticks: a 10 ms loop cannot be read every 4 ms)."""
+    import math
+    return position_period * max(1, math.ceil(least / position_period - 1e-9))
 
 
 def _check_times(duration: float, sample_period: float) -> None:
@@ -216,7 +225,8 @@ def run(args) -> int:
         raise UserError(f"--out {args.out}: expected a .csv (the measurement format) or .mat (MATLAB) file name")
     cfg = load(args.config, dict(parse_assignment(s) for s in args.set))
     duration = parse_option(args.duration, "time", "--duration")
-    sample_period = parse_option(args.sample_period, "time", "--sample-period")
+    sample_period = (default_sample_period(cfg["control.position_period"]) if args.sample_period is None
+                     else parse_option(args.sample_period, "time", "--sample-period"))
     _check_times(duration, sample_period)
     vals, kinds = _param_values(args, cfg)
     inputs, input_kinds = _inputs(args, cfg)
