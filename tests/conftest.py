@@ -57,6 +57,15 @@ def state_dir(tmp_path_factory, monkeypatch):
     return d
 
 
+def pytest_configure(config):
+    """Any run but the default set keeps each test module on one worker (xdist's loadscope): a docs
+    page's slow commands build on what its earlier ones wrote, and a module's fixtures (a fleet's
+    records) are computed once. The default set (addopts' ``-m 'not slow'``) spreads its tests
+    one by one (load), which balances the workers best."""
+    if getattr(config.option, "dist", "no") == "load" and config.option.markexpr != "not slow":
+        config.option.dist = "loadscope"
+
+
 def pytest_collection_modifyitems(config, items):
     """A "realtime" case runs a loop on the wall clock against a simulated drive: beside another
     worker it would measure that worker's load, not the runtime. Skipped there, with the command
