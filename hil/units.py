@@ -226,6 +226,14 @@ def check_quantity_text(text: str, kind: str, what: str = "value") -> None:
                             f"expected {_QUANTITY_EXAMPLE}")
 
 
+def _quiet_overflow():
+    """numpy's overflow warning off: a huge logarithmic quantity ("1e300 dB") overflows inside pint
+    to inf, which the keys and options that need a finite value refuse in one line; the warning
+    would be a second line on stderr."""
+    import numpy as np  # loaded with pint already
+    return np.errstate(over="ignore")
+
+
 def parse(value, kind: str, what: str = "value") -> float:
     """Return ``value`` in SI units, checking that it is a quantity of ``kind``.
 
@@ -257,7 +265,8 @@ def parse(value, kind: str, what: str = "value") -> float:
         check_quantity_text(text, kind, what)
         ureg = _registry()
         try:
-            q = ureg.Quantity(text)
+            with _quiet_overflow():
+                q = ureg.Quantity(text)
         except Exception as exc:  # pint raises several kinds; all mean "cannot read this"
             # one line of bounded length: a long text of wide characters repr'd is ten times its length
             shown, why = repr(value), str(exc)
@@ -273,7 +282,8 @@ def parse(value, kind: str, what: str = "value") -> float:
                 raise UnitError(
                     f"{what}: {value!r} is not a {kind}: its unit has dimension {got}, expected "
                     f"{DIMENSIONS[kind] or 'none'} (e.g. {SI_UNIT[kind]})")
-            out = float(q.to_base_units().magnitude)
+            with _quiet_overflow():
+                out = float(q.to_base_units().magnitude)
     else:
         raise UnitError(f"{what}: expected a number or a string with a unit, got {type(value).__name__}")
     if math.isnan(out):
@@ -373,8 +383,8 @@ def parse_angle_deg(value, what: str = "value") -> float:
     except ValueError:
         check_quantity_text(text, "angle", what)
         try:
-            q = _registry().Quantity(text)
-            deg = float(q.to("deg").magnitude)
+            with _quiet_overflow():
+                deg = float(_registry().Quantity(text).to("deg").magnitude)
         except Exception:      # pint: not readable, or not an angle
             raise UnitError(f"{what}: expected an angle (e.g. 45deg or 0.785rad), got {value!r}") from None
         if not re.search(r"[A-Za-z]", text):          # "2*3": a number, not an angle

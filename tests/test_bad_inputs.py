@@ -154,3 +154,18 @@ def test_synth_samples_a_slow_loop_on_its_ticks_by_default(capsys, tmp_path):
                  "--out", str(out), "--json"]) == 0
     import json
     assert json.loads(capsys.readouterr().out)["sample_period"] == 0.01
+
+
+def test_a_huge_decibel_value_is_refused_without_a_numpy_warning(capsys):
+    """"1e300dB" (the CLI fuzzer's) overflowed inside pint with "RuntimeWarning: overflow
+    encountered in exp" on stderr before the one-line refusal."""
+    import warnings
+
+    from hil.units import parse
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert parse("1e300 dB", "dimensionless") == float("inf") and parse("20 dB", "dimensionless") == 100.0
+        assert main(["move", "--config", BENCH, "--stroke", "10mm", "--feed", "7000mm/min", "--tacc", "200ms",
+                     "--set", "control.ffv=1e300dB", "--check"]) == 2
+    err = capsys.readouterr().err
+    assert "control.ffv: expected a finite" in err and "Warning" not in err
