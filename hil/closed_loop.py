@@ -272,11 +272,18 @@ def _extra_terms(cfg) -> list[str]:
 
 def closed_loop_matrix(plant, ctrl) -> np.ndarray:
     """The closed position loop over one position period (command held at zero): the state
-    matrix whose eigenvalues decide stability (:func:`lifted_loop`'s state)."""
-    Phi, Gam, _, _ = lifted_loop(plant, ctrl)
+    matrix whose eigenvalues decide stability (:func:`lifted_loop`'s state). Without integral
+    action (``ti`` inf: a P velocity loop) the integral still sums the error, but nothing reads it:
+    its eigenvalue is 1 exactly and says nothing about the loop, so its state is left out (its
+    column is zero but for itself: the other eigenvalues are those of the loop without it)."""
+    Phi, Gam, _, index = lifted_loop(plant, ctrl)
     c_fb = np.zeros(Phi.shape[0])
     c_fb[plant.table if ctrl.position_feedback == "table" else 0] = 1.0
-    return Phi - np.outer(Gam * ctrl.speed_scale * ctrl.kv, c_fb)
+    A = Phi - np.outer(Gam * ctrl.speed_scale * ctrl.kv, c_fb)
+    if math.isinf(ctrl.ti):
+        i = index["integral"]
+        A = np.delete(np.delete(A, i, axis=0), i, axis=1)
+    return A
 
 
 # state sizes the eigenvalue check is asked to handle (the schema bounds the delay below this)
@@ -301,12 +308,6 @@ def loop_stability(cfg) -> tuple[bool, float] | None:
     if not np.all(np.isfinite(A)):
         # the loop grows beyond the floating-point range within one position period
         return False, math.inf
-    if math.isinf(ctrl.ti):
-        # no integral action (a P velocity loop): the integral still sums the error, but nothing
-        # reads it, so its eigenvalue is 1 exactly and says nothing about the loop (its column is
-        # zero but for itself: the other eigenvalues are those of the loop without it)
-        i_I = 2 * plant.n
-        A = np.delete(np.delete(A, i_I, axis=0), i_I, axis=1)
     rho = float(np.max(np.abs(np.linalg.eigvals(A))))
     return rho < 1.0, rho
 
