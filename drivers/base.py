@@ -39,21 +39,22 @@ command template, an unknown interface) raise :class:`hil.errors.ConfigError` na
 the file, when the backend is built where possible; :class:`BackendFault` is a drive that does
 not answer, is lost, or reports a fault. The one fault rule of the cycle:
 
-Every fault has a kind (:class:`hil.errors.StopKind`, the exit code): ``drive_fault`` (the drive's
-own fault, its refusal, a drive that left the enabled state) or ``link`` (answers missing, late
-or garbled beyond the retries, a lost heartbeat or port); the backend says which in
-``Feedback.fault_kind`` or ``BackendFault.kind``, where it decides the fault; nothing reads the kind
-from the reason's words. A fault without a kind (a test double, a start-up that failed) takes the
-default of where it stops the run (:func:`fault_kind`); the supervisor's own trips and ``loop
-overrun`` carry theirs from its rules.
+Every fault has a kind, :class:`Fault` (and with it the exit code, :class:`hil.errors.StopKind`):
+``DRIVE`` (the drive's own fault, its refusal, a drive that left the enabled state) or ``LINK``
+(answers missing, late or garbled beyond the retries, a lost heartbeat or port); the backend says
+which in ``Feedback.fault`` or ``BackendFault.kind``, where it decides the fault; nothing reads the
+kind from the reason's words. A fault without a kind (``Fault.OTHER``: a test double, a start-up
+that failed) takes the default of where it stops the run (:func:`fault_kind`); the supervisor's own
+trips and ``loop overrun`` carry theirs from its rules.
 
 * ``read_feedback()`` never raises for the drive: everything wrong that it learns (the drive's own
   fault, an answer missing, late or garbled beyond the retries, a lost heartbeat, a lost port) is
-  reported as :attr:`Feedback.fault`, one line saying what. The supervisor's first check trips on
-  it: the configured controlled stop in the same cycle, the run ends ``tripped`` with that line as
-  its reason, the trip is latched like any other, and ``hil move`` exits with the code of its kind
-  (hil.errors.STOP_EXIT_CODES: 1 drive fault, 4 lost communication). Between position ticks
-  (a backend in torque mode) the loop trips the supervisor itself, the same way.
+  reported in :attr:`Feedback.fault` (an enum: the cycle tests an integer, as Ruckig's ``Result``)
+  and :attr:`Feedback.reason` (one line saying what, for a person). The supervisor's first check
+  trips on it: the configured controlled stop in the same cycle, the run ends ``tripped`` with that
+  line as its reason, the trip is latched like any other, and ``hil move`` exits with the code of
+  its kind (hil.errors.STOP_EXIT_CODES: 1 drive fault, 4 lost communication). Between position
+  ticks (a backend in torque mode) the loop trips the supervisor itself, the same way.
 * ``write_setpoint()`` and ``sync()`` raise :class:`BackendFault` only where the setpoint could not
   be delivered (a transport that confirms every setpoint got no confirmation; a bus that refuses
   the frame): the loop commands the stop, latches the fault like a trip and the run ends
@@ -67,14 +68,40 @@ import logging
 import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from enum import IntEnum
 
 from drivers.errors import BackendFault, StopKind, fault_kind
 
-__all__ = ["Backend", "Feedback", "Setpoint", "BackendFault", "LOOPS", "fault_kind"]
+__all__ = ["Backend", "Feedback", "Fault", "Setpoint", "BackendFault", "LOOPS", "fault_kind"]
 
 LOOPS = ("both", "velocity", "none")
 
 log = logging.getLogger(__name__)
+
+
+class Fault(IntEnum):
+    """What a cycle's :class:`Feedback` reports: whether the drive is well and, if not, the kind of
+    its fault (the cycle tests this integer, never the reason's text). ``stop_kind`` is how a run
+    it ends stops (None: the default of where it stops, :func:`fault_kind`)."""
+    NONE = 0        # the drive is well
+    DRIVE = 1       # the drive's own fault, its refusal, a drive that left the enabled state
+    LINK = 2        # answers missing, late or garbled beyond the retries, a lost heartbeat or port
+    OTHER = 3       # a fault without a kind (a test double)
+
+    @property
+    def stop_kind(self) -> StopKind | None:
+        return _STOP_KIND[self]
+
+    @classmethod
+    def of(cls, kind: StopKind | None) -> "Fault":
+        """The fault of a :class:`BackendFault`'s ``kind`` (not real-time)."""
+        return {StopKind.DRIVE_FAULT: cls.DRIVE, StopKind.LINK: cls.LINK}.get(kind, cls.OTHER)
+
+
+# the line of a fault reported without one (a backend's omission must still stop the axis, and say so)
+UNNAMED_FAULT = "drive fault (the backend gave no reason)"
+
+_STOP_KIND = {Fault.NONE: None, Fault.DRIVE: StopKind.DRIVE_FAULT, Fault.LINK: StopKind.LINK, Fault.OTHER: None}
 
 
 @dataclass
@@ -82,24 +109,37 @@ class Feedback:
     """One cycle's measurements, SI, linear units on the load side.
 
     ``x_tip`` is NaN where no tool-tip sensor exists. ``v_motor`` is the motor speed as a linear
-    speed (m/s); ``output`` the actual torque (N m) or command. ``fault`` is empty while the
-    drive is well, else one line saying what is wrong (the fault rule of the module docstring);
-    the positions are then the last ones known. ``stale`` is True where this cycle's answer did not
-    come in (a missed PDO, a failed read): the readings repeat the last answer while the command
-    moves on, so a figure of the run must not count them as the axis's (they are recorded as the
-    ``stale`` channel where the backend can miss, :attr:`Backend.misses_answers`)."""
+    speed (m/s); ``output`` the actual torque (N m) or command. ``fault`` is :attr:`Fault.NONE`
+    while the drive is well, else the fault's kind, and ``reason`` one line saying what is wrong
+    (the fault rule of the module docstring); the positions are then the last ones known. ``stale``
+    is True where this cycle's answer did not come in (a missed PDO, a failed read): the readings
+    repeat the last answer while the command moves on, so a figure of the run must not count them
+    as the axis's (they are recorded as the ``stale`` channel where the backend can miss,
+    :attr:`Backend.misses_answers`).
+
+    A backend keeps one Feedback and updates it in place every cycle (nothing is built in the
+    cycle): what :meth:`Backend.read_feedback` returns holds until its next call; a caller that
+    keeps one longer keeps a copy (``dataclasses.replace(fb)``)."""
     x_motor: float
     x_table: float
     v_motor: float
     output: float = 0.0
     x_tip: float = math.nan
-    fault: str = ""
+    fault: Fault = Fault.NONE
     # the position the position loop uses where it differs from the recorded one (a simulated scale
     # read late over a fieldbus); NaN: x_table or x_motor, as the controller's position_feedback says
     x_feedback: float = math.nan
     stale: bool = False
-    # the kind of ``fault``, set by the backend that reports it (None: the default of fault_kind)
-    fault_kind: StopKind | None = None
+    reason: str = ""
+
+    @property
+    def fault_kind(self) -> StopKind | None:
+        """How a run this fault ends stops (None: the default of where it stops, :func:`fault_kind`)."""
+        return _STOP_KIND[self.fault]
+
+    def set_fault(self, fault: Fault, reason: str) -> None:
+        """Report a fault (or, with ``Fault.NONE`` and ``""``, none) in place (real-time)."""
+        self.fault, self.reason = fault, reason
 
 
 @dataclass
@@ -154,7 +194,8 @@ class Backend(ABC):
     # -- real-time: the cycle --------------------------------------------------------------------
     @abstractmethod
     def read_feedback(self) -> Feedback:
-        """This cycle's measurements; a faulted or lost drive is reported in ``Feedback.fault``."""
+        """This cycle's measurements; a faulted or lost drive is reported in ``Feedback.fault``. A
+        backend updates one Feedback in place and returns it (real-time: nothing built per cycle)."""
 
     @abstractmethod
     def write_setpoint(self, setpoint: Setpoint) -> None:

@@ -49,7 +49,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from drivers.base import Backend, BackendFault, Feedback, Setpoint, fault_kind
+from drivers.base import UNNAMED_FAULT, Backend, BackendFault, Feedback, Setpoint, fault_kind
 from drivers.control import (
     injected_velocity_cycle,
     measured_speed,
@@ -382,6 +382,7 @@ class ControlLoop:
         self.trip_kind = StopKind.TRIP
         self.trip_reason = ""
         self._setpoint = Setpoint()
+        self._cmds: list[float] = []      # the run's commands, as a list (run)
         self._motor_feedback = ctrl.position_feedback == "motor"
         self._record_order = None if recorder is None else _record_order(recorder.names, rotary)
         self._record_stale = recorder is not None and "stale" in recorder.names
@@ -431,6 +432,9 @@ class ControlLoop:
         toward it); default: the last position, held."""
         x_cmd = np.asarray(x_cmd, float)
         cmd = np.append(x_cmd, x_cmd[-1] if x_after is None else x_after)
+        # the cycle's own reads of the command from a list: an element of an array is a new numpy
+        # scalar every time, an element of a list is the float already there (nothing built per cycle)
+        self._cmds = cmd.tolist()
         K = x_cmd.size
         if self.injection is not None and self.injection.signal.size < K * self.per_tick:
             raise ValueError(f"injection: {self.injection.signal.size} values for {K * self.per_tick} cycles")
@@ -486,21 +490,23 @@ class ControlLoop:
         ``TRIPPED`` on a trip (the controlled stop commanded, the event written, the reason in
         ``trip_reason``, its kind in ``trip_kind``), ``OK`` while all is well."""
         b = self.backend
-        v_cmd = (cmd[k + 1] - cmd[k]) / self.ctrl.position_period
+        cmds = self._cmds
+        v_cmd = (cmds[k + 1] - cmds[k]) / self.ctrl.position_period
         for j in range(self.per_tick):
             fb = b.read_feedback()                                  # read feedback
             if fb.fault and (self._check is None or j != 0):
                 # supervise: the supervisor checks once a tick, a fault between ticks trips it here, the same way
+                reason = fb.reason or UNNAMED_FAULT
                 if self._latch is None:
-                    raise BackendFault(fb.fault, fb.fault_kind)
+                    raise BackendFault(reason, fb.fault_kind)
                 self.trip_kind = fault_kind(fb.fault_kind, StopKind.TRIP)
-                self.trip_reason = fb.fault
-                self._latch(k * self.ctrl.position_period, fb.fault, fb, self.trip_kind)
-                self._stop_after(k, "trip", fb.fault)
+                self.trip_reason = reason
+                self._latch(k * self.ctrl.position_period, reason, fb, self.trip_kind)
+                self._stop_after(k, "trip", reason)
                 return TickResult.TRIPPED
             out = self._command(k, j, cmd, fb)                      # profile, position law, velocity law
             if j == 0:
-                self._record(k, cmd[k], v_cmd, fb, out)             # record
+                self._record(k, cmds[k], v_cmd, fb, out)            # record
                 trip = self._supervise(k, cmd, fb)                  # supervise, before the setpoint goes out
                 if trip:
                     self._stop_after(k, "trip", trip)
@@ -518,7 +524,7 @@ class ControlLoop:
         setpoint in place; returns the output to record (real-time)."""
         sp = self._setpoint
         if self._closes_both:
-            sp.position = cmd[k + 1]
+            sp.position = self._cmds[k + 1]
             return fb.output
         if j == 0:
             xfb = fb.x_motor if self._motor_feedback else fb.x_table
@@ -546,9 +552,9 @@ class ControlLoop:
         if self._check is None:
             return None
         t = k * self.ctrl.position_period
-        trip = self._check(t, fb, cmd[k])
+        trip = self._check(t, fb, self._cmds[k])
         if not trip and self._check_setpoint is not None:
-            trip = self._check_setpoint(t, cmd[k + 1])
+            trip = self._check_setpoint(t, self._cmds[k + 1])
         return trip
 
     def _stop_after(self, k: int, kind: str, reason: str) -> None:

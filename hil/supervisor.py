@@ -30,6 +30,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
+from drivers.base import UNNAMED_FAULT
 from hil.config import SUPERVISOR_SECTION
 from hil.errors import StopKind, SupervisorTripped, UserError, fault_kind
 
@@ -339,7 +340,7 @@ class Supervisor:
         row = ring[self._ring_n % len(ring)]
         self._ring_n += 1
         row[0], row[1], row[2], row[3], row[4] = k, t, x_cmd, fb.x_motor, fb.x_table
-        row[5], row[6], row[7], row[8] = fb.x_tip, fb.v_motor, fb.output, fb.fault
+        row[5], row[6], row[7], row[8] = fb.x_tip, fb.v_motor, fb.output, fb.reason
         if self.tripped:
             return self.reason
         self._measure(fb, x_cmd)
@@ -370,7 +371,7 @@ class Supervisor:
         """The tick's quantities into ``self._q`` (real-time: numbers into the preallocated list;
         the states of the command history, the frozen count and the watchdog move on)."""
         q, T = self._q, self.limits.period
-        q[Q_FAULT] = fb.fault
+        q[Q_FAULT] = (fb.reason or UNNAMED_FAULT) if fb.fault else ""
         if self.real_time:
             now = time.perf_counter()
             q[Q_ELAPSED] = now - self._wall if self._wall is not None else _NAN

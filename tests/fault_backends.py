@@ -3,7 +3,7 @@ embedded plant in torque mode (the host closes both loops, one exchange per velo
 feedback goes wrong from one velocity cycle on, either as the fault rule of drivers.base asks
 (reported in ``Feedback.fault``) or by raising :class:`BackendFault` from ``read_feedback`` (a
 backend that breaks the rule: the loop still ends the run ``fault``)."""
-from drivers.base import Backend, BackendFault
+from drivers.base import Backend, BackendFault, Fault
 from drivers.sim import SimulatedPlant
 from hil.errors import StopKind
 from hil.plant_config import plant_from_config
@@ -38,7 +38,7 @@ class FaultyPlant(Backend):
         if self.cycles >= self.at:
             if self.raises:
                 raise BackendFault(self.reason, self.kind)
-            fb.fault, fb.fault_kind = self.reason, self.kind
+            fb.set_fault(Fault.of(self.kind), self.reason)
         return fb
 
     def write_setpoint(self, sp):

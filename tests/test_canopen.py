@@ -11,7 +11,7 @@ import pytest
 from canopen.profiles.p402 import OperationMode, State402
 from canopen_rig import channel, rig
 
-from drivers.base import BackendFault
+from drivers.base import BackendFault, Fault
 from drivers.canopen import cia402
 from drivers.canopen.backend import CanopenBackend
 from drivers.canopen.drive_sim import DriveSim
@@ -132,7 +132,7 @@ def test_emcy_fault_in_torque_mode_and_reset():
         sim.inject("emcy", 0x4310)
         be.sync()
         fb = be.read_feedback()
-        assert fb.fault == "drive fault: EMCY 0x4310 drive overtemperature"
+        assert fb.fault is Fault.DRIVE and fb.reason == "drive fault: EMCY 0x4310 drive overtemperature"
         assert be.emcy_log[-1]["code"] == "0x4310" and be.emcy_log[-1]["text"] == "drive overtemperature"
         be.disable()
         assert sim.state == "FAULT"

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from canopen_rig import channel, rig
 
+from drivers.base import Fault
 from drivers.canopen.backend import CanopenBackend
 from drivers.canopen.drive_sim import DriveSim
 from drivers.control import controller_from_config
@@ -187,7 +188,7 @@ def test_a_bus_that_fails_in_the_cyclic_phase_is_the_feedbacks_fault():
         be.network.bus.shutdown()                 # the interface is gone
         be.receive_until(0.0)                     # the clock's wait: does not raise
         fb = be.read_feedback()
-        assert fb.fault.startswith("lost communication: the CAN bus failed on receive")
+        assert fb.fault is Fault.LINK and fb.reason.startswith("lost communication: the CAN bus failed on receive")
     finally:
         be.network.bus = None                     # already shut down
         be.close()

@@ -11,7 +11,7 @@ import sys
 import pytest
 from canopen_rig import rig
 
-from drivers.base import BackendFault, Setpoint, fault_kind
+from drivers.base import BackendFault, Fault, Setpoint, fault_kind
 from drivers.control import controller_from_config
 from hil import config
 from hil.errors import RunStatus, StopKind
@@ -72,7 +72,7 @@ def _canopen_fault(fault, value, **ov):
 ])
 def test_the_canopen_backend_says_the_kind_of_its_feedback_fault(fault, value, words, kind):
     fb = _canopen_fault(fault, value)
-    assert fb.fault.startswith(words) and fb.fault_kind is kind
+    assert fb.reason.startswith(words) and fb.fault_kind is kind
 
 
 def test_the_canopen_backend_reports_no_kind_while_well():
@@ -84,7 +84,7 @@ def test_the_canopen_backend_reports_no_kind_while_well():
             fb = be.read_feedback()
             be.write_setpoint(Setpoint(position=fb.x_motor))
             be.sync()
-        assert (fb.fault, fb.fault_kind) == ("", None)
+        assert (fb.fault, fb.reason, fb.fault_kind) == (Fault.NONE, "", None)
     finally:
         be.close()
         sim.close()
@@ -129,7 +129,7 @@ def test_the_serial_backend_says_the_kind_of_its_feedback_fault(fault, words, ki
                 if fb.fault:
                     break
                 b.write_setpoint(Setpoint(position=fb.x_motor))
-            assert fb.fault.startswith(words) and fb.fault_kind is kind, fb.fault
+            assert fb.reason.startswith(words) and fb.fault_kind is kind, fb.reason
 
 
 @linux
@@ -151,5 +151,5 @@ def test_the_serial_drive_refusing_a_setpoint_is_a_drive_fault():
 def test_supervisor_trip_takes_the_kind_the_feedback_carries(tmp_path):
     from drivers.base import Feedback
     sup = Supervisor(config.load(BENCH), latch_file=str(tmp_path / "latch.json"))
-    fb = Feedback(0.0, 0.0, 0.0, fault="drive fault: overcurrent")       # no kind: the default, a trip
+    fb = Feedback(0.0, 0.0, 0.0, fault=Fault.OTHER, reason="drive fault: overcurrent")       # no kind: the default, a trip
     assert sup.check(0.0, fb, 0.0) and sup.trip_kind is StopKind.TRIP

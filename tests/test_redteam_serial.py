@@ -413,7 +413,7 @@ def test_fuzz_serial_replies_into_the_backend(checksum, replies, eol, target):
         if not fb.fault:
             assert all(math.isfinite(v) for v in (fb.x_motor, fb.x_table, fb.output))
         else:
-            assert "\n" not in fb.fault and fb.fault.startswith(("lost communication", "drive fault"))
+            assert "\n" not in fb.reason and fb.reason.startswith(("lost communication", "drive fault"))
         try:
             b.write_setpoint(Setpoint(position=target))
         except BackendFault as exc:

@@ -12,7 +12,7 @@ import pytest
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="pseudo-terminals: Linux")
 
-from drivers.base import BackendFault, Setpoint  # noqa: E402
+from drivers.base import BackendFault, Fault, Setpoint  # noqa: E402
 from drivers.serial.protocol import (  # noqa: E402
     ChecksumError,
     CommandSet,
@@ -218,7 +218,7 @@ def test_watchdog_stops_drive_when_host_falls_silent(cfg, drive):
     st = drive.state()
     assert not st["enabled"] and st["fault"] == 1
     fb = b.read_feedback()
-    assert fb.fault == "drive fault 1"
+    assert fb.fault is Fault.DRIVE and fb.reason == "drive fault 1"
     with pytest.raises(BackendFault, match="refused"):     # the drive takes no setpoint now
         b.write_setpoint(Setpoint(position=0.0))
     b.close()

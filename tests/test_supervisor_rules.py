@@ -2,12 +2,13 @@
 the loop) and the vectorised one (:func:`check_record`, on a dry run's record) give the same
 stop, the same reason and the same kind at the same cycle, on records of faults run through the
 simulated backend; and the per-cycle check allocates nothing that outlives the cycle."""
+import dataclasses
 import tracemalloc
 
 import numpy as np
 import pytest
 
-from drivers.base import Backend, Feedback
+from drivers.base import Backend, Fault, Feedback
 from drivers.control import controller_from_config
 from drivers.sim import SimulatedPlant
 from hil import config
@@ -58,7 +59,7 @@ class FaultyFeedback(Backend):
                 fb.x_tip = fb.x_table + self.value
         if self.fault == "tip" and k < self.at:
             fb.x_tip = fb.x_table
-        self.last = fb
+        self.last = dataclasses.replace(fb)     # the backend's Feedback is updated in place
         self.rows.append((fb.x_motor, fb.x_table, fb.x_tip, fb.v_motor, fb.output))
         return fb
 
@@ -180,7 +181,7 @@ def test_a_reported_fault_carries_its_kind_to_the_exit_code(tmp_path):
         res = ControlLoop(be, ctrl, supervisor=sup).run(x)
         assert (res.status, res.stop, sup.trip_kind) == (RunStatus.TRIPPED, kind, kind)
     # the kind the backend says, whatever the words
-    fb = Feedback(0.0, 0.0, 0.0, fault="drive fault: bus off", fault_kind=StopKind.LINK)
+    fb = Feedback(0.0, 0.0, 0.0, fault=Fault.LINK, reason="drive fault: bus off")
     sup = Supervisor(cfg, latch_file=str(tmp_path / "said.json"))
     assert sup.check(0.0, fb, 0.0) == "drive fault: bus off" and sup.trip_kind is StopKind.LINK
 

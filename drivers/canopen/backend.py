@@ -61,7 +61,7 @@ from collections import deque
 
 import canopen
 
-from drivers.base import Backend, Feedback, Setpoint
+from drivers.base import Backend, Fault, Feedback, Setpoint
 from drivers.canopen import cia402
 from drivers.canopen import eds as eds_files
 from drivers.canopen.codec import NM, RPDO_TARGET, TIP_KEY, TPDO_MAPS, Scaling
@@ -81,7 +81,7 @@ EVENTS_KEPT = 1000           # the events (misses, faults, stops) and EMCYs a ba
 # compared while the drive is well (the CiA 402 states are mutually exclusive under their masks)
 _FAULT_WORDS = tuple(cia402.STATUSWORD[s] for s in ("FAULT", "FAULT REACTION ACTIVE"))
 _ENABLED_WORD = cia402.STATUSWORD["OPERATION ENABLED"]
-_WELL = ("", None)          # no fault, no kind: what a healthy cycle reports (nothing built per cycle)
+_WELL = (Fault.NONE, "")    # what a healthy cycle reports (nothing built per cycle)
 
 
 class CanopenBackend(Backend):
@@ -110,6 +110,7 @@ class CanopenBackend(Backend):
                                                         node_id=node_id)
         self.closes, self.cycle_time, self.simulated = s.closes, s.cycle_time, s.lockstep
         self.scale = sc = Scaling(s.counts_per_m, s.rated, s.speed_scale)     # every drive unit <-> SI
+        self._fb = Feedback(0.0, 0.0, 0.0)      # the cycle's one Feedback, updated in place (drivers.base)
         # the mode's target of a setpoint, bound once: the cycle compares no strings
         self._target_of = {"csp": lambda sp: sc.position_target(sp.position),
                            "csv": lambda sp: sc.speed_target(sp.speed)}.get(s.mode, lambda sp: sc.torque_target(sp.output))
@@ -281,7 +282,7 @@ class CanopenBackend(Backend):
         elif self.link.cycling:
             self.link.receive_until(0.0)              # what came in after the clock's wait
         fresh = answers.close_cycle()
-        fault, kind = _WELL if fresh else self._missed()
+        fault, reason = _WELL if fresh else self._missed()
         with answers.lock:
             rx = answers.values
             position, table, v, torque, sw = (rx.get(0x6064, 0), rx.get((0x60E4, 1), 0), rx.get(0x606C, 0),
@@ -293,34 +294,36 @@ class CanopenBackend(Backend):
         else:
             x_tip = sc.table(tip) if s.tip else math.nan
         if not fault:
-            fault, kind = self._fault(sw)
-        return Feedback(x_motor=sc.position(position), x_table=sc.table(table), v_motor=sc.position(v),
-                        output=sc.torque(torque), x_tip=x_tip, fault=fault, stale=not fresh, fault_kind=kind)
+            fault, reason = self._fault(sw)
+        fb = self._fb
+        fb.x_motor, fb.x_table, fb.v_motor = sc.position(position), sc.table(table), sc.position(v)
+        fb.output, fb.x_tip, fb.stale = sc.torque(torque), x_tip, not fresh
+        fb.fault, fb.reason = fault, reason
+        return fb
 
-    def _missed(self) -> tuple[str, StopKind | None]:
+    def _missed(self) -> tuple[Fault, str]:
         """A cycle without its answer (real-time): logged; after ``canopen.pdo_miss_limit`` in a
-        row, the fault's line and its kind (the link's)."""
+        row, the fault (the link's) and its line."""
         answers = self.answers
         who = "tip sensor node %d" % self.settings.tip_id if answers.only_tip_missing else "drive"
         self.events.append(f"cycle {answers.syncs}: no TPDO after SYNC from the {who}")
         if answers.miss_run >= self.settings.pdo_miss_limit:
-            return f"lost communication: no TPDO from the {who} for {answers.miss_run} cycles", StopKind.LINK
+            return Fault.LINK, f"lost communication: no TPDO from the {who} for {answers.miss_run} cycles"
         return _WELL
 
-    def _fault(self, sw: int) -> tuple[str, StopKind | None]:
-        """The fault the link and the drive show and its kind (real-time): a failed bus or a lost
-        heartbeat (the link's), a drive in FAULT or out of OPERATION ENABLED (the drive's); ``("",
-        None)`` while all is well."""
+    def _fault(self, sw: int) -> tuple[Fault, str]:
+        """The fault the link and the drive show and its line (real-time): a failed bus or a lost
+        heartbeat (the link's), a drive in FAULT or out of OPERATION ENABLED (the drive's);
+        ``(Fault.NONE, "")`` while all is well."""
         if self.link.rx_error:
-            return self.link.rx_error, StopKind.LINK
+            return Fault.LINK, self.link.rx_error
         for mask, value in _FAULT_WORDS:
             if sw & mask == value:
-                return f"drive fault: {self.fault_text()}", StopKind.DRIVE_FAULT
+                return Fault.DRIVE, f"drive fault: {self.fault_text()}"
         if self.enabled and sw & _ENABLED_WORD[0] != _ENABLED_WORD[1]:
-            return (f"drive fault: the drive left OPERATION ENABLED ({cia402.state_from_statusword(sw)})",
-                    StopKind.DRIVE_FAULT)
+            return Fault.DRIVE, f"drive fault: the drive left OPERATION ENABLED ({cia402.state_from_statusword(sw)})"
         lost = self.heartbeats.lost()
-        return (lost, StopKind.LINK) if lost else _WELL
+        return (Fault.LINK, lost) if lost else _WELL
 
     def write_setpoint(self, sp: Setpoint) -> None:
         """The target of the mode, in drive units, for the next RPDO (real-time)."""

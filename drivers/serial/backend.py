@@ -32,7 +32,6 @@ starts with ``drive fault`` or ``lost communication``, the same words as the oth
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import select
@@ -40,13 +39,15 @@ import time
 
 import serial
 
-from drivers.base import Backend, BackendFault, Feedback, Setpoint
+from drivers.base import Backend, BackendFault, Fault, Feedback, Setpoint
 from drivers.control import controller_from_config, measured_speed, new_velocity_state, position_law, velocity_law
 from drivers.errors import BackendError, ConfigError, StopKind
 from drivers.serial.protocol import CommandSet, DriveRefused, GarbledReply, ReplyError, UnsafeCommand
 from drivers.serial.schema import SECTION
 
 __all__ = ["SerialBackend", "SerialStats", "SECTION", "BAUDRATES"]
+
+_WELL = (Fault.NONE, "")    # what a healthy reading reports (nothing built per cycle)
 
 # the standard rates of a UART (POSIX termios and pyserial's list, and the 14400 ... 256000 of
 # Windows and RS-485 drives): anything else is a typing mistake (0, 11520), not a drive's setting
@@ -159,7 +160,7 @@ class SerialBackend(Backend):
         self._open = False           # between open() and close(): the drive is this backend's to disable
         self._open_once = False      # the port opened once: a port that vanishes later is the link's fault
         self._faulted = ""
-        self._last_fb: Feedback | None = None
+        self._fb = Feedback(0.0, 0.0, 0.0)     # the cycle's one Feedback, updated in place (drivers.base)
         self._sets_position = self.closes == "both"          # bound once: the cycle compares no strings
         self._set_op = "set_position" if self._sets_position else "set_speed"
         # configuration mistakes now, as one line naming the key, before anything opens or moves
@@ -309,7 +310,7 @@ class SerialBackend(Backend):
         self.transact("enable", setup=True)
         fb = self.read_feedback(setup=True)
         if fb.fault:
-            raise BackendFault(f"serial drive did not enable: {fb.fault}")
+            raise BackendFault(f"serial drive did not enable: {fb.reason}")
         self.enabled = True
 
     def read_feedback(self, setup: bool = False) -> Feedback:
@@ -321,16 +322,17 @@ class SerialBackend(Backend):
         except BackendFault as exc:
             if setup:
                 raise
-            last = self._last_fb or Feedback(0.0, 0.0, 0.0)
-            return dataclasses.replace(last, fault=exc.reason, stale=True, fault_kind=exc.kind)
-        xm = int(g["x_motor"]) / self.k_pos
-        xt = int(g["x_table"]) / self.k_pos if "x_table" in g else xm
-        v = int(g["v_motor"]) / self.k_pos if "v_motor" in g else math.nan      # counts/s
-        out = int(g["output"]) / self.k_out if "output" in g else 0.0
+            fb = self._fb              # the last reading stays, marked stale
+            fb.fault, fb.reason, fb.stale = Fault.of(exc.kind), exc.reason, True
+            return fb
+        fb = self._fb
+        fb.x_motor = xm = int(g["x_motor"]) / self.k_pos
+        fb.x_table = int(g["x_table"]) / self.k_pos if "x_table" in g else xm
+        fb.v_motor = int(g["v_motor"]) / self.k_pos if "v_motor" in g else math.nan      # counts/s
+        fb.output = int(g["output"]) / self.k_out if "output" in g else 0.0
         code = int(g.get("fault", "0"))
-        fb = Feedback(x_motor=xm, x_table=xt, v_motor=v, output=out,
-                      fault=f"drive fault {code}" if code else "", fault_kind=StopKind.DRIVE_FAULT if code else None)
-        self._last_fb = fb
+        fb.fault, fb.reason = (Fault.DRIVE, f"drive fault {code}") if code else _WELL
+        fb.stale = False
         return fb
 
     def write_setpoint(self, setpoint: Setpoint) -> None:
