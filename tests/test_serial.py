@@ -113,6 +113,10 @@ def test_fuzz_reply_parser_random_bytes(cfg):
 
 
 # -- end to end ----------------------------------------------------------------------------------------
+# a wall-clock loop over a pseudo-terminal: beside another worker at load 3.5 one run tripped on a loop
+# overrun (a cycle 34 ms late), so it runs alone, in CI's real-time pass
+@pytest.mark.slow
+@pytest.mark.realtime
 def test_move_end_to_end_hil_move(cfg, drive, tmp_path, capsys):
     from hil.cli import main
     rc = main(["move", "--config", CONFIG, "--backend", "serial", "--set", f'serial.port="{drive.port}"',
