@@ -112,8 +112,6 @@ def write_plots(cfg, report: dict, out_dir: Path) -> str:
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "bode_tf.png"
     save_figure(fig, path, dpi=110)
-    import matplotlib.pyplot as plt
-    plt.close(fig)
     return str(path)
 
 

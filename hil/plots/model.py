@@ -16,16 +16,43 @@ _TITLES = ["TF1 = x1 / f", "TF2 = x2 / x1", "TF3 = x3 / x2"]
 _UNITS = ["dB re 1 m/N", "dB", "dB"]
 
 
+def _figure(**kw):
+    """A matplotlib figure drawn by Agg, outside pyplot: no global figure manager to close, no
+    backend switched for the rest of the process."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    fig = Figure(**kw)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _frequency_ticks(axis) -> None:
+    """Ticks of a log frequency axis that cost little to draw: decades labelled as plain numbers
+    (0.1, 1, 10, 100; the default 10^n labels go through mathtext, whose first parse cost 0.13 s),
+    the grid between them at 2 and 5 of each decade, and only ticks inside the view (LogLocator
+    gives a decade beyond each end; matplotlib makes each such tick, five artists, before it leaves
+    it undrawn). ``hil model``'s six Bode panels: 390 ticks -> 138, savefig 0.55 -> 0.3 s."""
+    from matplotlib.ticker import LogLocator, NullFormatter, StrMethodFormatter
+
+    class InView(LogLocator):
+        def tick_values(self, vmin, vmax):
+            locs = super().tick_values(vmin, vmax)
+            lo, hi = sorted((vmin, vmax))
+            return locs[(locs >= lo * (1 - 1e-9)) & (locs <= hi * (1 + 1e-9))]
+
+    axis.set_major_locator(InView(10.0))
+    axis.set_major_formatter(StrMethodFormatter("{x:g}"))
+    axis.set_minor_locator(InView(10.0, subs=(2.0, 5.0)))
+    axis.set_minor_formatter(NullFormatter())
+
+
 def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
     """A figure with one column per transfer function: magnitude (dB) above, phase (deg) below.
     ``modes_hz`` are marked by dotted lines, each labelled with its number and frequency."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     f_hz = np.asarray(f_hz, float)
     n = len(tfs)
-    fig, axes = plt.subplots(2, n, figsize=(4.2 * n, 6.0), sharex=True, squeeze=False)
+    fig = _figure(figsize=(4.2 * n, 6.0))
+    axes = fig.subplots(2, n, sharex=True, squeeze=False)
     for j, tf in enumerate(tfs):
         h = tf.freqresp(f_hz)
         mag, ax_p = axes[0, j], axes[1, j]
@@ -45,6 +72,8 @@ def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
         for i, f in enumerate(modes_hz):
             mag.annotate(f"mode {i + 2}\n{f:.4g} Hz", xy=(f, 1.0), xycoords=("data", "axes fraction"),
                          xytext=(2, -2), textcoords="offset points", ha="left", va="top", fontsize=7, color="0.3")
+    # the panels share their x axis, and with it its locators and formatters: set once
+    _frequency_ticks(axes[0, 0].xaxis)
     if title:
         fig.suptitle(title)
     # fixed margins: tight_layout measures every tick label of the log axes and costs more than
@@ -59,8 +88,8 @@ def closed_loop_figure(r, out_dir) -> Path:
     feed-forward, alone and followed by TF3."""
     from pathlib import Path as _P
 
-    import matplotlib.pyplot as plt
-    fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    fig = _figure(figsize=(8, 7))
+    am, ap = fig.subplots(2, 1, sharex=True)
     for h, label, style in ((r.table, "table, with FFV", "-"), (r.table_no_ff, "table, no FFV", "--"),
                             (r.table_tf3, "table x TF3, with FFV", "-"),
                             (r.table_no_ff_tf3, "table x TF3, no FFV", "--")):
@@ -79,5 +108,4 @@ def closed_loop_figure(r, out_dir) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "bode_closed_loop.png"
     save_figure(fig, path, dpi=110)
-    plt.close(fig)
     return path
