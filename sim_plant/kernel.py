@@ -17,8 +17,9 @@ forces return that extra level, 0 without such a term (then the friction is the 
 
 Effects reach the compiled loop as rows of a small table: a code and up to ``N_EFFECT_PARAMS``
 numbers. The Python side of each effect (sim_plant.effects) writes its rows into
-``Plant.effects``; :func:`effect_table` turns them into the arrays the loops take. This module is
-the only place that knows what the codes mean.
+``Plant.effects``; :func:`effect_table` turns them into the arrays the loops take. The codes and
+the layout of their rows are :mod:`sim_plant.terms` (plain numbers, re-exported here: an effect
+writes its rows without importing numba); this module is the only place that acts on them.
 
 A term may act on a reading instead of a force: ``ENCODER_ERROR`` (an encoder's interpolation
 error, sim_plant.effects.encoder) changes what an encoder reads, :func:`reading` (and the
@@ -37,6 +38,8 @@ numba keys a cached compiled function by the stamp of its own source file alone 
 the loops of drivers.control, hil.simulate and drivers.sim inline the stages of this module and
 of drivers.control, so a checkout where those changed and the callers did not (a branch switched, a
 stage edited) would load the loops compiled with the old stages, and give other numbers, silently.
+The same holds for this module's own functions and the codes of sim_plant.terms, which they take
+as constants when compiled.
 :func:`drop_stale_compiled_loops` keeps a hash of the inlined sources beside the package's cache
 and, where it differs, removes the callers' cached loops before numba looks (they compile anew).
 """
@@ -52,6 +55,23 @@ import numpy as np
 from numba import njit
 
 from sim_plant.plant import Plant
+from sim_plant.terms import (
+    BACKLASH,
+    CONSTANT_FORCE,
+    ENCODER_ERROR,
+    FEEDBACK_DELAY,
+    FORCE_ALONG_TRAVEL,
+    LEAD_ERROR_LINEAR,
+    LOAD_FRICTION,
+    MOTOR_ENCODER,
+    N_EFFECT_PARAMS,
+    PITCH_ERROR,
+    STIFFNESS_ALONG_TRAVEL,
+    TABLE_ENCODER,
+    TIME_DELAY,
+    TORQUE_RIPPLE,
+    VISCOUS_ASYMMETRIC,
+)
 
 __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQUE_RIPPLE", "VISCOUS_ASYMMETRIC",
            "TIME_DELAY", "FEEDBACK_DELAY", "STIFFNESS_ALONG_TRAVEL", "LEAD_ERROR_LINEAR", "FORCE_ALONG_TRAVEL",
@@ -61,13 +81,13 @@ __all__ = ["N_EFFECT_PARAMS", "CONSTANT_FORCE", "BACKLASH", "PITCH_ERROR", "TORQ
            "effect_forces_at", "friction_force", "plant_step", "state_size", "mass_token", "njit_cycle",
            "drop_stale_compiled_loops"]
 
-N_EFFECT_PARAMS = 8
-
 # the sources whose stages other files' compiled loops inline, and those loops' cache files (numba's
 # in-tree cache: <folder>/__pycache__/<module>.<function>-<line>.py<ver>.nbi / .nbc), from the folder
 # that holds the three packages (the clone's root, or site-packages)
-INLINED_SOURCES = ("sim_plant/kernel.py", "drivers/control.py")
-INLINING_CACHES = ("drivers/__pycache__/control.", "hil/__pycache__/simulate.", "drivers/__pycache__/sim.")
+# (the kernel's own loops among them: they take the codes of sim_plant/terms.py as constants)
+INLINED_SOURCES = ("sim_plant/kernel.py", "sim_plant/terms.py", "drivers/control.py")
+INLINING_CACHES = ("drivers/__pycache__/control.", "hil/__pycache__/simulate.", "drivers/__pycache__/sim.",
+                   "sim_plant/__pycache__/kernel.")
 SOURCES_STAMP = "sim_plant/__pycache__/numba-inlined-sources.sha256"
 
 
@@ -121,27 +141,6 @@ def njit_cycle(fn):
     option. Where it has, an allocation in ``fn`` fails to compile."""
     return njit(cache=True, **_CYCLE_OPTIONS)(fn)
 
-# effect term codes
-CONSTANT_FORCE = 1       # [mass, force N]
-BACKLASH = 2             # [link i (between mass i and i+1), half gap m, stiffness N/m, damping N s/m]: dead zone in link i
-PITCH_ERROR = 3          # [link, amplitude m, period m, phase rad, stiffness N/m]: lead error x1 -> nut
-TORQUE_RIPPLE = 4        # [amplitude N, period m (of x1), phase rad]: cogging on mass 1
-VISCOUS_ASYMMETRIC = 5   # [mass, extra damping for v>0 N s/m, extra for v<0 N s/m]
-TIME_DELAY = 6           # [delay s]: the command reaches the motor late (drivers.control.loop_terms), no force here
-FEEDBACK_DELAY = 7       # [delay s]: the position loop's feedback is late (drivers.control.loop_terms), no force here
-# [link, its stiffness in the chain N/m, x_start m, x_end m, compliance at x_start, midway, at x_end m/N]:
-# the link's stiffness as a function of the position of mass link+1 (the nut), link_compliance()
-STIFFNESS_ALONG_TRAVEL = 8
-LEAD_ERROR_LINEAR = 9    # [link, strain (lead error per m), x_ref m, stiffness N/m]: x1 -> nut x1 + eps (x1 - x_ref)
-FORCE_ALONG_TRAVEL = 10  # [mass, force at x = 0 N, slope N/m]: f0 + f1 x on that mass (a cable carrier)
-# [encoder (MOTOR_ENCODER, TABLE_ENCODER), signal period m, amplitude of 1 cycle per period m, its phase rad,
-# amplitude of 2 cycles per period m, its phase rad]: the encoder reads x + e(x), no force (reading())
-ENCODER_ERROR = 11
-MOTOR_ENCODER = 0        # the motor's encoder (mass 1)
-TABLE_ENCODER = 1        # the linear scale on the table (the plant's table mass)
-# [link, coefficient (1/eta - 1), stiffness N/m, damping N s/m]: the motor's dry friction level grows by
-# coefficient |k (x_i - x_i+1) + c (v_i - v_i+1)|, the link's force (a ball screw's load-dependent friction)
-LOAD_FRICTION = 12
 
 
 def empty_effects():

@@ -420,8 +420,9 @@ def test_the_fits_linear_algebra_on_one_blas_thread_is_the_same_bits():
 
 def test_cached_loops_are_dropped_when_the_stages_they_inline_change(tmp_path):
     """numba checks a cached loop against its own file alone: where drivers.control's or the kernel's
-    sources change, the loops that inline them (control, simulate, drivers/sim) are removed from the
-    cache, once; other modules' caches and the sources' own stay."""
+    sources change, or the codes of sim_plant.terms, the loops that inline them (control, simulate,
+    drivers/sim) and the kernel's own (compiled with the codes as constants) are removed from the
+    cache, once; other modules' caches stay."""
     from sim_plant.kernel import INLINED_SOURCES, SOURCES_STAMP, drop_stale_compiled_loops
     for f in INLINED_SOURCES:
         (tmp_path / f).parent.mkdir(parents=True, exist_ok=True)
@@ -438,14 +439,16 @@ def test_cached_loops_are_dropped_when_the_stages_they_inline_change(tmp_path):
             (tmp_path / n).write_text("")
         return names
     names = cached()
-    assert sorted(Path(p).relative_to(tmp_path).as_posix() for p in drop_stale_compiled_loops(tmp_path)) == sorted(names[:4])
+    assert sorted(Path(p).relative_to(tmp_path).as_posix() for p in drop_stale_compiled_loops(tmp_path)) == sorted(names[:5])
     assert (tmp_path / SOURCES_STAMP).is_file()
-    assert all((tmp_path / n).exists() for n in names[4:])
+    assert all((tmp_path / n).exists() for n in names[5:])
     cached()
     assert drop_stale_compiled_loops(tmp_path) == []          # the same sources: the cache stands
-    (tmp_path / "drivers" / "control.py").write_text("def stage(): return 2\n")
-    assert len(drop_stale_compiled_loops(tmp_path)) == 4
-    assert drop_stale_compiled_loops(tmp_path) == []
+    for changed in ("drivers/control.py", "sim_plant/terms.py"):
+        (tmp_path / changed).write_text("def stage(): return 2\n")
+        assert len(drop_stale_compiled_loops(tmp_path)) == 5
+        assert drop_stale_compiled_loops(tmp_path) == []
+        cached()
 
 
 def test_the_inlined_sources_are_found_where_the_packages_are():

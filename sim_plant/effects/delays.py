@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.effects.base import Effect, Param, register
 
 __all__ = ["ActuatorDelay", "FeedbackDelay"]
@@ -40,7 +40,7 @@ class ActuatorDelay(Effect):
     lags_the_torque = True
 
     def apply(self, plant, values):
-        return dataclasses.replace(plant, effects=plant.effects + ((kernel.TIME_DELAY, (values["delay"],)),))
+        return dataclasses.replace(plant, effects=plant.effects + ((terms.TIME_DELAY, (values["delay"],)),))
 
     def guess(self, plant, scale):
         return {"delay": 0.25 * scale.get("period", 2e-3)}
@@ -68,7 +68,7 @@ class FeedbackDelay(Effect):
     MAX_PERIODS = 5      # the grid's upper end, position periods
 
     def apply(self, plant, values):
-        return dataclasses.replace(plant, effects=plant.effects + ((kernel.FEEDBACK_DELAY, (values["delay"],)),))
+        return dataclasses.replace(plant, effects=plant.effects + ((terms.FEEDBACK_DELAY, (values["delay"],)),))
 
     def guess(self, plant, scale):
         return {"delay": 0.25 * scale.get("period", 4e-3)}

@@ -53,7 +53,7 @@ import math
 
 import numpy as np
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.effects.base import Effect, Param, register
 
 __all__ = ["EncoderError", "LINES_PER_REVOLUTION", "SCALE_PERIODS", "MAX_FRACTION", "CHANNELS", "harmonics",
@@ -67,7 +67,7 @@ LINES_PER_REVOLUTION = (1, 2, 3, 4, 5, 6, 8, 16, 32, 64, 128, 256, 500, 512, 100
 # signal periods of linear scales, m: interferential (0.512, 2, 4 um), optical (8 to 40 um), magnetic (0.1 to 5 mm)
 SCALE_PERIODS = (0.512e-6, 2e-6, 4e-6, 8e-6, 10e-6, 16e-6, 20e-6, 40e-6, 100e-6, 200e-6, 250e-6, 400e-6, 500e-6,
                  1e-3, 2e-3, 5e-3)
-CHANNELS = ("x_motor", "x_table")     # the recorded channel of each encoder (kernel.MOTOR_ENCODER, TABLE_ENCODER)
+CHANNELS = ("x_motor", "x_table")     # the recorded channel of each encoder (terms.MOTOR_ENCODER, TABLE_ENCODER)
 KEPT = 3                   # (encoder, period) pairs of the screen solved in closed form and costed
 RESOLVED_QUANTA = 16       # the shortest period screened, in quanta of the recorded position (8 per cycle of its 2nd harmonic)
 MIN_MOVING = 64            # moving samples the screen reads (else all of them)
@@ -122,7 +122,7 @@ class EncoderError(Effect):
 
     def apply(self, plant, values):
         enc, per = int(round(values["encoder"])), values["period"]
-        if enc not in (kernel.MOTOR_ENCODER, kernel.TABLE_ENCODER):
+        if enc not in (terms.MOTOR_ENCODER, terms.TABLE_ENCODER):
             raise ValueError(f"{self.name}: encoder must be motor or table (got {values['encoder']!r})")
         if not per > 0:
             raise ValueError(f"{self.name}: period must be positive (got {per:g} m)")
@@ -131,7 +131,7 @@ class EncoderError(Effect):
                 raise ValueError(f"{self.name}: {a} must lie within 0 .. {MAX_FRACTION:.0%} of the period "
                                  f"({MAX_FRACTION * per:.3g} m), got {values[a]:.3g} m")
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.ENCODER_ERROR, (float(enc), per, values["amplitude1"], values["phase1"], values["amplitude2"],
+            (terms.ENCODER_ERROR, (float(enc), per, values["amplitude1"], values["phase1"], values["amplitude2"],
                                     values["phase2"])),))
 
     def guess(self, plant, scale):
@@ -145,7 +145,7 @@ class EncoderError(Effect):
         """The grid of signal periods of encoder ``enc``: a motor turning a screw, pitch / lines per
         revolution; a scale (or a linear motor's encoder), the scales' periods."""
         lo, hi = self.param("period").lower, self.param("period").upper
-        if enc == kernel.MOTOR_ENCODER and plant.pitch:
+        if enc == terms.MOTOR_ENCODER and plant.pitch:
             return [plant.pitch / n for n in LINES_PER_REVOLUTION if lo <= plant.pitch / n <= hi]
         return [p for p in SCALE_PERIODS if lo <= p <= hi]
 
@@ -175,7 +175,7 @@ class EncoderError(Effect):
     def starts(self, ctx, guess):
         given_enc = ctx.given(self.name, "encoder")
         given_per = ctx.given(self.name, "period")
-        encs = [int(round(given_enc))] if given_enc is not None else [kernel.MOTOR_ENCODER, kernel.TABLE_ENCODER]
+        encs = [int(round(given_enc))] if given_enc is not None else [terms.MOTOR_ENCODER, terms.TABLE_ENCODER]
         slow, sel = self._slow(ctx)
         screened = []          # (encoder, period, energy, a1, phi1, a2, phi2)
         for enc in encs:
@@ -214,8 +214,8 @@ class EncoderError(Effect):
         r, x = r[sel], x[sel]
         fmt = ctx.fmt_si
         seen = harmonics(x, r, per, slow)
-        which = "motor" if enc == kernel.MOTOR_ENCODER else "table"
-        rotary_lines = ctx.plant.pitch / per if (enc == kernel.MOTOR_ENCODER and ctx.plant.pitch) else None
+        which = "motor" if enc == terms.MOTOR_ENCODER else "table"
+        rotary_lines = ctx.plant.pitch / per if (enc == terms.MOTOR_ENCODER and ctx.plant.pitch) else None
         lines = (f", {rotary_lines:.6g} per revolution of the motor" if rotary_lines else "")
         text = (f"{chan} residual periodic in the measured position with {fmt(per, 'm', 3)} ({fmt(seen[1], 'm', 2)} "
                 f"at 1, {fmt(seen[3], 'm', 2)} at 2 cycles per period): the {which} encoder's interpolation error, "

@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.chain import Chain
 from sim_plant.effects.base import Effect, Param, register
 from sim_plant.plant import Plant
@@ -20,7 +20,7 @@ from sim_plant.plant import Plant
 __all__ = ["FlexibleTransmission", "edges", "ringing", "RING_WINDOW"]
 
 # link-indexed kernel terms: a link inserted at the drive moves them one link on
-_LINK_TERMS = (kernel.BACKLASH, kernel.PITCH_ERROR, kernel.STIFFNESS_ALONG_TRAVEL, kernel.LOAD_FRICTION)
+_LINK_TERMS = (terms.BACKLASH, terms.PITCH_ERROR, terms.STIFFNESS_ALONG_TRAVEL, terms.LOAD_FRICTION)
 RING_WINDOW = 0.1        # s after each edge of the command in which the residual's ringing is looked for
 
 

@@ -16,7 +16,7 @@ import dataclasses
 
 import numpy as np
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.effects.base import (
     Effect,
     Param,
@@ -191,7 +191,7 @@ class AsymmetricFriction(Effect):
         cg = (0.0,) + tuple(chain.c_ground[1:])
         return dataclasses.replace(
             plant, chain=dataclasses.replace(chain, c_ground=cg), friction=Friction(fp, fn, fp, fn, 0.0),
-            effects=plant.effects + ((kernel.VISCOUS_ASYMMETRIC, (0.0, values["viscous_pos"] * r * r,
+            effects=plant.effects + ((terms.VISCOUS_ASYMMETRIC, (0.0, values["viscous_pos"] * r * r,
                                                                    values["viscous_neg"] * r * r)),))
 
     def guess(self, plant, scale):
@@ -237,7 +237,7 @@ class ConstantForce(Effect):
         if place not in (0, 1):
             raise ValueError(f"{self.name}: place must be motor or table (got {values['place']!r})")
         mass = float(plant.table) if place == 1 else 0.0
-        return dataclasses.replace(plant, effects=plant.effects + ((kernel.CONSTANT_FORCE, (mass, values["force"])),))
+        return dataclasses.replace(plant, effects=plant.effects + ((terms.CONSTANT_FORCE, (mass, values["force"])),))
 
     def guess(self, plant, scale):
         return {"force": 0.1 * scale.get("force", 1.0), "place": 0.0}

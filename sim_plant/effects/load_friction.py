@@ -36,7 +36,7 @@ import dataclasses
 
 import numpy as np
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.effects.base import Effect, Param, level_guess, motor_force_kind, no_link, register, to_linear
 from sim_plant.effects.friction import MIN_MOVING
 from sim_plant.plant import Friction
@@ -78,7 +78,7 @@ class LoadDependentFriction(Effect):
         f = values["preload"] * to_linear(plant)
         ch = plant.chain
         return dataclasses.replace(plant, friction=Friction(f, f, f, f, 0.0), effects=plant.effects + (
-            (kernel.LOAD_FRICTION, (0.0, values["coefficient"], ch.k[0], ch.c[0])),))
+            (terms.LOAD_FRICTION, (0.0, values["coefficient"], ch.k[0], ch.c[0])),))
 
     def guess(self, plant, scale):
         return {"preload": level_guess(plant, scale.get("force", 1.0) / to_linear(plant)),

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.effects.base import Effect, Param, motor_force_kind, register, to_linear
 
 __all__ = ["TorqueRipple"]
@@ -26,7 +26,7 @@ class TorqueRipple(Effect):
 
     def apply(self, plant, values):
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.TORQUE_RIPPLE, (values["amplitude"] * to_linear(plant), values["period"], values["phase"])),))
+            (terms.TORQUE_RIPPLE, (values["amplitude"] * to_linear(plant), values["period"], values["phase"])),))
 
     def guess(self, plant, scale):
         return {"amplitude": 0.05 * scale.get("force", 1.0) / to_linear(plant),

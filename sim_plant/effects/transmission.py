@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.effects.base import Effect, Param, no_link, no_travel, register
 from sim_plant.modal import transmission_mode
 
@@ -38,7 +38,7 @@ class Backlash(Effect):
     def apply(self, plant, values):
         self._need_link(plant)
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.BACKLASH, (0.0, 0.5 * values["gap"], plant.chain.k[0], plant.chain.c[0])),))
+            (terms.BACKLASH, (0.0, 0.5 * values["gap"], plant.chain.k[0], plant.chain.c[0])),))
 
     synth_strength = {"gap": 20e-6}
     # a table that rattles in its gap: 0.25 % of a 35 um gap moves the tip's ringing by its residual
@@ -109,7 +109,7 @@ class StiffnessAlongTravel(Effect):
             raise ValueError(f"{self.name}: x_end must lie beyond x_start (got {x0:g} .. {x1:g} m)")
         c0, c1 = 1.0 / values["k_start"], 1.0 / values["k_end"]
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.STIFFNESS_ALONG_TRAVEL, (0.0, plant.chain.k[0], x0, x1, c0, 0.5 * (c0 + c1), c1)),))
+            (terms.STIFFNESS_ALONG_TRAVEL, (0.0, plant.chain.k[0], x0, x1, c0, 0.5 * (c0 + c1), c1)),))
 
     def guess(self, plant, scale):
         k = plant.chain.k[0] if plant.n >= 2 else 5e7
@@ -149,7 +149,7 @@ class StiffnessFixedFixed(StiffnessAlongTravel):
         if not x1 > x0:
             raise ValueError(f"{self.name}: x_end must lie beyond x_start (got {x0:g} .. {x1:g} m)")
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.STIFFNESS_ALONG_TRAVEL, (0.0, plant.chain.k[0], x0, x1, 1.0 / values["k_start"],
+            (terms.STIFFNESS_ALONG_TRAVEL, (0.0, plant.chain.k[0], x0, x1, 1.0 / values["k_start"],
                                              1.0 / values["k_middle"], 1.0 / values["k_end"])),))
 
     def guess(self, plant, scale):
@@ -176,7 +176,7 @@ class PitchError(Effect):
     def apply(self, plant, values):
         self._need_link(plant)
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.PITCH_ERROR, (0.0, values["amplitude"], values["period"], values["phase"], plant.chain.k[0])),))
+            (terms.PITCH_ERROR, (0.0, values["amplitude"], values["period"], values["phase"], plant.chain.k[0])),))
 
     def guess(self, plant, scale):
         return {"amplitude": 1e-6, "period": plant.pitch or 0.01, "phase": 0.0}

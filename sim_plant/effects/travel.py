@@ -18,7 +18,7 @@ import dataclasses
 
 import numpy as np
 
-from sim_plant import kernel
+from sim_plant import terms
 from sim_plant.effects.base import Effect, Param, no_link, no_travel, register
 
 __all__ = ["ScrewElongation", "CableCarrier", "STEEL_EXPANSION"]
@@ -57,7 +57,7 @@ class ScrewElongation(Effect):
     def apply(self, plant, values):
         self._need_link(plant)
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.LEAD_ERROR_LINEAR, (0.0, values["strain"], values["x_ref"], plant.chain.k[0])),))
+            (terms.LEAD_ERROR_LINEAR, (0.0, values["strain"], values["x_ref"], plant.chain.k[0])),))
 
     def evidence(self, ctx, values):
         eps = values.get("strain", 0.0)
@@ -92,7 +92,7 @@ class CableCarrier(Effect):
 
     def apply(self, plant, values):
         return dataclasses.replace(plant, effects=plant.effects + (
-            (kernel.FORCE_ALONG_TRAVEL, (float(plant.table), values["force"], values["slope"])),))
+            (terms.FORCE_ALONG_TRAVEL, (float(plant.table), values["force"], values["slope"])),))
 
     def guess(self, plant, scale):
         return {"force": 0.1 * scale.get("force", 1.0), "slope": 0.0}
