@@ -116,7 +116,7 @@ def loop(cfg, seconds, spin, ring=None):
                 if be.missed_total != before:     # the answer to the SYNC of cycle i - 1 is not in
                     missed_at.append(i)
                 if fb.fault and not tripped:
-                    tripped = fb.fault
+                    tripped = fb.reason
                 walls[i] = time.time()
                 if ring is not None:
                     ring.write(i * dt, pos, fb.x_motor, fb.x_table, fb.x_tip, pos - fb.x_table, pos - fb.x_table,

@@ -481,3 +481,31 @@ def test_a_dead_link_under_the_library_threads_is_one_line_not_a_traceback(monke
     assert len(calls) <= 0.5 / _BusErrors.IDLE_AFTER_ERROR + 2, len(calls)
     assert be.link.rx_error.startswith("lost communication: the CAN bus failed (") and "\n" not in be.link.rx_error
     be.close()
+
+
+def _judged(guards, syncs, conf):
+    """Which of ``syncs`` ((counter, wall time)) the guards find stale, in order."""
+    return [guards.stale(c, conf, now=t) for c, t in syncs]
+
+
+def test_a_backlog_is_stale_and_a_host_that_paused_with_the_drive_is_not():
+    """After a stall of the drive (its last SYNC: counter 10 at t = 0; 1 ms cycles, the counter
+    wrapping at 240): a backlog, SYNCs queued while the drive stood and taken in a burst when it
+    wakes at 8.5 ms, is discarded until it comes within STALE_CYCLES of the drive's clock; a host
+    that paused with the drive (the whole machine stalled) and sends one SYNC a period from 8 ms
+    on, its counter 8 cycles short of the clock, loses one SYNC, not the 239 of a counter's wrap
+    (before: a lost-link trip of a healthy link, seen in bench_canopen_timing after a stall of the
+    machine)."""
+    from drivers.canopen.drive_guards import STALE_CYCLES, DriveGuards
+    conf = {"overflow": 240, "comm_period": 1e-3}
+    g = DriveGuards(drive=None)
+    g.stall_ref = (10, 0.0)
+    burst = [(10 + k, 8.5e-3 + 1e-6 * k) for k in range(1, 9)] + [(19 + k, 9.5e-3 + 1e-3 * k) for k in range(5)]
+    stale = _judged(g, burst, conf)
+    behind = [8.5 - k for k in range(1, 9)]        # the backlog's cycles behind the drive's clock: 7.5 ... 0.5
+    assert stale[:8] == [b > STALE_CYCLES for b in behind] and not any(stale[8:]) and g.stall_ref is None
+    g = DriveGuards(drive=None)
+    g.stall_ref = (10, 0.0)
+    paced = [(10 + k, 8e-3 + 1e-3 * (k - 1)) for k in range(1, 300)]
+    stale = _judged(g, paced, conf)
+    assert stale[0] and not any(stale[1:]) and g.stall_ref is None, sum(stale)
