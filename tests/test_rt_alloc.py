@@ -23,8 +23,8 @@ CYCLES = 1000
 GROWTH_LIMIT = 24_000
 # the backend's own modules (the simulated drive beside it in this process excluded): nothing but
 # the noise of a received value replaced by one of another size (a small int is shared, a larger
-# one is not)
-OWN_LIMIT = 1000
+# one is not); measured 24 bytes (CANopen) and 0 (serial) over the 1 000 cycles, 2026-12-07
+OWN_LIMIT = 256
 BACKEND_FILES = ("*/drivers/canopen/backend.py", "*/drivers/canopen/link.py",
                  "*/drivers/canopen/tracker.py", "*/drivers/canopen/heartbeat.py",
                  "*/drivers/rt.py", "*/drivers/serial/backend.py", "*/drivers/serial/protocol.py")
