@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import importlib
 
-from drivers.base import LOOPS, Backend, BackendFault, Feedback, Setpoint
+from drivers.base import LOOPS, Backend, BackendFault, Fault, Feedback, Setpoint
 from drivers.errors import BackendError
 
-__all__ = ["BACKENDS", "REAL_BACKENDS", "backend_class", "Backend", "Feedback", "Setpoint", "LOOPS", "BackendFault",
+__all__ = ["BACKENDS", "REAL_BACKENDS", "backend_class", "Backend", "Feedback", "Fault", "Setpoint", "LOOPS", "BackendFault",
            "BackendError"]
 
 # backend type -> "module:class"; each class is built as cls(cfg, **options) (with plant= where the
