@@ -135,7 +135,7 @@ class Feedback:
     @property
     def fault_kind(self) -> StopKind | None:
         """How a run this fault ends stops (None: the default of where it stops, :func:`fault_kind`)."""
-        return _STOP_KIND[self.fault]
+        return self.fault.stop_kind
 
     def set_fault(self, fault: Fault, reason: str) -> None:
         """Report a fault (or, with ``Fault.NONE`` and ``""``, none) in place (real-time)."""
