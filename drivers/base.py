@@ -137,6 +137,12 @@ class Feedback:
         """How a run this fault ends stops (None: the default of where it stops, :func:`fault_kind`)."""
         return self.fault.stop_kind
 
+    @property
+    def fault_line(self) -> str:
+        """The fault's line for a person ("" while well; :data:`UNNAMED_FAULT` where the backend gave
+        none: a fault always stops the axis and says so)."""
+        return (self.reason or UNNAMED_FAULT) if self.fault else ""
+
     def set_fault(self, fault: Fault, reason: str) -> None:
         """Report a fault (or, with ``Fault.NONE`` and ``""``, none) in place (real-time)."""
         self.fault, self.reason = fault, reason

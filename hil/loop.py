@@ -49,7 +49,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from drivers.base import UNNAMED_FAULT, Backend, BackendFault, Feedback, Setpoint, fault_kind
+from drivers.base import Backend, BackendFault, Feedback, Setpoint, fault_kind
 from drivers.control import (
     injected_velocity_cycle,
     measured_speed,
@@ -496,7 +496,7 @@ class ControlLoop:
             fb = b.read_feedback()                                  # read feedback
             if fb.fault and (self._check is None or j != 0):
                 # supervise: the supervisor checks once a tick, a fault between ticks trips it here, the same way
-                reason = fb.reason or UNNAMED_FAULT
+                reason = fb.fault_line
                 if self._latch is None:
                     raise BackendFault(reason, fb.fault_kind)
                 self.trip_kind = fault_kind(fb.fault_kind, StopKind.TRIP)
@@ -507,7 +507,7 @@ class ControlLoop:
             out = self._command(k, j, cmd, fb)                      # profile, position law, velocity law
             if j == 0:
                 self._record(k, cmds[k], v_cmd, fb, out)            # record
-                trip = self._supervise(k, cmd, fb)                  # supervise, before the setpoint goes out
+                trip = self._supervise(k, fb)                       # supervise, before the setpoint goes out
                 if trip:
                     self._stop_after(k, "trip", trip)
                     self.trip_kind = getattr(self.supervisor, "trip_kind", None) or StopKind.TRIP
@@ -545,9 +545,9 @@ class ControlLoop:
         sp.output = u
         return u
 
-    def _supervise(self, k: int, cmd: np.ndarray, fb: Feedback):
+    def _supervise(self, k: int, fb: Feedback):
         """Supervise at position tick ``k``: the supervisor's check of the feedback, and of the
-        setpoint about to go out (``cmd[k + 1]`` on a position-mode drive); the trip's reason or
+        setpoint about to go out (the command of tick ``k + 1`` on a position-mode drive); the trip's reason or
         None (real-time)."""
         if self._check is None:
             return None

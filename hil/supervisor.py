@@ -30,7 +30,6 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
-from drivers.base import UNNAMED_FAULT
 from hil.config import SUPERVISOR_SECTION
 from hil.errors import StopKind, SupervisorTripped, UserError, fault_kind
 
@@ -371,7 +370,7 @@ class Supervisor:
         """The tick's quantities into ``self._q`` (real-time: numbers into the preallocated list;
         the states of the command history, the frozen count and the watchdog move on)."""
         q, T = self._q, self.limits.period
-        q[Q_FAULT] = (fb.reason or UNNAMED_FAULT) if fb.fault else ""
+        q[Q_FAULT] = fb.fault_line
         if self.real_time:
             now = time.perf_counter()
             q[Q_ELAPSED] = now - self._wall if self._wall is not None else _NAN
