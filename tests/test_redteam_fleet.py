@@ -365,6 +365,38 @@ def test_a_parameter_that_moved_without_what_its_effect_does_is_no_flag():
     assert judge_axis("D", es, figs, {}, confirm=confirm(grow=10.0))["verdict"] == drift
 
 
+def test_a_finding_must_take_away_part_of_the_rise_it_is_named_for():
+    """Issue 53: a steady axis U (independent fleet, default options) was flagged for a 0.6 um pitch
+    error on its one night after the baseline. The usual model left 4.8 x the floor at the tip
+    there (the night's plant scattered further than the baseline's), so a rise there was; but the
+    pitch error, fitted beside the usual model, took almost none of it away. A finding counts only
+    where it takes away half the rise (the chain's HALF_GAP), here in closed form: the baseline's
+    unexplained [1.0, 1.2, 1.4] (centre 1.2, sigma 0.2), the night 2.2 (rise 5 sigma); with the
+    finding 2.1 (0.5 sigma taken away: no flag) or 1.6 (3 sigma taken away: the flag stays)."""
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import judge_axis
+    dates = [f"2026-03-{d:02d}" for d in (2, 9, 16, 23)]
+    es = [Entry(f"U_{d}.csv", "U", d) for d in dates]
+    figs = {e.id: _night(0.3, named=["coulomb_friction"] + (["pitch_error"] if i == 3 else []))
+            for i, e in enumerate(es)}
+    usual = [1.0, 1.2, 1.4, 2.2]
+
+    def confirm(with_finding, amplitude=(1e-9, 2e-9, 1.5e-9, 6e-7)):
+        return {e.id: {"values": {"pitch_error.amplitude": a}, "stderr": {"pitch_error.amplitude": 1e-9},
+                       "unexplained": {"x_tip": u}, "unexplained_with": {"pitch_error": {"x_tip": w}}}
+                for e, a, u, w in zip(es, amplitude, usual, [*usual[:3], with_finding])}
+    steady = judge_axis("U", es, figs, {}, confirm=confirm(2.1))
+    assert steady["verdict"] == "ok" and steady["findings"][0]["strength"] == "as in the baseline"
+    grown = judge_axis("U", es, figs, {}, confirm=confirm(1.6))
+    assert grown["verdict"] == "drift: pitch_error since 2026-03-23"
+    assert grown["findings"][0]["strength"] == "moved"
+    # without the finding's figures (not computed) its strength alone decides, as before
+    alone = confirm(2.1)
+    for f in alone.values():
+        del f["unexplained_with"]
+    assert judge_axis("U", es, figs, {}, confirm=alone)["verdict"] == "drift: pitch_error since 2026-03-23"
+
+
 def test_the_confirm_pass_counts_its_progress_over_the_whole_pass(monkeypatch):
     """Each track set was counted on its own ("3/5", then "2/10"); one count over the pass now."""
     from hil.fleet import batch

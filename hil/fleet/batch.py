@@ -223,18 +223,26 @@ def _contributions(good: list[Entry], replay, first: FleetRun, confirm: dict, n_
 def _unexplained(good: list[Entry], replay, confirm: dict) -> None:
     """Each record's residual under the axis's usual model as fitted that night (the ``normal``
     fit): its RMS over the record's noise floor per channel, into ``unexplained`` (1: explained
-    down to the noise). Not real-time: a simulation a record."""
+    down to the noise); and under each finding's model (the usual model with the finding beside
+    it), into ``unexplained_with`` ({finding: {channel: ratio}}): a finding is the cause of a rise
+    of the first only where it takes part of it away (hil.fleet.summary). Not real-time: a
+    simulation a record and model."""
     for e in good:
-        fit = confirm.get(e.id, {}).get("models", {}).get("normal")
-        rp = replay(e) if fit is not None else None
+        models = confirm.get(e.id, {}).get("models", {})
+        rp = replay(e) if "normal" in models else None
         if rp is None:
             continue
-        try:
-            res = rp.residuals(_night_model(rp.cfg, fit, fit["values"]))
-        except (HilError, ValueError, ArithmeticError):     # a value the config cannot hold
-            continue
-        confirm[e.id]["unexplained"] = {c: float(np.sqrt(np.mean(r * r)) / rp.noise[c]) for c, r in res.items()
-                                        if r.size and rp.noise.get(c, 0.0) > 0}
+        for model, fit in models.items():
+            try:
+                res = rp.residuals(_night_model(rp.cfg, fit, fit["values"]))
+            except (HilError, ValueError, ArithmeticError):     # a value the config cannot hold
+                continue
+            ratios = {c: float(np.sqrt(np.mean(r * r)) / rp.noise[c]) for c, r in res.items()
+                      if r.size and rp.noise.get(c, 0.0) > 0}
+            if model == "normal":
+                confirm[e.id]["unexplained"] = ratios
+            else:
+                confirm[e.id].setdefault("unexplained_with", {})[model] = ratios
 
 
 def _night_model(cfg, fit: dict, values: dict):

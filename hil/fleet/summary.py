@@ -11,6 +11,7 @@ import math
 
 from hil.fleet.manifest import Entry
 from hil.fleet.spc import K_SIGMA, SCATTER, control_limits, cusum_alarm, judge_series, new_effects, normal_effects
+from hil.ident.unexplained import HALF_GAP
 
 __all__ = ["judge_fleet", "rows", "N_BASELINE"]
 
@@ -154,8 +155,11 @@ def _unconfirmed_moves(good: list[Entry], confirm: dict | None, name: str, base:
         return set()
     rest = set(range(max(base) + 1, len(good)))
     unexplained = [f.get("unexplained") for f in figs]
-    if finding and all(unexplained) and _channels_moved(unexplained, [{}] * len(good), base, scatter) is False:
-        return rest
+    if finding and all(unexplained):
+        rose = _channels_moved(unexplained, [{}] * len(good), base, scatter)
+        with_it = [f.get("unexplained_with", {}).get(effect) for f in figs]
+        if rose is False or (rose and all(with_it) and not _takes_the_rise(unexplained, with_it, base, scatter)):
+            return rest
     per = [f.get("contribution", {}).get(effect) for f in figs]
     moved = _channels_moved(per, [f.get("floor", {}) for f in figs], base, scatter)
     return rest if moved is False else set()
@@ -168,21 +172,51 @@ def _channels_moved(per: list, floors: list[dict], base: list[int], scatter: flo
     after the baseline or alarming the CUSUM; None where a record has no figures."""
     if not per or any(not c for c in per):
         return None
-    z = [[] for _ in per]
-    for chan in per[0]:
-        vals = [c.get(chan, math.nan) for c in per]
-        try:
-            lim = control_limits([vals[i] for i in base], scatter)
-        except ValueError:
-            continue                # no baseline figure of this channel
-        for i, v in enumerate(vals):
-            s = max(lim.sigma, float(floors[i].get(chan, 0.0)))
-            if math.isfinite(v) and s > 0:
-                z[i].append((v - lim.centre) / s)
-    mean = [sum(zi) / len(zi) if zi else math.nan for zi in z]
+    mean = _mean_z(per, _channel_limits(per, base, scatter), floors)
     after = max(base) + 1
     alarm, _ = cusum_alarm(mean[after:])
     return alarm is not None or any(math.isfinite(m) and abs(m) > K_SIGMA for m in mean[after:])
+
+
+def _takes_the_rise(usual: list[dict], with_it: list[dict], base: list[int], scatter: float) -> bool:
+    """Whether a finding takes away at least :data:`~hil.ident.unexplained.HALF_GAP` of the rise of
+    the usual model's unexplained residual (``usual``, {channel: RMS over the floor} per record)
+    over its baseline on some record after the baseline, with the finding beside the usual model
+    (``with_it``), both standardised by the baseline's limits of ``usual``: the chain's own rule for
+    a step, applied to the nights. A steady axis's night leaves more than its baseline's where its
+    plant scattered further (the tip's ringing follows its stiffness); an effect fitted there takes
+    up a little of it and is no cause of the rise."""
+    lims = _channel_limits(usual, base, scatter)
+    none = [{}] * len(usual)
+    before, after = _mean_z(usual, lims, none), _mean_z(with_it, lims, none)
+    return any(math.isfinite(b) and math.isfinite(a) and b > 0 and b - a >= HALF_GAP * b
+               for b, a in zip(before[max(base) + 1:], after[max(base) + 1:]))
+
+
+def _channel_limits(per: list[dict], base: list[int], scatter: float) -> dict:
+    """Each channel's control limits over the ``base`` records of ``per`` ({channel: SI} per record);
+    a channel without a baseline figure is left out."""
+    lims = {}
+    for chan in per[0]:
+        try:
+            lims[chan] = control_limits([per[i].get(chan, math.nan) for i in base], scatter)
+        except ValueError:
+            continue
+    return lims
+
+
+def _mean_z(per: list[dict], lims: dict, floors: list[dict]) -> list[float]:
+    """Per record, the mean over the channels of its figure's distance from the baseline's centre
+    in the larger of the limits' spread and the record's floor (NaN: no channel to judge)."""
+    out = []
+    for c, floor in zip(per, floors):
+        z = []
+        for chan, lim in lims.items():
+            v, s = c.get(chan, math.nan), max(lim.sigma, float(floor.get(chan, 0.0)))
+            if math.isfinite(v) and s > 0:
+                z.append((v - lim.centre) / s)
+        out.append(sum(z) / len(z) if z else math.nan)
+    return out
 
 
 def _usual_series(good: list[Entry], confirm: dict | None) -> dict:
