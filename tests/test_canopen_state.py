@@ -93,3 +93,37 @@ def test_the_backends_parts_are_short_and_say_whether_they_run_in_the_cycle():
         unmarked = [m for m in contract + ("sync",) if m in vars(cls)
                     and "real-time" not in (inspect.getdoc(getattr(cls, m)) or "")]
         assert unmarked == [], (cls.__name__, unmarked)
+
+
+def test_the_state_is_read_again_after_an_answer_meant_for_another_sdo_client():
+    """Two clients on the drive's one SDO server channel (hil status beside a move) each hear the
+    other's answers; an upload that takes the other's download answer ("Unexpected response
+    0x60") is read again, and a channel that keeps failing still says so."""
+    from types import SimpleNamespace
+
+    import canopen
+
+    from drivers.canopen import cia402
+    from drivers.canopen.statemachine import DriveStateMachine
+
+    class Statusword:
+        def __init__(self, failures):
+            self.failures, self.reads = failures, 0
+
+        @property
+        def raw(self):
+            self.reads += 1
+            if self.reads <= self.failures:
+                raise canopen.SdoCommunicationError("Unexpected response 0x60")
+            return cia402.statusword_for("OPERATION ENABLED")
+
+    def machine(failures):
+        word = Statusword(failures)
+        be = SimpleNamespace(link=SimpleNamespace(stop_cycling=lambda: None), node=SimpleNamespace(sdo={0x6041: word}))
+        return DriveStateMachine(be), word
+    m, word = machine(1)
+    assert m.state() == "OPERATION ENABLED" and word.reads == 2
+    m, word = machine(3)
+    with pytest.raises(canopen.SdoCommunicationError):
+        m.state()
+    assert word.reads == 3

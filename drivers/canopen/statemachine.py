@@ -36,8 +36,18 @@ class DriveStateMachine:
     def __init__(self, backend):
         self.be = backend
 
-    def state(self) -> str:
+    def state(self, tries: int = 3) -> str:
+        """The CiA 402 state from the statusword 0x6041 (an upload). Read again, at most ``tries``
+        times, on an answer that is not the upload's: every client on the drive's one SDO server
+        channel hears every answer (CiA 301 allows one client; ``hil status`` beside a running move
+        is a second), so a download answer of the other client's can arrive first ("Unexpected
+        response 0x60"). A read has no effect to repeat."""
         self.be.link.stop_cycling()
+        for _ in range(tries - 1):
+            try:
+                return cia402.state_from_statusword(self.be.node.sdo[0x6041].raw)
+            except canopen.SdoCommunicationError:
+                time.sleep(0.005)
         return cia402.state_from_statusword(self.be.node.sdo[0x6041].raw)
 
     def enable(self) -> None:
