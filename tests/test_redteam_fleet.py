@@ -397,6 +397,37 @@ def test_a_finding_must_take_away_part_of_the_rise_it_is_named_for():
     assert judge_axis("U", es, figs, {}, confirm=alone)["verdict"] == "drift: pitch_error since 2026-03-23"
 
 
+def test_a_usual_effect_moves_only_where_it_moves_alone_and_beside_the_new_effect():
+    """Issue 53, presence drifts (independent fleet): a constant force of 30 N that appeared on the
+    table took the usual model's backlash gap from 3.9 to 1.2 um (the usual model alone), and left
+    it at 4.0 um fitted beside the force: the gap had not moved. A current loop's lag, named for a
+    delay of 1.5 ms that appeared, bent it the other way (3.9 um alone, 3.6 um beside the lag). A
+    usual effect's move counts where both fits see it; the new effect is flagged either way."""
+    from hil.fleet.batch import _merge
+    from hil.fleet.manifest import Entry
+    from hil.fleet.summary import judge_axis
+    dates = [f"2026-03-{d:02d}" for d in (2, 9, 16, 23)]
+    es = [Entry(f"P_{d}.csv", "P", d) for d in dates]
+    figs = {e.id: _night(0.3, named=["backlash"] + (["constant_force"] if i == 3 else [])) for i, e in enumerate(es)}
+
+    def confirm(alone, beside):
+        out = {}
+        for e, a, b, force in zip(es, alone, beside, [0.1, -0.2, 0.15, 30.0]):
+            out[e.id] = {"values": {}, "stderr": {}}
+            _merge(out[e.id], {"values": {"backlash.gap": a}, "stderr": {"backlash.gap": 1e-9}}, "normal")
+            _merge(out[e.id], {"values": {"backlash.gap": b, "constant_force.force": force},
+                               "stderr": {"backlash.gap": 1e-9, "constant_force.force": 0.05}}, "constant_force")
+        return out
+    gaps = [3.92e-6, 3.83e-6, 3.91e-6]
+    force = "drift: constant_force since 2026-03-23"
+    assert judge_axis("P", es, figs, {}, confirm=confirm(gaps + [1.16e-6], gaps + [4.0e-6]))["verdict"] == force
+    assert judge_axis("P", es, figs, {}, confirm=confirm(gaps + [3.9e-6], gaps + [3.4e-6]))["verdict"] == force
+    both = judge_axis("P", es, figs, {}, confirm=confirm(gaps + [8e-6], gaps + [9e-6]))
+    assert both["verdict"] == "drift: backlash.gap since 2026-03-23, constant_force since 2026-03-23"
+    # the gap's series shown is the one beside the new effect
+    assert both["params"]["backlash.gap"]["values"][-1] == 9e-6
+
+
 def test_the_confirm_pass_counts_its_progress_over_the_whole_pass(monkeypatch):
     """Each track set was counted on its own ("3/5", then "2/10"); one count over the pass now."""
     from hil.fleet import batch

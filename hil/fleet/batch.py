@@ -204,16 +204,18 @@ def _contributions(good: list[Entry], replay, first: FleetRun, confirm: dict, n_
     moved too. A linearised standard error does not see a fit that wandered along a direction the
     record hardly sees (the period of a pitch error of 5 nm, a viscous share traded against a
     level); what the effect does to the record does. (Not real-time: two simulations a record.)"""
-    from hil.fleet.summary import judge_axis
+    from hil.fleet.summary import judge_axis, usual_model
     if not good or not all(e.id in confirm for e in good):
         return
     judged = judge_axis(good[0].axis, good, first.figures, thresholds, n_baseline, scatter, confirm)
     flagged = sorted({n.rsplit(".", 1)[0] for n, p in judged["params"].items()
                       if p["source"] == "confirmed" and p["flagged"]})
+    usual = usual_model(judged["findings"])
     for effect in flagged:
         for e in good:
             models = confirm[e.id].get("models", {})
-            fit = models.get(effect, models.get("normal"))      # a finding's own fit, else the usual model's
+            # a finding's own fit, else the one its strengths were judged from (hil.fleet.summary)
+            fit = models.get(effect) or models.get(usual) or models.get("normal")
             rp = replay(e) if fit is not None else None
             confirm[e.id].setdefault("contribution", {})[effect] = {} if rp is None else contribution(rp, fit, effect)
             if rp is not None:

@@ -37,9 +37,14 @@ DRIFT = {"V": ("coulomb_friction", float(_draw.uniform(2.5, 4.0))), "W": ("backl
 DATES = [(dt.date(2026, 9, 7) + dt.timedelta(days=7 * i)).isoformat() for i in range(NIGHTS)]
 
 
+def night_seed(axis: str, i: int) -> int:
+    """The seed of axis ``axis``'s night ``i``: its plant's scatter and its record's noise."""
+    return int.from_bytes(hashlib.sha256(f"default|{axis}|{DATES[i]}".encode()).digest()[:4], "little")
+
+
 def _record(args):
     out, axis, i = args
-    seed = int.from_bytes(hashlib.sha256(f"default|{axis}|{DATES[i]}".encode()).digest()[:4], "little")
+    seed = night_seed(axis, i)
     bench, night = ivp.scattered(BENCH, np.random.default_rng(seed), SCATTER)
     level, gap = 0.3, 4e-6
     if i == NIGHTS - 1 and axis in DRIFT:
