@@ -36,7 +36,11 @@ def judge_axis(axis: str, entries: list[Entry], figures: dict, thresholds: dict,
     are judged instead of the chain's (``source`` "confirmed"). A finding whose every strength stays within the
     limits of the baseline nights (and within its thresholds) was there all along, too weak for the
     chain to name every night: it is kept in ``findings`` (``strength``: "as in the baseline") and
-    its strengths in ``params`` (``source`` "confirmed"), but it is no flag."""
+    its strengths in ``params`` (``source`` "confirmed"), but it is no flag; so is one that takes
+    away less than half of the rise of what the usual model leaves unexplained
+    (:func:`_takes_the_rise`). Where a finding moved, the usual effects' strengths are those fitted
+    beside it (:func:`usual_model`), and their move counts only where the usual model alone sees it
+    too (:func:`_steady_alone`)."""
     good = [e for e in entries if "error" not in figures.get(e.id, {"error": "not run"})]
     errors = [{"record": e.id, "error": figures.get(e.id, {}).get("error", "not run")}
               for e in entries if e not in good]
