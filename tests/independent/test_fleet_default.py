@@ -37,40 +37,47 @@ DRIFT = {"V": ("coulomb_friction", float(_draw.uniform(2.5, 4.0))), "W": ("backl
 DATES = [(dt.date(2026, 9, 7) + dt.timedelta(days=7 * i)).isoformat() for i in range(NIGHTS)]
 
 
-def night_seed(axis: str, i: int) -> int:
-    """The seed of axis ``axis``'s night ``i``: its plant's scatter and its record's noise."""
-    return int.from_bytes(hashlib.sha256(f"default|{axis}|{DATES[i]}".encode()).digest()[:4], "little")
-
-
-def _record(args):
-    out, axis, i = args
-    seed = night_seed(axis, i)
+def write_night(out, axis: str, i: int, level: float, gap: float, **extra) -> None:
+    """Axis ``axis``'s night ``i`` into ``out``: the bench scattered by :data:`SCATTER` (seeded by the
+    axis and the date), a Coulomb friction ``level`` and a backlash ``gap`` each scattered as well,
+    and any further hidden effect ``extra`` (plant_ivp.Hidden's fields)."""
+    seed = int.from_bytes(hashlib.sha256(f"default|{axis}|{DATES[i]}".encode()).digest()[:4], "little")
     bench, night = ivp.scattered(BENCH, np.random.default_rng(seed), SCATTER)
-    level, gap = 0.3, 4e-6
-    if i == NIGHTS - 1 and axis in DRIFT:
-        effect, size = DRIFT[axis]
-        level, gap = (level * size, gap) if effect == "coulomb_friction" else (level, gap + size)
     level, gap = night(level), night(gap)
     x = ivp.command_sequence(2.0, BENCH.tp, seed=0)
-    ch = ivp.measure(ivp.simulate(bench, x, ivp.Hidden(coulomb_pos=level, coulomb_neg=level, gap=gap)),
-                     seed % 100000)
+    hidden = ivp.Hidden(coulomb_pos=level, coulomb_neg=level, gap=gap, **extra)
+    ch = ivp.measure(ivp.simulate(bench, x, hidden), seed % 100000)
     write(Path(out) / f"{axis}_{DATES[i]}.csv", ch, {"sample_period": f"{BENCH.tp:g} s", "source": "plant_ivp"})
 
 
-@pytest.fixture(scope="module")
-def axes(tmp_path_factory):
-    work = tmp_path_factory.mktemp("fleet-default")
+def judged_fleet(work: Path, record, axes) -> dict:
+    """Every night of ``axes`` written by ``record((folder, axis, night))`` (two processes), then
+    ``hil fleet run`` on them with the default options: axis -> its judgement (no record in error)."""
     (work / "records").mkdir()
     with ProcessPoolExecutor(2) as pool:
-        list(pool.map(_record, [(str(work / "records"), a, i) for a in "UVW" for i in range(NIGHTS)]))
+        list(pool.map(record, [(str(work / "records"), a, i) for a in axes for i in range(NIGHTS)]))
     buf = StringIO()
     with redirect_stdout(buf):
         rc = main(["fleet", "run", str(work / "records"), "--config", str(CFG_PATH), "--out", str(work / "out"),
                    "--json"])
     assert rc == 0
     run = json.loads(buf.getvalue())
-    assert run["records"] == 3 * NIGHTS and run["errors"] == []
+    assert run["records"] == len(axes) * NIGHTS and run["errors"] == []
     return {a["axis"]: a for a in run["axes"]}
+
+
+def _record(args):
+    out, axis, i = args
+    level, gap = 0.3, 4e-6
+    if i == NIGHTS - 1 and axis in DRIFT:
+        effect, size = DRIFT[axis]
+        level, gap = (level * size, gap) if effect == "coulomb_friction" else (level, gap + size)
+    write_night(out, axis, i, level, gap)
+
+
+@pytest.fixture(scope="module")
+def axes(tmp_path_factory):
+    return judged_fleet(tmp_path_factory.mktemp("fleet-default"), _record, "UVW")
 
 
 def _flagged_effects(axis: dict) -> set[str]:

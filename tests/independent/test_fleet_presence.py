@@ -8,11 +8,7 @@ strength drawn (seeded) well beyond the scatter. Each must be flagged on that ni
 effect (or the catalogue effect that nests it or that this record cannot tell from it: a cable
 carrier's force is a constant one with a slope; a current loop's lag of 1.5 ms looks like a delay),
 and in nothing else: the usual effects beside it have not moved."""
-import json
 import sys
-from concurrent.futures import ProcessPoolExecutor
-from contextlib import redirect_stdout
-from io import StringIO
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +16,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import plant_ivp as ivp  # noqa: E402
-from test_fleet_default import BENCH, CFG_PATH, DATES, NIGHTS, SCATTER, night_seed  # noqa: E402
-
-from hil.cli import main  # noqa: E402
-from hil.io.measurement import write  # noqa: E402
+from test_fleet_default import DATES, NIGHTS, judged_fleet, write_night  # noqa: E402
 
 _draw = np.random.default_rng(5353)
 APPEARS = {"F": dict(force=float(_draw.uniform(20.0, 40.0)), force_mass=1),
@@ -34,30 +26,12 @@ NAMES = {"F": {"constant_force", "cable_carrier"}, "L": {"actuator_delay", "feed
 
 def _record(args):
     out, axis, i = args
-    seed = night_seed(axis, i)
-    bench, night = ivp.scattered(BENCH, np.random.default_rng(seed), SCATTER)
-    extra = APPEARS[axis] if i == NIGHTS - 1 else {}
-    x = ivp.command_sequence(2.0, BENCH.tp, seed=0)
-    level, gap = night(0.3), night(4e-6)
-    hidden = ivp.Hidden(coulomb_pos=level, coulomb_neg=level, gap=gap, **extra)
-    ch = ivp.measure(ivp.simulate(bench, x, hidden), seed % 100000)
-    write(Path(out) / f"{axis}_{DATES[i]}.csv", ch, {"sample_period": f"{BENCH.tp:g} s", "source": "plant_ivp"})
+    write_night(out, axis, i, 0.3, 4e-6, **(APPEARS[axis] if i == NIGHTS - 1 else {}))
 
 
 @pytest.fixture(scope="module")
 def axes(tmp_path_factory):
-    work = tmp_path_factory.mktemp("fleet-presence")
-    (work / "records").mkdir()
-    with ProcessPoolExecutor(2) as pool:
-        list(pool.map(_record, [(str(work / "records"), a, i) for a in APPEARS for i in range(NIGHTS)]))
-    buf = StringIO()
-    with redirect_stdout(buf):
-        rc = main(["fleet", "run", str(work / "records"), "--config", str(CFG_PATH), "--out", str(work / "out"),
-                   "--json"])
-    assert rc == 0
-    run = json.loads(buf.getvalue())
-    assert run["records"] == len(APPEARS) * NIGHTS and run["errors"] == []
-    return {a["axis"]: a for a in run["axes"]}
+    return judged_fleet(tmp_path_factory.mktemp("fleet-presence"), _record, sorted(APPEARS))
 
 
 @pytest.mark.slow
