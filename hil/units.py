@@ -2,7 +2,9 @@
 
 Parsing is pint's; this module only fixes the project's conventions: every value inside the
 program is SI, radians are dimensionless, and ``Nm`` means newton metre (pint would read
-nanometre).
+nanometre). The common spellings (``_COMMON_UNITS``: mm, ms, 1/s, N*m, ...) are read from a table
+that tests hold to pint's reading, so that a command reading a shipped config does not pay pint's
+start-up.
 
 The other way, for what a person reads: :func:`fmt` writes an SI value in the unit an engineer of
 feed drives reads (um or mm for a position, ms for a time, Hz, N m, N/um for a stiffness), the unit
@@ -95,6 +97,61 @@ def _registry():
         return pint.UnitRegistry(autoconvert_offset_to_baseunit=True, cache_folder=":auto:")
     except OSError:         # no writable cache folder: build it from the definitions
         return pint.UnitRegistry(autoconvert_offset_to_baseunit=True)
+
+
+# The spellings most quantities are written in (the shipped configs, the options' usual units),
+# read without pint: its import and registry cost 0.25 s, a quarter of a short command such as
+# `hil model`. Each is the unit's kind (its dimension, DIMENSIONS) and its exact SI factor;
+# tests/test_units_common.py holds every entry, with the display units, to pint's own reading,
+# and any other spelling goes to pint.
+_COMMON_UNITS: dict[str, tuple[str, tuple[int, int]]] = {
+    **{u: ("length", f) for u, f in (("m", (1, 1)), ("mm", (1, 10**3)), ("um", (1, 10**6)), ("nm", (1, 10**9)),
+                                      ("cm", (1, 100)), ("km", (1000, 1)))},
+    **{u: ("time", f) for u, f in (("s", (1, 1)), ("ms", (1, 10**3)), ("us", (1, 10**6)), ("min", (60, 1)))},
+    **{u: ("frequency", f) for u, f in (("Hz", (1, 1)), ("kHz", (1000, 1)), ("1/s", (1, 1)), ("/s", (1, 1)),
+                                         ("rad/s", (1, 1)))},
+    **{u: ("speed", f) for u, f in (("m/s", (1, 1)), ("mm/s", (1, 10**3)), ("um/s", (1, 10**6)),
+                                     ("m/min", (1, 60)), ("mm/min", (1, 60000)))},
+    **{u: ("acceleration", f) for u, f in (("m/s^2", (1, 1)), ("m/s**2", (1, 1)), ("mm/s^2", (1, 10**3)),
+                                            ("mm/s**2", (1, 10**3)))},
+    **{u: ("jerk", f) for u, f in (("m/s^3", (1, 1)), ("m/s**3", (1, 1)), ("mm/s^3", (1, 10**3)),
+                                    ("mm/s**3", (1, 10**3)))},
+    **{u: ("mass", f) for u, f in (("kg", (1, 1)), ("g", (1, 10**3)))},
+    **{u: ("inertia", (1, 1)) for u in ("kg*m^2", "kg*m**2")},
+    **{u: ("stiffness", f) for u, f in (("N/m", (1, 1)), ("N/mm", (10**3, 1)), ("N/um", (10**6, 1)))},
+    "N*s/m": ("damping", (1, 1)),
+    **{u: ("force", f) for u, f in (("N", (1, 1)), ("kN", (1000, 1)))},
+    **{u: ("torque", (1, 1)) for u in ("N*m", "N*m/rad")},
+    **{u: ("rot_damping", (1, 1)) for u in ("N*m*s/rad", "N*m*s")},
+    **{u: ("voltage", f) for u, f in (("V", (1, 1)), ("mV", (1, 10**3)))},
+    "N/V": ("force_per_volt", (1, 1)),
+    "V*s/m": ("volt_per_speed", (1, 1)),
+    **{u: ("pressure", f) for u, f in (("Pa", (1, 1)), ("kPa", (10**3, 1)), ("MPa", (10**6, 1)),
+                                        ("GPa", (10**9, 1)))},
+    **{u: ("area", f) for u, f in (("m^2", (1, 1)), ("mm^2", (1, 10**6)))},
+    "m^4": ("area_moment", (1, 1)),     # (not mm^4: pint's factor is (1e-3)**4, not 1e-12)
+    "kg/m^3": ("density", (1, 1)),
+}
+# a number, then a unit that starts with a letter or "/" ("501/s" is 501 per second), or "1/s"
+# after a space ("50 1/s")
+_COMMON = re.compile(r"([+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?)(?:\s*([A-Za-z/][A-Za-z0-9*/^]*)|\s+(1/s))")
+
+
+def _common(text: str, kind: str) -> float | None:
+    """``text`` (normalised) in SI where it is a number and one of :data:`_COMMON_UNITS` of the
+    dimension of ``kind``, computed exactly and rounded once; None for pint to read."""
+    m = _COMMON.fullmatch(text)
+    if m is None:
+        return None
+    entry = _COMMON_UNITS.get(m.group(2) or m.group(3))
+    if entry is None or DIMENSIONS[entry[0]] != DIMENSIONS[kind]:
+        return None
+    number = float(m.group(1))
+    if not abs(number) < 1e200:         # near the float range's end: pint's own arithmetic decides
+        return None
+    from fractions import Fraction
+    num, den = entry[1]
+    return float(Fraction(m.group(1)) * num / den)
 
 
 _DIGIT_GROUPS = re.compile(r"[0-9]_[0-9]")
@@ -263,6 +320,9 @@ def parse(value, kind: str, what: str = "value") -> float:
         except ValueError:
             pass
         check_quantity_text(text, kind, what)
+        out = _common(text, kind)
+        if out is not None:
+            return _rounded(out)
         ureg = _registry()
         try:
             with _quiet_overflow():
@@ -288,7 +348,12 @@ def parse(value, kind: str, what: str = "value") -> float:
         raise UnitError(f"{what}: expected a number or a string with a unit, got {type(value).__name__}")
     if math.isnan(out):
         raise UnitError(f"{what}: NaN is not a {kind}")
-    # Quantities like "10 um" come back as 9.999999999999999e-06: round to 15 significant digits.
+    return _rounded(out)
+
+
+def _rounded(out: float) -> float:
+    """Quantities like "10 um" come back from pint as 9.999999999999999e-06: rounded to 15
+    significant digits (the exact reading of a common unit too, so both read alike)."""
     if out != 0.0 and math.isfinite(out):
         out = float(f"{out:.15g}")
     return out
@@ -439,9 +504,14 @@ DISPLAY_UNITS: dict[str, list[tuple[str, str, float]]] = {
 
 @lru_cache(maxsize=None)
 def _factor(kind: str, pint_unit: str) -> float:
-    """SI value * factor = value in ``pint_unit`` (pint's conversion, cached per unit)."""
+    """SI value * factor = value in ``pint_unit`` (pint's conversion, cached per unit; a common
+    unit's is the same number, had without pint)."""
     if not pint_unit:
         return 1.0
+    entry = _COMMON_UNITS.get(pint_unit)
+    if entry is not None and DIMENSIONS[entry[0]] == DIMENSIONS[kind]:
+        num, den = entry[1]
+        return 1.0 / (num / den)        # as pint divides: 1 / 1e-9 is 999999999.9999999
     ureg = _registry()
     si = ureg.Quantity(1.0, _normalise(SI_UNIT[kind]).replace("^", "**"))
     return float(si.to(pint_unit.replace("^", "**")).magnitude)
