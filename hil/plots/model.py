@@ -59,7 +59,7 @@ def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
         mag.semilogx(f_hz, 20 * np.log10(np.abs(h)))
         ax_p.semilogx(f_hz, np.degrees(np.unwrap(np.angle(h))))
         name = _TITLES[j] if j < len(_TITLES) else f"TF{j + 1} = x{j + 1} / x{j}"
-        mag.set_title(name)
+        mag.set_title(name, y=1.0)      # placed, not measured: the automatic place costs 0.1 s
         mag.set_ylabel(f"magnitude ({_UNITS[j] if j < len(_UNITS) else 'dB'})")
         ax_p.set_ylabel("phase (deg)")
         ax_p.set_xlabel("frequency (Hz)")
