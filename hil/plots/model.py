@@ -26,13 +26,16 @@ def _figure(**kw):
     return fig
 
 
-def _frequency_ticks(axis) -> None:
-    """Ticks of a log frequency axis that cost little to draw: decades labelled as plain numbers
-    (0.1, 1, 10, 100; the default 10^n labels go through mathtext, whose first parse cost 0.13 s),
-    the grid between them at 2 and 5 of each decade, and only ticks inside the view (LogLocator
-    gives a decade beyond each end; matplotlib makes each such tick, five artists, before it leaves
-    it undrawn). ``hil model``'s six Bode panels: 390 ticks -> 138, savefig 0.55 -> 0.3 s."""
-    from matplotlib.ticker import LogLocator, NullFormatter, StrMethodFormatter
+def _frequency_ticks(axes, f_hz) -> None:
+    """Ticks of the panels' shared log frequency axis that cost little to draw: decades labelled
+    as plain numbers (0.1, 1, 10, 100; the default 10^n labels go through mathtext, whose first
+    parse cost 0.13 s), and only ticks inside the view (LogLocator gives a decade beyond each end;
+    matplotlib makes each such tick, five artists, before it leaves it undrawn). The grid between
+    the decades, at 2 and 5 of each, is one line collection per panel, not minor ticks (each tick is
+    five artists: 0.04 s of savefig for the six panels). ``hil model``'s six Bode panels: 390 ticks
+    -> 30, savefig 0.55 -> 0.2 s."""
+    from matplotlib import rcParams
+    from matplotlib.ticker import LogLocator, NullLocator, StrMethodFormatter
 
     class InView(LogLocator):
         def tick_values(self, vmin, vmax):
@@ -40,10 +43,16 @@ def _frequency_ticks(axis) -> None:
             lo, hi = sorted((vmin, vmax))
             return locs[(locs >= lo * (1 - 1e-9)) & (locs <= hi * (1 + 1e-9))]
 
+    axis = axes[0].xaxis            # shared by every panel, with its locators and formatters: set once
     axis.set_major_locator(InView(10.0))
     axis.set_major_formatter(StrMethodFormatter("{x:g}"))
-    axis.set_minor_locator(InView(10.0, subs=(2.0, 5.0)))
-    axis.set_minor_formatter(NullFormatter())
+    axis.set_minor_locator(NullLocator())
+    lo, hi = float(np.min(f_hz)), float(np.max(f_hz))
+    between = [m * 10.0 ** e for e in range(int(np.floor(np.log10(lo))), int(np.ceil(np.log10(hi))) + 1)
+               for m in (2.0, 5.0) if lo <= m * 10.0 ** e <= hi]
+    for ax in axes:
+        ax.vlines(between, 0, 1, transform=ax.get_xaxis_transform(), colors=rcParams["grid.color"],
+                  linewidths=rcParams["grid.linewidth"], alpha=0.3, zorder=0.5)
 
 
 def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
@@ -64,7 +73,7 @@ def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
         ax_p.set_ylabel("phase (deg)")
         ax_p.set_xlabel("frequency (Hz)")
         for ax in (mag, ax_p):
-            ax.grid(True, which="both", alpha=0.3)
+            ax.grid(True, alpha=0.3)
             for f in modes_hz:
                 ax.axvline(f, color="0.5", linestyle=":", linewidth=0.8)
         # each mode named where its line meets the top of the magnitude panel (mode 2 is the first
@@ -72,8 +81,7 @@ def bode_figure(tfs, f_hz, title: str = "", modes_hz=()):
         for i, f in enumerate(modes_hz):
             mag.annotate(f"mode {i + 2}\n{f:.4g} Hz", xy=(f, 1.0), xycoords=("data", "axes fraction"),
                          xytext=(2, -2), textcoords="offset points", ha="left", va="top", fontsize=7, color="0.3")
-    # the panels share their x axis, and with it its locators and formatters: set once
-    _frequency_ticks(axes[0, 0].xaxis)
+    _frequency_ticks(axes.ravel(), f_hz)
     if title:
         fig.suptitle(title)
     # fixed margins: tight_layout measures every tick label of the log axes and costs more than
