@@ -51,7 +51,10 @@ def test_every_common_unit_reads_as_pint_reads_it(monkeypatch):
 
 
 def test_every_display_factor_is_pints(monkeypatch):
+    """Every rung of the display ladders, and every common unit asked for by name (fmt's ``unit``;
+    "/s" alone pint cannot take as a target unit, so it has no factor of pint's to match)."""
     wanted = [(kind, unit) for kind, ladder in U.DISPLAY_UNITS.items() for _, unit, _ in ladder]
+    wanted += [(kind, unit) for unit, (kind, _) in U._COMMON_UNITS.items() if unit != "/s"]
     U._factor.cache_clear()
     fast = [U._factor(*w) for w in wanted]
     monkeypatch.setattr(U, "_COMMON_UNITS", {})
