@@ -32,8 +32,8 @@ def _numbers(seed: int, n: int) -> list[str]:
 
 
 def _texts():
-    for unit, (kind, _) in U._COMMON_UNITS.items():
-        for number in _numbers(hash(unit) % 1000, 40):
+    for i, (unit, (kind, _)) in enumerate(U._COMMON_UNITS.items()):
+        for number in _numbers(i, 40):          # seeded: the same numbers on every run
             for space in ("", " "):
                 if unit == "1/s" and not space:      # "501/s" is 501 per second: "/s"'s case
                     continue
