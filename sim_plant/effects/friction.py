@@ -55,11 +55,19 @@ def force_levels(ctx):
 
 
 def force_levels_per_direction(ctx):
-    """(Fc+, Fc-, c+, c-) of r = Fc+ [v > 0] - Fc- [v < 0] + c+ v [v > 0] + c- v [v < 0] (least squares)."""
-    vm = ctx.v_cmd[ctx.moving]
+    """(Fc+, Fc-, c+, c-) of r = Fc+ [v > 0] - Fc- [v < 0] + c+ v [v > 0] + c- v [v < 0] (least squares).
+    The two directions share no column, so each is its own regression r = Fc + c v. Where one
+    direction's moves run at one speed (the cosine of its constant and v beyond :data:`COLLINEAR`),
+    its split is arbitrary and its level takes the whole (slope 0), as :func:`force_levels` does:
+    2 N m both ways at one feed had split into Fc+ 0.90 and Fc- -3.61 N m."""
+    vm, r = ctx.v_cmd[ctx.moving], ctx.force_residual[ctx.moving]
     pos = (vm > 0).astype(float)
     X = np.column_stack([pos, -(1 - pos), vm * pos, vm * (1 - pos)])
-    cp, *_ = np.linalg.lstsq(X, ctx.force_residual[ctx.moving], rcond=None)
+    cp, *_ = np.linalg.lstsq(X, r, rcond=None)
+    for i, (side, sign) in enumerate(((vm > 0, 1.0), (vm < 0, -1.0))):
+        v = vm[side]
+        if v.size > 2 and abs(float(v.mean())) / float(np.sqrt(np.mean(v * v))) > COLLINEAR:
+            cp[i], cp[2 + i] = sign * float(r[side].mean()), 0.0
     return cp
 
 
