@@ -579,7 +579,7 @@ def _refit_found(replay, cur, found, add, cfg1, fit_nfev, progress):
             cfg1, res1 = joint.cfg, joint.res
         else:
             joint = None
-    k = sum(len(candidate(n, cur.cfg).params) for n in add)
+    k = sum(len(candidate(n, cur.cfg).fitted_params) for n in add)
     return cfg1, res1, joint, bic_score(cur.base_residuals, res1, list(floor), k, floor)
 
 
@@ -610,7 +610,7 @@ def _unpaid(replay, found, add, cfg1, res1) -> list[dict]:
         cfgs = [_without(n, cfg1, replay.cfg) for n in earlier]
         scores = []
         for n, r in zip(earlier, replay.residuals_many(cfgs)):
-            k = len(candidate(n, replay.cfg).params)
+            k = len(candidate(n, replay.cfg).fitted_params)
             scores.append(math.inf if isinstance(r, Exception) else bic_score(r, res1, list(floor), k, floor))
         i = int(np.argmin(scores))
         if not scores[i] <= MIN_SCORE:
@@ -645,7 +645,7 @@ def _unpaid_beside_drift(replay, cur, found, tol, cfg_t, ref=None) -> tuple[dict
             test = _tolerance_test(cur.with_config(_without(name, cur.cfg, replay.cfg)), tol, rest, ref)
             if test is None or not test["within"]:
                 continue
-            k = len(candidate(name, replay.cfg).params)
+            k = len(candidate(name, replay.cfg).fitted_params)
             score = bic_score(replay.residuals(test["_config"]), res_t, list(floor), k, floor)
             if score <= MIN_SCORE and (best is None or score < best[1]):
                 best = (name, score, test)
@@ -951,7 +951,7 @@ def _swap(replay, cur, steps, found, gone, split, fit_nfev, progress) -> ChainSt
     floor = replay.noise
     rest = [n for n in found if n != verdict]
     base = replay.with_config(_without(verdict, cur.cfg, replay.cfg))
-    k_v = len(candidate(verdict, cur.cfg).params)
+    k_v = len(candidate(verdict, cur.cfg).fitted_params)
     own = bic_score(base.base_residuals, cur.base_residuals, list(floor), k_v, floor)   # the verdict's, in the model
     if progress:
         expect(progress, 1)

@@ -182,7 +182,8 @@ def look_alikes(lead: Candidate | None, ranked: list, chans, floor=None, plant=N
             continue
         if _same_physics(lead.effect, c.effect, plant) or _same_physics(c.effect, lead.effect, plant):
             continue
-        k = len(c.params) - len(lead.params)      # the richer one pays for its extra parameters
+        # the richer one pays for its extra fitted parameters (a setting, where it acts, is no freedom)
+        k = len(candidate(c.effect).fitted_params) - len(candidate(lead.effect).fitted_params)
         ahead = bic_score(lead.res, c.res, chans, max(k, 0), floor)
         behind = bic_score(c.res, lead.res, chans, max(-k, 0), floor)
         if max(ahead, behind) <= MIN_SCORE:
@@ -293,7 +294,7 @@ def _members(replay, fc, by_name, res0, max_nfev) -> list:
         else:
             without = evaluate(replay, "+".join(others), res0, max_nfev,
                                start={k: v for k, v in fc.params.items() if not k.startswith(m.name + ".")})
-        sc = bic_score(replay.residuals(without.cfg), res1, chans, len(m.params), replay.noise)
+        sc = bic_score(replay.residuals(without.cfg), res1, chans, len(m.fitted_params), replay.noise)
         members.append({"effect": m.name, "params": vals, "score": float(sc), "significant": sc > MIN_SCORE,
                         "evidence": evidence(m.name, vals, replay, res0, fc.channel, fc.error_before,
                                               fc.error_after, [])})
@@ -530,7 +531,7 @@ def pair_score(simple: Candidate, rich: Candidate, chans, floor=None) -> float:
     as "before", the extra parameters as the penalty). Each candidate's own score counts the
     effective samples of its own residual; comparing two scores would reward a whiter residual
     twice."""
-    k = len(candidate(rich.effect).params) - len(candidate(simple.effect).params)
+    k = len(candidate(rich.effect).fitted_params) - len(candidate(simple.effect).fitted_params)
     return bic_score(simple.res, rich.res, chans, max(k, 0), floor)
 
 

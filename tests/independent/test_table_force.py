@@ -83,3 +83,19 @@ def test_a_backlash_under_a_table_force_shows_only_with_it(tmp_path, force, gap,
     assert found["effects.constant_force.place"] == "table"
     assert found["effects.constant_force.force"] == pytest.approx(force, rel=0.05)
     assert found["effects.backlash.gap"] == pytest.approx(gap, rel=0.05)
+
+
+def test_a_chain_step_pays_for_what_it_fits_not_for_its_settings():
+    # constant_force fits a force; where it acts is a setting (the fit tries both places, it does
+    # not move between them). The chain's step had counted the setting as a parameter too, so a
+    # step paid ln(n) more than the same fit scored in the screen: the two scores are one
+    from hil.ident.chain import _refit_found
+    from hil.ident.fit import evaluate
+    from hil.plant_config import candidate
+    eff = candidate("constant_force", CFG)
+    assert len(eff.params) == 2 and len(eff.fitted_params) == 1
+    rp = Replay(Measurement(_record(float(np.random.default_rng(4).uniform(-300.0, 300.0)), 1), source="plant_ivp"),
+                CFG)
+    c = evaluate(rp, "constant_force")
+    paid = _refit_found(rp, rp, [], ["constant_force"], c.cfg, 40, None)[3]
+    assert paid == pytest.approx(c.score, rel=1e-12)
