@@ -1,6 +1,7 @@
 """``hil fit``: add effects with fitted parameters and write the new config."""
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 
@@ -29,6 +30,11 @@ replays records the fit did not use: their errors (start -> fitted) are printed 
 estimation records' (System Identification practice: estimation and validation data).
 
   hil fit up.csv down.csv --config axis.toml --add asymmetric_friction --validate mixed.csv --out fitted.toml
+
+--refit KEYS refits config keys at the end (a gain the drive was set to, a mass), jointly with
+the added effects' parameters, which were fitted with the keys at their old values:
+
+  hil fit data.csv --config config/paper_bench.toml --add coulomb_friction --refit control.kv,control.kp --out fitted.toml
 
 An effect that makes the (weighted) error worse is refused: nothing is written, one line says
 which and by how much, and the exit status is 2 (with --json the object says "written": false).
@@ -136,7 +142,9 @@ def run(args) -> int:
         # the added effects were fitted with the refit keys at their old values: held there, their
         # values keep that error and the refit's standard errors ignore them (kv 60 and 2 N m of
         # friction: kv 56.7 +- 1.1, kp 4.4 and the level 8.7 standard errors off)
-        refit += [k for k, _ in _step_keys(cfg, steps) if k not in refit and isinstance(new.get(k), float)]
+        # (not one the step left at a bound or could not see: the joint refit has no bounds)
+        refit += [k for k, se in _step_keys(cfg, steps)
+                  if k not in refit and isinstance(new.get(k), float) and math.isfinite(se)]
         new = joint_refit(rp, new, refit, stderr=refit_se)
     res = rp.residuals(new)
     after = {c: float((res[c] ** 2).mean() ** 0.5) for c in rp.channels}
@@ -224,7 +232,6 @@ def _si_unit(key: str, cfg) -> str:
 def fitted_stderr(cfg, steps) -> dict:
     """Standard error (SI) per config key of the fitted parameters: each step's parameters mapped
     to the keys they set (a later step, the joint fit, wins)."""
-    import math
     return {key: se if math.isfinite(se) else None for key, se in _step_keys(cfg, steps)}
 
 
