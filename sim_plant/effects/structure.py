@@ -3,7 +3,9 @@
 An added mode hangs on the chain's last body, and its mass is new or split off that body
 (``origin`` "new" or "lumped": a 2-dof model of a column lumps the column's mass into the
 table's, and the mode found splits it off, the moving mass kept; a setting, not a share, which
-the record could not tell from the mass beside a heavy body); the new mass becomes the tool tip.
+the record could not tell from the mass beside a heavy body). The tool tip is measured on the new
+mass (``tip`` "mode") or where the model measured it, the mode lying past it (``tip`` "kept": a
+tool or a fixture that the tip's sensor does not see, which loads the tip at its own frequency).
 
 Its starts (:meth:`CompliantMode.starts`): coupled to the chain, the new mode does not show at its
 own frequency (the measured resonances move), so for modal masses of 0.05 to 1.5 times the tip
@@ -17,8 +19,10 @@ two best masses the natural frequency (:attr:`CompliantMode.GRID_FREQS` log-spac
 :attr:`CompliantMode.GRID_FMIN` to the record's 0.45 / sample period); each line refined between
 its best point's neighbours (``ctx.grid_starts``). The fits start from the cheapest of each: the
 peaks, the grid (a light fast mode and a heavy slow one shift the chain's own resonance alike, the
-grid tells them apart) and, where the mode hangs on the table (:meth:`CompliantMode.may_split`),
-the peaks with the mass split off.
+grid tells them apart), the grid's frequencies again with the tip kept (a mode past the tip puts
+no peak of its own in the tip's residual: the independent simulator's 0.5 kg at 60 Hz showed only as
+the tip mode's shift, and was named a heavier tip) and, where the mode hangs on the table
+(:meth:`CompliantMode.may_split`), the peaks with the mass split off.
 """
 from __future__ import annotations
 
@@ -36,14 +40,19 @@ __all__ = ["CompliantMode", "MassChange"]
 class CompliantMode(Effect):
     name = "compliant_mode"
     description = ("an extra mass-spring-damper at the tool tip (a structural mode the model lacks), new or "
-                   "split off the mass the model held rigidly there; the new mass becomes the tool tip")
+                   "split off the mass the model held rigidly there; the new mass becomes the tool tip, or the mode "
+                   "lies past the measured tip")
     params = (Param("mass", "mass", 1e-3, 1e4, 5.0, "modal mass of the extra mode"),
               Param("frequency", "frequency", 0.5, 1e3, 20.0, "natural frequency of the extra mode (Hz)"),
               Param("damping_ratio", "dimensionless", 1e-4, 1.0, 0.02, "its damping ratio"),
               Param("origin", "dimensionless", 0.0, 1.0, 0.0,
                     "where the modal mass comes from: new on the axis, or lumped (the model held it rigidly in "
                     "the body the mode hangs on; split off it, the moving mass is kept) (a setting)",
-                    fit=False, choices=("new", "lumped")))
+                    fit=False, choices=("new", "lumped")),
+              Param("tip", "dimensionless", 0.0, 1.0, 0.0,
+                    "where the tool tip is measured: on the mode's mass, or kept where the model measures it, the "
+                    "mode lying beyond (a tool or a fixture that the tip's sensor does not see) (a setting)",
+                    fit=False, choices=("mode", "kept")))
 
     def apply(self, plant, values):
         m, f, z = values["mass"], values["frequency"], values["damping_ratio"]
@@ -55,13 +64,16 @@ class CompliantMode(Effect):
         if host <= 0:
             raise ValueError(f"compliant_mode: {m:g} kg split off the {ch.m[-1]:g} kg it hangs on leaves {host:g} kg")
         chain = Chain(ch.m[:-1] + (host, m), ch.k + (k,), ch.c + (c,), ch.c_ground + (0.0,))
-        return dataclasses.replace(plant, chain=chain, tip=ch.n)
+        return dataclasses.replace(plant, chain=chain, tip=plant.tip if self._kept(values) else ch.n)
 
     def _lumped(self, values) -> bool:
         return self.param("origin").written(values.get("origin", 0.0)) == "lumped"
 
+    def _kept(self, values) -> bool:
+        return self.param("tip").written(values.get("tip", 0.0)) == "kept"
+
     synth_strength = {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02}
-    screen_starts = 3          # the residual's peaks, the grid, the peaks split off: basins apart, each screened
+    screen_starts = 4          # the residual's peaks, the grid, the peaks beyond the tip, the peaks split off: basins apart, each screened
     GRID_FREQS = 12            # natural frequencies of the grid
     GRID_FMIN = 2.0            # Hz, the grid's lower end
     GRID_RATIOS = (0.02, 2.0)  # the grid's modal masses, relative to the tip mass: lowest, highest
@@ -96,13 +108,14 @@ class CompliantMode(Effect):
         m, host = values.get("mass", 0.0), ctx.plant.chain.m[-1]
         split = (f"; its {m:.3g} kg split off the {host:.4g} kg body it hangs on, which held it rigidly (now "
                  f"{host - m:.4g} kg)" if self._lumped(values) else "")
-        return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}; "
+        past = "; past the measured tip, which its sensor does not see" if self._kept(values) else ""
+        return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}{past}; "
 
     def starts(self, ctx, guess):
         # the cheapest start from the residual's peaks, of the grid and, where the mode may be split
         # off, of the peaks with the mass split off: the cheapest start is not always in the deepest
         # basin, and a split start cheaper than a new mass's must not take its place
-        lines = [self.peak_starts(ctx, guess), self.grid_starts(ctx)]
+        lines = [self.peak_starts(ctx, guess), self.grid_starts(ctx), self.grid_starts(ctx, kept=True)]
         if self.may_split(ctx.plant):
             lines.append(self.peak_starts(ctx, guess, lumped=True))
         return [s for line in lines for s in ctx.prefilter(self, line, keep=1)]
@@ -116,7 +129,7 @@ class CompliantMode(Effect):
         tip's whole mass, 4.227 of 4.228 kg, on a 22 Hz spring)."""
         return plant.table == plant.chain.n - 1
 
-    def peak_starts(self, ctx, guess, lumped: bool = False) -> list[dict]:
+    def peak_starts(self, ctx, guess, lumped: bool = False, kept: bool = False) -> list[dict]:
         """For each modal mass (relative to the tip mass; split off the last body, :attr:`LUMPED_RATIOS`
         of it, where ``lumped``) the natural frequency that puts one of the coupled chain's modes on a peak of the
         residual spectrum, with a low damping."""
@@ -127,6 +140,7 @@ class CompliantMode(Effect):
         m_ref = plant.chain.m[-1] if lumped else plant.chain.m[plant.tip]
         f_grid = np.geomspace(0.5, fmax, 240)
         origin = self.param("origin").number("lumped" if lumped else "new")
+        tip = self.param("tip").number("kept" if kept else "mode")
         starts = []
         for ratio in (self.LUMPED_RATIOS if lumped else self.PEAK_RATIOS):
             m = ratio * m_ref
@@ -140,22 +154,26 @@ class CompliantMode(Effect):
                     if best is None or d < best[0]:
                         best = (d, fn)
                 if best[0] < 0.03:
-                    starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01, "origin": origin})
-            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "origin": origin})
+                    starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01, "origin": origin,
+                                   "tip": tip})
+            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "origin": origin, "tip": tip})
         return starts
 
-    def grid_starts(self, ctx) -> list[dict]:
+    def grid_starts(self, ctx, kept: bool = False) -> list[dict]:
         """The coarse grid (the module's definition): the modal mass with the mode stiff, then the
-        natural frequency at the best masses; the cheapest two of each line."""
+        natural frequency at the best masses, the tip measured on the mode's mass or, ``kept``,
+        where the model measures it; the cheapest two of each line."""
         m_tip = ctx.plant.chain.m[ctx.plant.tip]
         p = self.param("frequency")
         fmax = min(0.45 / ctx.sample_period, p.upper)
         freqs = np.geomspace(max(self.GRID_FMIN, p.lower), fmax, self.GRID_FREQS)
-        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "origin": 0.0}
+        masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "origin": 0.0,
+                   "tip": 0.0}
                   for r in np.geomspace(self.GRID_RATIOS[0], self.GRID_RATIOS[1], self.GRID_MASSES)]
         out = ctx.grid_starts(self, masses, keep=2, fine=3)
+        tip = self.param("tip").number("kept" if kept else "mode")
         for best in list(out):
-            out += ctx.grid_starts(self, [dict(best, frequency=float(f)) for f in freqs], keep=2, fine=3)
+            out += ctx.grid_starts(self, [dict(best, frequency=float(f), tip=tip) for f in freqs], keep=2, fine=3)
         return out
 
 

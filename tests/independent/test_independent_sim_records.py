@@ -24,7 +24,6 @@ CASES = sorted(p.parent for p in DATA.glob("*/*/truth.json")) if DATA.is_dir() e
 # what the diagnosis does on the records it still gets wrong (open findings, not targets)
 KNOWN = {
     "c12": "a 5 % mass mismatch: nothing named above the config's own tolerance",
-    "h15": "a light tool-side mode named as the tip's mass (parameter:plant.m3)",
 }
 
 
