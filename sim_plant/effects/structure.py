@@ -73,7 +73,7 @@ class CompliantMode(Effect):
         return self.param("tip").written(values.get("tip", 0.0)) == "kept"
 
     synth_strength = {"mass": 2.0, "frequency": 25.0, "damping_ratio": 0.02}
-    screen_starts = 4          # the residual's peaks, the grid, the peaks beyond the tip, the peaks split off: basins apart, each screened
+    screen_starts = 4          # the residual's peaks, the grid, the grid past the tip, the peaks split off: basins apart
     GRID_FREQS = 12            # natural frequencies of the grid
     GRID_FMIN = 2.0            # Hz, the grid's lower end
     GRID_RATIOS = (0.02, 2.0)  # the grid's modal masses, relative to the tip mass: lowest, highest
@@ -112,9 +112,10 @@ class CompliantMode(Effect):
         return f"residual peak at {f:.1f} Hz in {ctx.chan}, {tail}{split}{past}; "
 
     def starts(self, ctx, guess):
-        # the cheapest start from the residual's peaks, of the grid and, where the mode may be split
-        # off, of the peaks with the mass split off: the cheapest start is not always in the deepest
-        # basin, and a split start cheaper than a new mass's must not take its place
+        # the cheapest start from the residual's peaks, of the grid, of the grid with the tip kept and,
+        # where the mode may be split off, of the peaks with the mass split off: the cheapest start is
+        # not always in the deepest basin, and a split start cheaper than a new mass's must not take
+        # its place
         lines = [self.peak_starts(ctx, guess), self.grid_starts(ctx), self.grid_starts(ctx, kept=True)]
         if self.may_split(ctx.plant):
             lines.append(self.peak_starts(ctx, guess, lumped=True))
@@ -129,7 +130,7 @@ class CompliantMode(Effect):
         tip's whole mass, 4.227 of 4.228 kg, on a 22 Hz spring)."""
         return plant.table == plant.chain.n - 1
 
-    def peak_starts(self, ctx, guess, lumped: bool = False, kept: bool = False) -> list[dict]:
+    def peak_starts(self, ctx, guess, lumped: bool = False) -> list[dict]:
         """For each modal mass (relative to the tip mass; split off the last body, :attr:`LUMPED_RATIOS`
         of it, where ``lumped``) the natural frequency that puts one of the coupled chain's modes on a peak of the
         residual spectrum, with a low damping."""
@@ -140,7 +141,6 @@ class CompliantMode(Effect):
         m_ref = plant.chain.m[-1] if lumped else plant.chain.m[plant.tip]
         f_grid = np.geomspace(0.5, fmax, 240)
         origin = self.param("origin").number("lumped" if lumped else "new")
-        tip = self.param("tip").number("kept" if kept else "mode")
         starts = []
         for ratio in (self.LUMPED_RATIOS if lumped else self.PEAK_RATIOS):
             m = ratio * m_ref
@@ -155,8 +155,8 @@ class CompliantMode(Effect):
                         best = (d, fn)
                 if best[0] < 0.03:
                     starts.append({"mass": m, "frequency": float(best[1]), "damping_ratio": 0.01, "origin": origin,
-                                   "tip": tip})
-            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "origin": origin, "tip": tip})
+                                   "tip": 0.0})
+            starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "origin": origin, "tip": 0.0})
         return starts
 
     def grid_starts(self, ctx, kept: bool = False) -> list[dict]:
