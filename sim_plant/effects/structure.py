@@ -116,7 +116,7 @@ class CompliantMode(Effect):
         # where the mode may be split off, of the peaks with the mass split off: the cheapest start is
         # not always in the deepest basin, and a split start cheaper than a new mass's must not take
         # its place
-        lines = [self.peak_starts(ctx, guess), self.grid_starts(ctx), self.grid_starts(ctx, kept=True)]
+        lines = [self.peak_starts(ctx, guess), *self.grid_starts(ctx)]
         if self.may_split(ctx.plant):
             lines.append(self.peak_starts(ctx, guess, lumped=True))
         return [s for line in lines for s in ctx.prefilter(self, line, keep=1)]
@@ -159,10 +159,11 @@ class CompliantMode(Effect):
             starts.append({"mass": m, "frequency": targets[0], "damping_ratio": 0.01, "origin": origin, "tip": 0.0})
         return starts
 
-    def grid_starts(self, ctx, kept: bool = False) -> list[dict]:
+    def grid_starts(self, ctx) -> tuple[list[dict], list[dict]]:
         """The coarse grid (the module's definition): the modal mass with the mode stiff, then the
-        natural frequency at the best masses, the tip measured on the mode's mass or, ``kept``,
-        where the model measures it; the cheapest two of each line."""
+        natural frequency at the best masses, the tip measured on the mode's mass and, a second
+        line on the same masses, where the model measures it (``tip`` kept); the cheapest two of
+        each line."""
         m_tip = ctx.plant.chain.m[ctx.plant.tip]
         p = self.param("frequency")
         fmax = min(0.45 / ctx.sample_period, p.upper)
@@ -170,11 +171,14 @@ class CompliantMode(Effect):
         masses = [{"mass": float(r * m_tip), "frequency": float(fmax), "damping_ratio": self.GRID_DAMPING, "origin": 0.0,
                    "tip": 0.0}
                   for r in np.geomspace(self.GRID_RATIOS[0], self.GRID_RATIOS[1], self.GRID_MASSES)]
-        out = ctx.grid_starts(self, masses, keep=2, fine=3)
-        tip = self.param("tip").number("kept" if kept else "mode")
-        for best in list(out):
-            out += ctx.grid_starts(self, [dict(best, frequency=float(f), tip=tip) for f in freqs], keep=2, fine=3)
-        return out
+        stiff = ctx.grid_starts(self, masses, keep=2, fine=3)
+        lines = []
+        for tip in (self.param("tip").number(t) for t in ("mode", "kept")):
+            line = list(stiff)
+            for best in stiff:
+                line += ctx.grid_starts(self, [dict(best, frequency=float(f), tip=tip) for f in freqs], keep=2, fine=3)
+            lines.append(line)
+        return lines[0], lines[1]
 
 
 @register
